@@ -1,0 +1,31 @@
+# Two commands do all set-up on a fresh machine: `make run` and `make test`.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: run test lint stress bench clean
+
+$(STAMP): pyproject.toml
+	python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[test,dev]"
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(VENV)/bin/warpimpulse simulate --scene tree127 --duration 10 --fps 30 --out tree127.usdc
+
+test: $(STAMP)
+	$(PY) -m pytest -q -m "not slow" tests
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .
+
+stress: $(STAMP)
+	$(VENV)/bin/warpimpulse stress
+
+bench: $(STAMP)
+	$(PY) -m pip install -q -e ".[bench]"
+	$(PY) benchmarks/paper_tables.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info tree127.usdc

@@ -1,0 +1,302 @@
+"""SceneBuilder: bodies, joints and forces described on the host, validated, then finalized to a Model.
+
+Anchors and axes are given in world coordinates at build time and stored in each body's frame.
+Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see `joints.py`.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .joints import JOINT_TYPES, ConstraintKind
+from .shapes import Shape
+from .transforms import quat_conj, quat_mul, quat_rotate
+
+if TYPE_CHECKING:
+    from .model import Model
+
+WORLD = -1
+
+
+class SceneError(ValueError):
+    """Invalid scene input: the message names the body, joint or value at fault."""
+
+
+@dataclass
+class Body:
+    name: str
+    mass: float  # 0 for static bodies
+    inertia: np.ndarray  # 3x3, body frame, about the centre of mass
+    position: np.ndarray
+    orientation: np.ndarray  # (x, y, z, w)
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray  # world frame
+    shape: Shape | None = None
+    static: bool = False
+
+
+@dataclass
+class Constraint:
+    """One basic constraint between body0 (parent side, may be WORLD) and body1 (child side)."""
+
+    kind: ConstraintKind
+    body0: int
+    body1: int
+    anchor0: np.ndarray  # point on body0, body0 frame (world frame when body0 is WORLD)
+    anchor1: np.ndarray  # point on body1, body1 frame
+    axis0: np.ndarray  # body0 frame: line direction, plane normal, common axis, or first angle axis
+    axis1: np.ndarray  # body1 frame: common axis or second angle axis
+    rest_rotation: np.ndarray  # q0^-1 q1 at build time, for FIXED_ROTATION
+    rest_angle: float  # angle between axis0 and axis1 at build time, for ANGLE
+    joint: int
+
+
+@dataclass
+class Joint:
+    name: str
+    kind: str
+    parent: int
+    child: int
+    anchor: np.ndarray  # world, at build time
+    axis: np.ndarray | None
+    axis_child: np.ndarray | None
+    constraints: list[int] = field(default_factory=list)
+
+
+@dataclass
+class Force:
+    """A constant world-frame force (at the centre of mass) and torque, active while t < until."""
+
+    body: int
+    force: np.ndarray
+    torque: np.ndarray
+    until: float = math.inf
+
+
+def _vec(value, what: str, n: int = 3) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise SceneError(f"{what} must have {n} components, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f"{what} contains NaN or Inf: {arr.tolist()}")
+    return arr
+
+
+def _axis(value, what: str) -> np.ndarray:
+    arr = _vec(value, what)
+    norm = float(np.linalg.norm(arr))
+    if norm < 1e-12:
+        raise SceneError(f"{what} is a zero vector")
+    return arr / norm
+
+
+class SceneBuilder:
+    """Collects a scene. Call `finalize()` to get the device-side `Model`."""
+
+    def __init__(self, gravity=(0.0, 0.0, -9.81)) -> None:
+        self.gravity = _vec(gravity, "gravity")
+        self.bodies: list[Body] = []
+        self.joints: list[Joint] = []
+        self.constraints: list[Constraint] = []
+        self.forces: list[Force] = []
+
+    # ---------------------------------------------------------------- bodies
+    def add_body(
+        self,
+        mass: float,
+        inertia,
+        position,
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        linear_velocity=0.0,
+        angular_velocity=0.0,
+        name: str | None = None,
+        shape: Shape | None = None,
+    ) -> int:
+        """Add a dynamic body. `inertia`: 3x3 body-frame tensor about the centre of mass, or 3 moments."""
+        name = name or f"body{len(self.bodies)}"
+        what = f"body {name!r}"
+        mass = float(mass)
+        if not math.isfinite(mass) or mass <= 0.0:
+            raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
+        return self._append_body(
+            name, mass, self._inertia(inertia, what), position, orientation,
+            linear_velocity, angular_velocity, shape, static=False,
+        )  # fmt: skip
+
+    def add_static_body(
+        self, position, orientation=(0.0, 0.0, 0.0, 1.0), name: str | None = None, shape: Shape | None = None
+    ) -> int:
+        """Add a body that never moves (infinite mass); joints may attach to it like to the world."""
+        name = name or f"body{len(self.bodies)}"
+        return self._append_body(name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True)
+
+    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
+        what = f"body {name!r}"
+        if any(b.name == name for b in self.bodies):
+            raise SceneError(f"{what}: a body of that name already exists")
+        q = _vec(orientation, f"{what} orientation", 4)
+        norm = float(np.linalg.norm(q))
+        if norm < 1e-9:
+            raise SceneError(f"{what}: orientation quaternion is zero")
+        if abs(norm - 1.0) > 1e-6:
+            warnings.warn(f"{what}: orientation quaternion has norm {norm:.6g}; normalised", stacklevel=3)
+        self.bodies.append(
+            Body(
+                name=name,
+                mass=mass,
+                inertia=inertia,
+                position=_vec(position, f"{what} position"),
+                orientation=q / norm,
+                linear_velocity=_vec(v, f"{what} linear_velocity"),
+                angular_velocity=_vec(w, f"{what} angular_velocity"),
+                shape=shape,
+                static=static,
+            )
+        )
+        return len(self.bodies) - 1
+
+    @staticmethod
+    def _inertia(inertia, what: str) -> np.ndarray:
+        arr = np.asarray(inertia, dtype=np.float64)
+        if arr.shape == (3,):
+            arr = np.diag(arr)
+        if arr.shape != (3, 3):
+            raise SceneError(f"{what}: inertia must be 3 moments or a 3x3 tensor, got shape {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise SceneError(f"{what}: inertia contains NaN or Inf")
+        scale = max(float(np.abs(arr).max()), 1e-300)
+        if np.abs(arr - arr.T).max() > 1e-9 * scale:
+            raise SceneError(f"{what}: inertia tensor is not symmetric")
+        moments = np.linalg.eigvalsh(arr)
+        if moments.min() <= 0.0:
+            raise SceneError(f"{what}: inertia tensor is not positive definite (moments {moments.tolist()})")
+        a, b, c = moments
+        if a + b < c * (1.0 - 1e-9):
+            raise SceneError(f"{what}: principal moments {moments.tolist()} break the triangle inequality")
+        return 0.5 * (arr + arr.T)
+
+    # ---------------------------------------------------------------- joints
+    def add_joint_ball(self, parent, child, anchor, name=None) -> int:
+        return self.add_joint("ball", parent, child, anchor, None, None, name)
+
+    def add_joint_revolute(self, parent, child, anchor, axis, name=None) -> int:
+        return self.add_joint("revolute", parent, child, anchor, axis, None, name)
+
+    def add_joint_prismatic(self, parent, child, anchor, axis, name=None) -> int:
+        return self.add_joint("prismatic", parent, child, anchor, axis, None, name)
+
+    def add_joint_cylindrical(self, parent, child, anchor, axis, name=None) -> int:
+        return self.add_joint("cylindrical", parent, child, anchor, axis, None, name)
+
+    def add_joint_universal(self, parent, child, anchor, axis_parent, axis_child, name=None) -> int:
+        return self.add_joint("universal", parent, child, anchor, axis_parent, axis_child, name)
+
+    def add_joint_fixed(self, parent, child, anchor, name=None) -> int:
+        return self.add_joint("fixed", parent, child, anchor, None, None, name)
+
+    def add_joint_planar(self, parent, child, anchor, normal, name=None) -> int:
+        return self.add_joint("planar", parent, child, anchor, normal, None, name)
+
+    def add_constraint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None) -> int:
+        """A joint made of one basic constraint (`ConstraintKind` or its name, e.g. "line").
+
+        Combine several on the same pair of bodies to build custom joints. Returns the joint index.
+        """
+        kind = ConstraintKind.parse(kind)
+        return self.add_joint(kind.name.lower(), parent, child, anchor, axis, axis_child, name, (kind,))
+
+    def _body_index(self, index, what: str) -> int:
+        if index is None:
+            return WORLD
+        if isinstance(index, str):
+            for i, b in enumerate(self.bodies):
+                if b.name == index:
+                    return i
+            raise SceneError(f"{what}: no body named {index!r}")
+        if not isinstance(index, (int, np.integer)) or not 0 <= int(index) < len(self.bodies):
+            raise SceneError(f"{what}: body index {index!r} does not exist ({len(self.bodies)} bodies)")
+        return int(index)
+
+    def add_joint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None, kinds=None) -> int:
+        """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this."""
+        name = name or f"joint{len(self.joints)}"
+        what = f"joint {name!r}"
+        p = self._body_index(parent, f"{what} parent")
+        c = self._body_index(child, f"{what} child")
+        if c == WORLD:
+            raise SceneError(f"{what}: the child must be a body, not the world")
+        if p == c:
+            raise SceneError(f"{what}: connects body {self.bodies[c].name!r} to itself")
+        if (p == WORLD or self.bodies[p].static) and self.bodies[c].static:
+            raise SceneError(f"{what}: both bodies are static; the joint constrains nothing")
+        if kinds is None:
+            if kind not in JOINT_TYPES:
+                raise SceneError(f"{what}: unknown joint type {kind!r}; expected one of {sorted(JOINT_TYPES)}")
+            kinds = JOINT_TYPES[kind]
+        needs_axis = any(k.needs_axis for k in kinds)
+        needs_child_axis = any(k == ConstraintKind.ANGLE for k in kinds)
+        anchor = _vec(anchor, f"{what} anchor")
+        axis = _axis(axis, f"{what} axis") if needs_axis or axis is not None else None
+        if needs_child_axis:
+            axis_child = _axis(axis_child if axis_child is not None else axis, f"{what} child axis")
+            if abs(float(np.dot(axis, axis_child))) > 1.0 - 1e-9:
+                raise SceneError(f"{what}: the two axes of an angle constraint are parallel")
+        else:
+            axis_child = None
+        joint = Joint(name, kind, p, c, anchor, axis, axis_child)
+        self.joints.append(joint)
+        for k in kinds:
+            joint.constraints.append(len(self.constraints))
+            self.constraints.append(self._make_constraint(k, p, c, anchor, axis, axis_child, len(self.joints) - 1))
+        return len(self.joints) - 1
+
+    def _frame(self, b: int) -> tuple[np.ndarray, np.ndarray]:
+        if b == WORLD:
+            return np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
+        return self.bodies[b].position, self.bodies[b].orientation
+
+    def _make_constraint(self, kind, p, c, anchor, axis, axis_child, joint) -> Constraint:
+        x0, q0 = self._frame(p)
+        x1, q1 = self._frame(c)
+        a0 = axis if axis is not None else np.array([0.0, 0.0, 1.0])
+        a1 = axis_child if axis_child is not None else a0
+        return Constraint(
+            kind=kind,
+            body0=p,
+            body1=c,
+            anchor0=quat_rotate(quat_conj(q0), anchor - x0),
+            anchor1=quat_rotate(quat_conj(q1), anchor - x1),
+            axis0=quat_rotate(quat_conj(q0), a0),
+            axis1=quat_rotate(quat_conj(q1), a1),
+            rest_rotation=quat_mul(quat_conj(q0), q1),
+            rest_angle=float(np.arccos(np.clip(np.dot(a0, a1), -1.0, 1.0))),
+            joint=joint,
+        )
+
+    # ---------------------------------------------------------------- forces
+    def add_force(self, body, force=0.0, torque=0.0, until: float = math.inf) -> int:
+        """A constant world-frame force and torque on `body`, applied while the simulated time < `until`."""
+        b = self._body_index(body, "force")
+        if b == WORLD or self.bodies[b].static:
+            raise SceneError(f"force: body {body!r} is not dynamic")
+        self.forces.append(Force(b, _vec(force, "force"), _vec(torque, "torque"), float(until)))
+        return len(self.forces) - 1
+
+    # ---------------------------------------------------------------- output
+    @property
+    def body_count(self) -> int:
+        return len(self.bodies)
+
+    def finalize(self, device: str | None = "cpu") -> Model:
+        from .model import Model
+
+        if not self.bodies:
+            raise SceneError("the scene has no bodies")
+        return Model.from_builder(self, device)

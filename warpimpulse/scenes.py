@@ -1,0 +1,116 @@
+"""Procedural scenes. Each returns a SceneBuilder, so a user can add to it before finalize()."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .builder import SceneBuilder
+from .shapes import Shape
+from .transforms import quat_between, quat_from_axis_angle, quat_rotate
+
+DENSITY = 1000.0  # kg/m^3, equal for every body, as in the paper's trees
+ROOT_LENGTH, LEAF_LENGTH = 11.4, 1.0  # metres (method paper, section 5)
+BRANCH_ANGLE = math.radians(30.0)
+START_TORQUE = 2.0e5  # N m about world z on the top body, during the first second
+START_TORQUE_DURATION = 1.0
+
+
+def _capsule_body(builder: SceneBuilder, top, direction, length, name, color) -> tuple[int, np.ndarray]:
+    """A capsule of total `length` hanging from `top` along `direction`. Returns (body, bottom point)."""
+    radius = length / 20.0
+    span = length - 2.0 * radius  # distance between the cap centres, where joints sit
+    shape = Shape("capsule", radius=radius, length=span, color=color)
+    mass, inertia = shape.mass_properties(DENSITY)
+    centre = top + direction * (0.5 * span)
+    q = quat_between([0.0, 0.0, 1.0], direction)
+    body = builder.add_body(mass, inertia, centre, q, name=name, shape=shape)
+    return body, top + direction * span
+
+
+def _tree_levels(bodies: int) -> int:
+    levels = int(round(math.log2(bodies + 1)))
+    if bodies < 1 or 2**levels - 1 != bodies:
+        raise ValueError(f"a binary tree has 2^k - 1 bodies (1, 3, 7, ..., 127, 255, ...), got {bodies}")
+    return levels
+
+
+def _tree(bodies: int, to_root: bool, joint: str = "ball") -> SceneBuilder:
+    levels = _tree_levels(bodies)
+    builder = SceneBuilder()
+    lengths = np.linspace(ROOT_LENGTH, LEAF_LENGTH, levels) if levels > 1 else [ROOT_LENGTH]
+    down = np.array([0.0, 0.0, -1.0])
+    root, bottom = _capsule_body(builder, np.zeros(3), down, lengths[0], "b0", (0.55, 0.35, 0.2))
+    builder.add_joint_ball(None, root, np.zeros(3), name="j0")
+    frontier = [(root, bottom, down)]
+    for level in range(1, levels):
+        # Branch in the x-z plane on even levels and the y-z plane on odd ones.
+        bend_axis = np.array([0.0, 1.0, 0.0]) if level % 2 else np.array([1.0, 0.0, 0.0])
+        shade = level / max(levels - 1, 1)
+        color = (0.55 - 0.35 * shade, 0.35 + 0.4 * shade, 0.2)
+        next_frontier = []
+        for parent, top, direction in frontier:
+            for sign in (-1.0, 1.0):
+                d = quat_rotate(quat_from_axis_angle(bend_axis, sign * BRANCH_ANGLE), direction)
+                i = len(builder.bodies)
+                child, child_bottom = _capsule_body(builder, top, d, lengths[level], f"b{i}", color)
+                builder.add_joint(joint, root if to_root else parent, child, top, None, None, f"j{i}")
+                next_frontier.append((child, child_bottom, d))
+        frontier = next_frontier
+    builder.add_force(root, torque=(0.0, 0.0, START_TORQUE), until=START_TORQUE_DURATION)
+    return builder
+
+
+def binary_tree(bodies: int = 127) -> SceneBuilder:
+    """The paper's tree (section 5): capsules 11.4 m at the root down to 1 m at the leaves, equal density,
+    ball joints, the root hung from a world point, a torque on the top body at the start."""
+    return _tree(bodies, to_root=False)
+
+
+def star(bodies: int = 127) -> SceneBuilder:
+    """The paper's star: the tree's bodies, each jointed to the root instead of its parent."""
+    return _tree(bodies, to_root=True)
+
+
+def chain(links: int = 10, joint: str = "revolute", link_length: float = 1.0) -> SceneBuilder:
+    """A horizontal chain of capsules hinged about y, the first one to a world point at the origin."""
+    builder = SceneBuilder()
+    x_axis, y_axis, z_axis = np.eye(3)
+    top = np.zeros(3)
+    parent = None
+    for i in range(links):
+        body, bottom = _capsule_body(builder, top, x_axis, link_length, f"link{i}", (0.3, 0.5, 0.8))
+        builder.add_joint(joint, parent, body, top, y_axis, z_axis, f"j{i}")
+        parent, top = body, bottom
+    return builder
+
+
+def double_pendulum(length: float = 1.0, mass: float = 1.0, angles=(math.pi / 2, math.pi / 2)) -> SceneBuilder:
+    """Two uniform rods (capsules) on hinges about y; `angles` from the downward vertical."""
+    builder = SceneBuilder()
+    radius = 0.02 * length
+    shape = Shape("capsule", radius=radius, length=length - 2.0 * radius, color=(0.8, 0.3, 0.3))
+    inertia = shape.inertia(mass)
+    y_axis = np.array([0.0, 1.0, 0.0])
+    top, parent = np.zeros(3), None
+    for i, theta in enumerate(angles):
+        # Angle theta about y from -z: direction (sin, 0, -cos) in x-z.
+        d = np.array([math.sin(theta), 0.0, -math.cos(theta)])
+        q = quat_between([0.0, 0.0, 1.0], d)
+        body = builder.add_body(mass, inertia, top + 0.5 * length * d, q, name=f"rod{i}", shape=shape)
+        builder.add_joint_revolute(parent, body, top, y_axis, name=f"hinge{i}")
+        parent, top = body, top + length * d
+    return builder
+
+
+SCENES = {
+    "tree31": lambda: binary_tree(31),
+    "tree63": lambda: binary_tree(63),
+    "tree127": lambda: binary_tree(127),
+    "tree255": lambda: binary_tree(255),
+    "star127": lambda: star(127),
+    "chain": lambda: chain(10),
+    "chain50": lambda: chain(50),
+    "double_pendulum": double_pendulum,
+}
