@@ -1,0 +1,256 @@
+"""Export a SceneBuilder to MJCF, so MuJoCo can simulate the very scene we simulate (benchmark peer).
+
+MuJoCo works in reduced coordinates: bodies form a tree, each body carries the joints that connect it to
+its parent. Each MuJoCo body frame is placed exactly at our body frame (origin at the centre of mass,
+axes along the builder's orientation), so `xpos`/`xquat` compare with our positions/orientations
+directly and the inertia tensor goes in unchanged.
+
+Only `to_mjcf` is pure Python; the helpers below it import `mujoco` when called.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .builder import WORLD, Joint, SceneBuilder
+from .transforms import quat_conj, quat_mul, quat_rotate
+
+if TYPE_CHECKING:
+    import mujoco
+
+INTEGRATORS = ("Euler", "implicitfast", "RK4")
+
+
+def _fmt(values) -> str:
+    return " ".join(repr(float(v)) for v in np.ravel(values))
+
+
+def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
+    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]])
+
+
+def parent_joints(builder: SceneBuilder) -> list[Joint | None]:
+    """The joint that connects each body to its parent, or None for roots.
+
+    MuJoCo bodies form a tree: a body with two parent joints, or joints forming a cycle, would need
+    loop-closing equality constraints, which this exporter does not write.
+    """
+    parents: list[Joint | None] = [None] * len(builder.bodies)
+    for joint in builder.joints:
+        child = builder.bodies[joint.child]
+        if parents[joint.child] is not None:
+            raise NotImplementedError(
+                f"MJCF export: body {child.name!r} has two parent joints ({parents[joint.child].name!r} and "
+                f"{joint.name!r}); kinematic loops are not supported"
+            )
+        if child.static:
+            raise NotImplementedError(
+                f"MJCF export: joint {joint.name!r} has the static body {child.name!r} as child"
+            )
+        parents[joint.child] = joint
+    # Every body must reach a root by following parents, otherwise the joints form a cycle.
+    for start in range(len(builder.bodies)):
+        seen, b = set(), start
+        while parents[b] is not None and parents[b].parent != WORLD:
+            if b in seen:
+                raise NotImplementedError(
+                    f"MJCF export: the joints through body {builder.bodies[start].name!r} form a loop"
+                )
+            seen.add(b)
+            b = parents[b].parent
+    return parents
+
+
+def _in_plane(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(normal, helper)
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
+def _joint_elements(joint: Joint, to_local) -> list[tuple[str, np.ndarray]]:
+    """(MuJoCo joint type, axis in the child frame) for each MuJoCo joint that makes up `joint`."""
+    kind = joint.kind
+    if kind == "ball":
+        return [("ball", np.array([0.0, 0.0, 1.0]))]
+    if kind == "fixed":
+        return []
+    axis = to_local(joint.axis)
+    if kind == "revolute":
+        return [("hinge", axis)]
+    if kind == "prismatic":
+        return [("slide", axis)]
+    if kind == "cylindrical":
+        return [("slide", axis), ("hinge", axis)]
+    if kind == "universal":
+        # Rotation about the parent's axis, then about the child's axis: keeps their angle constant.
+        return [("hinge", axis), ("hinge", to_local(joint.axis_child))]
+    if kind == "planar":
+        u, v = _in_plane(joint.axis)
+        return [("slide", to_local(u)), ("slide", to_local(v)), ("hinge", axis)]
+    raise NotImplementedError(f"MJCF export: joint {joint.name!r} of kind {kind!r} has no MuJoCo equivalent")
+
+
+def to_mjcf(
+    builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK4", model_name: str = "warpimpulse"
+) -> str:
+    """The builder's scene as an MJCF document: same bodies, masses, inertias, joints, gravity; contacts off.
+
+    Forces and initial velocities are not part of MJCF; `MujocoScene` applies them at run time.
+    """
+    parents = parent_joints(builder)
+    children: dict[int, list[int]] = {}
+    for b, joint in enumerate(parents):
+        host = joint.parent if joint is not None else WORLD
+        children.setdefault(host, []).append(b)
+
+    root = ET.Element("mujoco", model=model_name)
+    ET.SubElement(root, "compiler", angle="radian", autolimits="true")
+    option = ET.SubElement(
+        root, "option", timestep=repr(float(timestep)), integrator=integrator, gravity=_fmt(builder.gravity)
+    )
+    ET.SubElement(option, "flag", contact="disable", energy="enable")
+    world = ET.SubElement(root, "worldbody")
+
+    def add(parent_el: ET.Element, parent: int, b: int) -> None:
+        body = builder.bodies[b]
+        if parent == WORLD:
+            pos, quat = body.position, body.orientation
+        else:
+            pb = builder.bodies[parent]
+            pos = quat_rotate(quat_conj(pb.orientation), body.position - pb.position)
+            quat = quat_mul(quat_conj(pb.orientation), body.orientation)
+        el = ET.SubElement(parent_el, "body", name=body.name, pos=_fmt(pos), quat=_fmt(_wxyz(quat)))
+        if not body.static:
+            i = body.inertia
+            full = (i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2])
+            ET.SubElement(el, "inertial", pos="0 0 0", mass=repr(body.mass), fullinertia=_fmt(full))
+            joint = parents[b]
+            if joint is None:
+                ET.SubElement(el, "freejoint", name=f"{body.name}_free")
+            else:
+                q_inv = quat_conj(body.orientation)
+                anchor = quat_rotate(q_inv, joint.anchor - body.position)
+                elements = _joint_elements(joint, lambda v: quat_rotate(q_inv, v))
+                for k, (kind, axis) in enumerate(elements):
+                    name = joint.name if len(elements) == 1 else f"{joint.name}_{k}"
+                    attrs = {"name": name, "type": kind, "pos": _fmt(anchor)}
+                    if kind != "ball":
+                        attrs["axis"] = _fmt(axis)
+                    ET.SubElement(el, "joint", attrs)
+        for c in children.get(b, []):
+            add(el, b, c)
+
+    for b in children.get(WORLD, []):
+        add(world, WORLD, b)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode")
+
+
+@dataclass
+class MujocoScene:
+    """A compiled MuJoCo model of a builder's scene, with our body order and our forces."""
+
+    builder: SceneBuilder
+    model: mujoco.MjModel
+    body_ids: np.ndarray  # MuJoCo body id of each builder body
+
+    @classmethod
+    def from_builder(cls, builder: SceneBuilder, timestep: float, integrator: str = "RK4") -> MujocoScene:
+        import mujoco
+
+        model = mujoco.MjModel.from_xml_string(to_mjcf(builder, timestep, integrator))
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b.name) for b in builder.bodies]
+        return cls(builder, model, np.array(ids, dtype=np.int64))
+
+    def set_integrator(self, integrator: str, timestep: float) -> None:
+        import mujoco
+
+        self.model.opt.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}")
+        self.model.opt.timestep = timestep
+
+    def set_energy(self, enabled: bool) -> None:
+        """Energy bookkeeping costs a little per step: enable it for accuracy runs, not for timing."""
+        import mujoco
+
+        bit = int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+        self.model.opt.enableflags = (
+            (self.model.opt.enableflags | bit) if enabled else (self.model.opt.enableflags & ~bit)
+        )
+
+    def make_data(self) -> mujoco.MjData:
+        """MjData at the builder's initial pose and velocities (qvel fitted by least squares to the
+        bodies' velocities, since MuJoCo's velocity coordinates are per joint, not per body)."""
+        import mujoco
+
+        data = mujoco.MjData(self.model)
+        mujoco.mj_forward(self.model, data)
+        dynamic = [b for b, body in enumerate(self.builder.bodies) if not body.static]
+        target = np.concatenate(
+            [
+                np.concatenate(
+                    [self.builder.bodies[b].linear_velocity, self.builder.bodies[b].angular_velocity]
+                )
+                for b in dynamic
+            ]
+        )
+        if np.any(target != 0.0):
+            nv = self.model.nv
+            rows = np.zeros((6 * len(dynamic), nv))
+            for k, b in enumerate(dynamic):
+                mujoco.mj_jacBodyCom(
+                    self.model, data, rows[6 * k : 6 * k + 3], rows[6 * k + 3 : 6 * k + 6], self.body_ids[b]
+                )
+            qvel, *_ = np.linalg.lstsq(rows, target, rcond=None)
+            residual = float(np.abs(rows @ qvel - target).max())
+            if residual > 1e-8 * (1.0 + float(np.abs(target).max())):
+                raise ValueError(f"initial body velocities violate the joints (residual {residual:.3g})")
+            data.qvel[:] = qvel
+            mujoco.mj_forward(self.model, data)
+        self.apply_forces(data)
+        return data
+
+    def apply_forces(self, data: mujoco.MjData) -> None:
+        """Set xfrc_applied (world frame, at the centre of mass, like our Force) for the step at data.time.
+
+        A force is active for a step that starts before `until`; the tolerance absorbs the rounding of
+        time accumulated over many steps, so both engines switch forces on the same step.
+        """
+        data.xfrc_applied[:] = 0.0
+        eps = 1e-6 * self.model.opt.timestep
+        for f in self.builder.forces:
+            if data.time < f.until - eps:
+                data.xfrc_applied[self.body_ids[f.body], :3] += f.force
+                data.xfrc_applied[self.body_ids[f.body], 3:] += f.torque
+
+    def positions(self, data: mujoco.MjData) -> np.ndarray:
+        """Centres of mass (N, 3) in builder order."""
+        return data.xipos[self.body_ids].copy()
+
+    def orientations(self, data: mujoco.MjData) -> np.ndarray:
+        """Body orientations (N, 4), xyzw as in Warp, of the same body frames as ours."""
+        return data.xquat[self.body_ids][:, [1, 2, 3, 0]].copy()
+
+    def points(self, data: mujoco.MjData, bodies: np.ndarray, local: np.ndarray) -> np.ndarray:
+        """World positions of points given in body frames."""
+        ids = self.body_ids[bodies]
+        return data.xpos[ids] + np.einsum("nij,nj->ni", data.xmat[ids].reshape(-1, 3, 3), local)
+
+    def energy(self, data: mujoco.MjData) -> float:
+        """Potential + kinetic energy (needs `set_energy(True)` before the step that computed it)."""
+        return float(data.energy[0] + data.energy[1])
+
+    def total_mass(self) -> float:
+        return float(self.model.body_mass.sum())
+
+    def diverged(self, data: mujoco.MjData) -> bool:
+        """MuJoCo resets the state itself when accelerations blow up; its warning counter tells us."""
+        import mujoco
+
+        bad = int(mujoco.mjtWarning.mjWARN_BADQACC)
+        return data.warning[bad].number > 0 or not math.isfinite(float(data.qpos.sum()))
