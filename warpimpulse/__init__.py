@@ -2,8 +2,23 @@
 
 from .builder import SceneBuilder, SceneError
 from .joints import JOINT_TYPES, ConstraintKind
+from .model import Model
 from .shapes import Shape
+from .simulator import SimulationError, Simulator, StepStats
+from .solver import SingularSystemError
 
 __version__ = "0.1.0"
 
-__all__ = ["JOINT_TYPES", "ConstraintKind", "SceneBuilder", "SceneError", "Shape", "__version__"]
+__all__ = [
+    "JOINT_TYPES",
+    "ConstraintKind",
+    "Model",
+    "SceneBuilder",
+    "SceneError",
+    "Shape",
+    "SimulationError",
+    "Simulator",
+    "SingularSystemError",
+    "StepStats",
+    "__version__",
+]

@@ -49,9 +49,7 @@ def parent_joints(builder: SceneBuilder) -> list[Joint | None]:
                 f"{joint.name!r}); kinematic loops are not supported"
             )
         if child.static:
-            raise NotImplementedError(
-                f"MJCF export: joint {joint.name!r} has the static body {child.name!r} as child"
-            )
+            raise NotImplementedError(f"MJCF export: joint {joint.name!r} has the static body {child.name!r} as child")
         parents[joint.child] = joint
     # Every body must reach a root by following parents, otherwise the joints form a cycle.
     for start in range(len(builder.bodies)):
@@ -97,11 +95,16 @@ def _joint_elements(joint: Joint, to_local) -> list[tuple[str, np.ndarray]]:
 
 
 def to_mjcf(
-    builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK4", model_name: str = "warpimpulse"
+    builder: SceneBuilder,
+    timestep: float = 0.01,
+    integrator: str = "RK4",
+    model_name: str = "warpimpulse",
+    memory: str | None = None,
 ) -> str:
     """The builder's scene as an MJCF document: same bodies, masses, inertias, joints, gravity; contacts off.
 
     Forces and initial velocities are not part of MJCF; `MujocoScene` applies them at run time.
+    `memory` sets MuJoCo's arena size (e.g. "512M"); its default is too small for thousands of bodies.
     """
     parents = parent_joints(builder)
     children: dict[int, list[int]] = {}
@@ -115,6 +118,8 @@ def to_mjcf(
         root, "option", timestep=repr(float(timestep)), integrator=integrator, gravity=_fmt(builder.gravity)
     )
     ET.SubElement(option, "flag", contact="disable", energy="enable")
+    if memory is not None:
+        ET.SubElement(root, "size", memory=memory)
     world = ET.SubElement(root, "worldbody")
 
     def add(parent_el: ET.Element, parent: int, b: int) -> None:
@@ -164,7 +169,9 @@ class MujocoScene:
     def from_builder(cls, builder: SceneBuilder, timestep: float, integrator: str = "RK4") -> MujocoScene:
         import mujoco
 
-        model = mujoco.MjModel.from_xml_string(to_mjcf(builder, timestep, integrator))
+        # The arena holds per-dof work arrays, some of size nv^2 / body count; 64 KiB a body is ample.
+        memory = f"{max(64, len(builder.bodies) // 16)}M" if len(builder.bodies) > 1000 else None
+        model = mujoco.MjModel.from_xml_string(to_mjcf(builder, timestep, integrator, memory=memory))
         ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b.name) for b in builder.bodies]
         return cls(builder, model, np.array(ids, dtype=np.int64))
 
@@ -193,9 +200,7 @@ class MujocoScene:
         dynamic = [b for b, body in enumerate(self.builder.bodies) if not body.static]
         target = np.concatenate(
             [
-                np.concatenate(
-                    [self.builder.bodies[b].linear_velocity, self.builder.bodies[b].angular_velocity]
-                )
+                np.concatenate([self.builder.bodies[b].linear_velocity, self.builder.bodies[b].angular_velocity])
                 for b in dynamic
             ]
         )

@@ -12,8 +12,8 @@ from .transforms import quat_between, quat_from_axis_angle, quat_rotate
 
 DENSITY = 1000.0  # kg/m^3, equal for every body, as in the paper's trees
 ROOT_LENGTH, LEAF_LENGTH = 11.4, 1.0  # metres (method paper, section 5)
-BRANCH_ANGLE = math.radians(30.0)
-START_TORQUE = 2.0e5  # N m about world z on the top body, during the first second
+BRANCH_ANGLE = math.radians(15.0)
+START_TORQUE = 2.0e5  # N m about world x on the top body, during the first second
 START_TORQUE_DURATION = 1.0
 
 
@@ -58,7 +58,7 @@ def _tree(bodies: int, to_root: bool, joint: str = "ball") -> SceneBuilder:
                 builder.add_joint(joint, root if to_root else parent, child, top, None, None, f"j{i}")
                 next_frontier.append((child, child_bottom, d))
         frontier = next_frontier
-    builder.add_force(root, torque=(0.0, 0.0, START_TORQUE), until=START_TORQUE_DURATION)
+    builder.add_force(root, torque=(START_TORQUE, 0.0, 0.0), until=START_TORQUE_DURATION)
     return builder
 
 

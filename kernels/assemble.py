@@ -1,0 +1,113 @@
+"""Block assembly of the system matrix K = J M^-1 J^T (method paper, section 4.5; DESIGN.md).
+
+K is stored as 3x3 blocks in "slots". Each slot is one block (row constraint i, column constraint j)
+and lists the bodies the two constraints share (at most two) by the side each has on them. The host
+builds the slot lists once per topology (`warpimpulse/topology.py`): the lower factor pattern for
+Cholesky (fill slots share no body and assemble to zero) and the full pattern for CG.
+"""
+
+import warp as wp
+
+from .constraints import constraint_dim
+
+wp.set_module_options({"enable_backward": False})
+
+vec3d = wp.vec3d
+mat33d = wp.mat33d
+f64 = wp.float64
+
+
+@wp.func
+def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int)):
+    if side == 0:
+        return constraint_body0[i]
+    return constraint_body1[i]
+
+
+@wp.func
+def shared_body_block(
+    i: int,
+    si: int,
+    j: int,
+    sj: int,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+) -> mat33d:
+    """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share."""
+    b = side_body(i, si, constraint_body0, constraint_body1)
+    ri = 2 * i + si
+    rj = 2 * j + sj
+    return body_inv_mass[b] * jac_lin[ri] * wp.transpose(jac_lin[rj]) + jac_ang[ri] * inv_inertia_world[
+        b
+    ] * wp.transpose(jac_ang[rj])
+
+
+@wp.func
+def pad_unused_rows(k: mat33d, kind: int) -> mat33d:
+    """Rows a constraint of dimension < 3 does not use get a unit pivot, so K stays SPD."""
+    for r in range(constraint_dim(kind), 3):
+        k[r, r] = f64(1.0)
+    return k
+
+
+@wp.func
+def diagonal_block(
+    i: int,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+) -> mat33d:
+    """K_ii: the matrix of one constraint alone (equations 8 and 12)."""
+    k = mat33d()
+    for side in range(2):
+        if side_body(i, side, constraint_body0, constraint_body1) >= 0:
+            k += shared_body_block(
+                i, side, i, side, constraint_body0, constraint_body1,
+                body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+            )  # fmt: skip
+    return pad_unused_rows(k, constraint_kind[i])
+
+
+@wp.kernel
+def assemble(
+    # model
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    slot_row: wp.array(dtype=int),
+    slot_col: wp.array(dtype=int),
+    slot_sides: wp.array(dtype=wp.vec4i),
+    # data in
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    # data out
+    values: wp.array(dtype=mat33d),
+):
+    s = wp.tid()
+    i = slot_row[s]
+    j = slot_col[s]
+    sides = slot_sides[s]
+    k = mat33d()
+    if sides[0] >= 0:
+        k += shared_body_block(
+            i, sides[0], j, sides[1], constraint_body0, constraint_body1,
+            body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+        )  # fmt: skip
+    if sides[2] >= 0:
+        k += shared_body_block(
+            i, sides[2], j, sides[3], constraint_body0, constraint_body1,
+            body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+        )  # fmt: skip
+    if i == j:
+        k = pad_unused_rows(k, constraint_kind[i])
+    values[s] = k

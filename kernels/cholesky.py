@@ -1,0 +1,139 @@
+"""Numeric block Cholesky K = L L^T on a pattern precomputed by the host, and the triangular solves.
+
+Columns are in elimination order. The host groups columns so that a group runs in order on one thread
+and the groups of one launch are independent (levels of the elimination tree): on a CPU one group holds
+every column; on a GPU each level is one launch with a column a thread.
+Storage: block column j owns slots col_start[j]..col_start[j+1]-1, the diagonal first.
+"""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+vec3d = wp.vec3d
+mat33d = wp.mat33d
+f64 = wp.float64
+
+
+@wp.func
+def cholesky3(a: mat33d, tiny: f64):
+    """Lower Cholesky factor of an SPD 3x3 block; ok is False when a pivot is not above `tiny`."""
+    l = mat33d()
+    ok = True
+    for j in range(3):
+        s = a[j, j]
+        for k in range(j):
+            s -= l[j, k] * l[j, k]
+        if s <= tiny:
+            ok = False
+            s = f64(1.0)
+        d = wp.sqrt(s)
+        l[j, j] = d
+        for i in range(j + 1, 3):
+            t = a[i, j]
+            for k in range(j):
+                t -= l[i, k] * l[j, k]
+            l[i, j] = t / d
+    return l, ok
+
+
+@wp.func
+def lower_inverse3(l: mat33d) -> mat33d:
+    z = f64(0.0)
+    a = f64(1.0) / l[0, 0]
+    d = f64(1.0) / l[1, 1]
+    f = f64(1.0) / l[2, 2]
+    b = -l[1, 0] * a * d
+    e = -l[2, 1] * d * f
+    c = -(l[2, 0] * a + l[2, 1] * b) * f
+    return mat33d(a, z, z, b, d, z, c, e, f)
+
+
+@wp.kernel
+def factor(
+    first_group: int,
+    group_start: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    update_start: wp.array(dtype=int),
+    update_target: wp.array(dtype=int),
+    update_a: wp.array(dtype=int),
+    update_b: wp.array(dtype=int),
+    pivot_tolerance: f64,
+    # data in/out
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    singular: wp.array(dtype=int),
+):
+    """Left-looking: L_tj -= L_ak L_bk^T over the precomputed updates, then L_jj = chol(.), L_ij = L_ij L_jj^-T.
+
+    `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
+    (a redundant or degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
+    """
+    g = first_group + wp.tid()
+    for j in range(group_start[g], group_start[g + 1]):
+        for u in range(update_start[j], update_start[j + 1]):
+            values[update_target[u]] = values[update_target[u]] - values[update_a[u]] * wp.transpose(
+                values[update_b[u]]
+            )
+        d = col_start[j]
+        a = values[d]
+        scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
+        l, ok = cholesky3(a, pivot_tolerance * scale)
+        if not ok and singular[0] == 0:
+            singular[0] = j + 1
+        values[d] = l
+        li = lower_inverse3(l)
+        diag_inv[j] = li
+        lit = wp.transpose(li)
+        for s in range(d + 1, col_start[j + 1]):
+            values[s] = values[s] * lit
+
+
+@wp.kernel
+def solve_forward(
+    first_group: int,
+    group_start: wp.array(dtype=int),
+    perm: wp.array(dtype=int),
+    row_start: wp.array(dtype=int),
+    row_slot: wp.array(dtype=int),
+    row_col: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    rhs: wp.array(dtype=vec3d),
+    y: wp.array(dtype=vec3d),
+):
+    """L y = P b, row by row: y_j = L_jj^-1 (b_perm(j) - sum_k L_jk y_k)."""
+    g = first_group + wp.tid()
+    for j in range(group_start[g], group_start[g + 1]):
+        s = rhs[perm[j]]
+        for k in range(row_start[j], row_start[j + 1]):
+            s -= values[row_slot[k]] * y[row_col[k]]
+        y[j] = diag_inv[j] * s
+
+
+@wp.kernel
+def solve_backward(
+    first_group: int,
+    group_start: wp.array(dtype=int),
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    col_row: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    y: wp.array(dtype=vec3d),
+    x: wp.array(dtype=vec3d),
+):
+    """L^T z = y, columns in reverse order: z_j = L_jj^-T (y_j - sum_i L_ij^T z_i); x_perm(j) = z_j.
+
+    z overwrites y in place: every z_i it reads (i > j) is final, every y_j it has not yet overwritten.
+    """
+    g = first_group + wp.tid()
+    begin = group_start[g]
+    for jj in range(group_start[g + 1] - begin):
+        j = group_start[g + 1] - 1 - jj
+        s = y[j]
+        for k in range(col_start[j] + 1, col_start[j + 1]):
+            s -= wp.transpose(values[k]) * y[col_row[k]]
+        z = wp.transpose(diag_inv[j]) * s
+        y[j] = z
+        x[perm[j]] = z

@@ -1,0 +1,243 @@
+"""The six basic constraints (method paper, sections 4.2 and 4.3): geometry, error, projection, Jacobian.
+
+Every constraint i is stored as 3 rows; a constraint of dimension k < 3 has zero rows k..2 in its
+projection P_i and Jacobian, and a unit diagonal in its block of K (DESIGN.md, "Jacobian form").
+Side 0 is body0 (the parent, sign +1), side 1 is body1 (the child, sign -1). A body index < 0 is the world.
+Convention: the error c = A - B (or its rotational analogue) and J v = dc/dt.
+"""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+vec3d = wp.vec3d
+quatd = wp.quatd
+mat33d = wp.mat33d
+f64 = wp.float64
+
+POINT = wp.constant(0)
+LINE = wp.constant(1)
+PLANE = wp.constant(2)
+ROTATION = wp.constant(3)
+AXIS = wp.constant(4)
+ANGLE = wp.constant(5)
+
+
+@wp.func
+def constraint_dim(kind: int) -> int:
+    if kind == POINT or kind == ROTATION:
+        return 3
+    if kind == LINE or kind == AXIS:
+        return 2
+    return 1
+
+
+@wp.func
+def is_translational(kind: int) -> bool:
+    return kind < ROTATION
+
+
+@wp.func
+def pose_x(b: int, xs: wp.array(dtype=vec3d)) -> vec3d:
+    if b < 0:
+        return vec3d()
+    return xs[b]
+
+
+@wp.func
+def pose_q(b: int, qs: wp.array(dtype=quatd)) -> quatd:
+    if b < 0:
+        return wp.quat_identity(dtype=f64)
+    return qs[b]
+
+
+@wp.func
+def perpendicular_basis(a: vec3d) -> mat33d:
+    """Rows: two unit vectors perpendicular to the unit vector a, and a zero row."""
+    t = vec3d(f64(1.0), f64(0.0), f64(0.0))
+    if wp.abs(a[0]) > f64(0.7):
+        t = vec3d(f64(0.0), f64(1.0), f64(0.0))
+    b = wp.normalize(wp.cross(a, t))
+    c = wp.cross(a, b)
+    return mat33d(b[0], b[1], b[2], c[0], c[1], c[2], f64(0.0), f64(0.0), f64(0.0))
+
+
+@wp.func
+def single_row(n: vec3d) -> mat33d:
+    z = f64(0.0)
+    return mat33d(n[0], n[1], n[2], z, z, z, z, z, z)
+
+
+@wp.func
+def joint_points(kind: int, x0: vec3d, q0: quatd, x1: vec3d, q1: quatd, anchor0: vec3d, anchor1: vec3d, axis0: vec3d):
+    """World points A (on body0) and B (on body1). For a line or plane, A is moved to the point closest
+    to B before every impulse (section 4.2)."""
+    a = x0 + wp.quat_rotate(q0, anchor0)
+    b = x1 + wp.quat_rotate(q1, anchor1)
+    n = wp.quat_rotate(q0, axis0)
+    if kind == LINE:
+        a = a + n * wp.dot(b - a, n)
+    elif kind == PLANE:
+        a = b - n * wp.dot(b - a, n)
+    return a, b
+
+
+@wp.func
+def projection(kind: int, q0: quatd, q1: quatd, axis0: vec3d, axis1: vec3d) -> mat33d:
+    """P_i: the rows of the directions the constraint removes (sections 4.2, 4.3)."""
+    if kind == POINT or kind == ROTATION:
+        return wp.identity(n=3, dtype=f64)
+    a0 = wp.quat_rotate(q0, axis0)
+    if kind == LINE or kind == AXIS:
+        return perpendicular_basis(a0)
+    if kind == PLANE:
+        return single_row(a0)
+    return single_row(wp.normalize(wp.cross(a0, wp.quat_rotate(q1, axis1))))
+
+
+@wp.func
+def rotation_vector(q: quatd) -> vec3d:
+    """Axis times angle of a unit quaternion, taking the short way round."""
+    v = vec3d(q[0], q[1], q[2])
+    s = wp.length(v)
+    w = q[3]
+    if w < f64(0.0):
+        v = -v
+        w = -w
+    if s < f64(1.0e-12):
+        return v * f64(2.0)
+    return v * (f64(2.0) * wp.atan2(s, w) / s)
+
+
+@wp.func
+def constraint_error(
+    kind: int,
+    x0: vec3d,
+    q0: quatd,
+    x1: vec3d,
+    q1: quatd,
+    anchor0: vec3d,
+    anchor1: vec3d,
+    axis0: vec3d,
+    axis1: vec3d,
+    rest_rotation: quatd,
+    rest_angle: f64,
+) -> vec3d:
+    """The unprojected error d of the constraint at the given poses (world frame)."""
+    if is_translational(kind):
+        a, b = joint_points(kind, x0, q0, x1, q1, anchor0, anchor1, axis0)
+        return a - b
+    if kind == ROTATION:
+        return rotation_vector(q0 * rest_rotation * wp.quat_inverse(q1))
+    a0 = wp.quat_rotate(q0, axis0)
+    a1 = wp.quat_rotate(q1, axis1)
+    if kind == AXIS:
+        return wp.cross(a1, a0)
+    n = wp.cross(a0, a1)
+    phi = wp.atan2(wp.length(n), wp.dot(a0, a1))
+    return wp.normalize(n) * (rest_angle - phi)
+
+
+@wp.kernel
+def frames(
+    # model
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    anchor0: wp.array(dtype=vec3d),
+    anchor1: wp.array(dtype=vec3d),
+    axis0: wp.array(dtype=vec3d),
+    axis1: wp.array(dtype=vec3d),
+    # data in
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    # data out: P_i and the Jacobian blocks [lin | ang] of both sides, signs included
+    proj: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+):
+    """P_i and J_ib at the current poses: J = s P [I | -r*] (translational) or s P [0 | I] (rotational)."""
+    i = wp.tid()
+    kind = constraint_kind[i]
+    b0 = constraint_body0[i]
+    b1 = constraint_body1[i]
+    x0 = pose_x(b0, body_x)
+    q0 = pose_q(b0, body_q)
+    x1 = pose_x(b1, body_x)
+    q1 = pose_q(b1, body_q)
+    p = projection(kind, q0, q1, axis0[i], axis1[i])
+    proj[i] = p
+    if is_translational(kind):
+        a, b = joint_points(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i])
+        jac_lin[2 * i] = p
+        jac_ang[2 * i] = -p * wp.skew(a - x0)
+        jac_lin[2 * i + 1] = -p
+        jac_ang[2 * i + 1] = p * wp.skew(b - x1)
+    else:
+        jac_lin[2 * i] = mat33d()
+        jac_ang[2 * i] = p
+        jac_lin[2 * i + 1] = mat33d()
+        jac_ang[2 * i + 1] = -p
+
+
+@wp.kernel
+def position_errors(
+    # model
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    anchor0: wp.array(dtype=vec3d),
+    anchor1: wp.array(dtype=vec3d),
+    axis0: wp.array(dtype=vec3d),
+    axis1: wp.array(dtype=vec3d),
+    rest_rotation: wp.array(dtype=quatd),
+    rest_angle: wp.array(dtype=f64),
+    inv_h: f64,
+    # data in
+    proj: wp.array(dtype=mat33d),
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    # data out
+    error: wp.array(dtype=f64),
+    rhs: wp.array(dtype=vec3d),
+):
+    """Projected error P_i d_i(t0+h) of the predicted state, and the joint-correction right-hand side
+    -P_i d_i / h (section 4.5, equation 14)."""
+    i = wp.tid()
+    b0 = constraint_body0[i]
+    b1 = constraint_body1[i]
+    d = constraint_error(
+        constraint_kind[i],
+        pose_x(b0, pred_x), pose_q(b0, pred_q), pose_x(b1, pred_x), pose_q(b1, pred_q),
+        anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i],
+    )  # fmt: skip
+    pd = proj[i] * d
+    error[i] = wp.length(pd)
+    rhs[i] = -pd * inv_h
+
+
+@wp.kernel
+def velocity_errors(
+    # model
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    # data in
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    body_lin_v: wp.array(dtype=vec3d),
+    body_ang_v: wp.array(dtype=vec3d),
+    # data out
+    error: wp.array(dtype=f64),
+    rhs: wp.array(dtype=vec3d),
+):
+    """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
+    i = wp.tid()
+    b0 = constraint_body0[i]
+    b1 = constraint_body1[i]
+    jv = vec3d()
+    if b0 >= 0:
+        jv = jv + jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
+    if b1 >= 0:
+        jv = jv + jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
+    error[i] = wp.length(jv)
+    rhs[i] = -jv

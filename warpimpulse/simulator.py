@@ -1,0 +1,309 @@
+"""Simulator.step(): the impulse loop of the method paper (sections 4.2-4.5; DESIGN.md, "One step").
+
+    predict every body over h (RK4) -> joint errors d(t0+h) -> within tolerance? else solve
+    K lambda = -d/h, apply the impulses at t0, and predict again -> the last prediction is the new state
+    -> frames and K at t0+h, factored once -> velocity correction K lambda = -J v, exact in one solve.
+The factorization made at t0+h serves the next step's joint correction, which happens at the same time.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .kernels import constraints as constraint_kernels
+from .kernels import impulses as impulse_kernels
+from .kernels import iterative as iterative_kernels
+from .kernels import rigid as rigid_kernels
+from .model import Model
+from .solver import SOLVERS, Frames
+from .transforms import quat_to_matrix
+
+SOLVER_NAMES = ("auto", "cholesky", "cg", "iterative")
+POLICIES = ("raise", "warn")
+
+
+class SimulationError(RuntimeError):
+    """The simulation cannot go on: divergence (NaN/Inf) or joints that did not converge."""
+
+
+@dataclass
+class StepStats:
+    joint_iterations: int  # linear solves (or sweeps) of the joint correction
+    velocity_iterations: int
+    max_joint_error: float  # after the joint correction, in m or rad
+    max_velocity_error: float  # after the velocity correction, in m/s or rad/s
+    converged: bool = True
+    linear_iterations: int = 0  # inner CG iterations, summed over the step
+
+
+class Simulator:
+    def __init__(
+        self,
+        model: Model,
+        dt: float,
+        tolerance: float = 1e-6,
+        velocity_tolerance: float | None = None,
+        solver: str = "auto",
+        max_iterations: int = 100,
+        on_max_iterations: str = "raise",
+    ) -> None:
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+        if not (math.isfinite(tolerance) and tolerance > 0.0):
+            raise ValueError(f"tolerance must be positive, got {tolerance!r}")
+        velocity_tolerance = tolerance if velocity_tolerance is None else velocity_tolerance
+        if not (math.isfinite(velocity_tolerance) and velocity_tolerance > 0.0):
+            raise ValueError(f"velocity_tolerance must be positive, got {velocity_tolerance!r}")
+        if not (isinstance(max_iterations, int) and max_iterations >= 1):
+            raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
+        if solver not in SOLVER_NAMES:
+            raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
+        if on_max_iterations not in POLICIES:
+            raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
+        self.model = model
+        self.dt = float(dt)
+        self.tolerance = float(tolerance)
+        self.velocity_tolerance = float(velocity_tolerance)
+        self.max_iterations = max_iterations
+        self.on_max_iterations = on_max_iterations
+        self.solver_name = "cholesky" if solver == "auto" else solver
+        self.time = 0.0
+        self.step_count = 0
+
+        self.state = model.state()
+        self.pred = model.state()
+        self.control = model.control()
+        self._user_force = np.zeros((model.body_count, 3))
+        self._user_torque = np.zeros((model.body_count, 3))
+        self._active_forces: tuple | None = None
+        self.frames = Frames(model)
+        nc = model.constraint_count
+        d = model.device
+        self.errors = wp.zeros(nc, dtype=wp.float64, device=d)
+        self.rhs = wp.zeros(nc, dtype=wp.vec3d, device=d)
+        self.impulse = wp.zeros(nc, dtype=wp.vec3d, device=d)
+        self.sweep_error = wp.zeros(1, dtype=wp.float64, device=d)
+        self.linear = SOLVERS[self.solver_name](model, self.frames) if self.solver_name in SOLVERS else None
+        self._record_launches()
+        self._update_frames()
+
+    # ---------------------------------------------------------------- launches
+    def _record_launches(self) -> None:
+        m, s, p, f, c = self.model, self.state, self.pred, self.frames, self.control
+        d, nb, nc = m.device, m.body_count, m.constraint_count
+        h = wp.float64(self.dt)
+
+        def rec(kernel, dim, inputs):
+            return wp.launch(kernel, dim=dim, inputs=inputs, device=d, record_cmd=True)
+
+        geometry = [m.constraint_kind, m.constraint_body0, m.constraint_body1, m.constraint_anchor0,
+                    m.constraint_anchor1, m.constraint_axis0, m.constraint_axis1]  # fmt: skip
+        body_model = [m.body_inv_mass, m.body_inertia, m.body_inv_inertia, m.gravity, h]
+        self._predict = rec(rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque,
+                                                        p.x, p.q, p.v, p.w])  # fmt: skip
+        self._inertia = rec(rigid_kernels.world_inverse_inertia, nb, [m.body_inv_inertia, s.q, f.inv_inertia_world])
+        self._frames = rec(constraint_kernels.frames, nc, [*geometry, s.x, s.q, f.proj, f.jac_lin, f.jac_ang])
+        self._position_errors = rec(
+            constraint_kernels.position_errors, nc,
+            [*geometry, m.constraint_rest_rotation, m.constraint_rest_angle, wp.float64(1.0 / self.dt),
+             f.proj, p.x, p.q, self.errors, self.rhs],
+        )  # fmt: skip
+        self._velocity_errors = rec(
+            constraint_kernels.velocity_errors, nc,
+            [m.constraint_body0, m.constraint_body1, f.jac_lin, f.jac_ang, s.v, s.w, self.errors, self.rhs],
+        )  # fmt: skip
+        self._apply = rec(
+            impulse_kernels.apply_impulses, nb,
+            [m.body_inv_mass, m.body_rows_start, m.body_rows, f.inv_inertia_world, f.jac_lin, f.jac_ang,
+             self.impulse, s.v, s.w],
+        )  # fmt: skip
+        self._sweep_positions = rec(
+            iterative_kernels.sweep_positions, 1,
+            [nc, *geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model[:3], m.gravity, h,
+             wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj, f.jac_lin,
+             f.jac_ang, s.v, s.w, self.sweep_error],
+        )  # fmt: skip
+        self._sweep_velocities = rec(
+            iterative_kernels.sweep_velocities, 1,
+            [nc, m.constraint_kind, m.constraint_body0, m.constraint_body1, m.body_inv_mass,
+             wp.float64(self.velocity_tolerance), f.inv_inertia_world, f.jac_lin, f.jac_ang, s.v, s.w,
+             self.sweep_error],
+        )  # fmt: skip
+
+    def _update_frames(self) -> None:
+        """P_i, J_ib and K at the current state; factor K for the coming solves."""
+        self._inertia.launch()
+        self._frames.launch()
+        if self.linear is not None:
+            self.linear.prepare()
+
+    # ---------------------------------------------------------------- forces
+    def set_external_forces(self, force=None, torque=None) -> None:
+        """World forces (at the centres of mass) and torques, (N, 3) each, held until set again."""
+        n = self.model.body_count
+        if force is not None:
+            self._user_force = self._checked(force, (n, 3), "force")
+        if torque is not None:
+            self._user_torque = self._checked(torque, (n, 3), "torque")
+        self._active_forces = None
+
+    @staticmethod
+    def _checked(values, shape, what) -> np.ndarray:
+        arr = np.asarray(values, dtype=np.float64)
+        if arr.shape != shape:
+            raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{what} contains NaN or Inf")
+        return arr
+
+    def _update_forces(self) -> None:
+        forces = self.model.builder.forces
+        active = tuple(self.time < f.until for f in forces)
+        if active == self._active_forces:
+            return
+        self._active_forces = active
+        force, torque = self._user_force.copy(), self._user_torque.copy()
+        for f, on in zip(forces, active):
+            if on:
+                force[f.body] += f.force
+                torque[f.body] += f.torque
+        self.control.force.assign(force)
+        self.control.torque.assign(torque)
+
+    # ---------------------------------------------------------------- the step
+    def step(self) -> StepStats:
+        self._update_forces()
+        linear_iterations = 0
+        if self.linear is None:
+            joint_it, joint_err = self._sweep(self._sweep_positions, self.tolerance, "joint")
+            self._predict.launch()
+            self._position_errors.launch()
+            joint_err = self._max_error()
+        else:
+            joint_it = 0
+            while True:
+                self._predict.launch()
+                self._position_errors.launch()
+                joint_err = self._max_error()
+                if joint_err <= self.tolerance or not self._may_iterate(joint_it, joint_err, "joint"):
+                    break
+                linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if joint_it == 0 else None)
+                self._apply.launch()
+                joint_it += 1
+        converged = joint_err <= self.tolerance
+        self.state.copy_from(self.pred)
+        self.time = (self.step_count + 1) * self.dt
+        self.step_count += 1
+        self._check_finite()
+        self._update_frames()
+
+        if self.linear is None:
+            vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity")
+        else:
+            vel_it = 0
+            self._velocity_errors.launch()
+            if self._max_error() > self.velocity_tolerance:
+                linear_iterations += self.linear.solve(self.rhs, self.impulse, "velocity")
+                self._apply.launch()
+                vel_it = 1
+        self._velocity_errors.launch()
+        vel_err = self._max_error()
+        converged = converged and vel_err <= self.velocity_tolerance
+        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations)
+
+    def _sweep(self, launch: wp.Launch, tolerance: float, what: str) -> tuple[int, float]:
+        sweeps = 0
+        while True:
+            launch.launch()
+            err = float(self.sweep_error.numpy()[0])
+            if err <= tolerance or not self._may_iterate(sweeps, err, what):
+                return sweeps, err
+            sweeps += 1
+
+    def _max_error(self) -> float:
+        err = float(self.errors.numpy().max()) if self.model.constraint_count else 0.0
+        if not math.isfinite(err):
+            self._check_finite(self.pred)
+            raise SimulationError(f"step {self.step_count + 1}: joint errors are not finite")
+        return err
+
+    def _may_iterate(self, iterations: int, error: float, what: str) -> bool:
+        if iterations < self.max_iterations:
+            return True
+        errors = self.errors.numpy() if self.linear is not None else None
+        worst = ""
+        if errors is not None:
+            joints = self.joint_errors_from(errors)
+            bad = np.argsort(joints)[::-1][:5]
+            worst = ", ".join(f"{self.model.builder.joints[j].name!r} ({joints[j]:.3g})" for j in bad if joints[j] > 0)
+        msg = (
+            f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction did not reach "
+            f"{self.tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
+            + (f"; worst joints: {worst}" if worst else "")
+        )
+        if self.on_max_iterations == "raise":
+            raise SimulationError(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=3)
+        return False
+
+    def _check_finite(self, state=None) -> None:
+        state = state or self.state
+        bad = ~np.isfinite(np.concatenate([a.numpy().reshape(self.model.body_count, -1)
+                                           for a in (state.x, state.q, state.v, state.w)], axis=1)).all(axis=1)  # fmt: skip
+        if bad.any():
+            names = [self.model.builder.bodies[b].name for b in np.flatnonzero(bad)[:10]]
+            raise SimulationError(
+                f"step {self.step_count}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
+                + ", ".join(repr(n) for n in names)
+            )
+
+    def simulate(self, duration: float, callback=None) -> list[StepStats]:
+        """Run whole steps covering `duration` seconds; `callback(sim, stats)` after each."""
+        steps = int(round(duration / self.dt))
+        stats = []
+        for _ in range(steps):
+            s = self.step()
+            stats.append(s)
+            if callback is not None:
+                callback(self, s)
+        return stats
+
+    # ---------------------------------------------------------------- numpy accessors
+    def positions(self) -> np.ndarray:
+        return self.state.x.numpy().copy()
+
+    def orientations(self) -> np.ndarray:
+        return self.state.q.numpy().copy()
+
+    def linear_velocities(self) -> np.ndarray:
+        return self.state.v.numpy().copy()
+
+    def angular_velocities(self) -> np.ndarray:
+        return self.state.w.numpy().copy()
+
+    def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.model.joint_count)
+        np.maximum.at(out, self.model.constraint_joint, constraint_errors)
+        return out
+
+    def joint_errors(self) -> np.ndarray:
+        """The position error of every joint at the current state (max over its constraints, m or rad)."""
+        self.pred.copy_from(self.state)
+        self._position_errors.launch()
+        return self.joint_errors_from(self.errors.numpy())
+
+    def energy(self) -> float:
+        """Kinetic plus gravitational potential energy."""
+        m = self.model.body_mass
+        v, w, x = self.linear_velocities(), self.angular_velocities(), self.positions()
+        r = quat_to_matrix(self.orientations())
+        inertia = self.model.body_inertia.numpy()
+        iw = np.einsum("nij,njk,nlk->nil", r, inertia, r)
+        kinetic = 0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w)
+        potential = -np.sum(m * (x @ self.model.builder.gravity))
+        return float(kinetic + potential)
