@@ -1,0 +1,38 @@
+"""The wheel maps kernels/ to warpimpulse.kernels and never installs a top-level `kernels` package."""
+
+import os
+import site
+import subprocess
+import sys
+import venv
+import zipfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_wheel_installs_and_imports(tmp_path):
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(ROOT)],
+        check=True,
+    )
+    wheel = next(tmp_path.glob("warpimpulse-*.whl"))
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "warpimpulse/kernels/cholesky.py" in names
+    assert not any(n.startswith("kernels/") for n in names)
+
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
+    python = env_dir / "bin" / "python"
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", str(wheel)], check=True)
+    code = (
+        "import warpimpulse, warpimpulse.kernels.cholesky as c, importlib.util as u;"
+        "assert warpimpulse.__file__.startswith(%r), warpimpulse.__file__;"
+        "assert u.find_spec('kernels') is None; print('ok')" % str(env_dir)
+    )
+    # Dependencies come from this interpreter's site-packages (as a plain path, so its editable install of
+    # warpimpulse is not seen); warpimpulse itself must come from the wheel.
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(site.getsitepackages())}
+    out = subprocess.run([str(python), "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
