@@ -24,7 +24,9 @@ def test_wheel_installs_and_imports(tmp_path):
     env_dir = tmp_path / "venv"
     venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
     python = env_dir / "bin" / "python"
-    subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", str(wheel)], check=True)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", str(wheel)], check=True
+    )
     code = (
         "import warpimpulse, warpimpulse.kernels.cholesky as c, importlib.util as u;"
         "assert warpimpulse.__file__.startswith(%r), warpimpulse.__file__;"
