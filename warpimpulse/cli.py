@@ -1,0 +1,142 @@
+"""Command line: `warpimpulse simulate | bench | stress`.
+
+User mistakes (bad flags, bad scene files) print one clear line and exit 2, never a traceback. A run
+that stops early (divergence, joints that do not converge, Ctrl-C) keeps the frames done so far in a
+valid file, says so, and exits 1 (130 for Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from . import __version__
+from .builder import SceneError
+from .scenes import SCENES
+
+EXIT_USAGE = 2
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        return value
+
+    return parse
+
+
+def _add_simulate(sub) -> None:
+    p = sub.add_parser("simulate", help="simulate a scene and write USD animation")
+    p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc); or use --scene")
+    p.add_argument("--scene", choices=sorted(SCENES), help="a built-in procedural scene (default: tree127)")
+    p.add_argument("--out", "-o", type=Path, help="output USD file (default: <scene>.usdc)")
+    p.add_argument("--duration", type=_positive(float), default=10.0, help="seconds (default 10)")
+    p.add_argument("--fps", type=_positive(float), default=30.0, help="frames per second written (default 30)")
+    p.add_argument("--dt", type=_positive(float), help="step size in seconds; 1/fps must be a multiple (default 1/fps)")
+    p.add_argument("--tolerance", type=_positive(float), default=1e-6, help="joint tolerance, m or rad (default 1e-6)")
+    p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
+    p.add_argument("--solver", choices=("auto", "cholesky", "cg", "iterative"), default="auto")
+    p.add_argument("--max-iterations", type=_positive(int), default=100)
+    p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
+                   help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
+    p.add_argument("--device", default="cpu", help="Warp device (cpu, cuda)")
+    p.add_argument("--flatten", action="store_true", help="one self-contained file instead of a layer over the input")
+    p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
+                   help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
+    p.add_argument("--ignore-unsupported", action="store_true", help="warn about drives and limits instead of stopping")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar (default: when stderr is a terminal)")  # fmt: skip
+
+
+def _simulate(args) -> int:
+    import warp as wp
+
+    from . import usd
+    from .simulator import SimulationError, Simulator
+    from .solver import SingularSystemError
+
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
+    if args.input and args.scene:
+        raise SceneError("give either a scene file or --scene, not both")
+    if args.input:
+        source = Path(args.input)
+        if not source.is_file():
+            raise SceneError(f"{source}: no such file")
+        scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+        builder, name = scene.builder, source.stem
+    else:
+        name = args.scene or "tree127"
+        builder = SCENES[name]()
+        scene = builder
+    dt = args.dt if args.dt is not None else 1.0 / args.fps
+    usd.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
+    out = args.out or Path(f"{name}.usdc")
+    sim = Simulator(
+        builder.finalize(args.device),
+        dt,
+        tolerance=args.tolerance,
+        velocity_tolerance=args.velocity_tolerance,
+        solver=args.solver,
+        max_iterations=args.max_iterations,
+        on_max_iterations=args.on_max_iterations,
+    )
+    settings = {
+        "dt": dt,
+        "tolerance": args.tolerance,
+        "velocity_tolerance": sim.velocity_tolerance,
+        "solver": sim.solver_name,
+        "max_iterations": args.max_iterations,
+        "version": __version__,
+    }
+    start = time.perf_counter()
+    writer = usd.AnimationWriter(
+        out, scene, args.fps, settings=settings, flatten=args.flatten, instancer=args.instancer
+    )
+    try:
+        with writer:
+            frames = usd.record(sim, writer, args.duration, dt=dt, progress=args.progress)
+    except (SimulationError, SingularSystemError, FloatingPointError) as err:
+        print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
+        print(f"warpimpulse: {out} holds the {writer.frames_written} frames done before the stop", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\nwarpimpulse: interrupted; {out} holds the {writer.frames_written} frames done", file=sys.stderr)
+        return 130
+    elapsed = time.perf_counter() - start
+    print(
+        f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {sim.step_count} steps of {dt:.6g} s "
+        f"in {elapsed:.2f} s ({1e3 * elapsed / max(sim.step_count, 1):.3f} ms a step, output included)"
+    )
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="warpimpulse", description="Impulse-based articulated rigid bodies on Warp")
+    parser.add_argument("--version", action="version", version=f"warpimpulse {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    _add_simulate(sub)
+    sub.add_parser("bench", help="benchmark harness (see `warpimpulse bench --help`)", add_help=False)
+    args, rest = parser.parse_known_args(argv)
+    try:
+        if args.command == "bench":
+            from .benchmark import main as bench_main
+
+            return int(bench_main(rest) or 0)
+        if rest:
+            parser.error(f"unrecognized arguments: {' '.join(rest)}")
+        return _simulate(args)
+    except (SceneError, ValueError, OSError) as err:
+        print(f"warpimpulse: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())
