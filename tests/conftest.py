@@ -1,0 +1,130 @@
+"""Shared test set-up and independent numpy checks of the engine's state.
+
+The helpers here recompute joint errors, constraint velocities and momenta from the builder's constraint
+data and the simulator's numpy state, with scipy rotations: they share no code with the kernels, so a wrong
+kernel and a wrong check would have to be wrong in the same way to hide a bug.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+from scipy.spatial.transform import Rotation
+
+wp.config.quiet = True
+# Warp 1.19 no longer reads `config.quiet`; its start-up and module-load messages are info-level logs.
+wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
+
+POINT, LINE, PLANE, ROTATION, AXIS, ANGLE = range(6)
+
+
+def rotations(q) -> np.ndarray:
+    """Rotation matrices of (N, 4) or (4,) quaternions (x, y, z, w)."""
+    return Rotation.from_quat(np.asarray(q, dtype=float)).as_matrix()
+
+
+def _pose(b: int, x: np.ndarray, r: np.ndarray):
+    if b < 0:
+        return np.zeros(3), np.eye(3)
+    return x[b], r[b]
+
+
+def _twist(b: int, v: np.ndarray, w: np.ndarray):
+    if b < 0:
+        return np.zeros(3), np.zeros(3)
+    return v[b], w[b]
+
+
+def _perp(u: np.ndarray) -> np.ndarray:
+    """Projector onto the plane perpendicular to the unit vector u."""
+    return np.eye(3) - np.outer(u, u)
+
+
+def constraint_errors(builder, x, q) -> np.ndarray:
+    """Error of every basic constraint at poses (x, q), in m or rad: the distance of the joint point B from
+    the point / line / plane of body0, the rotation angle away from the rest relative rotation, the angle
+    between the common axes, and the change of the angle between the two angle axes."""
+    r = rotations(q)
+    out = np.zeros(len(builder.constraints))
+    for i, c in enumerate(builder.constraints):
+        x0, r0 = _pose(c.body0, x, r)
+        x1, r1 = _pose(c.body1, x, r)
+        a = x0 + r0 @ c.anchor0
+        b = x1 + r1 @ c.anchor1
+        n0 = r0 @ c.axis0
+        n1 = r1 @ c.axis1
+        kind = int(c.kind)
+        if kind == POINT:
+            out[i] = np.linalg.norm(b - a)
+        elif kind == LINE:
+            out[i] = np.linalg.norm(_perp(n0) @ (b - a))
+        elif kind == PLANE:
+            out[i] = abs(np.dot(n0, b - a))
+        elif kind == ROTATION:
+            # R0 R_rest R1^T is the identity when the constraint holds.
+            rest = rotations(c.rest_rotation)
+            out[i] = Rotation.from_matrix(r0 @ rest @ r1.T).magnitude()
+        elif kind == AXIS:
+            out[i] = np.linalg.norm(np.cross(n0, n1))
+        else:
+            out[i] = abs(np.arccos(np.clip(np.dot(n0, n1), -1.0, 1.0)) - c.rest_angle)
+    return out
+
+
+def constraint_velocity_errors(builder, x, q, v, w) -> np.ndarray:
+    """|P_i (u_A - u_B)| of every constraint: the relative velocity of the joint points (or the relative
+    angular velocity) in the directions the constraint removes."""
+    r = rotations(q)
+    out = np.zeros(len(builder.constraints))
+    for i, c in enumerate(builder.constraints):
+        x0, r0 = _pose(c.body0, x, r)
+        x1, r1 = _pose(c.body1, x, r)
+        v0, w0 = _twist(c.body0, v, w)
+        v1, w1 = _twist(c.body1, v, w)
+        b = x1 + r1 @ c.anchor1
+        n0 = r0 @ c.axis0
+        n1 = r1 @ c.axis1
+        kind = int(c.kind)
+        if kind in (POINT, LINE, PLANE):
+            # The material point of body0 at B's place (the paper's A, moved to the closest point).
+            rel = (v0 + np.cross(w0, b - x0)) - (v1 + np.cross(w1, b - x1))
+            if kind == LINE:
+                rel = _perp(n0) @ rel
+            elif kind == PLANE:
+                rel = np.dot(n0, rel) * n0
+        else:
+            rel = w0 - w1
+            if kind == AXIS:
+                rel = _perp(n0) @ rel
+            elif kind == ANGLE:
+                n = np.cross(n0, n1)
+                n /= np.linalg.norm(n)
+                rel = np.dot(n, rel) * n
+        out[i] = np.linalg.norm(rel)
+    return out
+
+
+def per_joint(builder, constraint_values: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(builder.joints))
+    for j, joint in enumerate(builder.joints):
+        out[j] = max(constraint_values[k] for k in joint.constraints)
+    return out
+
+
+def world_inertia(builder, q) -> np.ndarray:
+    r = rotations(q)
+    inertia = np.array([b.inertia for b in builder.bodies])
+    return np.einsum("nij,njk,nlk->nil", r, inertia, r)
+
+
+def momenta(builder, x, q, v, w, about=np.zeros(3)) -> tuple[np.ndarray, np.ndarray]:
+    """Total linear momentum and total angular momentum about the point `about`."""
+    m = np.array([b.mass for b in builder.bodies])
+    linear = (m[:, None] * v).sum(axis=0)
+    spin = np.einsum("nij,nj->ni", world_inertia(builder, q), w)
+    angular = (np.cross(x - about, m[:, None] * v) + spin).sum(axis=0)
+    return linear, angular
+
+
+def sim_state(sim):
+    return sim.positions(), sim.orientations(), sim.linear_velocities(), sim.angular_velocities()
