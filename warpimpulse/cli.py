@@ -124,12 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
     sub.add_parser("bench", help="benchmark harness (see `warpimpulse bench --help`)", add_help=False)
+    sub.add_parser("stress", help="stress suite (see `warpimpulse stress --help`)", add_help=False)
     args, rest = parser.parse_known_args(argv)
     try:
         if args.command == "bench":
             from .benchmark import main as bench_main
 
             return int(bench_main(rest) or 0)
+        if args.command == "stress":
+            from .stress import main as stress_main
+
+            return int(stress_main(rest) or 0)
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return _simulate(args)

@@ -9,8 +9,10 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import warp as wp
@@ -272,6 +274,34 @@ class Simulator:
             if callback is not None:
                 callback(self, s)
         return stats
+
+    # ---------------------------------------------------------------- checkpoints
+    def save_checkpoint(self, path) -> None:
+        """Write the full state to an .npz file (atomically); `load_checkpoint` continues bit-identically."""
+        data = {name: getattr(self.state, name).numpy() for name in ("x", "q", "v", "w")}
+        data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
+                    user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count)  # fmt: skip
+        for key, arr in getattr(self.linear, "_warm", {}).items():
+            data[f"warm_{key}"] = arr.numpy()
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(tmp, **data)
+        os.replace(tmp, path)
+
+    def load_checkpoint(self, path) -> None:
+        with np.load(path) as data:
+            if int(data["bodies"]) != self.model.body_count or float(data["dt"]) != self.dt:
+                raise ValueError(f"{path}: checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} "
+                                 f"does not match this simulator ({self.model.body_count} bodies, dt={self.dt})")  # fmt: skip
+            for name in ("x", "q", "v", "w"):
+                getattr(self.state, name).assign(data[name])
+            self.time, self.step_count = float(data["time"]), int(data["step_count"])
+            self._user_force, self._user_torque = data["user_force"], data["user_torque"]
+            for key in data.files:
+                if key.startswith("warm_"):
+                    self.linear._warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
+        self._active_forces = None
+        self._update_frames()
 
     # ---------------------------------------------------------------- numpy accessors
     def positions(self) -> np.ndarray:
