@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from .builder import WORLD, SceneBuilder, SceneError
-from .joints import JOINT_TYPES, ConstraintKind
+from .joints import JOINT_TYPES
 from .shapes import Shape
 from .transforms import quat_conj, quat_mul, quat_rotate, quat_to_matrix
 
@@ -146,6 +146,7 @@ class UsdScene:
     kilograms_per_unit: float = 1.0
     up_axis: str = "Z"
     default_prim: str = ""
+    xform_ops: list[tuple[str, str]] | None = None  # (translate, orient) op names per body; None: plain
     loop_joints: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
@@ -297,7 +298,7 @@ def _body_mass(prim, desc, frame: _Similarity, xcache, report: _Reporter):
     if density < 0.0:
         raise UsdSceneError(f"{path}: physics:density must be positive, got {density}")
     if np.any(diag != 0.0) and (np.any(diag <= 0.0) or not np.all(np.isfinite(diag))):
-        raise UsdSceneError(f"{path}: physics:diagonalInertia must be positive, got {diag.tolist()}")
+        raise UsdSceneError(f"{path}: the inertia (physics:diagonalInertia) must be positive, got {diag.tolist()}")
     shapes = [str(p) for p in desc.collisions]
     if not shapes:
         if mass <= 0.0:
@@ -460,13 +461,15 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     builder = SceneBuilder(gravity=gravity)
 
     xcache = UsdGeom.XformCache(Usd.TimeCode.Default())
-    bodies = sorted(get(T.RigidBody), key=lambda pd: str(pd[0]))
+    order = {str(p.GetPath()): k for k, p in enumerate(stage.Traverse())}  # bodies and joints in file order
+    bodies = sorted(get(T.RigidBody), key=lambda pd: order.get(str(pd[0]), len(order)))
     index: dict[str, int] = {}
     n = len(bodies)
     com_offsets, scales = np.zeros((n, 3)), np.ones((n, 3))
     parent_index = np.full(n, -1)
     parent_pos, parent_quat, parent_scale = np.zeros((n, 3)), np.tile(_IDENT_Q, (n, 1)), np.ones(n)
     reset = np.zeros(n, dtype=bool)
+    xform_ops: list[tuple[str, str]] = []
     frames: list[_Similarity] = []
     for i, (p, desc) in enumerate(bodies):
         bpath = str(p)
@@ -474,6 +477,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         frame = _decompose(xcache.GetLocalToWorldTransform(prim), bpath)
         frames.append(frame)
         scales[i] = frame.s
+        xform_ops.append(_op_names(prim))
         static = bool(desc.kinematicBody) or not bool(desc.rigidBodyEnabled)
         if desc.kinematicBody:
             notes.append(f"{bpath}: kinematic body; held at its initial pose")
@@ -495,7 +499,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             else:
                 index[bpath] = builder.add_body(mass * kpu, inertia, position, frame.q, v, w, name=bpath)
         except SceneError as exc:
-            raise UsdSceneError(f"{bpath}: {exc}") from None
+            raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
         _read_forces(builder, prim, index[bpath], mpu, kpu)
     # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
     for i, (p, _desc) in enumerate(bodies):
@@ -527,7 +531,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     for t, (paths, descs) in parsed.items():
         if "Joint" in t.name:
             all_joints += [(str(p), t, d) for p, d in zip(paths, descs)]
-    for jpath, t, desc in sorted(all_joints, key=lambda x: x[0]):
+    for jpath, t, desc in sorted(all_joints, key=lambda x: order.get(x[0], len(order))):
         jprim = stage.GetPrimAtPath(jpath)
         if not desc.jointEnabled:
             notes.append(f"{jpath}: joint disabled (physics:jointEnabled = false); skipped")
@@ -591,7 +595,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
                 else:
                     builder.add_constraint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
             except SceneError as exc:
-                raise UsdSceneError(f"{jpath}: {exc}") from None
+                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
             joint_paths.append(jpath)
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
         if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in {j[0] for j in all_joints}:
@@ -599,13 +603,28 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     if not bodies:
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
     default_prim = stage.GetDefaultPrim()
+    default_prim_name = default_prim.GetName() if default_prim else ""
+    if not default_prim_name:  # give the output a default prim even if the input lacks one
+        roots = [p for p in stage.GetPseudoRoot().GetChildren() if p.IsDefined()]
+        default_prim_name = roots[0].GetName() if roots else ""
     return UsdScene(
         builder=builder, source_path=os.path.abspath(path), body_paths=[str(p) for p, _ in bodies],
         joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
         parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
-        meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up,
-        default_prim=default_prim.GetName() if default_prim else "", loop_joints=loop_joints, notes=notes,
+        meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
+        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes,
     )  # fmt: skip
+
+
+def _op_names(prim) -> tuple[str, str]:
+    """xformOp names for the exported pose: the plain ones unless the input gave them other value types
+    (an `over` of another type is a validation error), then ones with a `:warpimpulse` suffix."""
+    ops = []
+    for op, type_name in (("xformOp:translate", "double3"), ("xformOp:orient", "quatd")):
+        attr = prim.GetAttribute(op)
+        clash = attr and attr.HasAuthoredValue() and str(attr.GetTypeName()) != type_name
+        ops.append(f"{op}:warpimpulse" if clash else op)
+    return ops[0], ops[1]
 
 
 def _read_forces(builder: SceneBuilder, prim, body: int, mpu: float, kpu: float) -> None:
@@ -766,26 +785,23 @@ def _joint_frames(j) -> tuple[np.ndarray, np.ndarray, str, list[str], str]:
     return f, f, "PhysicsJoint", locked, ""
 
 
-def _author_physics_scene(h: _Sdf, layer, scene: UsdScene, with_physics: bool) -> None:
+def _author_physics_scene(h: _Sdf, layer, scene: UsdScene) -> None:
     """World prim, PhysicsScene, body prims with geometry, mass and joints (procedural export)."""
     T, Gf, Vt = h.T, h.Gf, h.Vt
     builder = scene.builder
     h.prim(layer, _WORLD_PATH, "Xform")
-    if with_physics:
-        ps = h.prim(layer, f"{_WORLD_PATH}/PhysicsScene", "PhysicsScene")
-        g = np.asarray(builder.gravity, dtype=np.float64)
-        mag = float(np.linalg.norm(g))
-        h.attr(ps, "physics:gravityDirection", T.Vector3f, h.vec3f(g / mag if mag > 0 else (0.0, 0.0, -1.0)))
-        h.attr(ps, "physics:gravityMagnitude", T.Float, mag)
+    ps = h.prim(layer, f"{_WORLD_PATH}/PhysicsScene", "PhysicsScene")
+    g = np.asarray(builder.gravity, dtype=np.float64)
+    mag = float(np.linalg.norm(g))
+    h.attr(ps, "physics:gravityDirection", T.Vector3f, h.vec3f(g / mag if mag > 0 else (0.0, 0.0, -1.0)))
+    h.attr(ps, "physics:gravityMagnitude", T.Float, mag)
     forces: dict[int, list] = {}
     for f in builder.forces:
         forces.setdefault(f.body, []).append(f)
     for i, (b, path) in enumerate(zip(builder.bodies, scene.body_paths)):
         schemas = ["PhysicsRigidBodyAPI"] + ([] if b.static else ["PhysicsMassAPI"])
-        spec = h.prim(layer, path, "Xform", schemas=schemas if with_physics else ())
+        spec = h.prim(layer, path, "Xform", schemas=schemas)
         _author_geometry(h, layer, f"{path}/geom", _body_display_shape(b))
-        if not with_physics:
-            continue
         if b.static:
             h.attr(spec, "physics:kinematicEnabled", T.Bool, True)
         else:
@@ -806,7 +822,7 @@ def _author_physics_scene(h: _Sdf, layer, scene: UsdScene, with_physics: bool) -
                    Vt.Vec3dArray([Gf.Vec3d(*f.torque) for f in fs]), custom=True)  # fmt: skip
             h.attr(spec, "warpimpulse:forceUntil", T.DoubleArray,
                    Vt.DoubleArray([min(f.until, 1e300) for f in fs]), custom=True)  # fmt: skip
-    if not with_physics or not builder.joints:
+    if not builder.joints:
         return
     h.prim(layer, f"{_WORLD_PATH}/Joints", "Scope")
     bodies = builder.bodies
@@ -901,8 +917,10 @@ class AnimationWriter:
             if scene.source_path is not None:
                 src = scene.source_path
                 layer.subLayerPaths.append(src if self.flatten else os.path.relpath(src, os.path.dirname(self.path)))
+            elif self.instancer:
+                h.prim(layer, _WORLD_PATH, "Xform")
             else:
-                _author_physics_scene(h, layer, scene, with_physics=not self.instancer)
+                _author_physics_scene(h, layer, scene)
             if self.instancer:
                 self._build_instancer(x0, q0)
                 return
@@ -912,7 +930,8 @@ class AnimationWriter:
             spec_kind = Sdf.SpecifierOver if scene.source_path is not None else Sdf.SpecifierDef
             for i, path in enumerate(scene.body_paths):
                 spec = layer.GetPrimAtPath(path) or h.prim(layer, path, specifier=spec_kind)
-                ops = ["xformOp:translate", "xformOp:orient"]
+                t_op, q_op = scene.xform_ops[i] if scene.xform_ops else ("xformOp:translate", "xformOp:orient")
+                ops = [t_op, q_op]
                 ratio = scene.body_scales[i].copy()
                 if not scene.reset_xform_stack[i]:
                     ratio /= scene.parent_scale[i]
@@ -924,8 +943,8 @@ class AnimationWriter:
                 if scene.reset_xform_stack[i]:
                     ops.insert(0, "!resetXformStack!")
                 h.attr(spec, "xformOpOrder", T.TokenArray, Vt.TokenArray(ops), uniform=True)
-                self._tpaths.append(h.attr(spec, "xformOp:translate", T.Double3, tv[i]).path)
-                self._qpaths.append(h.attr(spec, "xformOp:orient", T.Quatd, qv[i]).path)
+                self._tpaths.append(h.attr(spec, t_op, T.Double3, tv[i]).path)
+                self._qpaths.append(h.attr(spec, q_op, T.Quatd, qv[i]).path)
 
     def _build_instancer(self, x0: np.ndarray, q0: np.ndarray) -> None:
         h, T, Vt, layer = self._h, self._h.T, self._Vt, self.layer
@@ -1014,6 +1033,7 @@ class AnimationWriter:
                 out.customLayerData = layer.customLayerData
             if not out.Export(tmp):
                 raise OSError(f"could not write {tmp}")
+            os.chmod(tmp, _file_mode(self.path))  # mkstemp makes it 0600
             os.replace(tmp, self.path)
         except BaseException:
             if os.path.exists(tmp):
@@ -1035,6 +1055,16 @@ class AnimationWriter:
                 file=sys.stderr,
             )
         return False
+
+
+def _file_mode(path: str) -> int:
+    """The mode a new file would get (0666 less the umask), or the mode of the file being replaced."""
+    try:
+        return os.stat(path).st_mode & 0o777
+    except FileNotFoundError:
+        mask = os.umask(0)
+        os.umask(mask)
+        return 0o666 & ~mask
 
 
 def _vt_value(v: Any) -> Any:
@@ -1132,16 +1162,12 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
         inst = UsdGeom.PointInstancer(stage.GetPrimAtPath(_INSTANCER_PATH))
         times = np.array(inst.GetPositionsAttr().GetTimeSamples(), dtype=np.float64)
         pos = np.array([np.array(inst.GetPositionsAttr().Get(t), dtype=np.float64) for t in times])
-        ori = np.array([np.array(inst.GetOrientationsAttr().Get(t), dtype=np.float64)[:, [1, 2, 3, 0]]
-                        for t in times])  # fmt: skip
+        ori = np.array([np.array(inst.GetOrientationsAttr().Get(t), dtype=np.float64) for t in times])
         n = pos.shape[1] if len(times) else 0
         return Animation(times, [f"{_INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps)
     scene = scene or load_stage(path, ignore_unsupported=True)
     prims = [stage.GetPrimAtPath(p) for p in scene.body_paths]
-    times = sorted(
-        {t for p in prims for t in p.GetAttribute("xformOp:translate").GetTimeSamples()}
-        if prims and prims[0].GetAttribute("xformOp:translate") else []
-    )  # fmt: skip
+    times = sorted({t for p in prims for t in UsdGeom.Xformable(p).GetTimeSamples()})
     pos = np.zeros((len(times), len(prims), 3))
     ori = np.zeros((len(times), len(prims), 4))
     for k, t in enumerate(times):
