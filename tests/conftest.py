@@ -81,13 +81,19 @@ def constraint_velocity_errors(builder, x, q, v, w) -> np.ndarray:
         x1, r1 = _pose(c.body1, x, r)
         v0, w0 = _twist(c.body0, v, w)
         v1, w1 = _twist(c.body1, v, w)
+        a = x0 + r0 @ c.anchor0
         b = x1 + r1 @ c.anchor1
         n0 = r0 @ c.axis0
         n1 = r1 @ c.axis1
         kind = int(c.kind)
         if kind in (POINT, LINE, PLANE):
-            # The material point of body0 at B's place (the paper's A, moved to the closest point).
-            rel = (v0 + np.cross(w0, b - x0)) - (v1 + np.cross(w1, b - x1))
+            # The velocities of the two joint points; for a line or plane, A is first moved to the point
+            # closest to B (method paper, section 4.2).
+            if kind == LINE:
+                a = a + n0 * np.dot(b - a, n0)
+            elif kind == PLANE:
+                a = b - n0 * np.dot(b - a, n0)
+            rel = (v0 + np.cross(w0, a - x0)) - (v1 + np.cross(w1, b - x1))
             if kind == LINE:
                 rel = _perp(n0) @ rel
             elif kind == PLANE:
