@@ -29,8 +29,8 @@ def test_wheel_installs_and_imports(tmp_path):
     )
     code = (
         "import warpimpulse, warpimpulse.kernels.cholesky as c, importlib.util as u;"
-        "assert warpimpulse.__file__.startswith(%r), warpimpulse.__file__;"
-        "assert u.find_spec('kernels') is None; print('ok')" % str(env_dir)
+        f"assert warpimpulse.__file__.startswith({str(env_dir)!r}), warpimpulse.__file__;"
+        "assert u.find_spec('kernels') is None; print('ok')"
     )
     # Dependencies come from this interpreter's site-packages (as a plain path, so its editable install of
     # warpimpulse is not seen); warpimpulse itself must come from the wheel.

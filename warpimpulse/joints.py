@@ -39,7 +39,8 @@ class ConstraintKind(IntEnum):
             try:
                 return cls[kind.upper()]
             except KeyError:
-                raise ValueError(f"unknown constraint kind {kind!r}; expected one of {[k.name.lower() for k in cls]}")
+                names = [k.name.lower() for k in cls]
+                raise ValueError(f"unknown constraint kind {kind!r}; expected one of {names}") from None
         return cls(kind)
 
 

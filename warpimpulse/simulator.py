@@ -255,8 +255,8 @@ class Simulator:
 
     def _check_finite(self, state=None) -> None:
         state = state or self.state
-        bad = ~np.isfinite(np.concatenate([a.numpy().reshape(self.model.body_count, -1)
-                                           for a in (state.x, state.q, state.v, state.w)], axis=1)).all(axis=1)  # fmt: skip
+        arrays = [a.numpy().reshape(self.model.body_count, -1) for a in (state.x, state.q, state.v, state.w)]
+        bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
         if bad.any():
             names = [self.model.builder.bodies[b].name for b in np.flatnonzero(bad)[:10]]
             raise SimulationError(
@@ -291,8 +291,10 @@ class Simulator:
     def load_checkpoint(self, path) -> None:
         with np.load(path) as data:
             if int(data["bodies"]) != self.model.body_count or float(data["dt"]) != self.dt:
-                raise ValueError(f"{path}: checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} "
-                                 f"does not match this simulator ({self.model.body_count} bodies, dt={self.dt})")  # fmt: skip
+                raise ValueError(
+                    f"{path}: checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} does not match "
+                    f"this simulator ({self.model.body_count} bodies, dt={self.dt})"
+                )
             for name in ("x", "q", "v", "w"):
                 getattr(self.state, name).assign(data[name])
             self.time, self.step_count = float(data["time"]), int(data["step_count"])

@@ -171,17 +171,22 @@ class CGSolver:
         )  # fmt: skip
         self.row_start = _int(pat.csr_start, d)
         self.col = _int(pat.csr_col, d)
-        self.r, self.p, self.q, self.z = (wp.zeros(n, dtype=wp.vec3d, device=d) for _ in range(4))
+        self.b, self.x, self.r, self.p, self.q, self.z = (wp.zeros(n, dtype=wp.vec3d, device=d) for _ in range(6))
         self.scalars = wp.zeros(4, dtype=wp.float64, device=d)
         self._scalars_host = self.scalars.numpy() if not d.is_cuda else None
         self._warm: dict[str, wp.array] = {}
+
+        def rec(kernel, dim, inputs):
+            return wp.launch(kernel, dim=dim, inputs=inputs, device=d, record_cmd=True)
+
+        csr = [self.row_start, self.col, self.values]
+        self._start = rec(cg_kernels.cg_start, n, [*csr, self.precond, self.b, self.x, self.r, self.p, self.scalars])
         self._iteration = [
-            wp.launch(cg_kernels.cg_rotate_scalars, dim=1, inputs=[self.scalars], device=d, record_cmd=True),
-            wp.launch(
-                cg_kernels.cg_matvec, dim=n, inputs=[self.row_start, self.col, self.values, self.p, self.q, self.scalars],
-                device=d, record_cmd=True,
-            ),
-        ]  # fmt: skip
+            rec(cg_kernels.cg_rotate_scalars, 1, [self.scalars]),
+            rec(cg_kernels.cg_matvec, n, [*csr, self.p, self.q, self.scalars]),
+            rec(cg_kernels.cg_step, n, [self.precond, self.p, self.q, self.x, self.r, self.z, self.scalars]),
+            rec(cg_kernels.cg_direction, n, [self.z, self.p, self.scalars]),
+        ]
         self.iterations = 0
 
     def prepare(self) -> None:
@@ -193,43 +198,28 @@ class CGSolver:
         return float(s[cg_kernels.RR])
 
     def solve(self, rhs: wp.array, out: wp.array, warm_key: str | None = None) -> int:
-        """Iterate until |r| <= tolerance * |b|. Returns the CG iterations used."""
-        d = self.model.device
-        b_norm = float(np.linalg.norm(rhs.numpy()))
-        if warm_key is not None and warm_key in self._warm:
-            wp.copy(out, self._warm[warm_key])
+        """Iterate until |r| <= tolerance * |b|, from the last solution of `warm_key`. Returns the iterations."""
+        wp.copy(self.b, rhs)
+        b_norm = float(np.linalg.norm(self.b.numpy()))
+        warm = self._warm.get(warm_key) if warm_key is not None else None
+        if warm is not None:
+            wp.copy(self.x, warm)
         else:
-            out.zero_()
+            self.x.zero_()
         self.scalars.zero_()
-        wp.launch(
-            cg_kernels.cg_start, dim=len(out),
-            inputs=[self.row_start, self.col, self.values, self.precond, rhs, out, self.r, self.p, self.scalars],
-            device=d,
-        )  # fmt: skip
+        self._start.launch()
         goal = (self.tolerance * b_norm) ** 2
         it = 0
-        step = wp.launch(
-            cg_kernels.cg_step, dim=len(out), inputs=[self.precond, self.p, self.q, out, self.r, self.z, self.scalars],
-            device=d, record_cmd=True,
-        )  # fmt: skip
-        direction = wp.launch(
-            cg_kernels.cg_direction,
-            dim=len(out),
-            inputs=[self.z, self.p, self.scalars],
-            device=d,
-            record_cmd=True,
-        )
         while self._rr() > goal and b_norm > 0.0 and it < self.max_iterations:
             for launch in self._iteration:
                 launch.launch()
-            step.launch()
-            direction.launch()
             it += 1
         if not math.isfinite(self._rr()):
             raise FloatingPointError("CG diverged: the system matrix is singular or indefinite")
+        wp.copy(out, self.x)
         if warm_key is not None:
-            self._warm.setdefault(warm_key, wp.zeros_like(out))
-            wp.copy(self._warm[warm_key], out)
+            self._warm.setdefault(warm_key, wp.zeros_like(self.x))
+            wp.copy(self._warm[warm_key], self.x)
         self.iterations = it
         return it
 
