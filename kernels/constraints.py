@@ -216,6 +216,27 @@ def position_errors(
     rhs[i] = -pd * inv_h
 
 
+@wp.func
+def constraint_velocity(
+    i: int,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    body_lin_v: wp.array(dtype=vec3d),
+    body_ang_v: wp.array(dtype=vec3d),
+) -> vec3d:
+    """J_i v: the rate of change of the constraint's error."""
+    b0 = constraint_body0[i]
+    b1 = constraint_body1[i]
+    jv = vec3d()
+    if b0 >= 0:
+        jv += jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
+    if b1 >= 0:
+        jv += jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
+    return jv
+
+
 @wp.kernel
 def velocity_errors(
     # model
@@ -232,12 +253,6 @@ def velocity_errors(
 ):
     """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
     i = wp.tid()
-    b0 = constraint_body0[i]
-    b1 = constraint_body1[i]
-    jv = vec3d()
-    if b0 >= 0:
-        jv = jv + jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
-    if b1 >= 0:
-        jv = jv + jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
+    jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_lin_v, body_ang_v)
     error[i] = wp.length(jv)
     rhs[i] = -jv

@@ -9,7 +9,7 @@ import warp as wp
 
 from .assemble import diagonal_block
 from .cholesky import cholesky3, lower_inverse3
-from .constraints import constraint_error, pose_q, pose_x
+from .constraints import constraint_error, constraint_velocity, pose_q, pose_x
 from .rigid import predict_body
 
 wp.set_module_options({"enable_backward": False})
@@ -135,10 +135,7 @@ def sweep_velocities(
     for i in range(constraint_count):
         b0 = constraint_body0[i]
         b1 = constraint_body1[i]
-        jv = vec3d()
-        if b0 >= 0:
-            jv += jac_lin[2 * i] * body_v[b0] + jac_ang[2 * i] * body_w[b0]
-        jv += jac_lin[2 * i + 1] * body_v[b1] + jac_ang[2 * i + 1] * body_w[b1]
+        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w)
         e = wp.length(jv)
         worst = wp.max(worst, e)
         if e > tolerance:
