@@ -123,8 +123,9 @@ def world_inertia(builder, q) -> np.ndarray:
     return np.einsum("nij,njk,nlk->nil", r, inertia, r)
 
 
-def momenta(builder, x, q, v, w, about=np.zeros(3)) -> tuple[np.ndarray, np.ndarray]:
+def momenta(builder, x, q, v, w, about=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """Total linear momentum and total angular momentum about the point `about`."""
+    about = np.asarray(about, dtype=float)
     m = np.array([b.mass for b in builder.bodies])
     linear = (m[:, None] * v).sum(axis=0)
     spin = np.einsum("nij,nj->ni", world_inertia(builder, q), w)

@@ -1,10 +1,12 @@
 """The double pendulum against an independent reference in reduced coordinates.
 
 The reference: two uniform rods on parallel hinges (y axis), angles theta1, theta2 from the downward vertical,
-centres of mass at c1, c2 from their hinges, the second hinge L1 from the first. Lagrange's equations
+centres of mass at c1, c2 from their hinges, the second hinge L1 from the first. Lagrange's equations, M t'' = f:
 
-    [m1 c1^2 + I1 + m2 L1^2        m2 L1 c2 cos(t1 - t2)] [t1'']   [-m2 L1 c2 sin(t1 - t2) t2'^2 - (m1 c1 + m2 L1) g sin t1]
-    [m2 L1 c2 cos(t1 - t2)         m2 c2^2 + I2         ] [t2''] = [ m2 L1 c2 sin(t1 - t2) t1'^2 - m2 c2 g sin t2            ]
+    M = [m1 c1^2 + I1 + m2 L1^2     m2 L1 c2 cos(t1 - t2)]
+        [m2 L1 c2 cos(t1 - t2)      m2 c2^2 + I2         ]
+    f = [-m2 L1 c2 sin(t1 - t2) t2'^2 - (m1 c1 + m2 L1) g sin t1]
+        [ m2 L1 c2 sin(t1 - t2) t1'^2 - m2 c2 g sin t2           ]
 
 with I1, I2 the rods' moments about the hinge axis through their centres of mass, taken from the builder,
 integrated by scipy's DOP853 at rtol 1e-12.
@@ -54,10 +56,14 @@ class Reference:
         t1, t2, w1, w2 = y
         m1, m2, l1, c1, c2, g = self.m1, self.m2, self.l1, self.c1, self.c2, self.g
         c, s = math.cos(t1 - t2), math.sin(t1 - t2)
-        mass = np.array([[m1 * c1 * c1 + self.i1 + m2 * l1 * l1, m2 * l1 * c2 * c], [m2 * l1 * c2 * c, m2 * c2 * c2 + self.i2]])
+        m12 = m2 * l1 * c2 * c
+        mass = np.array([[m1 * c1 * c1 + self.i1 + m2 * l1 * l1, m12], [m12, m2 * c2 * c2 + self.i2]])
         force = np.array(
-            [-m2 * l1 * c2 * s * w2 * w2 - (m1 * c1 + m2 * l1) * g * math.sin(t1), m2 * l1 * c2 * s * w1 * w1 - m2 * c2 * g * math.sin(t2)]
-        )  # fmt: skip
+            [
+                -m2 * l1 * c2 * s * w2 * w2 - (m1 * c1 + m2 * l1) * g * math.sin(t1),
+                m2 * l1 * c2 * s * w1 * w1 - m2 * c2 * g * math.sin(t2),
+            ]
+        )
         a1, a2 = np.linalg.solve(mass, force)
         return [w1, w2, a1, a2]
 

@@ -1,0 +1,338 @@
+"""Each joint type: the motion it allows stays free, the motion it removes stays removed.
+
+Scenes have no gravity and random (seeded) masses, full inertia tensors, orientations, anchors and axes.
+The locked and free coordinates are measured from the relative pose of the child in the parent's frame,
+computed here from the joint's world anchor and axes at build time only (not from the engine's constraint
+data). "Free" is checked through what the joint's impulses cannot change: with the world as parent, the
+momentum along every allowed direction (e.g. the angular momentum about a hinge axis) is conserved, whatever
+the correction impulses do, and the allowed coordinate advances at the expected rate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import momenta, rotations, sim_state, world_inertia
+from scipy.spatial.transform import Rotation
+
+import warpimpulse
+
+DT = 1e-2
+STEPS = 150
+# Joint and velocity tolerance of these runs. Tight, because the impulse of a point constraint acts at A on
+# one body and at B on the other, which are up to the tolerance apart: the allowed momenta then drift by about
+# tolerance x impulse a step (measured at h = 1e-2 over 1.5 s: 1e-8 relative at 1e-6, 2e-12 at 1e-8, 1e-13 at 1e-10).
+TOL = 1e-10
+JOINTS = ("ball", "revolute", "prismatic", "cylindrical", "universal", "fixed", "planar")
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
+def _random_body(rng, b, position, v=0.0, w=0.0, name=None) -> int:
+    moments = rng.uniform(0.8, 1.5, 3)  # any two add up to more than the third
+    r = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+    inertia = r @ np.diag(moments) @ r.T  # not diagonal in the body frame
+    q = Rotation.random(random_state=rng.integers(1 << 31)).as_quat()
+    return b.add_body(rng.uniform(0.5, 3.0), inertia, position, q, v, w, name=name)
+
+
+class Rig:
+    """A child on a joint to the world (or to a dynamic parent), and its relative coordinates."""
+
+    def __init__(self, joint: str, seed: int, velocities=None, parent_dynamic=False, kinds=None) -> None:
+        rng = np.random.default_rng(seed)
+        self.joint = joint
+        self.anchor = rng.normal(size=3)
+        self.axis = _unit(rng.normal(size=3))
+        child_axis = _unit(rng.normal(size=3))
+        self.child_axis = _unit(child_axis - 0.5 * np.dot(child_axis, self.axis) * self.axis)
+        com = self.anchor + rng.normal(scale=0.6, size=3)  # the child's centre of mass, off the joint
+        self.b = b = warpimpulse.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+        self.parent = None
+        if parent_dynamic:
+            parent_com = self.anchor + rng.normal(scale=0.6, size=3)
+            self.parent = _random_body(rng, b, parent_com, rng.normal(size=3), rng.normal(size=3), "parent")
+        v, w = velocities(self, rng, com) if velocities else (rng.normal(size=3), rng.normal(size=3))
+        self.child = _random_body(rng, b, com, v, w, "child")
+        if kinds is not None:  # a custom joint from basic constraints
+            for kind in kinds:
+                b.add_constraint(kind, self.parent, self.child, self.anchor, self.axis, self.child_axis)
+        elif joint == "universal":
+            b.add_joint_universal(self.parent, self.child, self.anchor, self.axis, self.child_axis)
+        else:
+            axes = () if joint in ("ball", "fixed") else (self.axis,)
+            getattr(b, f"add_joint_{joint}")(self.parent, self.child, self.anchor, *axes)
+        self.sim = warpimpulse.Simulator(b.finalize(), DT, tolerance=TOL)
+        # Body-frame constants: the joint point and axes on each side.
+        x0, r0 = self.parent_pose()
+        x1, r1 = self.child_pose()
+        self.anchor_child = r1.T @ (self.anchor - x1)
+        self.axis_parent = r0.T @ self.axis  # parent frame
+        self.child_axis_child = r1.T @ self.child_axis  # child frame
+        self.p0 = self.relative_point()
+        self.r_rel0 = r0.T @ r1
+
+    def parent_pose(self):
+        if self.parent is None:
+            return np.zeros(3), np.eye(3)
+        return self.sim.positions()[self.parent], rotations(self.sim.orientations()[self.parent])
+
+    def child_pose(self):
+        return self.sim.positions()[self.child], rotations(self.sim.orientations()[self.child])
+
+    def relative_point(self) -> np.ndarray:
+        """The child's joint point in the parent frame."""
+        x0, r0 = self.parent_pose()
+        x1, r1 = self.child_pose()
+        return r0.T @ (x1 + r1 @ self.anchor_child - x0)
+
+    def coordinates(self) -> tuple[dict, dict]:
+        """(locked, free) coordinates of the joint now, in the parent frame: locked ones stay 0."""
+        x0, r0 = self.parent_pose()
+        x1, r1 = self.child_pose()
+        a = self.axis_parent
+        dp = self.relative_point() - self.p0
+        dr = r0.T @ r1 @ self.r_rel0.T  # the relative rotation since the start, parent frame
+        turn = Rotation.from_matrix(dr)
+        off_axis = np.linalg.norm(dr @ a - a)  # ~ the angle by which the rotation leaves the axis
+        along = float(np.dot(a, dp))
+        across = np.linalg.norm(dp - along * a)
+        spin = float(np.dot(turn.as_rotvec(), a))  # the angle about the axis, while the rotation is about it
+        j = self.joint
+        if j == "ball":
+            return {"point": np.linalg.norm(dp)}, {"rotation": turn.magnitude()}
+        if j == "revolute":
+            return {"point": np.linalg.norm(dp), "off_axis": off_axis}, {"spin": spin}
+        if j == "prismatic":
+            return {"across": across, "rotation": turn.magnitude()}, {"slide": along}
+        if j == "cylindrical":
+            return {"across": across, "off_axis": off_axis}, {"slide": along, "spin": spin}
+        if j == "fixed":
+            return {"point": np.linalg.norm(dp), "rotation": turn.magnitude()}, {}
+        if j == "planar":
+            return {"normal": abs(along), "off_axis": off_axis}, {"in_plane": across, "spin": spin}
+        if j == "universal":
+            b_now = r0.T @ r1 @ self.child_axis_child  # the child's axis in the parent frame
+            b_start = self.r_rel0 @ self.child_axis_child
+            angle = math.acos(np.clip(np.dot(a, b_now), -1, 1)) - math.acos(np.clip(np.dot(a, b_start), -1, 1))
+            # dr = Rot(a, alpha) Rot(b_start, beta): alpha turns the child axis about a, beta is about it.
+            alpha = _angle_about(a, b_start, b_now)
+            rest = Rotation.from_rotvec(-alpha * a) * turn
+            beta = float(np.dot(rest.as_rotvec(), b_start))
+            off = np.linalg.norm(rest.as_rotvec() - beta * b_start)
+            return {"point": np.linalg.norm(dp), "angle": abs(angle), "other_rotation": off}, {
+                "alpha": alpha,
+                "beta": beta,
+            }
+        raise AssertionError(j)
+
+    def momenta(self):
+        return momenta(self.b, *sim_state(self.sim), about=self.anchor)
+
+
+def _angle_about(axis, u, v) -> float:
+    """The angle about `axis` from u to v, both projected on the plane perpendicular to it."""
+    pu = u - np.dot(u, axis) * axis
+    pv = v - np.dot(v, axis) * axis
+    return math.atan2(np.dot(axis, np.cross(pu, pv)), np.dot(pu, pv))
+
+
+# ---------------------------------------------------------------- allowed velocities, world parent
+def allowed_velocities(rig: Rig, rng, com):
+    """Velocities the joint allows (the child's joint point moves as the joint permits)."""
+    a, c = rig.axis, rig.child_axis
+    r = com - rig.anchor
+    s1, s2 = rng.choice([-1.0, 1.0], 2) * rng.uniform(1.0, 2.0, 2)
+    j = rig.joint
+    if j == "ball":
+        w = rng.normal(size=3)
+        return np.cross(w, r), w
+    if j == "revolute":
+        return np.cross(s1 * a, r), s1 * a
+    if j == "prismatic":
+        return s1 * a, np.zeros(3)
+    if j == "cylindrical":
+        return s1 * a + np.cross(s2 * a, r), s2 * a
+    if j == "universal":
+        w = s1 * a + s2 * c
+        return np.cross(w, r), w
+    if j == "planar":
+        v_point = rng.normal(size=3)
+        v_point -= np.dot(v_point, a) * a
+        return v_point + np.cross(s2 * a, r), s2 * a
+    return np.zeros(3), np.zeros(3)
+
+
+def conserved(rig: Rig, linear, angular) -> np.ndarray:
+    """Momenta along the allowed directions, with the world as parent (angular momenta about the anchor)."""
+    a = rig.axis
+    j = rig.joint
+    if j == "ball":
+        return angular
+    if j == "revolute":
+        return np.array([np.dot(a, angular)])
+    if j == "prismatic":
+        return np.array([np.dot(a, linear)])
+    if j == "cylindrical":
+        return np.array([np.dot(a, linear), np.dot(a, angular)])
+    if j == "universal":
+        return np.array([np.dot(a, angular)])
+    if j == "planar":
+        return np.concatenate([linear - np.dot(a, linear) * a, [np.dot(a, angular)]])
+    return np.zeros(0)
+
+
+def _fmt(values: dict) -> str:
+    return ", ".join(f"{k} {v:.2e}" for k, v in values.items())
+
+
+def run(rig: Rig, steps=STEPS):
+    locked_worst = {}
+    history = []
+    for _ in range(steps):
+        stats = rig.sim.step()
+        assert stats.converged and stats.max_velocity_error <= TOL, stats
+        locked, free = rig.coordinates()
+        for key, value in locked.items():
+            locked_worst[key] = max(locked_worst.get(key, 0.0), value)
+        history.append((free, rig.momenta()))
+    return locked_worst, history
+
+
+@pytest.mark.parametrize("joint", [j for j in JOINTS if j != "fixed"])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_allowed_motion_stays_free(joint, seed):
+    rig = Rig(joint, seed, allowed_velocities)
+    start = conserved(rig, *rig.momenta())
+    v0, w0 = rig.sim.linear_velocities()[0], rig.sim.angular_velocities()[0]
+    locked, history = run(rig)
+    free, (linear, angular) = history[-1]
+    end = conserved(rig, linear, angular)
+    scale = max(np.abs(start).max(), 1.0)
+    drift = np.abs(end - start).max() / scale
+    t = STEPS * DT
+    print(f"\n{joint}: locked {_fmt(locked)}, free {_fmt(free)}, allowed momenta drift {drift:.1e}")
+    for key, value in locked.items():
+        assert value <= 2 * TOL, f"{key} moved by {value:.3g}"
+    assert drift < 1e-9
+    # The allowed coordinates advance at the rates they started with.
+    a = rig.axis
+    # The spin angle lags omega t by the method's O(h^2) error (the child's inertia is not principal about
+    # the axis, so each step's free prediction wobbles): measured 1.7e-5, 4.3e-6, 1.1e-6 rad at h = 1e-2,
+    # 5e-3, 2.5e-3 for the revolute joint of seed 2, while omega itself holds to 3e-12.
+    if joint in ("revolute", "cylindrical"):
+        rate = float(np.dot(w0, a))
+        assert abs(free["spin"] - math.remainder(rate * t, 2 * math.pi)) < 1e-4
+        np.testing.assert_allclose(rig.sim.angular_velocities()[0], w0, atol=1e-9)
+    if joint in ("prismatic", "cylindrical"):
+        # The child's joint point slides at its initial speed along the axis (prismatic: v is that speed).
+        point_velocity = v0 + np.cross(w0, rig.anchor - rig.b.bodies[rig.child].position)
+        rate = float(np.dot(point_velocity, a))
+        assert abs(free["slide"] - rate * t) < 1e-9
+    if joint == "planar":
+        np.testing.assert_allclose(free["spin"], math.remainder(float(np.dot(w0, a)) * t, 2 * math.pi), atol=1e-4)
+        np.testing.assert_allclose(rig.sim.angular_velocities()[0], w0, atol=1e-9)
+        assert free["in_plane"] > 0.5
+    if joint == "universal":
+        # It bends about both axes.
+        assert abs(free["alpha"]) > 0.3 and abs(free["beta"]) > 0.3, free
+    if joint == "ball":
+        assert free["rotation"] > 0.3
+
+
+@pytest.mark.parametrize("joint", JOINTS)
+def test_removed_motion_is_removed(joint):
+    """Random velocities that break the joint: the corrections remove them, and leave the allowed momenta."""
+    rig = Rig(joint, seed=7)
+    start = conserved(rig, *rig.momenta())
+    locked, history = run(rig)
+    end = conserved(rig, *history[-1][1])
+    drift = np.abs(end - start).max() / max(np.abs(start).max(), 1.0) if len(start) else 0.0
+    print(f"\n{joint}: locked {_fmt(locked)}, allowed momenta drift {drift:.1e}")
+    for key, value in locked.items():
+        assert value <= 2 * TOL, f"{key} moved by {value:.3g}"
+    assert drift < 1e-9
+    if joint == "fixed":
+        np.testing.assert_allclose(rig.sim.linear_velocities(), 0.0, atol=TOL)
+        np.testing.assert_allclose(rig.sim.angular_velocities(), 0.0, atol=TOL)
+
+
+@pytest.mark.parametrize("joint", JOINTS)
+def test_moving_parent(joint):
+    """A dynamic parent, both bodies kicked: the relative coordinates behave as with the world."""
+    rig = Rig(joint, seed=11, parent_dynamic=True)
+    linear0, angular0 = rig.momenta()
+    locked, history = run(rig)
+    free, (linear, angular) = history[-1]
+    print(f"\n{joint}: locked {_fmt(locked)}, free {_fmt(free)}")
+    for key, value in locked.items():
+        assert value <= 2 * TOL, f"{key} moved by {value:.3g}"
+    for value in free.values():
+        assert abs(value) > 1e-3  # the allowed motion happened
+    np.testing.assert_allclose(linear, linear0, rtol=0, atol=1e-12 * max(1.0, np.abs(linear0).max()))
+
+
+# ---------------------------------------------------------------- custom joints from basic constraints
+def test_custom_universal_matches_builtin():
+    builtin = Rig("universal", seed=5, parent_dynamic=True)
+    custom = Rig("universal", seed=5, parent_dynamic=True, kinds=("point", "angle"))
+    for _ in range(100):
+        builtin.sim.step()
+        custom.sim.step()
+    np.testing.assert_allclose(custom.sim.positions(), builtin.sim.positions(), atol=1e-12)
+    np.testing.assert_allclose(custom.sim.orientations(), builtin.sim.orientations(), atol=1e-12)
+
+
+def test_custom_point_on_line():
+    """A lone 'line' constraint: the joint point stays on the line, slides along it, and turns every way."""
+    rig = Rig("cylindrical", seed=3, kinds=("line",))
+    linear0, angular0 = rig.momenta()
+    q0 = rig.sim.orientations()[0]
+    worst = 0.0
+    for _ in range(STEPS):
+        rig.sim.step()
+        locked, free = rig.coordinates()
+        worst = max(worst, locked["across"])
+    linear, angular = rig.momenta()
+    a = rig.axis
+    turn = (Rotation.from_quat(rig.sim.orientations()[0]) * Rotation.from_quat(q0).inv()).as_rotvec()
+    print(f"\nline: across {worst:.1e}, slide {free['slide']:.3f}, turn {turn}")
+    assert worst <= 2 * TOL
+    assert abs(free["slide"]) > 0.1
+    # Not held to the axis: the orientation turns about directions across it too.
+    assert np.linalg.norm(turn - np.dot(turn, a) * a) > 0.1
+    assert abs(np.dot(a, linear) - np.dot(a, linear0)) < 1e-9 * max(1.0, abs(np.dot(a, linear0)))
+    assert abs(np.dot(a, angular) - np.dot(a, angular0)) < 1e-9 * max(1.0, np.linalg.norm(angular0))
+
+
+def test_custom_axis_only():
+    """A lone 'axis' constraint keeps the child's axis on the parent's and nothing else: the child
+    translates freely (its linear momentum untouched) and spins about the axis."""
+    rig = Rig("revolute", seed=4, kinds=("axis",))
+    linear0, angular0 = rig.momenta()
+    v0 = rig.sim.linear_velocities()[0]
+    worst = 0.0
+    for _ in range(STEPS):
+        rig.sim.step()
+        locked, free = rig.coordinates()
+        worst = max(worst, locked["off_axis"])
+    linear, angular = rig.momenta()
+    print(f"\naxis: off axis {worst:.1e}, spin {free['spin']:.3f}")
+    assert worst <= 2 * TOL
+    assert abs(free["spin"]) > 0.1
+    np.testing.assert_allclose(rig.sim.linear_velocities()[0], v0, atol=1e-12)
+    np.testing.assert_allclose(linear, linear0, atol=1e-12)
+    a = rig.axis
+    assert abs(np.dot(a, angular) - np.dot(a, angular0)) < 1e-9 * max(1.0, np.linalg.norm(angular0))
+
+
+def test_world_inertia_helper():
+    """The helper the momentum checks use: I_world = R I R^T."""
+    rig = Rig("ball", seed=1)
+    r = rotations(rig.sim.orientations()[0])
+    np.testing.assert_allclose(world_inertia(rig.b, rig.sim.orientations())[0], r @ rig.b.bodies[0].inertia @ r.T)
