@@ -71,11 +71,16 @@ def constraint_errors(builder, x, q) -> np.ndarray:
     return out
 
 
-def constraint_velocity_errors(builder, x, q, v, w) -> np.ndarray:
+def constraint_velocity_errors(builder, x, q, v, w, with_slack=False):
     """|P_i (u_A - u_B)| of every constraint: the relative velocity of the joint points (or the relative
-    angular velocity) in the directions the constraint removes."""
+    angular velocity) in the directions the constraint removes.
+
+    with_slack: also return |w0| |A - B| per constraint, the amount by which the answer changes when body0's
+    velocity is taken at B instead of A (both conventions are sound; they differ while the joint error is
+    not zero)."""
     r = rotations(q)
     out = np.zeros(len(builder.constraints))
+    slack = np.zeros(len(builder.constraints))
     for i, c in enumerate(builder.constraints):
         x0, r0 = _pose(c.body0, x, r)
         x1, r1 = _pose(c.body1, x, r)
@@ -94,6 +99,7 @@ def constraint_velocity_errors(builder, x, q, v, w) -> np.ndarray:
             elif kind == PLANE:
                 a = b - n0 * np.dot(b - a, n0)
             rel = (v0 + np.cross(w0, a - x0)) - (v1 + np.cross(w1, b - x1))
+            slack[i] = np.linalg.norm(w0) * np.linalg.norm(a - b)
             if kind == LINE:
                 rel = _perp(n0) @ rel
             elif kind == PLANE:
@@ -107,7 +113,7 @@ def constraint_velocity_errors(builder, x, q, v, w) -> np.ndarray:
                 n /= np.linalg.norm(n)
                 rel = np.dot(n, rel) * n
         out[i] = np.linalg.norm(rel)
-    return out
+    return (out, slack) if with_slack else out
 
 
 def per_joint(builder, constraint_values: np.ndarray) -> np.ndarray:

@@ -1,0 +1,100 @@
+"""A free-floating articulated body without gravity conserves its total linear and angular momentum.
+
+Linear momentum sum m v; angular momentum about the world origin sum m x x v + I_world w. Every joint type is
+in the body, with random (seeded) masses, full inertia tensors, orientations and initial velocities.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import momenta, sim_state
+from scipy.spatial.transform import Rotation
+
+import warpimpulse
+
+JOINTS = ("ball", "revolute", "universal", "cylindrical", "prismatic", "planar", "fixed")
+
+
+def floating_body(seed: int, consistent: bool) -> warpimpulse.SceneBuilder:
+    """A root with a branch of two bodies on every joint type; no joint to the world.
+
+    consistent: start every child moving with its parent as one rigid body plus a random spin about its own
+    joint axis, so no constraint is broken; otherwise random velocities that the first step repairs."""
+    rng = np.random.default_rng(seed)
+    b = warpimpulse.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    v_root, w_root = rng.normal(size=3), rng.normal(size=3)
+
+    def body(position, parent_motion=None, axis=None, anchor=None):
+        moments = rng.uniform(0.8, 1.5, 3)
+        r = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
+        q = Rotation.random(random_state=rng.integers(1 << 31)).as_quat()
+        if consistent:
+            v, w = parent_motion if parent_motion is not None else (v_root, w_root)
+        else:
+            v, w = rng.normal(size=3), rng.normal(size=3)
+        return b.add_body(rng.uniform(0.5, 3.0), r @ np.diag(moments) @ r.T, position, q, v, w)
+
+    root = body(np.zeros(3))
+    for k, joint in enumerate(JOINTS):
+        direction = np.array([np.cos(2 * np.pi * k / len(JOINTS)), np.sin(2 * np.pi * k / len(JOINTS)), 0.3])
+        parent, top = root, 0.5 * direction
+        for _ in range(2):
+            anchor = top
+            centre = anchor + 0.5 * direction + rng.normal(scale=0.1, size=3)
+            # Rigid motion of the root, at the child's centre.
+            motion = (v_root + np.cross(w_root, centre), w_root)
+            child = body(centre, motion)
+            axis = rng.normal(size=3)
+            if joint == "universal":
+                b.add_joint_universal(parent, child, anchor, axis, rng.normal(size=3))
+            elif joint in ("ball", "fixed"):
+                b.add_joint(joint, parent, child, anchor)
+            else:
+                b.add_joint(joint, parent, child, anchor, axis)
+            parent, top = child, anchor + direction
+    return b
+
+
+# At the default tolerance the engine loses angular momentum: a point, line or plane constraint's impulse acts at
+# A on body0 and at B on body1, up to the tolerance apart, which adds a couple (A - B) x p every solve. Measured
+# over 3 s at h = 1e-2: 9.5e-9 (rigid start) and 4.1e-8 (kicked) relative at 1e-6; 1.9e-13 and 2.0e-11 at 1e-10.
+# With both impulses at B (jac_ang of body0 from B - x0 in kernels/constraints.frames), 6e-14 and 2e-11 at 1e-6.
+# Strict: when the engine is fixed this xpasses and fails, so the marker comes off.
+ANGULAR_DRIFT = pytest.mark.xfail(
+    strict=True, reason="joint impulses act at A and B, which differ by up to the tolerance: a couple (A - B) x p"
+)
+
+
+@pytest.mark.parametrize("consistent", [True, False], ids=["rigid_start", "kicked"])
+@pytest.mark.parametrize("tolerance", [pytest.param(1e-6, marks=ANGULAR_DRIFT), 1e-10])
+def test_momentum_conserved(consistent, tolerance):
+    builder = floating_body(seed=3, consistent=consistent)
+    assert not any(j.parent is None or j.parent < 0 for j in builder.joints)
+    sim = warpimpulse.Simulator(builder.finalize(), 1e-2, tolerance=tolerance)
+    linear0, angular0 = momenta(builder, *sim_state(sim))
+    p_scale, l_scale = np.linalg.norm(linear0), np.linalg.norm(angular0)
+    worst_p = worst_l = 0.0
+    x0 = sim.positions()
+    for _ in range(300):
+        sim.step()
+        linear, angular = momenta(builder, *sim_state(sim))
+        worst_p = max(worst_p, np.linalg.norm(linear - linear0) / p_scale)
+        worst_l = max(worst_l, np.linalg.norm(angular - angular0) / l_scale)
+    moved = np.abs(sim.positions() - x0).max()
+    print(f"\ntolerance {tolerance:g}, {'consistent' if consistent else 'kicked'}: linear {worst_p:.2e}, "
+          f"angular {worst_l:.2e} relative over 3 s; bodies moved up to {moved:.2f} m")  # fmt: skip
+    assert moved > 0.5
+    assert worst_p < 1e-9
+    assert worst_l < 1e-9
+
+
+def test_linear_momentum_at_default_tolerance():
+    """Linear momentum holds at the default tolerance too: every impulse acts equal and opposite."""
+    builder = floating_body(seed=4, consistent=False)
+    sim = warpimpulse.Simulator(builder.finalize(), 1e-2)
+    linear0, _ = momenta(builder, *sim_state(sim))
+    for _ in range(100):
+        sim.step()
+    linear, _ = momenta(builder, *sim_state(sim))
+    assert np.linalg.norm(linear - linear0) < 1e-12 * np.linalg.norm(linear0)
