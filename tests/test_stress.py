@@ -1,0 +1,187 @@
+"""The stress suite's machinery on very small cases, and the failure handling of issue 5: checkpoint and
+resume bit-identical for every solver, NaN/Inf detection naming the step and the bodies, the raise/warn
+policy at the iteration limit."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+from warpimpulse import scenes, stress
+
+
+def _case(name: str, **changes) -> stress.Case:
+    case = next(c for c in stress.cases(quick=True) if c.name == name)
+    return dataclasses.replace(case, **changes)
+
+
+# ------------------------------------------------------------------------------------------------ the suite
+def test_every_issue_case_is_in_both_modes():
+    for quick in (True, False):
+        groups = {c.group for c in stress.cases(quick)}
+        assert groups == {"mass ratio", "size", "high spin", "large steps", "long run", "near-singular", "redundant"}
+        names = {c.name for c in stress.cases(quick)}
+        assert {"mass_ratio_1e6_tip", "mass_ratio_1e6_root", "chain_1000", "tree_16383", "long_run_tree31",
+                "hinge_through_com", "redundant_fixed_hinge_cholesky"} <= names  # fmt: skip
+    full = {c.name: c for c in stress.cases(False)}
+    assert full["long_run_tree31"].steps == 100_000
+    assert full["star_1023"].isolate
+    assert {c.dt for c in full.values() if c.group == "large steps"} == {0.1, 0.2}
+
+
+def test_a_case_that_holds_passes():
+    res = stress.run_case(_case("hinge_through_com", steps=20))
+    assert res.status == "PASS", res.reasons
+    assert res.outcome == "held" and res.steps_done == 20
+    assert res.max_joint_error <= 1e-6 and res.final_joint_error <= 1e-6
+    assert res.energy_drift is not None and res.iterations_mean >= 1.0
+
+
+def test_heavy_root_mass_ratio_holds():
+    res = stress.run_case(_case("mass_ratio_1e6_root", steps=30))
+    assert res.status == "PASS", (res.reasons, res.error)
+
+
+def test_redundant_constraints_are_reported_by_name():
+    res = stress.run_case(_case("redundant_fixed_hinge_cholesky"))
+    assert res.status == "PASS" and res.outcome == "stopped"
+    assert "SingularSystemError" in res.error and "'hinge'" in res.error
+
+
+def test_the_builder_refuses_parallel_universal_axes():
+    res = stress.run_case(_case("universal_axes_1e-06_rad"))
+    assert res.status == "PASS" and "SceneError" in res.error and "'universal'" in res.error
+
+
+def test_a_hold_case_that_stops_fails_and_an_unclear_error_fails():
+    # A time step far too large with one iteration allowed: a clear stop, but the case demands holding.
+    res = stress.run_case(_case("hinge_through_com", dt=0.5, max_iterations=1, steps=5))
+    assert res.status == "FAIL" and res.outcome == "stopped"
+    builder = scenes.chain(2)
+    clear, _ = stress._clear_error(wi.SimulationError("step 3: did not reach 1e-6 in 5 iterations; 'j1'"), builder)
+    assert clear
+    clear, why = stress._clear_error(wi.SimulationError("did not converge"), builder)
+    assert not clear and "step" in why and "joints" in why
+    assert not stress._clear_error(RuntimeError("boom"), builder)[0]
+
+
+def test_main_exit_status_and_json(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "stress.json"
+    assert stress.main(["--quick", "--case", "redundant_fixed_hinge_cholesky", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["mode"] == "quick" and doc["failed"] == 0 and doc["cases"][0]["status"] == "PASS"
+    printed = capsys.readouterr().out
+    assert "redundant_fixed_hinge_cholesky" in printed and "PASS" in printed
+
+    # A case expecting an error from a scene that holds: FAIL, exit status 1.
+    bad = stress.Case("holds_but_error_expected", "redundant", lambda: scenes.chain(2), dt=0.01, steps=3,
+                      expect="error", expected_errors=("SingularSystemError",))  # fmt: skip
+    monkeypatch.setattr(stress, "cases", lambda quick: [bad])
+    assert stress.main(["--quick", "--json", str(out)]) == 1
+    assert json.loads(out.read_text())["cases"][0]["status"] == "FAIL"
+    assert stress.main(["--quick", "--case", "no-such-case"]) == 2
+
+
+def test_isolated_case_runs_in_a_child():
+    res = stress._run_isolated(_case("redundant_fixed_hinge_cholesky", budget_s=120.0), quick=True)
+    assert res.status == "PASS" and "SingularSystemError" in res.error
+
+
+# ------------------------------------------------------------------------------------------------ checkpoints
+@pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
+def test_checkpoint_resume_is_bit_identical(tmp_path, solver):
+    """Save mid-run (while the start torque still acts), resume in a fresh simulator, compare bit for bit."""
+
+    def make():
+        return wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 30, solver=solver, tolerance=1e-8)
+
+    straight = make()
+    for _ in range(24):
+        straight.step()
+    first = make()
+    for _ in range(12):
+        first.step()
+    path = tmp_path / "ck.npz"
+    first.save_checkpoint(path)
+    resumed = make()
+    resumed.load_checkpoint(path)
+    assert resumed.step_count == 12 and resumed.time == first.time
+    stats = [resumed.step() for _ in range(12)]
+    for name in ("x", "q", "v", "w"):
+        a, b = getattr(straight.state, name).numpy(), getattr(resumed.state, name).numpy()
+        assert np.array_equal(a, b), f"{solver}: {name} differs by {np.abs(a - b).max():.3g} after resume"
+    assert resumed.time == straight.time and all(s.converged for s in stats)
+
+
+def test_checkpoint_refuses_another_scene(tmp_path):
+    sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 30)
+    sim.save_checkpoint(tmp_path / "ck.npz")
+    other = wi.Simulator(scenes.binary_tree(7).finalize(), 1 / 30)
+    with pytest.raises(ValueError, match="15 bodies"):
+        other.load_checkpoint(tmp_path / "ck.npz")
+
+
+# ------------------------------------------------------------------------------------------------ NaN / Inf
+@pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
+@pytest.mark.parametrize("field,body,value", [("v", 5, np.nan), ("w", 7, np.inf), ("x", 3, np.nan), ("q", 9, np.nan)])
+def test_nan_in_the_state_stops_naming_the_body(solver, field, body, value):
+    builder = scenes.binary_tree(15)
+    sim = wi.Simulator(builder.finalize(), 1 / 60, solver=solver)
+    for _ in range(3):
+        sim.step()
+    arr = getattr(sim.state, field).numpy()
+    arr[body, 0] = value
+    getattr(sim.state, field).assign(arr)
+    with pytest.raises(wi.SimulationError, match=r"step \d+") as info:
+        sim.step()
+    msg = str(info.value)
+    assert "NaN or Inf" in msg and repr(builder.bodies[body].name) in msg
+
+
+@pytest.mark.xfail(strict=True, reason="engine: a NaN caught in the prediction names the last completed step "
+                   "(Simulator._max_error -> _check_finite uses self.step_count, not step_count + 1)")  # fmt: skip
+def test_nan_message_names_the_step_being_computed():
+    sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 60)
+    for _ in range(3):
+        sim.step()
+    v = sim.state.v.numpy()
+    v[5, 0] = np.nan
+    sim.state.v.assign(v)
+    with pytest.raises(wi.SimulationError, match=r"^step 4\b"):
+        sim.step()
+
+
+def test_external_forces_refuse_nan():
+    sim = wi.Simulator(scenes.chain(2).finalize(), 1 / 60)
+    with pytest.raises(ValueError, match="NaN"):
+        sim.set_external_forces(force=np.full((2, 3), np.nan))
+
+
+# ------------------------------------------------------------------------------------------------ policy
+@pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
+def test_iteration_limit_raise_names_step_iterations_and_joints(solver):
+    sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1)
+    with pytest.raises(wi.SimulationError) as info:
+        sim.step()
+    msg = str(info.value)
+    assert msg.startswith("step 1 ") and "in 1 iterations" in msg
+    if solver != "iterative":  # the iterative baseline has no per-joint errors to name (see the report)
+        assert "worst joints: 'j" in msg
+
+
+@pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
+def test_iteration_limit_warn_goes_on_and_records_it(solver):
+    sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1,
+                       on_max_iterations="warn")  # fmt: skip
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        stats = [sim.step() for _ in range(3)]
+    assert sim.step_count == 3
+    assert not stats[0].converged and stats[0].max_joint_error > sim.tolerance
+    assert any("did not reach" in str(w.message) and w.category is RuntimeWarning for w in caught)
+    assert all(np.all(np.isfinite(getattr(sim.state, n).numpy())) for n in ("x", "q", "v", "w"))
