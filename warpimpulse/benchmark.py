@@ -1,0 +1,836 @@
+"""Benchmark harness: run time against error, for warpimpulse and MuJoCo on the same scenes.
+
+Users pick a simulator by how fast it reaches the accuracy they need, so every configuration (engine,
+integrator or tolerance, step size) is measured twice, apart:
+- an accuracy run (not timed): trajectory error at t = 2 s against a reference, energy drift over 10 s
+  of free motion after the scene's forces stop, joint position error;
+- timing runs: the same first 2 s, repeated, nothing but steps in the timed loop; median time per step.
+
+The reference is MuJoCo RK4 at h = 1/3000 in reduced coordinates, an independent implementation; it is
+checked against itself at h = 1/6000 and the residual printed. MuJoCo's peers (Euler, implicitfast, RK4)
+run the same scene, exported by `warpimpulse.mjcf`. Peers are optional: a missing one is reported and
+skipped.
+
+Entry point: `main(argv)` (the future `warpimpulse bench`); `benchmarks/run_vs_error.py` and
+`benchmarks/scaling.py` call it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import math
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from . import scenes
+from .builder import WORLD, SceneBuilder
+from .transforms import quat_rotate
+
+SWEEP_RATES = (30, 60, 120, 300)  # steps per second: h = 1/30 ... 1/300
+SWEEP_TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
+SWEEP_SCENES = ("double_pendulum", "tree31", "tree127", "chain50", "star127")
+QUICK_RATES = (30, 60, 120, 300)
+QUICK_TOLERANCES = (1e-4, 1e-8)
+QUICK_SCENES = ("double_pendulum", "tree31", "tree127")
+MUJOCO_INTEGRATORS = ("Euler", "implicitfast", "RK4")
+REFERENCE_RATE, CHECK_RATE = 3000, 6000
+ERROR_TIME = 2.0  # s: trajectory error is measured here
+DRIFT_DURATION = 10.0  # s of conservative motion after the last force stops
+SAMPLE_RATE = 30  # Hz: energy and joint-error samples (divides every rate of the sweep)
+SCALING_TREES = tuple(2**k - 1 for k in range(5, 17))  # 31 ... 65535 bodies
+SCALING_CHAINS = (10, 100, 1000, 10000)
+QUICK_SCALING_TREES = (31, 127, 511, 2047)
+QUICK_SCALING_CHAINS = (10, 100, 1000)
+SCALING_RATE = 60
+SCALING_TOLERANCE = 1e-6
+BAR_SCENE = "tree127"
+
+
+# ------------------------------------------------------------------------------------------ scenes
+def make_scene(name: str) -> SceneBuilder:
+    """The sweep's scenes by name; `tree<N>` and `chain<N>` for any size (scaling)."""
+    if name in scenes.SCENES:
+        return scenes.SCENES[name]()
+    if name.startswith("tree"):
+        return scenes.binary_tree(int(name[4:]))
+    if name.startswith("chain"):
+        return scenes.chain(int(name[5:]))
+    raise ValueError(f"unknown scene {name!r}")
+
+
+def forces_end(builder: SceneBuilder) -> float:
+    """When the last force stops (0 without forces): the conservative part of the run starts here."""
+    ends = [f.until for f in builder.forces]
+    if any(math.isinf(e) for e in ends):
+        raise ValueError("a force never stops: energy drift needs conservative motion")
+    return max(ends, default=0.0)
+
+
+@dataclass
+class Probe:
+    """The points whose trajectories are compared (every centre of mass, every leaf tip) and the joints
+    whose anchor gap is measured, all in body frames so any engine's poses give world positions."""
+
+    bodies: np.ndarray
+    local: np.ndarray
+    gap_parent: np.ndarray  # joints with a point constraint: parent body (WORLD allowed)
+    gap_parent_local: np.ndarray  # anchor in the parent frame (world frame for WORLD)
+    gap_child: np.ndarray
+    gap_child_local: np.ndarray
+
+    @classmethod
+    def from_builder(cls, builder: SceneBuilder) -> Probe:
+        n = len(builder.bodies)
+        has_child = np.zeros(n, dtype=bool)
+        for j in builder.joints:
+            if j.parent != WORLD:
+                has_child[j.parent] = True
+        bodies, local = list(range(n)), [np.zeros(3)] * n
+        # A leaf's tip: its parent joint's anchor mirrored through the centre of mass (a capsule's far end).
+        for j in builder.joints:
+            if not has_child[j.child]:
+                child = builder.bodies[j.child]
+                bodies.append(j.child)
+                local.append(-_to_body(child.position, child.orientation, j.anchor))
+        gp, gpl, gc_, gcl = [], [], [], []
+        for j in builder.joints:
+            if j.kind not in ("ball", "revolute", "universal", "fixed"):
+                continue
+            gp.append(j.parent)
+            if j.parent == WORLD:
+                gpl.append(j.anchor)
+            else:
+                p = builder.bodies[j.parent]
+                gpl.append(_to_body(p.position, p.orientation, j.anchor))
+            c = builder.bodies[j.child]
+            gc_.append(j.child)
+            gcl.append(_to_body(c.position, c.orientation, j.anchor))
+        as_arr = lambda rows: np.array(rows, dtype=np.float64).reshape(-1, 3)  # noqa: E731
+        return cls(
+            np.array(bodies), as_arr(local), np.array(gp, dtype=np.int64), as_arr(gpl),
+            np.array(gc_, dtype=np.int64), as_arr(gcl),
+        )  # fmt: skip
+
+    def points(self, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return x[self.bodies] + quat_rotate(q[self.bodies], self.local)
+
+    def anchor_gap(self, x: np.ndarray, q: np.ndarray) -> float:
+        """Max distance between a joint's anchor on the parent and on the child, metres (point joints)."""
+        if not len(self.gap_child):
+            return 0.0
+        world = (self.gap_parent == WORLD)[:, None]
+        parent = self.gap_parent.clip(0)
+        a = np.where(world, self.gap_parent_local, x[parent] + quat_rotate(q[parent], self.gap_parent_local))
+        b = x[self.gap_child] + quat_rotate(q[self.gap_child], self.gap_child_local)
+        return float(np.linalg.norm(a - b, axis=1).max())
+
+
+def _to_body(position: np.ndarray, orientation: np.ndarray, point: np.ndarray) -> np.ndarray:
+    inverse = orientation * np.array([-1.0, -1.0, -1.0, 1.0])
+    return quat_rotate(inverse, point - position)
+
+
+# ------------------------------------------------------------------------------------------ engines
+class StepFailed(RuntimeError):
+    """The engine diverged or gave up (did not converge); the configuration is reported as failed."""
+
+
+class MujocoRunner:
+    """MuJoCo on the exported scene. Forces are switched off by step count, so the timed loop holds only
+    mj_step and a comparison, as fair to MuJoCo as our loop is to us."""
+
+    def __init__(self, mscene, integrator: str, rate: int, energy: bool = False) -> None:
+        import mujoco
+
+        self._mj = mujoco
+        self.scene = mscene
+        mscene.set_integrator(integrator, 1.0 / rate)
+        mscene.set_energy(energy)
+        self.model = mscene.model
+        self.data = mscene.make_data()  # forces of the first step applied
+        self.steps = 0
+        self.rate = rate
+        # Steps at which some force switches off (the first step starting at or after its `until`).
+        switches = {math.ceil(f.until * rate - 1e-6) for f in mscene.builder.forces}
+        self._switches = sorted(switches, reverse=True)
+        self._next_switch = self._switches.pop() if self._switches else -1
+
+    def step(self) -> None:
+        if self.steps == self._next_switch:
+            self.scene.apply_forces(self.data)
+            self._next_switch = self._switches.pop() if self._switches else -1
+        self._mj.mj_step(self.model, self.data)
+        self.steps += 1
+
+    def check(self) -> None:
+        if self.scene.diverged(self.data):
+            raise StepFailed(f"MuJoCo diverged (bad qacc) before t = {self.steps / self.rate:.4g} s")
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.scene.positions(self.data), self.scene.orientations(self.data)
+
+    def energy(self) -> tuple[float, float]:
+        """(total, kinetic) at the current state; mj_forward recomputes it without changing the state."""
+        self._mj.mj_forward(self.model, self.data)
+        return float(self.data.energy[0] + self.data.energy[1]), float(self.data.energy[1])
+
+
+class WarpimpulseRunner:
+    """Our Simulator; a SimulationError (NaN, or no convergence in max_iterations) fails the configuration."""
+
+    def __init__(self, builder: SceneBuilder, rate: int, tolerance: float, solver: str = "auto", model=None):
+        from .simulator import Simulator
+
+        self.sim = Simulator(
+            model if model is not None else builder.finalize("cpu"), 1.0 / rate, tolerance=tolerance, solver=solver
+        )
+        self.joint_iterations = self.velocity_iterations = self.linear_iterations = 0
+        self.max_joint_iterations = 0
+        self.max_step_error = 0.0
+        self.steps = 0
+
+    def step(self) -> None:
+        from .simulator import SimulationError
+
+        try:
+            stats = self.sim.step()
+        except SimulationError as e:
+            raise StepFailed(str(e).split(";")[0]) from e
+        self.steps += 1
+        self.joint_iterations += stats.joint_iterations
+        self.velocity_iterations += stats.velocity_iterations
+        self.linear_iterations += stats.linear_iterations
+        self.max_joint_iterations = max(self.max_joint_iterations, stats.joint_iterations)
+        self.max_step_error = max(self.max_step_error, stats.max_joint_error)
+
+    def check(self) -> None:
+        """SimulationError in step() already covers NaN and non-convergence."""
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.sim.positions(), self.sim.orientations()
+
+    def energy(self) -> tuple[float, float]:
+        return self.sim.energy(), math.nan
+
+    def iteration_stats(self) -> dict:
+        n = max(self.steps, 1)
+        return {
+            "joint_iterations_mean": self.joint_iterations / n,
+            "joint_iterations_max": self.max_joint_iterations,
+            "velocity_iterations_mean": self.velocity_iterations / n,
+            "linear_iterations_mean": self.linear_iterations / n,
+        }
+
+
+def warpimpulse_available() -> str | None:
+    """None when our Simulator imports, else why not (the harness then runs the peers alone)."""
+    try:
+        from .simulator import Simulator  # noqa: F401
+    except ImportError as e:
+        return f"warpimpulse Simulator not importable ({e})"
+    return None
+
+
+def mujoco_available() -> str | None:
+    try:
+        import mujoco
+    except ImportError:
+        return "mujoco is not installed (pip install -e .[bench])"
+    # MuJoCo would print every instability warning and append it to MUJOCO_LOG.TXT in the working
+    # directory; the harness reads the warning counters instead.
+    mujoco.set_mju_user_warning(lambda msg: None)
+    return None
+
+
+# ------------------------------------------------------------------------------------------ measuring
+def accuracy_run(runner, rate: int, probe: Probe, duration: float) -> dict:
+    """Step to `duration`, sampling energy and anchor gap at SAMPLE_RATE, tracked points at ERROR_TIME."""
+    n_total = int(round(duration * rate))
+    n_error = int(round(ERROR_TIME * rate))
+    every = rate // SAMPLE_RATE
+    e0, k0 = runner.energy()
+    times, energy, kinetic, gaps = [0.0], [e0], [k0], [probe.anchor_gap(*runner.poses())]
+    points = None
+    out: dict = {"failed": None}
+    try:
+        for k in range(1, n_total + 1):
+            runner.step()
+            if k % every == 0 or k == n_error:
+                runner.check()
+                x, q = runner.poses()
+                if not np.all(np.isfinite(x)):
+                    raise StepFailed(f"non-finite positions at t = {k / rate:.4g} s")
+                if k == n_error:
+                    points = probe.points(x, q)
+                if k % every == 0:
+                    e, ke = runner.energy()
+                    times.append(k / rate)
+                    energy.append(e)
+                    kinetic.append(ke)
+                    gaps.append(probe.anchor_gap(x, q))
+    except StepFailed as e:
+        out["failed"] = str(e)
+    out.update(points=points, times=np.array(times), energy=np.array(energy), kinetic=np.array(kinetic))
+    out["anchor_gap"] = float(max(gaps))
+    return out
+
+
+def time_steps(
+    factory: Callable[[], object], rate: int, repeats: int, duration: float = ERROR_TIME, min_total: float = 0.5
+) -> list[float]:
+    """Seconds per step for each repeat of the first `duration` seconds, from a fresh state each time.
+
+    One extra run first is the warm-up (kernels loaded, caches warm) and is discarded. Cheap runs are
+    repeated until `min_total` seconds are timed (at most 100 repeats), so a short interruption by another
+    process moves the median little. Python's garbage collector is off inside the timed loop, which holds
+    nothing but step().
+    """
+    n = int(round(duration * rate))
+    per_step: list[float] = []
+    wanted = repeats
+    while len(per_step) < wanted:
+        runner = factory()
+        gc.collect()
+        gc.disable()
+        try:
+            start = time.perf_counter()
+            for _ in range(n):
+                runner.step()
+            elapsed = time.perf_counter() - start
+        except StepFailed:
+            return []
+        finally:
+            gc.enable()
+        per_step.append(elapsed / n)
+        if len(per_step) == 1:  # the warm-up: discard it, and size the repeats from it
+            wanted = 1 + min(100, max(repeats, math.ceil(min_total / max(elapsed, 1e-9))))
+    return per_step[1:]
+
+
+@dataclass
+class Reference:
+    points: np.ndarray
+    times: np.ndarray
+    energy: np.ndarray
+    energy_scale: float  # J: work done by the scene's forces, or the peak kinetic energy without forces
+    self_check: float  # m: max distance of the tracked points, h = 1/3000 against 1/6000, at ERROR_TIME
+    seconds: float
+
+
+def reference(builder: SceneBuilder, probe: Probe, duration: float, t_forces: float) -> Reference:
+    from .mjcf import MujocoScene
+
+    start = time.perf_counter()
+    mscene = MujocoScene.from_builder(builder, 1.0 / REFERENCE_RATE)
+    ref = accuracy_run(MujocoRunner(mscene, "RK4", REFERENCE_RATE, energy=True), REFERENCE_RATE, probe, duration)
+    check = accuracy_run(MujocoRunner(mscene, "RK4", CHECK_RATE, energy=True), CHECK_RATE, probe, ERROR_TIME)
+    if ref["failed"] or check["failed"]:
+        raise RuntimeError(f"the MuJoCo reference failed: {ref['failed'] or check['failed']}")
+    if t_forces > 0.0:
+        i = int(np.searchsorted(ref["times"], t_forces - 1e-9))
+        scale = abs(ref["energy"][i] - ref["energy"][0])
+    else:
+        scale = float(ref["kinetic"].max())
+    residual = float(np.linalg.norm(ref["points"] - check["points"], axis=1).max())
+    return Reference(ref["points"], ref["times"], ref["energy"], scale, residual, time.perf_counter() - start)
+
+
+def summarize(acc: dict, ref: Reference, t_forces: float) -> dict:
+    """Errors of one accuracy run against the reference (None where the run failed before measuring)."""
+    row: dict = {"failed": acc["failed"], "joint_error_anchor_gap": acc["anchor_gap"]}
+    if acc["points"] is not None:
+        dist = np.linalg.norm(acc["points"] - ref.points, axis=1)
+        row["trajectory_error"] = float(dist.max())
+        row["trajectory_error_rms"] = float(np.sqrt(np.mean(dist * dist)))
+    else:
+        row["trajectory_error"] = row["trajectory_error_rms"] = None
+    times, energy = acc["times"], acc["energy"]
+    after = times >= t_forces - 1e-9
+    if acc["failed"] is None and after.any():
+        drift = (energy[after] - energy[after][0]) / ref.energy_scale
+        row["energy_drift"] = float(np.abs(drift).max())
+        row["energy_drift_final"] = float(drift[-1])
+        row["energy_series"] = [[round(float(t), 6), float(d)] for t, d in zip(times[after], drift)]
+    else:
+        row["energy_drift"] = row["energy_drift_final"] = None
+        row["energy_series"] = []
+    return row
+
+
+# ------------------------------------------------------------------------------------------ progress
+class Progress:
+    """A one-line progress bar on stderr, so stdout stays a clean markdown report."""
+
+    def __init__(self, total: int, enabled: bool = True) -> None:
+        self.total, self.done, self.enabled, self.start = max(total, 1), 0, enabled, time.perf_counter()
+
+    def advance(self, label: str) -> None:
+        self.done += 1
+        if not self.enabled:
+            return
+        width = 30
+        filled = int(width * self.done / self.total)
+        elapsed = time.perf_counter() - self.start
+        eta = elapsed / self.done * (self.total - self.done)
+        bar = "#" * filled + "." * (width - filled)
+        sys.stderr.write(f"\r[{bar}] {self.done}/{self.total} {elapsed:5.0f}s eta {eta:4.0f}s {label[:48]:<48}")
+        if self.done >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def log(msg: str) -> None:
+    sys.stderr.write(msg + "\n")
+    sys.stderr.flush()
+
+
+# ------------------------------------------------------------------------------------------ sweeps
+def run_vs_error(
+    scene_names: Iterable[str],
+    rates: Iterable[int],
+    tolerances: Iterable[float],
+    repeats: int,
+    solver: str = "auto",
+    progress: bool = True,
+) -> dict:
+    """The accuracy/time sweep of every scene, for every engine that is available."""
+    from .mjcf import MujocoScene
+
+    scene_names, rates, tolerances = list(scene_names), list(rates), list(tolerances)
+    ours_missing, mujoco_missing = warpimpulse_available(), mujoco_available()
+    if mujoco_missing:
+        raise RuntimeError(f"the reference needs MuJoCo: {mujoco_missing}")
+    if ours_missing:
+        log(f"note: {ours_missing}; measuring the peers only")
+    per_scene = len(rates) * (len(MUJOCO_INTEGRATORS) + (0 if ours_missing else len(tolerances)))
+    bar = Progress(len(scene_names) * (per_scene + 1), progress)
+    rows, refs = [], {}
+    for name in scene_names:
+        builder = make_scene(name)
+        probe = Probe.from_builder(builder)
+        t_forces = forces_end(builder)
+        duration = t_forces + DRIFT_DURATION
+        ref = reference(builder, probe, duration, t_forces)
+        refs[name] = {
+            "rate": REFERENCE_RATE, "check_rate": CHECK_RATE, "self_check_residual": ref.self_check,
+            "energy_scale": ref.energy_scale, "seconds": ref.seconds, "bodies": len(builder.bodies),
+            "tracked_points": len(probe.bodies), "forces_end": t_forces, "duration": duration,
+        }  # fmt: skip
+        log(f"\n{name}: reference RK4 h=1/{REFERENCE_RATE} vs 1/{CHECK_RATE}: residual {ref.self_check:.3g} m")
+        bar.advance(f"{name} reference")
+        mscene = MujocoScene.from_builder(builder, 1.0 / REFERENCE_RATE)
+        model = None if ours_missing else builder.finalize("cpu")
+        configs = [("mujoco", integ, None) for integ in MUJOCO_INTEGRATORS]
+        if not ours_missing:
+            configs += [("warpimpulse", solver, tol) for tol in tolerances]
+        for engine, variant, tol in configs:
+            for rate in rates:
+                if engine == "mujoco":
+                    factory = partial(MujocoRunner, mscene, variant, rate)
+                    runner = MujocoRunner(mscene, variant, rate, energy=True)
+                else:
+                    factory = partial(WarpimpulseRunner, builder, rate, tol, solver, model)
+                    runner = WarpimpulseRunner(builder, rate, tol, solver, model)
+                acc = accuracy_run(runner, rate, probe, duration)
+                row = {"scene": name, "engine": engine, "variant": variant, "rate": rate, "h": 1.0 / rate,
+                       "tolerance": tol}  # fmt: skip
+                row.update(summarize(acc, ref, t_forces))
+                if engine == "warpimpulse":
+                    row["joint_error_internal_max"] = runner.max_step_error
+                    row.update(runner.iteration_stats())
+                times = time_steps(factory, rate, repeats) if acc["failed"] is None else []
+                row["time_per_step_runs"] = times
+                row["time_per_step"] = statistics.median(times) if times else None
+                rows.append(row)
+                bar.advance(f"{name} {engine} {variant} 1/{rate}" + (f" tol {tol:g}" if tol else ""))
+    return {"references": refs, "runs": rows, "missing": {"warpimpulse": ours_missing, "mujoco": mujoco_missing}}
+
+
+def scaling(
+    trees: Iterable[int],
+    chains: Iterable[int],
+    steps: int = 20,
+    repeats: int = 3,
+    budget_s: float = 120.0,
+    progress: bool = True,
+) -> list[dict]:
+    """Time per step against body count (h = 1/60; ours at tolerance 1e-6; MuJoCo implicitfast and RK4).
+
+    A size whose projected cost (the previous size's measured cost times the growth in bodies, or
+    more for a chain in MuJoCo, whose mass matrix is dense) exceeds `budget_s` is skipped and reported.
+    """
+    from .mjcf import MujocoScene
+
+    ours_missing, mujoco_missing = warpimpulse_available(), mujoco_available()
+    families = [("tree", n) for n in trees] + [("chain", n) for n in chains]
+    engines = ([] if ours_missing else [("warpimpulse", "auto")]) + (
+        [] if mujoco_missing else [("mujoco", "implicitfast"), ("mujoco", "RK4")]
+    )
+    bar = Progress(len(families) * len(engines), progress)
+    rows, last_cost = [], {}
+    for family, n in families:
+        builder = scenes.binary_tree(n) if family == "tree" else scenes.chain(n)
+        mscene, model = None, None
+        for engine, variant in engines:
+            key = (family, engine, variant)
+            row = {"family": family, "bodies": n, "engine": engine, "variant": variant, "rate": SCALING_RATE}
+            if key in last_cost:
+                prev_n, prev_cost = last_cost[key]
+                growth = (n / prev_n) ** (2 if family == "chain" and engine == "mujoco" else 1)
+                if prev_cost * growth > budget_s:
+                    row["skipped"] = f"projected {prev_cost * growth:.0f} s > budget {budget_s:.0f} s"
+                    rows.append(row)
+                    bar.advance(f"{family}{n} {engine} {variant} skipped")
+                    continue
+            start = time.perf_counter()
+            try:
+                if engine == "mujoco":
+                    if mscene is None:
+                        mscene = MujocoScene.from_builder(builder, 1.0 / SCALING_RATE)
+                    row["setup_s"] = time.perf_counter() - start
+                    factory = partial(MujocoRunner, mscene, variant, SCALING_RATE)
+                else:
+                    if model is None:
+                        model = builder.finalize("cpu")
+                    row["setup_s"] = time.perf_counter() - start
+                    factory = partial(WarpimpulseRunner, builder, SCALING_RATE, SCALING_TOLERANCE, "auto", model)
+                runs, iters = _time_block(factory, steps, repeats)
+                row["time_per_step_runs"] = runs
+                row["time_per_step"] = statistics.median(runs)
+                row["time_per_body_step"] = row["time_per_step"] / n
+                row.update(iters)
+            except (StepFailed, MemoryError, ValueError) as e:
+                row["failed"] = str(e)[:200]
+            last_cost[key] = (n, time.perf_counter() - start)
+            rows.append(row)
+            bar.advance(f"{family}{n} {engine} {variant}")
+    return rows
+
+
+def _time_block(factory: Callable[[], object], steps: int, repeats: int) -> tuple[list[float], dict]:
+    """`repeats` timed blocks of `steps` steps after `steps` warm-up steps, on one runner."""
+    runner = factory()
+    for _ in range(steps):
+        runner.step()
+    runs = []
+    for _ in range(repeats):
+        gc.collect()
+        gc.disable()
+        try:
+            start = time.perf_counter()
+            for _ in range(steps):
+                runner.step()
+            runs.append((time.perf_counter() - start) / steps)
+        finally:
+            gc.enable()
+    runner.check()
+    iters = runner.iteration_stats() if isinstance(runner, WarpimpulseRunner) else {}
+    return runs, iters
+
+
+# ------------------------------------------------------------------------------------------ the bar
+def speed_ratios(runs: list[dict], scene: str = BAR_SCENE) -> list[dict]:
+    """For each of our configurations on `scene`: the fastest MuJoCo configuration whose trajectory error
+    is at most ours, and the ratio of its time per step to ours (> 1: we are faster)."""
+    ok = [r for r in runs if r["scene"] == scene and r["failed"] is None and r["time_per_step"] is not None]
+    ours = [r for r in ok if r["engine"] == "warpimpulse"]
+    peers = [r for r in ok if r["engine"] == "mujoco" and r["trajectory_error"] is not None]
+    out = []
+    for r in sorted(ours, key=lambda r: r["trajectory_error"]):
+        match = [p for p in peers if p["trajectory_error"] <= r["trajectory_error"]]
+        best = min(match, key=lambda p: p["time_per_step"]) if match else None
+        out.append({
+            "rate": r["rate"], "tolerance": r["tolerance"], "trajectory_error": r["trajectory_error"],
+            "time_per_step": r["time_per_step"],
+            "mujoco": None if best is None else f"{best['variant']} 1/{best['rate']}",
+            "mujoco_error": None if best is None else best["trajectory_error"],
+            "mujoco_time_per_step": None if best is None else best["time_per_step"],
+            "ratio": None if best is None else best["time_per_step"] / r["time_per_step"],
+        })  # fmt: skip
+    return out
+
+
+# ------------------------------------------------------------------------------------------ reports
+def _num(value, fmt: str = ".3g") -> str:
+    return "—" if value is None else format(value, fmt)
+
+
+def _us(seconds) -> str:
+    return "—" if seconds is None else f"{seconds * 1e6:.1f}"
+
+
+def markdown(results: dict) -> str:
+    """The full report: references, one table per scene, the tree127 bar, the scaling table."""
+    lines = ["# warpimpulse benchmark", ""]
+    meta = results.get("meta", {})
+    if meta:
+        lines += [f"Command: `{meta.get('command', '')}`  ", f"Machine: {meta.get('machine', '')}  ",
+                  f"Versions: {meta.get('versions', '')}", ""]  # fmt: skip
+    for why in filter(None, results.get("missing", {}).values()):
+        lines.append(f"> Not measured: {why}")
+    sweep = results.get("run_vs_error")
+    if sweep:
+        lines += ["## Run time against error", "",
+                  f"Reference: MuJoCo RK4 at h = 1/{REFERENCE_RATE}, checked against h = 1/{CHECK_RATE}. Trajectory "
+                  f"error: max distance at t = {ERROR_TIME:g} s over every centre of mass and leaf tip. Energy "
+                  f"drift: max |E(t) - E(t_f)| over {DRIFT_DURATION:g} s after the forces stop (t_f), divided by "
+                  "the work the forces did (trees) or the peak kinetic energy (no forces). Joint error: max "
+                  "distance between a point joint's two anchors over the run, from body poses, for every engine "
+                  "(MuJoCo's reduced coordinates keep it at round-off); ours also reports its own max joint error "
+                  "(m or rad) after each step. Time: median over repeats of the mean time per step over the "
+                  f"first {ERROR_TIME:g} s.", "",
+                  "| scene | bodies | reference self-check (m) | energy scale (J) |", "|---|---|---|---|"]  # fmt: skip
+        for name, ref in sweep["references"].items():
+            lines.append(f"| {name} | {ref['bodies']} | {ref['self_check_residual']:.2e} | {ref['energy_scale']:.4g} |")
+        lines.append("")
+        for name in sweep["references"]:
+            lines += [f"### {name}", "",
+                      "| engine | variant | h | tolerance | µs/step | trajectory error (m) | energy drift | "
+                      "anchor gap (m) | our joint error | joint it/step | note |",
+                      "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+            for r in (r for r in sweep["runs"] if r["scene"] == name):
+                lines.append(
+                    f"| {r['engine']} | {r['variant']} | 1/{r['rate']} | {_num(r['tolerance'], 'g')} | "
+                    f"{_us(r['time_per_step'])} | {_num(r['trajectory_error'])} | {_num(r['energy_drift'])} | "
+                    f"{_num(r['joint_error_anchor_gap'])} | {_num(r.get('joint_error_internal_max'))} | "
+                    f"{_num(r.get('joint_iterations_mean'), '.2f')} | {(r['failed'] or '')[:60]} |"
+                )
+            lines.append("")
+        lines += bar_markdown(sweep["runs"])
+    if results.get("scaling"):
+        lines += scaling_markdown(results["scaling"])
+    return "\n".join(lines) + "\n"
+
+
+def bar_markdown(runs: list[dict], scene: str = BAR_SCENE) -> list[str]:
+    ratios = speed_ratios(runs, scene)
+    if not ratios:
+        return [f"## The bar ({scene})", "", "No warpimpulse run on this scene.", ""]
+    lines = [f"## The bar: {scene} at matched trajectory error", "",
+             "Ratio = time per step of the fastest MuJoCo configuration whose error is at most ours, over ours "
+             "(> 1: warpimpulse is faster).", "",
+             "| our h | tolerance | our error (m) | our µs/step | fastest MuJoCo at ≤ that error | its error (m) | "
+             "its µs/step | ratio |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in ratios:
+        lines.append(
+            f"| 1/{r['rate']} | {r['tolerance']:g} | {r['trajectory_error']:.3g} | {_us(r['time_per_step'])} | "
+            f"{r['mujoco'] or 'none reaches it'} | {_num(r['mujoco_error'])} | {_us(r['mujoco_time_per_step'])} | "
+            f"{_num(r['ratio'], '.2f')} |"
+        )
+    wins = [r for r in ratios if r["ratio"] is None or r["ratio"] > 1.0]
+    losses = [r for r in ratios if r["ratio"] is not None and r["ratio"] <= 1.0]
+    lines += ["", f"We win in {len(wins)} of {len(ratios)} configurations and lose in {len(losses)}."]
+    if wins:
+        best = max(wins, key=lambda r: math.inf if r["ratio"] is None else r["ratio"])
+        lines.append(f"Best: h=1/{best['rate']}, tol {best['tolerance']:g}, error {best['trajectory_error']:.3g} m, "
+                     + ("no MuJoCo configuration of the sweep is that accurate." if best["ratio"] is None
+                        else f"{best['ratio']:.2f}x faster than MuJoCo {best['mujoco']}."))  # fmt: skip
+    if losses:
+        worst = min(losses, key=lambda r: r["ratio"])
+        lines.append(f"Worst: h=1/{worst['rate']}, tol {worst['tolerance']:g}, error {worst['trajectory_error']:.3g} "
+                     f"m, {1.0 / worst['ratio']:.2f}x slower than MuJoCo {worst['mujoco']}.")  # fmt: skip
+    return lines + [""]
+
+
+def scaling_markdown(rows: list[dict]) -> list[str]:
+    lines = ["## Scaling", "",
+             f"h = 1/{SCALING_RATE}; warpimpulse at tolerance {SCALING_TOLERANCE:g}; median of timed blocks after "
+             "a warm-up block.", "",
+             "| family | bodies | engine | variant | µs/step | µs/body/step | joint it/step | linear it/step | note |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        note = r.get("skipped") or r.get("failed") or ""
+        per_body = r.get("time_per_body_step")
+        lines.append(
+            f"| {r['family']} | {r['bodies']} | {r['engine']} | {r['variant']} | {_us(r.get('time_per_step'))} | "
+            f"{'—' if per_body is None else f'{per_body * 1e6:.3f}'} | {_num(r.get('joint_iterations_mean'), '.2f')} "
+            f"| {_num(r.get('linear_iterations_mean'), '.1f')} | {note} |"
+        )
+    return lines + [""]
+
+
+def readme_section(results: dict, plots: str = "benchmarks/results") -> str:
+    """The README's results section, generated from the JSON so it is never typed by hand."""
+    lines = [
+        "## Results",
+        "",
+        f"<!-- generated by `python -m warpimpulse.benchmark --from-json` from {plots}/bench.json -->",
+        "",
+    ]
+    meta = results.get("meta", {})
+    if meta:
+        lines += [f"Measured with `{meta.get('command', '')}` on {meta.get('machine', '')}.", ""]
+    sweep = results.get("run_vs_error")
+    if sweep:
+        lines += bar_markdown(sweep["runs"])
+        lines += [f"![Pareto {name}]({plots}/pareto_{name}.png)" for name in sweep["references"]]
+        lines += ["", f"![Energy drift]({plots}/energy_drift.png)", ""]
+    if results.get("scaling"):
+        lines += scaling_markdown(results["scaling"]) + [f"![Scaling]({plots}/scaling.png)", ""]
+    return "\n".join(lines)
+
+
+def plots(results: dict, directory: Path) -> list[Path]:
+    """Pareto plot per scene, energy drift over time, log-log scaling; returns the files written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    sweep = results.get("run_vs_error")
+    if sweep:
+        for name in sweep["references"]:
+            fig, ax = plt.subplots(figsize=(7, 5))
+            for label, curve in _curves(sweep["runs"], name).items():
+                ok = [r for r in curve if r["trajectory_error"] is not None and r["time_per_step"] is not None]
+                if not ok:
+                    continue
+                ax.plot([r["trajectory_error"] for r in ok], [r["time_per_step"] * 1e6 for r in ok],
+                        "o-" if label.startswith("warpimpulse") else "s--", label=label)  # fmt: skip
+                for r in ok:
+                    ax.annotate(f"1/{r['rate']}", (r["trajectory_error"], r["time_per_step"] * 1e6), fontsize=6)
+            ax.set(xscale="log", yscale="log", xlabel=f"trajectory error at t = {ERROR_TIME:g} s (m)",
+                   ylabel="time per step (µs)", title=f"{name}: time against error (lower left is better)")  # fmt: skip
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=7)
+            written.append(_save(fig, directory / f"pareto_{name}.png"))
+        names = list(sweep["references"])
+        fig, axes = plt.subplots(len(names), 1, figsize=(7, 2.6 * len(names)), squeeze=False)
+        for ax, name in zip(axes[:, 0], names):
+            for label, curve in _curves(sweep["runs"], name).items():
+                # One step size for readability: the finest of the sweep that every curve has.
+                for r in curve:
+                    if r["rate"] == max(c["rate"] for c in curve) and r["energy_series"]:
+                        t, d = np.array(r["energy_series"]).T
+                        ax.plot(t, np.abs(d) + 1e-16, label=f"{label} h=1/{r['rate']}")
+            ax.set(yscale="log", title=name, ylabel="|ΔE| / scale")
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=6, ncol=2)
+        axes[-1, 0].set_xlabel("time (s)")
+        written.append(_save(fig, directory / "energy_drift.png"))
+    if results.get("scaling"):
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+        for ax, family in zip(axes, ("tree", "chain")):
+            rows = [r for r in results["scaling"] if r["family"] == family and r.get("time_per_step")]
+            for key in sorted({(r["engine"], r["variant"]) for r in rows}):
+                pts = sorted(
+                    (r["bodies"], r["time_per_step"] * 1e6) for r in rows if (r["engine"], r["variant"]) == key
+                )
+                ax.plot(*zip(*pts), "o-", label=" ".join(key))
+            ax.set(xscale="log", yscale="log", xlabel="bodies", ylabel="time per step (µs)", title=f"{family}s")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8)
+        written.append(_save(fig, directory / "scaling.png"))
+    return written
+
+
+def _curves(runs: list[dict], scene: str) -> dict[str, list[dict]]:
+    curves: dict[str, list[dict]] = {}
+    for r in runs:
+        if r["scene"] != scene:
+            continue
+        label = f"MuJoCo {r['variant']}" if r["engine"] == "mujoco" else f"warpimpulse tol {r['tolerance']:g}"
+        curves.setdefault(label, []).append(r)
+    return curves
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
+
+
+def metadata(argv: list[str]) -> dict:
+    versions = {"python": platform.python_version(), "numpy": np.__version__}
+    for module in ("warp", "mujoco"):
+        try:
+            versions[module] = __import__(module).__version__
+        except ImportError:
+            versions[module] = None
+    return {
+        "command": "warpimpulse bench " + " ".join(argv),
+        "machine": f"{platform.processor() or platform.machine()}, {_cpu_count()} cores, {platform.system()}",
+        "versions": ", ".join(f"{k} {v}" for k, v in versions.items() if v),
+        "date": time.strftime("%Y-%m-%d %H:%M"),
+    }
+
+
+def _cpu_count() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+# ------------------------------------------------------------------------------------------ entry point
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="warpimpulse bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="reduced sweep, under 5 minutes on 2 cores")
+    p.add_argument("--json", type=Path, help="write every raw number here")
+    p.add_argument("--plots", type=Path, help="write the PNG plots into this directory")
+    p.add_argument("--readme", type=Path, help="write the README results section (markdown) here")
+    p.add_argument("--from-json", type=Path, help="report and plot an earlier --json file; measure nothing")
+    p.add_argument("--scenes", nargs="+", help=f"scenes of the sweep (default {' '.join(SWEEP_SCENES)})")
+    p.add_argument("--solver", default="auto", choices=("auto", "cholesky", "cg", "iterative"))
+    p.add_argument("--repeats", type=int, help="timed repeats per configuration (default 5, quick 3)")
+    p.add_argument("--no-sweep", action="store_true", help="skip run time against error")
+    p.add_argument("--no-scaling", action="store_true", help="skip scaling")
+    p.add_argument("--scaling-budget", type=float, default=120.0, help="seconds allowed per scaling point")
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser().parse_args(argv)
+    if args.from_json:
+        results = json.loads(args.from_json.read_text())
+    else:
+        import warp as wp
+
+        wp.config.quiet = True
+        results = {"meta": metadata(argv)}
+        repeats = args.repeats or (3 if args.quick else 5)
+        if not args.no_sweep:
+            results["run_vs_error"] = run_vs_error(
+                args.scenes or (QUICK_SCENES if args.quick else SWEEP_SCENES),
+                QUICK_RATES if args.quick else SWEEP_RATES,
+                QUICK_TOLERANCES if args.quick else SWEEP_TOLERANCES,
+                repeats, args.solver, not args.no_progress,
+            )  # fmt: skip
+            results["missing"] = results["run_vs_error"].pop("missing")
+        if not args.no_scaling:
+            results["scaling"] = scaling(
+                QUICK_SCALING_TREES if args.quick else SCALING_TREES,
+                QUICK_SCALING_CHAINS if args.quick else SCALING_CHAINS,
+                repeats=repeats, budget_s=args.scaling_budget, progress=not args.no_progress,
+            )  # fmt: skip
+    if args.json and not args.from_json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=1))
+    if args.plots:
+        for path in plots(results, args.plots):
+            log(f"wrote {path}")
+    if args.readme:
+        args.readme.parent.mkdir(parents=True, exist_ok=True)
+        args.readme.write_text(readme_section(results) + "\n")
+    sys.stdout.write(markdown(results))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
