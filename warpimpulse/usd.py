@@ -28,7 +28,7 @@ import numpy as np
 from .builder import WORLD, SceneBuilder, SceneError
 from .joints import JOINT_TYPES
 from .shapes import Shape
-from .transforms import quat_conj, quat_mul, quat_rotate, quat_to_matrix
+from .transforms import quat_conj, quat_mul, quat_rotate
 
 # Above this many bodies a procedural export uses a PointInstancer unless told otherwise
 # (benchmarks/usd_export.py: per-body prims cost ~1 us per body per frame; see the closing note there).
@@ -58,23 +58,57 @@ def _pxr():
 # ---------------------------------------------------------------------------------------------- math
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:
     """Unit quaternion (x, y, z, w) of a rotation matrix (column vectors), w >= 0."""
-    m = np.asarray(m, dtype=np.float64)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    m = np.asarray(m, dtype=np.float64).tolist()
+    tr = m[0][0] + m[1][1] + m[2][2]
     if tr > 0.0:
         s = 2.0 * math.sqrt(tr + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+        q = [(m[2][1] - m[1][2]) / s, (m[0][2] - m[2][0]) / s, (m[1][0] - m[0][1]) / s, 0.25 * s]
+    elif m[0][0] > m[1][1] and m[0][0] > m[2][2]:
+        s = 2.0 * math.sqrt(1.0 + m[0][0] - m[1][1] - m[2][2])
+        q = [0.25 * s, (m[0][1] + m[1][0]) / s, (m[0][2] + m[2][0]) / s, (m[2][1] - m[1][2]) / s]
+    elif m[1][1] > m[2][2]:
+        s = 2.0 * math.sqrt(1.0 + m[1][1] - m[0][0] - m[2][2])
+        q = [(m[0][1] + m[1][0]) / s, 0.25 * s, (m[1][2] + m[2][1]) / s, (m[0][2] - m[2][0]) / s]
     else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0.0 else q
+        s = 2.0 * math.sqrt(1.0 + m[2][2] - m[0][0] - m[1][1])
+        q = [(m[0][2] + m[2][0]) / s, (m[1][2] + m[2][1]) / s, 0.25 * s, (m[1][0] - m[0][1]) / s]
+    n = math.sqrt(sum(c * c for c in q))
+    sign = -1.0 if q[3] < 0.0 else 1.0
+    return np.array([sign * c / n for c in q])
+
+
+def _rot(q) -> np.ndarray:
+    """Rotation matrix of one unit quaternion (x, y, z, w); a scalar version of transforms.quat_to_matrix
+    (numpy's stacking costs ~50 us a call, which adds up over 10,000 bodies)."""
+    x, y, z, w = (float(c) for c in q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _qrot(q, v) -> np.ndarray:
+    return _rot(q) @ np.asarray(v, dtype=np.float64)
+
+
+def _qmul(a, b) -> np.ndarray:
+    ax, ay, az, aw = (float(c) for c in a)
+    bx, by, bz, bw = (float(c) for c in b)
+    return np.array(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
+
+
+def _qconj(q) -> np.ndarray:
+    return np.array([-float(q[0]), -float(q[1]), -float(q[2]), float(q[3])])
 
 
 @dataclass
@@ -94,15 +128,19 @@ def _decompose(m, what: str) -> _Similarity:
     """Split a USD (row-vector) 4x4 matrix into translation, rotation and per-axis scale."""
     m = np.asarray(m, dtype=np.float64)
     lin = m[:3, :3].T  # column-vector linear part
-    s = np.linalg.norm(lin, axis=0)
-    if np.any(s < 1e-12):
+    s = np.sqrt((lin * lin).sum(axis=0))
+    if s.min() < 1e-12:
         raise UsdSceneError(f"{what}: the transform has a zero scale")
     rot = lin / s
-    if np.abs(rot.T @ rot - np.eye(3)).max() > 1e-6:
+    if np.abs(rot.T @ rot - _EYE).max() > 1e-6:
         raise UsdSceneError(f"{what}: the transform has shear (non-uniform scale under a rotation); unsupported")
-    if np.linalg.det(rot) < 0.0:
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0.0:
         raise UsdSceneError(f"{what}: the transform mirrors (negative scale); unsupported")
     return _Similarity(m[3, :3].copy(), quat_from_matrix(rot), s)
+
+
+_EYE = np.eye(3)
 
 
 def _gf_quat(q) -> np.ndarray:
@@ -257,7 +295,7 @@ def _shape_mass_info(prim, body_frame: _Similarity, xcache, report: _Reporter):
         size = (hi - lo) * sim.s
         report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
         shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
-        sim.t = sim.t + quat_rotate(sim.q, 0.5 * (lo + hi) * sim.s)
+        sim.t = sim.t + _qrot(sim.q, 0.5 * (lo + hi) * sim.s)
     volume = shape.volume()
     inertia = shape.inertia(volume)  # density 1
     if kind in ("capsule", "cylinder") and axis != 2:
@@ -267,8 +305,8 @@ def _shape_mass_info(prim, body_frame: _Similarity, xcache, report: _Reporter):
     info.volume = float(volume)
     info.inertia = Gf.Matrix3f(*[float(v) for v in inertia.reshape(-1)])
     info.centerOfMass = Gf.Vec3f(0.0, 0.0, 0.0)
-    local_pos = quat_rotate(quat_conj(body_frame.q), sim.t - body_frame.t)
-    local_rot = quat_mul(quat_conj(body_frame.q), sim.q)
+    local_pos = _qrot(_qconj(body_frame.q), sim.t - body_frame.t)
+    local_rot = _qmul(_qconj(body_frame.q), sim.q)
     info.localPos = Gf.Vec3f(*[float(v) for v in local_pos])
     info.localRot = Gf.Quatf(float(local_rot[3]), *[float(v) for v in local_rot[:3]])
     return info
@@ -345,8 +383,8 @@ def _joint_frame(stage, joint_prim, side: int, xcache, mpu: float) -> tuple[np.n
     target = stage.GetPrimAtPath(targets[0])
     m = np.asarray(xcache.GetLocalToWorldTransform(target), dtype=np.float64)
     frame = _decompose(m, str(targets[0]))
-    anchor = frame.t + quat_rotate(frame.q, frame.s * pos)
-    return anchor * mpu, quat_mul(frame.q, rot)
+    anchor = frame.t + _qrot(frame.q, frame.s * pos)
+    return anchor * mpu, _qmul(frame.q, rot)
 
 
 @dataclass
@@ -486,13 +524,13 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         else:
             mass, diag, com, axes = _body_mass(prim, desc, frame, xcache, report)
         com_offsets[i] = com
-        position = (frame.t + quat_rotate(frame.q, com)) * mpu
-        rpa = quat_to_matrix(axes)
+        position = (frame.t + _qrot(frame.q, com)) * mpu
+        rpa = _rot(axes)
         inertia = rpa @ np.diag(diag) @ rpa.T * (kpu * mpu * mpu)
         # Velocities are authored in the space of the prim's xform, i.e. its parent's frame.
         pq = _decompose(xcache.GetParentToWorldTransform(prim), bpath).q
-        v = quat_rotate(pq, np.array(desc.linearVelocity, dtype=np.float64)) * mpu
-        w = quat_rotate(pq, np.radians(np.array(desc.angularVelocity, dtype=np.float64)))
+        v = _qrot(pq, np.array(desc.linearVelocity, dtype=np.float64)) * mpu
+        w = _qrot(pq, np.radians(np.array(desc.angularVelocity, dtype=np.float64)))
         try:
             if static:
                 index[bpath] = builder.add_static_body(position, frame.q, name=bpath)
@@ -558,7 +596,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             report.unsupported(jpath, "a break force or torque")
         a0, q0 = _joint_frame(stage, jprim, 0, xcache, mpu)
         a1, q1 = _joint_frame(stage, jprim, 1, xcache, mpu)
-        r0, r1 = quat_to_matrix(q0), quat_to_matrix(q1)
+        r0, r1 = _rot(q0), _rot(q1)
         if t in (T.RevoluteJoint, T.PrismaticJoint):
             if desc.limit.enabled:
                 report.unsupported(jpath, f"a limit [{desc.limit.lower}, {desc.limit.upper}]")
@@ -597,8 +635,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             except SceneError as exc:
                 raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
             joint_paths.append(jpath)
+    parsed_joints = {j[0] for j in all_joints}
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
-        if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in {j[0] for j in all_joints}:
+        if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:
             raise UsdSceneError(f"{prim.GetPath()}: unsupported joint type {prim.GetTypeName()}")
     if not bodies:
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
@@ -878,8 +917,8 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
                     lp, lq = j.anchor, wq
                 else:
                     body = bodies[bi]
-                    lp = quat_rotate(quat_conj(body.orientation), j.anchor - body.position)
-                    lq = quat_mul(quat_conj(body.orientation), wq)
+                    lp = _qrot(_qconj(body.orientation), j.anchor - body.position)
+                    lq = _qmul(_qconj(body.orientation), wq)
                     lines.append(f"rel physics:body{side} = <{scene.body_paths[bi]}>")
                 lines.append(f"point3f physics:localPos{side} = {_tup(lp)}")
                 lines.append(f"quatf physics:localRot{side} = {_quat_text(lq)}")
@@ -1235,7 +1274,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
         cache = UsdGeom.XformCache(Usd.TimeCode(t))
         for i, prim in enumerate(prims):
             fr = _decompose(cache.GetLocalToWorldTransform(prim), str(prim.GetPath()))
-            pos[k, i] = (fr.t + quat_rotate(fr.q, scene.com_offsets[i])) * scene.meters_per_unit
+            pos[k, i] = (fr.t + _qrot(fr.q, scene.com_offsets[i])) * scene.meters_per_unit
             ori[k, i] = fr.q
     return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps)
 
