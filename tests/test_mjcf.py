@@ -143,3 +143,40 @@ def test_forces_stop_on_the_same_step_as_ours() -> None:
         mujoco.mj_step(scene.model, data)
     assert active == 30
     assert math.isclose(data.time, 40 / 30.0)
+
+
+def test_benchmark_harness_end_to_end(tmp_path) -> None:
+    """One configuration per engine on the double pendulum: every number and every output is produced."""
+    pytest.importorskip("matplotlib")
+    from warpimpulse import benchmark
+
+    sweep = benchmark.run_vs_error(["double_pendulum"], [60], [1e-6], repeats=1, progress=False)
+    ref = sweep["references"]["double_pendulum"]
+    assert ref["self_check_residual"] < 1e-8
+    rk4 = next(r for r in sweep["runs"] if r["variant"] == "RK4")
+    assert rk4["failed"] is None and rk4["trajectory_error"] < 1e-3 and rk4["energy_drift"] < 1e-2
+    assert rk4["time_per_step"] > 0.0 and rk4["joint_error_anchor_gap"] < 1e-12
+    results = {"run_vs_error": sweep, "missing": sweep.pop("missing")}
+    report = benchmark.markdown(results)
+    assert "| mujoco | RK4 | 1/60 |" in report
+    written = benchmark.plots(results, tmp_path)
+    assert {p.name for p in written} == {"pareto_double_pendulum.png", "energy_drift.png"}
+    assert "## Results" in benchmark.readme_section(results)
+
+
+def test_speed_ratio_picks_the_fastest_peer_at_least_as_accurate() -> None:
+    from warpimpulse.benchmark import speed_ratios
+
+    def run(engine, variant, rate, error, seconds):
+        return {"scene": "tree127", "engine": engine, "variant": variant, "rate": rate, "tolerance": 1e-6,
+                "failed": None, "trajectory_error": error, "time_per_step": seconds}  # fmt: skip
+
+    runs = [
+        run("warpimpulse", "auto", 60, 1e-3, 2e-4),
+        run("mujoco", "RK4", 60, 1e-4, 5e-4),
+        run("mujoco", "RK4", 30, 2e-3, 3e-4),  # faster but less accurate: not a match
+        run("mujoco", "Euler", 300, 5e-4, 8e-4),
+    ]
+    (ratio,) = speed_ratios(runs)
+    assert ratio["mujoco"] == "RK4 1/60"
+    assert ratio["ratio"] == pytest.approx(2.5)

@@ -298,9 +298,9 @@ def time_steps(
     n = int(round(duration * rate))
     per_step: list[float] = []
     wanted = repeats
+    gc.collect()
     while len(per_step) < wanted:
         runner = factory()
-        gc.collect()
         gc.disable()
         try:
             start = time.perf_counter()

@@ -1,0 +1,13 @@
+"""Scaling: time per step and per body per step, binary trees of 31..65535 bodies and chains to 10,000 links.
+
+    python benchmarks/scaling.py [--quick] [--json FILE] [--plots DIR] [--scaling-budget SECONDS]
+
+A thin wrapper over `warpimpulse.benchmark` (the same options as `warpimpulse bench`), without the sweep.
+"""
+
+import sys
+
+from warpimpulse.benchmark import main
+
+if __name__ == "__main__":
+    raise SystemExit(main(["--no-sweep", *sys.argv[1:]]))
