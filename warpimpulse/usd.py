@@ -1148,12 +1148,9 @@ class AnimationWriter:
         if exc_type is None:
             self.close()
         else:
+            # The caller reports the stop; the file records it in customLayerData (warpimpulse:stoppedEarly).
             reason = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else f"{exc_type.__name__}: {exc}"
             self.close(stopped_early=reason)
-            print(
-                f"warpimpulse: stopped early ({reason}); {self.frames_written} frames saved to {self.path}",
-                file=sys.stderr,
-            )
         return False
 
 
