@@ -586,3 +586,23 @@ def test_scene_files_load_and_validate(path):
         assert len(ref.bodies) == len(scene.builder.bodies)
         assert [j.kind for j in ref.joints] == [j.kind for j in scene.builder.joints]
         assert len(ref.forces) == len(scene.builder.forces)
+
+
+def test_static_bodies_are_not_sampled_and_signs_stay_continuous(tmp_path):
+    b = SceneBuilder()
+    post = b.add_static_body((0, 0, 1), name="post", shape=Shape("box", size=(0.1, 0.1, 0.1)))
+    arm = b.add_body(1.0, [0.1, 0.1, 0.1], (0.5, 0, 1), name="arm")
+    b.add_joint_revolute(post, arm, (0, 0, 1), (0, 1, 0), name="hinge")
+    out = str(tmp_path / "static.usda")
+    x = np.array([body.position for body in b.bodies])
+    q = np.array([body.orientation for body in b.bodies])
+    with usd.AnimationWriter(out, b, 30.0) as w:
+        for f in range(4):
+            w.write_frame(f, x, q * (-1.0) ** f)  # the simulator may hand over -q: the file must not flip
+    layer = Sdf.Layer.FindOrOpen(out)
+    assert layer.GetNumTimeSamplesForPath("/World/post.xformOp:translate") == 0
+    samples = [layer.QueryTimeSample("/World/arm.xformOp:orient", t) for t in range(4)]
+    assert len({(s.GetReal(), *s.GetImaginary()) for s in samples}) == 1
+    back = usd.load_stage(out)
+    assert back.builder.bodies[0].static and not back.builder.bodies[1].static
+    assert usd.validate(out) == []

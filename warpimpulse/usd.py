@@ -989,6 +989,8 @@ class AnimationWriter:
         Sdf, Vt, h, T = self._Sdf, self._Vt, self._h, self._h.T
         scene, layer = self.scene, self.layer
         n = scene.body_count
+        self._moving = np.array([i for i, bd in enumerate(scene.builder.bodies) if not bd.static], dtype=np.int64)
+        self._prev_q: np.ndarray | None = None
         b = scene.builder.bodies
         x0 = np.array([bd.position for bd in b]).reshape(n, 3)
         q0 = np.array([bd.orientation for bd in b]).reshape(n, 4)
@@ -1000,8 +1002,8 @@ class AnimationWriter:
             if self.instancer:
                 self._build_instancer(x0, q0)
             else:
-                self._tpaths = [Sdf.Path(f"{p}.xformOp:translate") for p in scene.body_paths]
-                self._qpaths = [Sdf.Path(f"{p}.xformOp:orient") for p in scene.body_paths]
+                self._tpaths = [Sdf.Path(f"{scene.body_paths[i]}.xformOp:translate") for i in self._moving]
+                self._qpaths = [Sdf.Path(f"{scene.body_paths[i]}.xformOp:orient") for i in self._moving]
             return
         self._write_metadata()
         with Sdf.ChangeBlock():
@@ -1010,8 +1012,8 @@ class AnimationWriter:
             self._tpaths, self._qpaths = [], []
             local_t, local_q = _local_poses(scene, x0, q0)
             tv, qv = Vt.Vec3dArray.FromNumpy(local_t), Vt.QuatdArray.FromNumpy(local_q)
-            for i, path in enumerate(scene.body_paths):
-                spec = h.prim(layer, path, specifier=Sdf.SpecifierOver)
+            for i in self._moving.tolist():  # static and kinematic bodies keep the input's transform (and animation)
+                spec = h.prim(layer, scene.body_paths[i], specifier=Sdf.SpecifierOver)
                 t_op, q_op = scene.xform_ops[i] if scene.xform_ops else ("xformOp:translate", "xformOp:orient")
                 ops = [t_op, q_op]
                 ratio = scene.body_scales[i].copy()
@@ -1097,6 +1099,11 @@ class AnimationWriter:
                 layer.SetTimeSample(self._iori, tc, Vt.QuathArray.FromNumpy(q.astype(np.float16)))
             else:
                 local_t, local_q = _local_poses(self.scene, x, q)
+                local_t, local_q = local_t[self._moving], local_q[self._moving]
+                if self._prev_q is not None:  # q and -q are one rotation; keep the sign continuous for slerp
+                    flip = np.einsum("ij,ij->i", local_q, self._prev_q) < 0.0
+                    local_q[flip] *= -1.0
+                self._prev_q = local_q
                 tv, qv = Vt.Vec3dArray.FromNumpy(local_t), Vt.QuatdArray.FromNumpy(local_q)
                 st = layer.SetTimeSample
                 for p, v in zip(self._tpaths, tv):
