@@ -156,7 +156,8 @@ def frames(
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
 ):
-    """P_i and J_ib at the current poses: J = s P [I | -r*] (translational) or s P [0 | I] (rotational)."""
+    """P_i and J_ib at the current poses: J = s P [I | -r*] (translational, r from each body's centre to the
+    joint point B) or s P [0 | I] (rotational)."""
     i = wp.tid()
     kind = constraint_kind[i]
     b0 = constraint_body0[i]
@@ -170,7 +171,9 @@ def frames(
     if is_translational(kind):
         a, b = joint_points(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i])
         jac_lin[2 * i] = p
-        jac_ang[2 * i] = -p * wp.skew(a - x0)
+        # Both impulses act at B, equal and opposite, so they add no couple and angular momentum is kept
+        # exactly; the paper's A is within the tolerance of B (section 4.2).
+        jac_ang[2 * i] = -p * wp.skew(b - x0)
         jac_lin[2 * i + 1] = -p
         jac_ang[2 * i + 1] = p * wp.skew(b - x1)
     else:

@@ -56,18 +56,13 @@ def floating_body(seed: int, consistent: bool) -> warpimpulse.SceneBuilder:
     return b
 
 
-# At the default tolerance the engine loses angular momentum: a point, line or plane constraint's impulse acts at
-# A on body0 and at B on body1, up to the tolerance apart, which adds a couple (A - B) x p every solve. Measured
-# over 3 s at h = 1e-2: 9.5e-9 (rigid start) and 4.1e-8 (kicked) relative at 1e-6; 1.9e-13 and 2.0e-11 at 1e-10.
-# With both impulses at B (jac_ang of body0 from B - x0 in kernels/constraints.frames), 6e-14 and 2e-11 at 1e-6.
-# Strict: when the engine is fixed this xpasses and fails, so the marker comes off.
-ANGULAR_DRIFT = pytest.mark.xfail(
-    strict=True, reason="joint impulses act at A and B, which differ by up to the tolerance: a couple (A - B) x p"
-)
+# Impulses act equal and opposite at one point (B), so no couple is added: angular momentum holds to round-off at any
+# tolerance. Applying body0's at A instead, as the paper does, drifted 9.5e-9 (rigid start) and 4.1e-8 (kicked)
+# relative over 3 s at 1e-6.
 
 
 @pytest.mark.parametrize("consistent", [True, False], ids=["rigid_start", "kicked"])
-@pytest.mark.parametrize("tolerance", [pytest.param(1e-6, marks=ANGULAR_DRIFT), 1e-10])
+@pytest.mark.parametrize("tolerance", [1e-6, 1e-10])
 def test_momentum_conserved(consistent, tolerance):
     builder = floating_body(seed=3, consistent=consistent)
     assert not any(j.parent is None or j.parent < 0 for j in builder.joints)
