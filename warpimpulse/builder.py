@@ -106,6 +106,7 @@ class SceneBuilder:
         self.joints: list[Joint] = []
         self.constraints: list[Constraint] = []
         self.forces: list[Force] = []
+        self._body_names: dict[str, int] = {}
 
     # ---------------------------------------------------------------- bodies
     def add_body(
@@ -139,7 +140,7 @@ class SceneBuilder:
 
     def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
         what = f"body {name!r}"
-        if any(b.name == name for b in self.bodies):
+        if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
         q = _vec(orientation, f"{what} orientation", 4)
         norm = float(np.linalg.norm(q))
@@ -160,6 +161,7 @@ class SceneBuilder:
                 static=static,
             )
         )
+        self._body_names[name] = len(self.bodies) - 1
         return len(self.bodies) - 1
 
     @staticmethod
@@ -216,10 +218,9 @@ class SceneBuilder:
         if index is None:
             return WORLD
         if isinstance(index, str):
-            for i, b in enumerate(self.bodies):
-                if b.name == index:
-                    return i
-            raise SceneError(f"{what}: no body named {index!r}")
+            if index not in self._body_names:
+                raise SceneError(f"{what}: no body named {index!r}")
+            return self._body_names[index]
         if not isinstance(index, (int, np.integer)) or not 0 <= int(index) < len(self.bodies):
             raise SceneError(f"{what}: body index {index!r} does not exist ({len(self.bodies)} bodies)")
         return int(index)
