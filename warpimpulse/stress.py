@@ -330,7 +330,13 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
     from .simulator import SimulationError, Simulator
     from .solver import SingularSystemError
 
-    say = progress or (lambda _msg: None)
+    phase = ["start"]
+
+    def say(msg: str) -> None:
+        phase[0] = msg.split(" ")[0]
+        if progress is not None:
+            progress(msg)
+
     res = Result(case.name, case.group, criterion=case.criterion, note=case.note, dt=case.dt,
                  steps_planned=case.steps)  # fmt: skip
     builder = sim = None
@@ -379,14 +385,16 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
         res.error = f"{type(err).__name__}: {err}"
     except MemoryError as err:  # a case too big for the machine is a finding, not a crash of the suite
         res.outcome, res.error = "error", f"MemoryError: {err}"
-        res.reasons.append("out of memory")
+        res.reasons.append(f"out of memory in {phase[0]} after {time.perf_counter() - t0:.1f} s")
     except Exception as err:  # noqa: BLE001 - anything else is an unclear failure, reported as such
         res.outcome = "error"
         res.error = f"{type(err).__name__}: {err}"
-        res.reasons.append(f"unexpected {type(err).__name__}")
+        res.reasons.append(f"unexpected {type(err).__name__} in {phase[0]}")
         tb = traceback.format_exc(limit=4)
         res.error += "\n" + tb
-    if sim is not None and res.run_s == 0.0 and res.steps_done:
+    if sim is None:
+        res.setup_s = time.perf_counter() - t0
+    elif res.run_s == 0.0 and res.steps_done:
         res.run_s = time.perf_counter() - t0 - res.setup_s
     if res.steps_done:
         res.ms_per_step = 1e3 * res.run_s / res.steps_done
