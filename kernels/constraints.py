@@ -138,6 +138,23 @@ def constraint_error(
     return wp.normalize(n) * (rest_angle - phi)
 
 
+@wp.func
+def projected_error(kind: int, p: mat33d, d: vec3d) -> vec3d:
+    """P_i(t0) d_i(t0+h): the error in the removed directions of the step's start, for the right-hand side.
+
+    Convergence is judged on |d| itself, which is the true error of every kind at t0+h. An angle
+    constraint's direction a0 x a1 turns within the step, so its projection could shrink while the angle
+    error does not: its right-hand side is the signed angle error itself.
+    """
+    pd = p * d
+    if kind == ANGLE:
+        s = f64(1.0)
+        if pd[0] < f64(0.0):
+            s = f64(-1.0)
+        return vec3d(s * wp.length(d), f64(0.0), f64(0.0))
+    return pd
+
+
 @wp.kernel
 def frames(
     # model
@@ -214,9 +231,8 @@ def position_errors(
         pose_x(b0, pred_x), pose_q(b0, pred_q), pose_x(b1, pred_x), pose_q(b1, pred_q),
         anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i],
     )  # fmt: skip
-    pd = proj[i] * d
-    error[i] = wp.length(pd)
-    rhs[i] = -pd * inv_h
+    error[i] = wp.length(d)
+    rhs[i] = -projected_error(constraint_kind[i], proj[i], d) * inv_h
 
 
 @wp.func

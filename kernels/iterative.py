@@ -9,7 +9,7 @@ import warp as wp
 
 from .assemble import diagonal_block
 from .cholesky import cholesky3, lower_inverse3
-from .constraints import constraint_error, constraint_velocity, pose_q, pose_x
+from .constraints import constraint_error, constraint_velocity, pose_q, pose_x, projected_error
 from .rigid import predict_body
 
 wp.set_module_options({"enable_backward": False})
@@ -95,7 +95,7 @@ def sweep_positions(
             body_x[b1], body_q[b1], body_v[b1], body_w[b1], body_inv_mass[b1], body_inertia[b1],
             body_inv_inertia[b1], body_force[b1], body_torque[b1], gravity, h,
         )  # fmt: skip
-        d = proj[i] * constraint_error(
+        d = constraint_error(
             constraint_kind[i], x0, q0, x1, q1,
             anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i],
         )  # fmt: skip
@@ -106,7 +106,7 @@ def sweep_positions(
                 i, constraint_kind, constraint_body0, constraint_body1,
                 body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
             )  # fmt: skip
-            lam = solve_block(k, -d / h)
+            lam = solve_block(k, -projected_error(constraint_kind[i], proj[i], d) / h)
             apply_to_body(b0, 2 * i, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
             apply_to_body(b1, 2 * i + 1, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
     max_error[0] = worst

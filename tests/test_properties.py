@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 from conftest import constraint_errors
 from hypothesis import HealthCheck, Phase, event, given, note, settings
 from hypothesis import strategies as st
@@ -119,11 +118,6 @@ def test_random_trees_hold_or_stop_clearly(data):
     check_random_tree(data, WITHOUT_ANGLE)
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="engine: the joint-correction loop tests |P_i(t0) d_i(t0+h)|; for the ANGLE constraint of a universal "
-    "joint the row n = a0 x a1 turns within a step, so a joint off by 1e-2..1e-1 rad is reported as converged",
-)
 @SETTINGS
 @given(data=st.data())
 def test_random_trees_with_universal_joints_hold_or_stop_clearly(data):

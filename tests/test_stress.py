@@ -143,8 +143,6 @@ def test_nan_in_the_state_stops_naming_the_body(solver, field, body, value):
     assert "NaN or Inf" in msg and repr(builder.bodies[body].name) in msg
 
 
-@pytest.mark.xfail(strict=True, reason="engine: a NaN caught in the prediction names the last completed step "
-                   "(Simulator._max_error -> _check_finite uses self.step_count, not step_count + 1)")  # fmt: skip
 def test_nan_message_names_the_step_being_computed():
     sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 60)
     for _ in range(3):

@@ -21,7 +21,7 @@ from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import rigid as rigid_kernels
-from .model import Model
+from .model import Model, State
 from .solver import SOLVERS, Frames
 from .transforms import quat_to_matrix
 
@@ -185,14 +185,15 @@ class Simulator:
             joint_it, joint_err = self._sweep(self._sweep_positions, self.tolerance, "joint")
             self._predict.launch()
             self._position_errors.launch()
-            joint_err = self._max_error()
+            joint_err = self._max_error("joint")
         else:
-            joint_it = 0
+            joint_it, best = 0, math.inf
             while True:
                 self._predict.launch()
                 self._position_errors.launch()
-                joint_err = self._max_error()
-                if joint_err <= self.tolerance or not self._may_iterate(joint_it, joint_err, "joint"):
+                joint_err = self._max_error("joint")
+                best = min(best, joint_err)
+                if joint_err <= self.tolerance or not self._may_iterate(joint_it, joint_err, "joint", best):
                     break
                 linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if joint_it == 0 else None)
                 self._apply.launch()
@@ -201,7 +202,7 @@ class Simulator:
         self.state.copy_from(self.pred)
         self.time = (self.step_count + 1) * self.dt
         self.step_count += 1
-        self._check_finite()
+        self._check_finite(self.state, self.step_count)
         self._update_frames()
 
         if self.linear is None:
@@ -209,58 +210,68 @@ class Simulator:
         else:
             vel_it = 0
             self._velocity_errors.launch()
-            if self._max_error() > self.velocity_tolerance:
+            if self._max_error("velocity") > self.velocity_tolerance:
                 linear_iterations += self.linear.solve(self.rhs, self.impulse, "velocity")
                 self._apply.launch()
                 vel_it = 1
         self._velocity_errors.launch()
-        vel_err = self._max_error()
+        vel_err = self._max_error("velocity")
         converged = converged and vel_err <= self.velocity_tolerance
         return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations)
 
     def _sweep(self, launch: wp.Launch, tolerance: float, what: str) -> tuple[int, float]:
-        sweeps = 0
+        sweeps, best = 0, math.inf
         while True:
             launch.launch()
             err = float(self.sweep_error.numpy()[0])
-            if err <= tolerance or not self._may_iterate(sweeps, err, what):
+            best = min(best, err)
+            if err <= tolerance or not self._may_iterate(sweeps, err, what, best):
                 return sweeps, err
             sweeps += 1
 
-    def _max_error(self) -> float:
+    def _max_error(self, what: str) -> float:
+        """The largest constraint error of the `what` ("joint" or "velocity") correction just measured."""
         err = float(self.errors.numpy().max()) if self.model.constraint_count else 0.0
         if not math.isfinite(err):
-            self._check_finite(self.pred)
-            raise SimulationError(f"step {self.step_count + 1}: joint errors are not finite")
+            if what == "joint":
+                self._check_finite(self.pred, self.step_count + 1)
+            self._check_finite(self.state, self.step_count)
+            raise SimulationError(f"step {self.step_count + (what == 'joint')}: {what} errors are not finite")
         return err
 
-    def _may_iterate(self, iterations: int, error: float, what: str) -> bool:
-        if iterations < self.max_iterations:
+    def _may_iterate(self, iterations: int, error: float, what: str, best: float) -> bool:
+        """Whether the correction may take another iteration; on its limit, or when it diverges (the error
+        grew 1000-fold over the best this step), raise or warn naming the worst joints."""
+        diverging = iterations >= 3 and error > 1e3 * best
+        if iterations < self.max_iterations and not diverging:
             return True
-        errors = self.errors.numpy() if self.linear is not None else None
-        worst = ""
-        if errors is not None:
-            joints = self.joint_errors_from(errors)
-            bad = np.argsort(joints)[::-1][:5]
-            worst = ", ".join(f"{self.model.builder.joints[j].name!r} ({joints[j]:.3g})" for j in bad if joints[j] > 0)
-        msg = (
-            f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction did not reach "
-            f"{self.tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
-            + (f"; worst joints: {worst}" if worst else "")
+        if self.linear is None:  # the sweeps keep no per-constraint errors: measure them
+            self._predict.launch()
+            (self._position_errors if what == "joint" else self._velocity_errors).launch()
+        joints = self.joint_errors_from(self.errors.numpy())
+        bad = [j for j in np.argsort(joints)[::-1][:5] if joints[j] > 0]
+        worst = ", ".join(f"{self.model.builder.joints[j].name!r} ({joints[j]:.3g})" for j in bad)
+        tolerance = self.tolerance if what == "joint" else self.velocity_tolerance
+        failure = (
+            f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}; a smaller dt helps)"
+            if diverging
+            else f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         )
+        msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
+        if worst:
+            msg += f"; worst joints: {worst}"
         if self.on_max_iterations == "raise":
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return False
 
-    def _check_finite(self, state=None) -> None:
-        state = state or self.state
+    def _check_finite(self, state: State, step: int) -> None:
         arrays = [a.numpy().reshape(self.model.body_count, -1) for a in (state.x, state.q, state.v, state.w)]
         bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
         if bad.any():
             names = [self.model.builder.bodies[b].name for b in np.flatnonzero(bad)[:10]]
             raise SimulationError(
-                f"step {self.step_count}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
+                f"step {step}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
                 + ", ".join(repr(n) for n in names)
             )
 
