@@ -11,6 +11,7 @@ Only `to_mjcf` is pure Python; the helpers below it import `mujoco` when called.
 from __future__ import annotations
 
 import math
+import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -122,7 +123,12 @@ def to_mjcf(
         ET.SubElement(root, "size", memory=memory)
     world = ET.SubElement(root, "worldbody")
 
-    def add(parent_el: ET.Element, parent: int, b: int) -> None:
+    # Depth-first with an explicit stack: a chain of thousands of links nests thousands of bodies deep.
+    stack = [(world, WORLD, b, 1) for b in reversed(children.get(WORLD, []))]
+    depth = 0
+    while stack:
+        parent_el, parent, b, level = stack.pop()
+        depth = max(depth, level)
         body = builder.bodies[b]
         if parent == WORLD:
             pos, quat = body.position, body.orientation
@@ -141,20 +147,22 @@ def to_mjcf(
             else:
                 q_inv = quat_conj(body.orientation)
                 anchor = quat_rotate(q_inv, joint.anchor - body.position)
-                elements = _joint_elements(joint, lambda v: quat_rotate(q_inv, v))
+                elements = _joint_elements(joint, lambda v, q_inv=q_inv: quat_rotate(q_inv, v))
                 for k, (kind, axis) in enumerate(elements):
                     name = joint.name if len(elements) == 1 else f"{joint.name}_{k}"
                     attrs = {"name": name, "type": kind, "pos": _fmt(anchor)}
                     if kind != "ball":
                         attrs["axis"] = _fmt(axis)
                     ET.SubElement(el, "joint", attrs)
-        for c in children.get(b, []):
-            add(el, b, c)
-
-    for b in children.get(WORLD, []):
-        add(world, WORLD, b)
-    ET.indent(root)
-    return ET.tostring(root, encoding="unicode")
+        stack.extend((el, b, c, level + 1) for c in reversed(children.get(b, [])))
+    # ElementTree serializes recursively, a few frames per level.
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 4 * depth + 1000))
+    try:
+        ET.indent(root)
+        return ET.tostring(root, encoding="unicode")
+    finally:
+        sys.setrecursionlimit(limit)
 
 
 @dataclass
