@@ -510,7 +510,7 @@ def scaling(
                 row["time_per_body_step"] = row["time_per_step"] / n
                 row.update(iters)
             except (StepFailed, MemoryError, ValueError) as e:
-                row["failed"] = str(e)[:200]
+                row["failed"] = " ".join(str(e).split())[:200]
             last_cost[key] = (n, time.perf_counter() - start)
             rows.append(row)
             bar.advance(f"{family}{n} {engine} {variant}")
@@ -659,7 +659,7 @@ def scaling_markdown(rows: list[dict]) -> list[str]:
              "| family | bodies | engine | variant | µs/step | µs/body/step | joint it/step | linear it/step | note |",
              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
-        note = r.get("skipped") or r.get("failed") or ""
+        note = " ".join((r.get("skipped") or r.get("failed") or "").split())
         per_body = r.get("time_per_body_step")
         lines.append(
             f"| {r['family']} | {r['bodies']} | {r['engine']} | {r['variant']} | {_us(r.get('time_per_step'))} | "
