@@ -40,7 +40,8 @@ class StepStats:
     max_joint_error: float  # after the joint correction, in m or rad
     max_velocity_error: float  # after the velocity correction, in m/s or rad/s
     converged: bool = True
-    linear_iterations: int = 0  # inner CG iterations, summed over the step
+    linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
+    substeps: int = 1  # > 1 when a failing step was redone as smaller ones
 
 
 class Simulator:
@@ -53,6 +54,7 @@ class Simulator:
         solver: str = "auto",
         max_iterations: int = 100,
         on_max_iterations: str = "raise",
+        max_substep_depth: int = 3,
     ) -> None:
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
@@ -73,6 +75,7 @@ class Simulator:
         self.velocity_tolerance = float(velocity_tolerance)
         self.max_iterations = max_iterations
         self.on_max_iterations = on_max_iterations
+        self.max_substep_depth = int(max_substep_depth)
         self.solver_name = "cholesky" if solver == "auto" else solver
         self.time = 0.0
         self.step_count = 0
@@ -91,30 +94,20 @@ class Simulator:
         self.impulse = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.sweep_error = wp.zeros(1, dtype=wp.float64, device=d)
         self.linear = SOLVERS[self.solver_name](model, self.frames) if self.solver_name in SOLVERS else None
+        self._counts = (model.body_count, nc)
+        self._launches_by_h: dict[float, tuple] = {}
+        self._v0 = wp.zeros_like(self.state.v)
+        self._w0 = wp.zeros_like(self.state.w)
         self._record_launches()
         self._update_frames()
 
     # ---------------------------------------------------------------- launches
     def _record_launches(self) -> None:
-        m, s, p, f, c = self.model, self.state, self.pred, self.frames, self.control
-        d, nb, nc = m.device, m.body_count, m.constraint_count
-        h = wp.float64(self.dt)
-
-        def rec(kernel, dim, inputs):
-            return wp.launch(kernel, dim=dim, inputs=inputs, device=d, record_cmd=True)
-
-        geometry = [m.constraint_kind, m.constraint_body0, m.constraint_body1, m.constraint_anchor0,
-                    m.constraint_anchor1, m.constraint_axis0, m.constraint_axis1]  # fmt: skip
-        body_model = [m.body_inv_mass, m.body_inertia, m.body_inv_inertia, m.gravity, h]
-        self._predict = rec(rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque,
-                                                        p.x, p.q, p.v, p.w])  # fmt: skip
+        m, s, f = self.model, self.state, self.frames
+        nb, nc = self._counts
+        rec = self._rec
         self._inertia = rec(rigid_kernels.world_inverse_inertia, nb, [m.body_inv_inertia, s.q, f.inv_inertia_world])
-        self._frames = rec(constraint_kernels.frames, nc, [*geometry, s.x, s.q, f.proj, f.jac_lin, f.jac_ang])
-        self._position_errors = rec(
-            constraint_kernels.position_errors, nc,
-            [*geometry, m.constraint_rest_rotation, m.constraint_rest_angle, wp.float64(1.0 / self.dt),
-             f.proj, p.x, p.q, self.errors, self.rhs],
-        )  # fmt: skip
+        self._frames = rec(constraint_kernels.frames, nc, [*self._geometry, s.x, s.q, f.proj, f.jac_lin, f.jac_ang])
         self._velocity_errors = rec(
             constraint_kernels.velocity_errors, nc,
             [m.constraint_body0, m.constraint_body1, f.jac_lin, f.jac_ang, s.v, s.w, self.errors, self.rhs],
@@ -124,18 +117,41 @@ class Simulator:
             [m.body_inv_mass, m.body_rows_start, m.body_rows, f.inv_inertia_world, f.jac_lin, f.jac_ang,
              self.impulse, s.v, s.w],
         )  # fmt: skip
-        self._sweep_positions = rec(
-            iterative_kernels.sweep_positions, 1,
-            [nc, *geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model[:3], m.gravity, h,
-             wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj, f.jac_lin,
-             f.jac_ang, s.v, s.w, self.sweep_error],
-        )  # fmt: skip
         self._sweep_velocities = rec(
             iterative_kernels.sweep_velocities, 1,
             [nc, m.constraint_kind, m.constraint_body0, m.constraint_body1, m.body_inv_mass,
              wp.float64(self.velocity_tolerance), f.inv_inertia_world, f.jac_lin, f.jac_ang, s.v, s.w,
              self.sweep_error],
         )  # fmt: skip
+        self._use_step_size(self.dt)
+
+    def _rec(self, kernel, dim: int, inputs: list) -> wp.Launch:
+        return wp.launch(kernel, dim=dim, inputs=inputs, device=self.model.device, record_cmd=True)
+
+    @property
+    def _geometry(self) -> list:
+        m = self.model
+        return [m.constraint_kind, m.constraint_body0, m.constraint_body1, m.constraint_anchor0,
+                m.constraint_anchor1, m.constraint_axis0, m.constraint_axis1]  # fmt: skip
+
+    def _use_step_size(self, h: float) -> None:
+        """Point the launches that depend on the step size at h (recorded once per h, then cached)."""
+        if h not in self._launches_by_h:
+            m, s, p, f, c, nb, nc = self.model, self.state, self.pred, self.frames, self.control, *self._counts
+            hd = wp.float64(h)
+            body_model = [m.body_inv_mass, m.body_inertia, m.body_inv_inertia, m.gravity, hd]
+            self._launches_by_h[h] = (
+                self._rec(rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque,
+                                                      p.x, p.q, p.v, p.w]),
+                self._rec(constraint_kernels.position_errors, nc,
+                          [*self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, wp.float64(1.0 / h),
+                           f.proj, p.x, p.q, self.errors, self.rhs]),
+                self._rec(iterative_kernels.sweep_positions, 1,
+                          [nc, *self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model,
+                           wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj,
+                           f.jac_lin, f.jac_ang, s.v, s.w, self.sweep_error]),
+            )  # fmt: skip
+        self._predict, self._position_errors, self._sweep_positions = self._launches_by_h[h]
 
     def _update_frames(self) -> None:
         """P_i, J_ib and K at the current state; factor K for the coming solves."""
@@ -179,34 +195,41 @@ class Simulator:
 
     # ---------------------------------------------------------------- the step
     def step(self) -> StepStats:
+        """Advance by dt. A step whose joint correction diverges or runs out of iterations is redone as two
+        half steps, down to dt / 2**max_substep_depth, before the failure is reported."""
         self._update_forces()
-        linear_iterations = 0
-        if self.linear is None:
-            joint_it, joint_err = self._sweep(self._sweep_positions, self.tolerance, "joint")
-            self._predict.launch()
-            self._position_errors.launch()
-            joint_err = self._max_error("joint")
-        else:
-            joint_it, best = 0, math.inf
-            while True:
-                self._predict.launch()
-                self._position_errors.launch()
-                joint_err = self._max_error("joint")
-                best = min(best, joint_err)
-                if joint_err <= self.tolerance or not self._may_iterate(joint_it, joint_err, "joint", best):
-                    break
-                linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if joint_it == 0 else None)
-                self._apply.launch()
-                joint_it += 1
-        converged = joint_err <= self.tolerance
-        self.state.copy_from(self.pred)
-        self.time = (self.step_count + 1) * self.dt
+        stats = self._advance(self.dt, 0)
+        self._use_step_size(self.dt)
         self.step_count += 1
-        self._check_finite(self.state, self.step_count)
+        self.time = self.step_count * self.dt
+        return stats
+
+    def _advance(self, h: float, depth: int) -> StepStats:
+        self._use_step_size(h)
+        wp.copy(self._v0, self.state.v)
+        wp.copy(self._w0, self.state.w)
+        final = depth >= self.max_substep_depth
+        joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        if not ok:
+            wp.copy(self.state.v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
+            wp.copy(self.state.w, self._w0)
+            first = self._advance(0.5 * h, depth + 1)
+            second = self._advance(0.5 * h, depth + 1)
+            return StepStats(
+                first.joint_iterations + second.joint_iterations + joint_it,
+                first.velocity_iterations + second.velocity_iterations,
+                max(first.max_joint_error, second.max_joint_error),
+                second.max_velocity_error,
+                first.converged and second.converged,
+                first.linear_iterations + second.linear_iterations + linear_iterations,
+                first.substeps + second.substeps,
+            )
+        self.state.copy_from(self.pred)
+        self._check_finite(self.state, self.step_count + 1)
         self._update_frames()
 
         if self.linear is None:
-            vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity")
+            vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
         else:
             vel_it = 0
             self._velocity_errors.launch()
@@ -216,16 +239,44 @@ class Simulator:
                 vel_it = 1
         self._velocity_errors.launch()
         vel_err = self._max_error("velocity")
-        converged = converged and vel_err <= self.velocity_tolerance
-        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations)
+        if vel_err > self.velocity_tolerance and self.linear is not None:
+            # One exact solve should leave round-off: a linear solver that stopped short (CG on an
+            # ill-conditioned K) is reported under the same policy as an iteration limit.
+            self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
+        converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
+        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1)
 
-    def _sweep(self, launch: wp.Launch, tolerance: float, what: str) -> tuple[int, float]:
+    def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
+        """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
+
+        ok is False when the correction failed and a smaller step may still succeed (not `final`)."""
+        if self.linear is None:
+            sweeps, err = self._sweep(self._sweep_positions, self.tolerance, "joint", final)
+            self._predict.launch()
+            self._position_errors.launch()
+            err = self._max_error("joint")
+            return sweeps, err, 0, err <= self.tolerance or final
+        iterations, linear_iterations, best = 0, 0, math.inf
+        while True:
+            self._predict.launch()
+            self._position_errors.launch()
+            err = self._max_error("joint")
+            best = min(best, err)
+            if err <= self.tolerance:
+                return iterations, err, linear_iterations, True
+            if not self._may_iterate(iterations, err, "joint", best, final):
+                return iterations, err, linear_iterations, final
+            linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
+            self._apply.launch()
+            iterations += 1
+
+    def _sweep(self, launch: wp.Launch, tolerance: float, what: str, final: bool) -> tuple[int, float]:
         sweeps, best = 0, math.inf
         while True:
             launch.launch()
             err = float(self.sweep_error.numpy()[0])
             best = min(best, err)
-            if err <= tolerance or not self._may_iterate(sweeps, err, what, best):
+            if err <= tolerance or not self._may_iterate(sweeps, err, what, best, final):
                 return sweeps, err
             sweeps += 1
 
@@ -239,12 +290,15 @@ class Simulator:
             raise SimulationError(f"step {self.step_count + (what == 'joint')}: {what} errors are not finite")
         return err
 
-    def _may_iterate(self, iterations: int, error: float, what: str, best: float) -> bool:
-        """Whether the correction may take another iteration; on its limit, or when it diverges (the error
-        grew 1000-fold over the best this step), raise or warn naming the worst joints."""
+    def _may_iterate(self, iterations: int, error: float, what: str, best: float, final: bool) -> bool:
+        """Whether the correction may take another iteration. On its limit, or when it diverges (the error
+        grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
+        worst joints."""
         diverging = iterations >= 3 and error > 1e3 * best
         if iterations < self.max_iterations and not diverging:
             return True
+        if not final:
+            return False
         if self.linear is None:  # the sweeps keep no per-constraint errors: measure them
             self._predict.launch()
             (self._position_errors if what == "joint" else self._velocity_errors).launch()
