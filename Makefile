@@ -26,6 +26,7 @@ stress: $(STAMP)
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[bench]"
 	$(PY) benchmarks/paper_tables.py
+	$(PY) -m warpimpulse.benchmark --json benchmarks/results/bench.json --plots benchmarks/results --readme benchmarks/results/RESULTS.md
 
 clean:
 	rm -rf $(VENV) build *.egg-info tree127.usdc
