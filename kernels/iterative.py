@@ -44,6 +44,31 @@ def apply_to_body(
         body_w[b] = body_w[b] + inv_inertia_world[b] * (wp.transpose(jac_ang[r]) * lam)
 
 
+@wp.func
+def correct_alone(
+    i: int,
+    rhs: vec3d,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Solve K_ii lambda = rhs for constraint i alone and apply lambda to its two bodies at once."""
+    k = diagonal_block(
+        i, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin, jac_ang
+    )
+    lam = solve_block(k, rhs)
+    apply_to_body(constraint_body0[i], 2 * i, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
+    apply_to_body(
+        constraint_body1[i], 2 * i + 1, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w
+    )
+
+
 @wp.kernel
 def sweep_positions(
     # model
@@ -84,8 +109,6 @@ def sweep_positions(
         b1 = constraint_body1[i]
         x0 = pose_x(b0, body_x)
         q0 = pose_q(b0, body_q)
-        x1 = pose_x(b1, body_x)
-        q1 = pose_q(b1, body_q)
         if b0 >= 0:
             x0, q0, v0, w0 = predict_body(
                 body_x[b0], body_q[b0], body_v[b0], body_w[b0], body_inv_mass[b0], body_inertia[b0],
@@ -102,13 +125,11 @@ def sweep_positions(
         e = wp.length(d)
         worst = wp.max(worst, e)
         if e > tolerance:
-            k = diagonal_block(
-                i, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+            rhs = -projected_error(constraint_kind[i], proj[i], d) / h
+            correct_alone(
+                i, rhs, constraint_kind, constraint_body0, constraint_body1,
+                body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w,
             )  # fmt: skip
-            lam = solve_block(k, -projected_error(constraint_kind[i], proj[i], d) / h)
-            apply_to_body(b0, 2 * i, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
-            apply_to_body(b1, 2 * i + 1, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
     max_error[0] = worst
 
 
@@ -133,17 +154,12 @@ def sweep_velocities(
     """One velocity-correction sweep; max_error[0] = the largest |J_i v| met before its correction."""
     worst = f64(0.0)
     for i in range(constraint_count):
-        b0 = constraint_body0[i]
-        b1 = constraint_body1[i]
         jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w)
         e = wp.length(jv)
         worst = wp.max(worst, e)
         if e > tolerance:
-            k = diagonal_block(
-                i, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+            correct_alone(
+                i, -jv, constraint_kind, constraint_body0, constraint_body1,
+                body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w,
             )  # fmt: skip
-            lam = solve_block(k, -jv)
-            apply_to_body(b0, 2 * i, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
-            apply_to_body(b1, 2 * i + 1, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
     max_error[0] = worst
