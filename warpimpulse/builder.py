@@ -89,6 +89,13 @@ def _vec(value, what: str, n: int = 3) -> np.ndarray:
     return arr
 
 
+def _scalar(value, what: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise SceneError(f"{what} must be a number, got {value!r}") from None
+
+
 def _axis(value, what: str) -> np.ndarray:
     arr = _vec(value, what)
     norm = float(np.linalg.norm(arr))
@@ -120,10 +127,14 @@ class SceneBuilder:
         name: str | None = None,
         shape: Shape | None = None,
     ) -> int:
-        """Add a dynamic body. `inertia`: 3x3 body-frame tensor about the centre of mass, or 3 moments."""
+        """Add a dynamic body. `inertia`: 3x3 body-frame tensor about the centre of mass, or 3 moments.
+
+        A zero orientation quaternion is refused; one whose norm differs from 1 by more than 1e-6 is normalised
+        with a UserWarning (a quaternion rounded in a file or typed by hand is still meant as a rotation).
+        """
         name = name or f"body{len(self.bodies)}"
         what = f"body {name!r}"
-        mass = float(mass)
+        mass = _scalar(mass, f"{what}: mass")
         if not math.isfinite(mass) or mass <= 0.0:
             raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
         return self._append_body(
@@ -211,12 +222,17 @@ class SceneBuilder:
 
         Combine several on the same pair of bodies to build custom joints. Returns the joint index.
         """
-        kind = ConstraintKind.parse(kind)
+        try:
+            kind = ConstraintKind.parse(kind)
+        except ValueError as exc:
+            raise SceneError(f"joint {name or f'joint{len(self.joints)}'!r}: {exc}") from None
         return self.add_joint(kind.name.lower(), parent, child, anchor, axis, axis_child, name, (kind,))
 
     def _body_index(self, index, what: str) -> int:
         if index is None:
             return WORLD
+        if isinstance(index, (bool, np.bool_)):  # True would silently mean body 1
+            raise SceneError(f"{what}: a body index or name is expected, got {index!r}")
         if isinstance(index, str):
             if index not in self._body_names:
                 raise SceneError(f"{what}: no body named {index!r}")
@@ -287,7 +303,11 @@ class SceneBuilder:
         b = self._body_index(body, "force")
         if b == WORLD or self.bodies[b].static:
             raise SceneError(f"force: body {body!r} is not dynamic")
-        self.forces.append(Force(b, _vec(force, "force"), _vec(torque, "torque"), float(until)))
+        what = f"force on body {self.bodies[b].name!r}"
+        until = _scalar(until, f"{what}: until")
+        if math.isnan(until):
+            raise SceneError(f"{what}: until is NaN")
+        self.forces.append(Force(b, _vec(force, f"{what}: force"), _vec(torque, f"{what}: torque"), until))
         return len(self.forces) - 1
 
     # ---------------------------------------------------------------- output
@@ -300,4 +320,31 @@ class SceneBuilder:
 
         if not self.bodies:
             raise SceneError("the scene has no bodies")
+        self._check_arrays()
         return Model.from_builder(self, device)
+
+    def _check_arrays(self) -> None:
+        """The add_* calls check their input, but the stored arrays stay mutable (scenes set velocities after
+        adding bodies): check once more, vectorised, that no NaN or Inf and no bad mass reaches the device."""
+        if not np.all(np.isfinite(self.gravity)):
+            raise SceneError(f"gravity contains NaN or Inf: {self.gravity.tolist()}")
+        for f in ("position", "orientation", "linear_velocity", "angular_velocity", "inertia"):
+            values = np.array([np.ravel(getattr(b, f)) for b in self.bodies])
+            bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
+            if bad.size:
+                name = self.bodies[bad[0]].name
+                raise SceneError(f"body {name!r} {f} contains NaN or Inf: {values[bad[0]].tolist()}")
+        mass = np.array([b.mass for b in self.bodies])
+        bad = np.flatnonzero(~np.array([b.static for b in self.bodies]) & ~(np.isfinite(mass) & (mass > 0.0)))
+        if bad.size:
+            raise SceneError(f"body {self.bodies[bad[0]].name!r}: mass must be positive and finite, got {mass[bad[0]]}")
+        if self.constraints:
+            geometry = np.array([np.concatenate([c.anchor0, c.anchor1, c.axis0, c.axis1, c.rest_rotation,
+                                                 [c.rest_angle]]) for c in self.constraints])  # fmt: skip
+            bad = np.flatnonzero(~np.all(np.isfinite(geometry), axis=1))
+            if bad.size:
+                raise SceneError(f"joint {self.joints[self.constraints[bad[0]].joint].name!r}: anchor or axis "
+                                 "contains NaN or Inf")  # fmt: skip
+        for force in self.forces:
+            if not (np.all(np.isfinite(force.force)) and np.all(np.isfinite(force.torque))):
+                raise SceneError(f"force on body {self.bodies[force.body].name!r} contains NaN or Inf")
