@@ -111,3 +111,51 @@ def assemble(
     if i == j:
         k = pad_unused_rows(k, constraint_kind[i])
     values[s] = k
+
+
+# What a slot of the augmented matrix holds: warpimpulse/topology.py, SLOT_*.
+SLOT_MASS = wp.constant(1)
+SLOT_INERTIA = wp.constant(2)
+SLOT_JLIN = wp.constant(3)
+SLOT_JANG = wp.constant(4)
+SLOT_JLIN_T = wp.constant(5)
+SLOT_JANG_T = wp.constant(6)
+SLOT_PAD = wp.constant(7)
+
+
+@wp.kernel
+def assemble_augmented(
+    # model
+    constraint_kind: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    slot_code: wp.array(dtype=int),
+    slot_ref: wp.array(dtype=int),
+    # data in
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    # data out
+    values: wp.array(dtype=mat33d),
+):
+    """The blocks of [[M, J^T], [J, 0]] (Baraff 1996): a body's mass and world inertia, a constraint's
+    Jacobian on a body, zero elsewhere; the unused rows of a constraint of dimension < 3 get a -1 pivot."""
+    s = wp.tid()
+    code = slot_code[s]
+    r = slot_ref[s]
+    k = mat33d()
+    if code == SLOT_MASS:
+        k = wp.identity(3, dtype=f64) / body_inv_mass[r]
+    elif code == SLOT_INERTIA:
+        k = wp.inverse(inv_inertia_world[r])
+    elif code == SLOT_JLIN:
+        k = jac_lin[r]
+    elif code == SLOT_JANG:
+        k = jac_ang[r]
+    elif code == SLOT_JLIN_T:
+        k = wp.transpose(jac_lin[r])
+    elif code == SLOT_JANG_T:
+        k = wp.transpose(jac_ang[r])
+    elif code == SLOT_PAD:
+        for row in range(constraint_dim(constraint_kind[r]), 3):
+            k[row, row] = f64(-1.0)
+    values[s] = k

@@ -1,4 +1,8 @@
-"""Numeric block Cholesky K = L L^T on a pattern precomputed by the host, and the triangular solves.
+"""Numeric block Cholesky A = L S L^T on a pattern precomputed by the host, and the triangular solves.
+
+S is a fixed diagonal of signs, one per block column: all +1 for K (an SPD L L^T), and -1 for the
+constraint pivots of the augmented body-joint matrix, whose Schur complements are negative definite in the
+host's elimination order (Baraff 1996). Each pivot block is then s_j A_jj = L_jj L_jj^T.
 
 Columns are in elimination order. The host groups columns so that a group runs in order on one thread
 and the groups of one launch are independent (levels of the elimination tree): on a CPU one group holds
@@ -58,13 +62,16 @@ def factor(
     update_target: wp.array(dtype=int),
     update_a: wp.array(dtype=int),
     update_b: wp.array(dtype=int),
+    update_sign: wp.array(dtype=f64),
+    col_sign: wp.array(dtype=f64),
     pivot_tolerance: f64,
     # data in/out
     values: wp.array(dtype=mat33d),
     diag_inv: wp.array(dtype=mat33d),
     singular: wp.array(dtype=int),
 ):
-    """Left-looking: L_tj -= L_ak L_bk^T over the precomputed updates, then L_jj = chol(.), L_ij = L_ij L_jj^-T.
+    """Left-looking: L_tj -= L_ak s_k L_bk^T over the precomputed updates, then L_jj = chol(s_j .),
+    L_ij = L_ij L_jj^-T s_j.
 
     `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
     (a redundant or degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
@@ -72,11 +79,12 @@ def factor(
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
         for u in range(update_start[j], update_start[j + 1]):
-            values[update_target[u]] = values[update_target[u]] - values[update_a[u]] * wp.transpose(
+            values[update_target[u]] = values[update_target[u]] - update_sign[u] * values[update_a[u]] * wp.transpose(
                 values[update_b[u]]
             )
         d = col_start[j]
-        a = values[d]
+        sign = col_sign[j]
+        a = sign * values[d]
         scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
         l, ok = cholesky3(a, pivot_tolerance * scale)
         if not ok and singular[0] == 0:
@@ -84,7 +92,7 @@ def factor(
         values[d] = l
         li = lower_inverse3(l)
         diag_inv[j] = li
-        lit = wp.transpose(li)
+        lit = sign * wp.transpose(li)
         for s in range(d + 1, col_start[j + 1]):
             values[s] = values[s] * lit
 
@@ -118,12 +126,13 @@ def solve_backward(
     perm: wp.array(dtype=int),
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
+    col_sign: wp.array(dtype=f64),
     values: wp.array(dtype=mat33d),
     diag_inv: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
 ):
-    """L^T z = y, columns in reverse order: z_j = L_jj^-T (y_j - sum_i L_ij^T z_i); x_perm(j) = z_j.
+    """L^T z = S y, columns in reverse order: z_j = L_jj^-T (s_j y_j - sum_i L_ij^T z_i); x_perm(j) = z_j.
 
     z overwrites y in place: every z_i it reads (i > j) is final, every y_j it has not yet overwritten.
     """
@@ -131,9 +140,17 @@ def solve_backward(
     begin = group_start[g]
     for jj in range(group_start[g + 1] - begin):
         j = group_start[g + 1] - 1 - jj
-        s = y[j]
+        s = col_sign[j] * y[j]
         for k in range(col_start[j] + 1, col_start[j + 1]):
             s -= wp.transpose(values[k]) * y[col_row[k]]
         z = wp.transpose(diag_inv[j]) * s
         y[j] = z
         x[perm[j]] = z
+
+
+@wp.kernel
+def copy_scaled(src: wp.array(dtype=vec3d), src_offset: int, scale: f64, dst: wp.array(dtype=vec3d), dst_offset: int):
+    """dst[dst_offset + i] = scale src[src_offset + i]: moves the constraint part in and out of the augmented
+    vectors [body linear; body angular; constraints]."""
+    i = wp.tid()
+    dst[dst_offset + i] = scale * src[src_offset + i]

@@ -10,10 +10,10 @@ from warpimpulse.solver import CGSolver, CholeskySolver
 
 
 def dense_k(model, cg: CGSolver) -> np.ndarray:
-    pat = model.topology.pattern
+    csr = model.topology.csr()
     n = model.constraint_count
     k = np.zeros((3 * n, 3 * n))
-    for value, i, j in zip(cg.values.numpy(), pat.csr_row, pat.csr_col):
+    for value, i, j in zip(cg.values.numpy(), csr.row, csr.col):
         k[3 * i : 3 * i + 3, 3 * j : 3 * j + 3] = value
     return k
 
@@ -30,9 +30,11 @@ def dense_k(model, cg: CGSolver) -> np.ndarray:
     ],
     ids=["tree31", "star15", "chain_revolute", "chain_universal", "chain_prismatic", "chain_planar"],
 )
-def test_cholesky_cg_and_dense_agree(scene):
+@pytest.mark.parametrize("formulation", ["constraint", "body"])
+def test_cholesky_cg_and_dense_agree(scene, formulation):
+    """Both matrices the Cholesky solver can factor (K, or the augmented body-joint matrix) give K's solution."""
     model = scene().finalize()
-    sim = wi.Simulator(model, 1 / 60)
+    sim = wi.Simulator(model, 1 / 60, formulation=formulation)
     sim.simulate(0.2)  # move away from the symmetric start
     cg = CGSolver(model, sim.frames, tolerance=1e-15)
     cg.prepare()
@@ -44,7 +46,7 @@ def test_cholesky_cg_and_dense_agree(scene):
     rhs_np = rng.normal(size=(model.constraint_count, 3))
     rhs = wp.array(rhs_np, dtype=wp.vec3d)
     chol, iterative = wp.zeros_like(rhs), wp.zeros_like(rhs)
-    assert isinstance(sim.linear, CholeskySolver)
+    assert isinstance(sim.linear, CholeskySolver) and sim.linear.pattern.formulation == formulation
     sim.linear.solve(rhs, chol)
     cg.solve(rhs, iterative)
     ref = np.linalg.solve(k, rhs_np.ravel()).reshape(-1, 3)
@@ -73,10 +75,22 @@ def test_tree127_takes_few_iterations():
     assert all(s.velocity_iterations <= 1 for s in stats)
 
 
-def test_redundant_constraints_are_reported():
+@pytest.mark.parametrize("formulation", ["constraint", "body"])
+def test_redundant_constraints_are_reported(formulation):
     b = wi.SceneBuilder()
     body = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, -1.0))
     b.add_joint_fixed(None, body, (0.0, 0.0, 0.0), name="weld")
     b.add_joint_revolute(None, body, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
     with pytest.raises(wi.SingularSystemError, match="singular at joint 'hinge'"):
-        wi.Simulator(b.finalize(), 1 / 60)
+        wi.Simulator(b.finalize(), 1 / 60, formulation=formulation)
+
+
+def test_auto_formulation_keeps_stars_linear():
+    """A star's K is dense (every joint shares the root): "auto" takes the augmented matrix, whose factor
+    has a few block updates per joint, while a tree keeps K."""
+    tree, star = scenes.binary_tree(127).finalize(), scenes.star(255).finalize()
+    assert tree.topology.pattern("auto").formulation == "constraint"
+    pattern = star.topology.pattern("auto")
+    assert pattern.formulation == "body"
+    assert pattern.updates < 20 * star.constraint_count
+    assert star.topology.pattern("constraint").updates > 100 * pattern.updates

@@ -22,7 +22,8 @@ from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import rigid as rigid_kernels
 from .model import Model, State
-from .solver import SOLVERS, Frames
+from .solver import CGSolver, CholeskySolver, Frames
+from .topology import FORMULATIONS
 from .transforms import quat_to_matrix
 
 SOLVER_NAMES = ("auto", "cholesky", "cg", "iterative")
@@ -55,7 +56,10 @@ class Simulator:
         max_iterations: int = 100,
         on_max_iterations: str = "raise",
         max_substep_depth: int = 3,
+        formulation: str = "auto",
     ) -> None:
+        """`formulation` ("auto", "constraint" or "body") picks the matrix the Cholesky solver factors; see
+        `topology.Pattern`. "auto" takes the augmented body-joint matrix only where a body has many joints."""
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         if not (math.isfinite(tolerance) and tolerance > 0.0):
@@ -65,6 +69,8 @@ class Simulator:
             raise ValueError(f"velocity_tolerance must be positive, got {velocity_tolerance!r}")
         if not (isinstance(max_iterations, int) and max_iterations >= 1):
             raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
+        if formulation not in ("auto", *FORMULATIONS):
+            raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
         if solver not in SOLVER_NAMES:
             raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
         if on_max_iterations not in POLICIES:
@@ -93,7 +99,11 @@ class Simulator:
         self.rhs = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.impulse = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.sweep_error = wp.zeros(1, dtype=wp.float64, device=d)
-        self.linear = SOLVERS[self.solver_name](model, self.frames) if self.solver_name in SOLVERS else None
+        self.linear = None
+        if self.solver_name == "cholesky":
+            self.linear = CholeskySolver(model, self.frames, formulation=formulation)
+        elif self.solver_name == "cg":
+            self.linear = CGSolver(model, self.frames)
         self._counts = (model.body_count, nc)
         self._launches_by_h: dict[float, tuple] = {}
         self._v0 = wp.zeros_like(self.state.v)

@@ -24,10 +24,6 @@ class SingularSystemError(RuntimeError):
     """K is singular: redundant or degenerate constraints."""
 
 
-def _int(values, device) -> wp.array:
-    return wp.array(np.ascontiguousarray(values, dtype=np.int32), dtype=wp.int32, device=device)
-
-
 class Frames:
     """Per-step geometry the solvers share: P_i, J_ib and the world inverse inertias."""
 
@@ -39,7 +35,16 @@ class Frames:
         self.inv_inertia_world = wp.zeros(nb, dtype=wp.mat33d, device=d)
 
 
+def _int(values, device) -> wp.array:
+    return wp.array(np.ascontiguousarray(values, dtype=np.int32), dtype=wp.int32, device=device)
+
+
+def _float(values, device) -> wp.array:
+    return wp.array(np.ascontiguousarray(values, dtype=np.float64), dtype=wp.float64, device=device)
+
+
 def _assemble_launch(model: Model, frames: Frames, row, col, sides, values) -> wp.Launch:
+    """K = J M^-1 J^T into the slots (row constraint, col constraint) listed."""
     d = model.device
     return wp.launch(
         assemble_kernels.assemble,
@@ -56,26 +61,43 @@ def _assemble_launch(model: Model, frames: Frames, row, col, sides, values) -> w
 
 
 class CholeskySolver:
+    """Block L S L^T of K, or of the augmented body-joint matrix where that is cheaper (`Topology.pattern`);
+    either way `solve` returns the constraint impulses lambda of K lambda = rhs."""
+
     name = "cholesky"
 
-    def __init__(self, model: Model, frames: Frames, pivot_tolerance: float = 1e-12) -> None:
+    def __init__(self, model: Model, frames: Frames, pivot_tolerance: float = 1e-12, formulation: str = "auto") -> None:
         self.model = model
         d = model.device
-        pat = model.topology.pattern
-        n = model.constraint_count
-        self.values = wp.zeros(len(pat.slot_row), dtype=wp.mat33d, device=d)
+        pat = model.topology.pattern(formulation)
+        self.pattern = pat
+        n = len(pat.perm)
+        self.values = wp.zeros(len(pat.col_row), dtype=wp.mat33d, device=d)
         self.diag_inv = wp.zeros(n, dtype=wp.mat33d, device=d)
-        self.work = wp.zeros(n, dtype=wp.vec3d, device=d)
         self.singular = wp.zeros(1, dtype=wp.int32, device=d)
-        self._assemble = _assemble_launch(model, frames, pat.slot_row, pat.slot_col, pat.slot_sides, self.values)
+        self._augmented = pat.formulation == "body"
+        if self._augmented:
+            self._offset = 2 * model.body_count  # the constraints' place in the augmented vectors
+            size = self._offset + model.constraint_count
+            self._rhs, self._x = wp.zeros(size, dtype=wp.vec3d, device=d), wp.zeros(size, dtype=wp.vec3d, device=d)
+            self._assemble = wp.launch(
+                assemble_kernels.assemble_augmented, dim=len(pat.col_row),
+                inputs=[model.constraint_kind, model.body_inv_mass, _int(pat.slot_code, d), _int(pat.slot_ref, d),
+                        frames.inv_inertia_world, frames.jac_lin, frames.jac_ang],
+                outputs=[self.values], device=d, record_cmd=True,
+            )  # fmt: skip
+        else:
+            self._assemble = _assemble_launch(model, frames, pat.slot_row, pat.slot_col, pat.slot_sides, self.values)
+        self.work = wp.zeros(n, dtype=wp.vec3d, device=d)
         group_start, levels = schedule(pat, parallel=d.is_cuda)
         self._group_start = _int(group_start, d)
         self._perm = _int(pat.perm, d)
         col_start = _int(pat.col_start, d)
+        col_sign = _float(pat.col_sign, d)
         factor_args = [
             self._group_start, col_start, _int(pat.update_start, d), _int(pat.update_target, d),
-            _int(pat.update_a, d), _int(pat.update_b, d), wp.float64(pivot_tolerance),
-            self.values, self.diag_inv, self.singular,
+            _int(pat.update_a, d), _int(pat.update_b, d), _float(pat.update_sign, d), col_sign,
+            wp.float64(pivot_tolerance), self.values, self.diag_inv, self.singular,
         ]  # fmt: skip
         self._factor = [
             wp.launch(cholesky_kernels.factor, dim=count, inputs=[first, *factor_args], device=d, record_cmd=True)
@@ -83,19 +105,24 @@ class CholeskySolver:
         ]
         self._levels = levels
         self._forward_args = [_int(pat.row_start, d), _int(pat.row_slot, d), _int(pat.row_col, d)]
-        self._backward_args = [col_start, _int(pat.col_row, d)]
+        self._backward_args = [col_start, _int(pat.col_row, d), col_sign]
         self._solves: dict[tuple[int, int], list[wp.Launch]] = {}
 
     def prepare(self) -> None:
-        """Assemble K at the current frames and factor it."""
+        """Assemble the matrix at the current frames and factor it."""
         self.singular.zero_()
         self._assemble.launch()
         for launch in self._factor:
             launch.launch()
         col = int(self.singular.numpy()[0])
         if col:
-            c = int(self.model.topology.pattern.perm[col - 1])
-            joint = self.model.builder.joints[self.model.builder.constraints[c].joint]
+            unknown = int(self.pattern.perm[col - 1])
+            builder = self.model.builder
+            if self._augmented and unknown < self._offset:
+                body = builder.bodies[unknown % self.model.body_count]
+                raise SingularSystemError(f"the system matrix is singular at body {body.name!r}: its mass or inertia")
+            c = unknown - self._offset if self._augmented else unknown
+            joint = builder.joints[builder.constraints[c].joint]
             raise SingularSystemError(
                 f"the system matrix is singular at joint {joint.name!r} ({joint.kind}, constraint {c}): "
                 "its constraints are redundant with others on the same bodies, or degenerate"
@@ -103,45 +130,36 @@ class CholeskySolver:
 
     def _solve_launches(self, rhs: wp.array, out: wp.array) -> list[wp.Launch]:
         d = self.model.device
-        fwd = [
-            wp.launch(
-                cholesky_kernels.solve_forward,
-                dim=count,
-                inputs=[
-                    first,
-                    self._group_start,
-                    self._perm,
-                    *self._forward_args,
-                    self.values,
-                    self.diag_inv,
-                    rhs,
-                    self.work,
-                ],
-                device=d,
-                record_cmd=True,
-            )  # fmt: skip
-            for first, count in self._levels
-        ]
-        bwd = [
-            wp.launch(
-                cholesky_kernels.solve_backward,
-                dim=count,
-                inputs=[
-                    first,
-                    self._group_start,
-                    self._perm,
-                    *self._backward_args,
-                    self.values,
-                    self.diag_inv,
-                    self.work,
-                    out,
-                ],
-                device=d,
-                record_cmd=True,
-            )  # fmt: skip
-            for first, count in reversed(self._levels)
-        ]
-        return fwd + bwd
+        launches = []
+        if self._augmented:
+            nc = self.model.constraint_count
+            launches.append(self._copy(rhs, 0, -1.0, self._rhs, self._offset, nc))
+            rhs, x = self._rhs, self._x
+        else:
+            x = out
+        for first, count in self._levels:
+            launches.append(wp.launch(
+                cholesky_kernels.solve_forward, dim=count,
+                inputs=[first, self._group_start, self._perm, *self._forward_args, self.values, self.diag_inv, rhs,
+                        self.work],
+                device=d, record_cmd=True,
+            ))  # fmt: skip
+        for first, count in reversed(self._levels):
+            launches.append(wp.launch(
+                cholesky_kernels.solve_backward, dim=count,
+                inputs=[first, self._group_start, self._perm, *self._backward_args, self.values, self.diag_inv,
+                        self.work, x],
+                device=d, record_cmd=True,
+            ))  # fmt: skip
+        if self._augmented:
+            launches.append(self._copy(x, self._offset, 1.0, out, 0, self.model.constraint_count))
+        return launches
+
+    def _copy(self, src, src_offset: int, scale: float, dst, dst_offset: int, count: int) -> wp.Launch:
+        return wp.launch(
+            cholesky_kernels.copy_scaled, dim=count, inputs=[src, src_offset, wp.float64(scale), dst, dst_offset],
+            device=self.model.device, record_cmd=True,
+        )  # fmt: skip
 
     def solve(self, rhs: wp.array, out: wp.array, warm_key: str | None = None) -> int:
         key = (rhs.ptr, out.ptr)
@@ -161,16 +179,16 @@ class CGSolver:
         n = model.constraint_count
         self.max_iterations = max_iterations or max(10 * n, 100)
         d = model.device
-        pat = model.topology.pattern
-        self.values = wp.zeros(len(pat.csr_col), dtype=wp.mat33d, device=d)
-        self._assemble = _assemble_launch(model, frames, pat.csr_row, pat.csr_col, pat.csr_sides, self.values)
+        csr = model.topology.csr()
+        self.values = wp.zeros(len(csr.col), dtype=wp.mat33d, device=d)
+        self._assemble = _assemble_launch(model, frames, csr.row, csr.col, csr.sides, self.values)
         self.precond = wp.zeros(n, dtype=wp.mat33d, device=d)
         self._diag = wp.launch(
-            cg_kernels.diagonal_inverse, dim=n, inputs=[_int(pat.csr_diag, d), self.values, self.precond],
+            cg_kernels.diagonal_inverse, dim=n, inputs=[_int(csr.diag, d), self.values, self.precond],
             device=d, record_cmd=True,
         )  # fmt: skip
-        self.row_start = _int(pat.csr_start, d)
-        self.col = _int(pat.csr_col, d)
+        self.row_start = _int(csr.start, d)
+        self.col = _int(csr.col, d)
         self.b, self.x, self.r, self.p, self.q, self.z = (wp.zeros(n, dtype=wp.vec3d, device=d) for _ in range(6))
         self.scalars = wp.zeros(4, dtype=wp.float64, device=d)
         self._scalars_host = self.scalars.numpy() if not d.is_cuda else None
@@ -222,6 +240,3 @@ class CGSolver:
             wp.copy(self._warm[warm_key], self.x)
         self.iterations = it
         return it
-
-
-SOLVERS = {"cholesky": CholeskySolver, "cg": CGSolver}

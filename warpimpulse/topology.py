@@ -1,9 +1,10 @@
 """Host-side symbolic analysis, once per topology: elimination order, fill pattern, slots, schedules.
 
-The unknowns of the system are the basic constraints (3 rows each). Two constraints are coupled when
-they share a dynamic body (method paper, section 4.5). For a tree, ordering the constraints deepest
-body first is a perfect elimination order: the factor has no fill, so the cost stays linear in the
-number of joints. Joints that close loops (section 4.6) go last.
+Two formulations of one linear system (see `Pattern`). In K = J M^-1 J^T the unknowns are the basic
+constraints (3 rows each), coupled when they share a dynamic body (method paper, section 4.5). For a
+tree, ordering the constraints deepest body first is a perfect elimination order: no fill, linear cost,
+unless a body carries many joints (a star), whose constraints form a dense block. The augmented matrix
+of bodies and constraints keeps such scenes linear. Joints that close loops (section 4.6) go last.
 """
 
 from __future__ import annotations
@@ -15,45 +16,98 @@ import numpy as np
 
 from .builder import WORLD, SceneBuilder
 
+FORMULATIONS = ("constraint", "body")
+
 
 @dataclass
 class Pattern:
-    """Index arrays of the lower factor L (columns in elimination order) and of the full K."""
+    """Index arrays of a block factor L S L^T (columns in elimination order), and how to assemble its blocks.
 
-    perm: np.ndarray  # elimination position -> constraint
+    Formulation "constraint": the unknowns are the basic constraints and the matrix is K = J M^-1 J^T
+    (method paper, section 4.5). Formulation "body": the unknowns are every dynamic body's linear and angular
+    velocity change and every constraint, and the matrix is the augmented [[M, J^T], [J, 0]] (Baraff 1996,
+    "Linear-time dynamics using Lagrange multipliers"): eliminated bodies first, it stays as sparse as the
+    scene's graph, so a body with many joints (a star) costs linear time where K is dense.
+    Unknown numbering of "body": body b's linear part b, its angular part n_bodies + b, constraint c at
+    2 n_bodies + c.
+    """
+
+    formulation: str
+    perm: np.ndarray  # elimination position -> unknown
     # L: block column j owns slots col_start[j]..col_start[j+1]-1, diagonal first
     col_start: np.ndarray
     col_row: np.ndarray  # elimination position of each slot's row
-    slot_row: np.ndarray  # constraint of each slot's row (for assembly)
-    slot_col: np.ndarray
-    slot_sides: np.ndarray  # (n, 4): (side in row, side in col) of up to two shared bodies, -1 if none
+    col_sign: np.ndarray  # S: +1 (K, or a body's pivot) or -1 (a constraint's pivot in the augmented matrix)
     update_start: np.ndarray
     update_target: np.ndarray
     update_a: np.ndarray
     update_b: np.ndarray
+    update_sign: np.ndarray  # S of the column an update comes from
     row_start: np.ndarray  # forward solve: row j's off-diagonal slots and their columns
     row_slot: np.ndarray
     row_col: np.ndarray
     height: np.ndarray  # of each column in the elimination tree (0 = leaf)
-    # full K in block CSR, rows and columns are constraints
-    csr_start: np.ndarray
-    csr_col: np.ndarray
-    csr_row: np.ndarray
-    csr_sides: np.ndarray
-    csr_diag: np.ndarray
+    # assembly, "constraint": the two constraints of a slot and (side in row, side in col) of the bodies they
+    # share; "body": what a slot holds (a SLOT_* code) and the body or Jacobian row it comes from
+    slot_row: np.ndarray
+    slot_col: np.ndarray
+    slot_sides: np.ndarray
+    slot_code: np.ndarray
+    slot_ref: np.ndarray
+
+    @property
+    def updates(self) -> int:
+        return len(self.update_target)
+
+
+# What a slot of the augmented matrix holds (kernels/assemble.py reads these codes).
+SLOT_ZERO, SLOT_MASS, SLOT_INERTIA, SLOT_JLIN, SLOT_JANG, SLOT_JLIN_T, SLOT_JANG_T, SLOT_PAD = range(8)
+
+
+@dataclass
+class BlockCSR:
+    """The full K in block CSR for CG; rows and columns are constraints."""
+
+    start: np.ndarray
+    col: np.ndarray
+    row: np.ndarray
+    sides: np.ndarray
+    diag: np.ndarray
 
 
 @dataclass
 class Topology:
+    builder: SceneBuilder
     body_rows_start: np.ndarray  # per body: its Jacobian rows (2 * constraint + side)
     body_rows: np.ndarray
+    depth: np.ndarray  # of every body in the spanning tree
     loop_joints: list[int]  # joints that close a kinematic loop
-    pattern: Pattern
+    level_order: bool  # columns sorted by elimination-tree height: the parallel schedule of a GPU
 
-    @property
-    def fill(self) -> int:
-        """Blocks of L that are not blocks of K."""
-        return len(self.pattern.slot_row) - (len(self.pattern.csr_col) + len(self.pattern.perm)) // 2
+    def __post_init__(self) -> None:
+        self._patterns: dict[str, Pattern] = {}
+        self._csr: BlockCSR | None = None
+
+    def pattern(self, formulation: str = "auto") -> Pattern:
+        """The factor pattern of `formulation`, built once. "auto" takes K while every body has few
+        constraints (then K is as sparse as it gets, and smaller), else the one with fewer block updates."""
+        if formulation == "auto":
+            cost = constraint_cost(self.builder)
+            small = cost <= 8.0 * (len(self.builder.bodies) + len(self.builder.constraints))
+            formulation = "constraint" if small or self.pattern("body").updates >= cost else "body"
+        if formulation not in self._patterns:
+            build = constraint_pattern if formulation == "constraint" else body_pattern
+            pattern = build(self.builder, self.depth, self.loop_joints)
+            if self.level_order:
+                order = np.argsort(pattern.height, kind="stable")
+                pattern = build(self.builder, self.depth, self.loop_joints, pattern.perm[order])
+            self._patterns[formulation] = pattern
+        return self._patterns[formulation]
+
+    def csr(self) -> BlockCSR:
+        if self._csr is None:
+            self._csr = block_csr(self.builder)
+        return self._csr
 
 
 def _bodies(builder: SceneBuilder, c: int) -> tuple[int, int]:
@@ -120,7 +174,7 @@ def _spanning_tree(builder: SceneBuilder) -> tuple[np.ndarray, list[int]]:
 
 
 def elimination_order(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int]) -> np.ndarray:
-    """Deepest constraints first; loop-closing joints last; a joint's constraints stay together."""
+    """Constraints deepest first; loop-closing joints last; a joint's constraints stay together."""
     loops = set(loop_joints)
     keys = []
     for c, con in enumerate(builder.constraints):
@@ -129,15 +183,19 @@ def elimination_order(builder: SceneBuilder, depth: np.ndarray, loop_joints: lis
     return np.array([k[2] for k in sorted(keys)], dtype=np.int64)
 
 
-def _coupling(builder: SceneBuilder) -> list[set[int]]:
-    """Constraints sharing a dynamic body with each constraint (itself excluded)."""
+def _constraints_on_bodies(builder: SceneBuilder) -> list[list[int]]:
     on_body: list[list[int]] = [[] for _ in builder.bodies]
     for c, con in enumerate(builder.constraints):
         for b in (con.body0, con.body1):
             if _dynamic(builder, b):
                 on_body[b].append(c)
+    return on_body
+
+
+def _coupling(builder: SceneBuilder) -> list[set[int]]:
+    """Constraints sharing a dynamic body with each constraint (itself excluded)."""
     adj: list[set[int]] = [set() for _ in builder.constraints]
-    for cs in on_body:
+    for cs in _constraints_on_bodies(builder):
         for c in cs:
             adj[c].update(cs)
     for c, s in enumerate(adj):
@@ -145,9 +203,16 @@ def _coupling(builder: SceneBuilder) -> list[set[int]]:
     return adj
 
 
-def symbolic(builder: SceneBuilder, perm: np.ndarray, adj: list[set[int]]) -> Pattern:
+def constraint_cost(builder: SceneBuilder) -> float:
+    """About the block updates of factoring K: the d constraints on one body are all coupled, and eliminating
+    them costs about d^3 / 6 updates."""
+    return sum(len(cs) ** 3 for cs in _constraints_on_bodies(builder)) / 6.0 + len(builder.constraints)
+
+
+def _structure(perm: np.ndarray, adj: list[set[int]], unknowns: int) -> dict:
+    """Symbolic block Cholesky of the pattern `adj` (unknown -> neighbouring unknowns) in the order `perm`."""
     n = len(perm)
-    pos = np.empty(n, dtype=np.int64)
+    pos = np.full(unknowns, -1, dtype=np.int64)
     pos[perm] = np.arange(n)
     # Column structures of L in elimination positions, by the elimination tree.
     struct: list[list[int]] = []
@@ -175,13 +240,8 @@ def symbolic(builder: SceneBuilder, perm: np.ndarray, adj: list[set[int]]) -> Pa
             slot_of[(r, j)] = len(col_row)
             col_row.append(r)
         col_start[j + 1] = len(col_row)
-    col_row_arr = np.array(col_row, dtype=np.int64)
-    col_of_slot = np.repeat(np.arange(n), np.diff(col_start))
-    slot_row = perm[col_row_arr]
-    slot_col = perm[col_of_slot]
-    slot_sides = np.array([shared_sides(builder, int(i), int(j)) for i, j in zip(slot_row, slot_col)], dtype=np.int32)
 
-    updates: list[list[tuple[int, int, int]]] = [[] for _ in range(n)]
+    updates: list[list[tuple[int, int, int, int]]] = [[] for _ in range(n)]
     row_entries: list[list[tuple[int, int]]] = [[] for _ in range(n)]
     for k in range(n):
         s = struct[k]
@@ -189,52 +249,103 @@ def symbolic(builder: SceneBuilder, perm: np.ndarray, adj: list[set[int]]) -> Pa
             b_slot = slot_of[(j, k)]
             row_entries[j].append((b_slot, k))
             for i in s[a:]:
-                updates[j].append((slot_of[(i, j)], slot_of[(i, k)], b_slot))
-    update_start = np.cumsum([0] + [len(u) for u in updates])
-    flat = np.array([u for col in updates for u in col], dtype=np.int64).reshape(-1, 3)
-    row_start = np.cumsum([0] + [len(r) for r in row_entries])
+                updates[j].append((slot_of[(i, j)], slot_of[(i, k)], b_slot, k))
+    flat = np.array([u for col in updates for u in col], dtype=np.int64).reshape(-1, 4)
     rflat = np.array([e for row in row_entries for e in row], dtype=np.int64).reshape(-1, 2)
-
-    csr_cols = [sorted(adj[i] | {i}) for i in range(n)]
-    csr_start = np.cumsum([0] + [len(c) for c in csr_cols])
-    csr_col = np.array([c for cols in csr_cols for c in cols], dtype=np.int64)
-    csr_row = np.repeat(np.arange(n), np.diff(csr_start))
-    csr_sides = np.array([shared_sides(builder, int(i), int(j)) for i, j in zip(csr_row, csr_col)], dtype=np.int32)
-    csr_diag = np.array([csr_start[i] + csr_cols[i].index(i) for i in range(n)], dtype=np.int64)
-
-    return Pattern(
+    col_row_arr = np.array(col_row, dtype=np.int64)
+    return dict(
         perm=perm,
         col_start=col_start,
         col_row=col_row_arr,
-        slot_row=slot_row,
-        slot_col=slot_col,
-        slot_sides=slot_sides.reshape(-1, 4),
-        update_start=update_start,
+        slot_row=perm[col_row_arr],
+        slot_col=perm[np.repeat(np.arange(n), np.diff(col_start))],
+        update_start=np.cumsum([0] + [len(u) for u in updates]),
         update_target=flat[:, 0],
         update_a=flat[:, 1],
         update_b=flat[:, 2],
-        row_start=row_start,
+        update_column=flat[:, 3],
+        row_start=np.cumsum([0] + [len(r) for r in row_entries]),
         row_slot=rflat[:, 0],
         row_col=rflat[:, 1],
         height=height,
-        csr_start=csr_start,
-        csr_col=csr_col,
-        csr_row=csr_row,
-        csr_sides=csr_sides.reshape(-1, 4),
-        csr_diag=csr_diag,
     )
 
 
-def analyze(builder: SceneBuilder, level_order: bool = False) -> Topology:
-    """The whole symbolic analysis. `level_order` sorts columns by elimination-tree height (same fill)
-    so that every level is a contiguous range: the parallel schedule of a GPU."""
-    depth, loops = _spanning_tree(builder)
+def _pattern(formulation: str, st: dict, col_sign: np.ndarray, **assembly) -> Pattern:
+    empty = np.zeros(0, dtype=np.int64)
+    fields = dict(slot_sides=np.zeros((0, 4), np.int32), slot_code=empty, slot_ref=empty)
+    fields.update(assembly)
+    update_column = st.pop("update_column")
+    return Pattern(formulation=formulation, col_sign=col_sign, update_sign=col_sign[update_column], **st, **fields)
+
+
+def constraint_pattern(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
+    """K = J M^-1 J^T with constraints deepest first: a perfect elimination order for trees."""
+    if perm is None:
+        perm = elimination_order(builder, depth, loop_joints)
+    st = _structure(perm, _coupling(builder), len(builder.constraints))
+    sides = [shared_sides(builder, int(i), int(j)) for i, j in zip(st["slot_row"], st["slot_col"])]
+    return _pattern("constraint", st, np.ones(len(perm)), slot_sides=np.array(sides, np.int32).reshape(-1, 4))
+
+
+def body_pattern(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
+    """The augmented matrix, bodies deepest first, each constraint after its deeper body and before the other:
+    every pivot then has a definite sign (+ for bodies, - for constraints) and a tree has no fill beyond the
+    blocks of one body and one joint."""
+    nb, nc = len(builder.bodies), len(builder.constraints)
+    dynamic = [_dynamic(builder, b) for b in range(nb)]
+    if perm is None:
+        loops = set(loop_joints)
+        keys = []
+        for b in range(nb):
+            if dynamic[b]:
+                keys += [(False, -2 * depth[b], 0, b, 0), (False, -2 * depth[b], 0, b, 1)]
+        for c, con in enumerate(builder.constraints):
+            level = max(depth[b] for b in (con.body0, con.body1) if b != WORLD and dynamic[b])
+            keys.append((con.joint in loops, 1 - 2 * level, 1, c, 0))
+        perm = np.array([2 * nb + k[3] if k[2] else k[3] + k[4] * nb for k in sorted(keys)], dtype=np.int64)
+    adj: list[set[int]] = [set() for _ in range(2 * nb + nc)]
+    for c, con in enumerate(builder.constraints):
+        for b in (con.body0, con.body1):
+            if b != WORLD and dynamic[b]:
+                for u in (b, nb + b):
+                    adj[u].add(2 * nb + c)
+                    adj[2 * nb + c].add(u)
+    st = _structure(perm, adj, 2 * nb + nc)
+    side_of = {(c, b): 2 * c + side for c, con in enumerate(builder.constraints)
+               for side, b in enumerate((con.body0, con.body1))}  # fmt: skip
+    code = np.full(len(st["slot_row"]), SLOT_ZERO, dtype=np.int64)
+    ref = np.zeros(len(code), dtype=np.int64)
+    for s, (r, c) in enumerate(zip(st["slot_row"].tolist(), st["slot_col"].tolist())):
+        if r == c:
+            kind = min(r // nb, 2) if nb else 2
+            code[s] = (SLOT_MASS, SLOT_INERTIA, SLOT_PAD)[kind]
+            ref[s] = r - kind * nb
+        elif (r >= 2 * nb) != (c >= 2 * nb):  # a constraint and a body part: J, or J^T above the diagonal
+            con, part, transposed = (r - 2 * nb, c, False) if r >= 2 * nb else (c - 2 * nb, r, True)
+            row = side_of.get((con, part % nb))
+            if row is not None:
+                code[s] = ((SLOT_JLIN, SLOT_JANG), (SLOT_JLIN_T, SLOT_JANG_T))[transposed][part >= nb]
+                ref[s] = row
+    sign = np.where(perm >= 2 * nb, -1.0, 1.0)
+    return _pattern("body", st, sign, slot_code=code, slot_ref=ref)
+
+
+def block_csr(builder: SceneBuilder) -> BlockCSR:
     adj = _coupling(builder)
-    perm = elimination_order(builder, depth, loops)
-    pattern = symbolic(builder, perm, adj)
-    if level_order:
-        order = np.argsort(pattern.height, kind="stable")
-        pattern = symbolic(builder, perm[order], adj)
+    n = len(adj)
+    cols = [sorted(adj[i] | {i}) for i in range(n)]
+    start = np.cumsum([0] + [len(c) for c in cols])
+    col = np.array([c for cs in cols for c in cs], dtype=np.int64)
+    row = np.repeat(np.arange(n), np.diff(start))
+    sides = np.array([shared_sides(builder, int(i), int(j)) for i, j in zip(row, col)], dtype=np.int32)
+    diag = np.array([start[i] + cols[i].index(i) for i in range(n)], dtype=np.int64)
+    return BlockCSR(start, col, row, sides.reshape(-1, 4), diag)
+
+
+def analyze(builder: SceneBuilder, level_order: bool = False) -> Topology:
+    """The spanning tree, loops and Jacobian rows per body; factor patterns are built when a solver asks."""
+    depth, loops = _spanning_tree(builder)
     rows: list[list[int]] = [[] for _ in builder.bodies]
     for c, con in enumerate(builder.constraints):
         for side, b in enumerate((con.body0, con.body1)):
@@ -242,7 +353,7 @@ def analyze(builder: SceneBuilder, level_order: bool = False) -> Topology:
                 rows[b].append(2 * c + side)
     body_rows_start = np.cumsum([0] + [len(r) for r in rows])
     body_rows = np.array([r for rs in rows for r in rs], dtype=np.int64)
-    return Topology(body_rows_start, body_rows, loops, pattern)
+    return Topology(builder, body_rows_start, body_rows, depth, loops, level_order)
 
 
 def schedule(pattern: Pattern, parallel: bool) -> tuple[np.ndarray, list[tuple[int, int]]]:
