@@ -324,12 +324,13 @@ class SceneBuilder:
         return Model.from_builder(self, device)
 
     def _check_arrays(self) -> None:
-        """The add_* calls check their input, but the stored arrays stay mutable (scenes set velocities after
-        adding bodies): check once more, vectorised, that no NaN or Inf and no bad mass reaches the device."""
+        """The add_* calls check their input, but the stored body arrays stay mutable (scenes set velocities
+        after adding bodies): check once more, vectorised, that no NaN or Inf and no bad mass reaches the
+        device. Constraint data is derived from checked input at add time and is not re-checked."""
         if not np.all(np.isfinite(self.gravity)):
             raise SceneError(f"gravity contains NaN or Inf: {self.gravity.tolist()}")
         for f in ("position", "orientation", "linear_velocity", "angular_velocity", "inertia"):
-            values = np.array([np.ravel(getattr(b, f)) for b in self.bodies])
+            values = np.array([getattr(b, f) for b in self.bodies]).reshape(len(self.bodies), -1)
             bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
             if bad.size:
                 name = self.bodies[bad[0]].name
@@ -338,13 +339,6 @@ class SceneBuilder:
         bad = np.flatnonzero(~np.array([b.static for b in self.bodies]) & ~(np.isfinite(mass) & (mass > 0.0)))
         if bad.size:
             raise SceneError(f"body {self.bodies[bad[0]].name!r}: mass must be positive and finite, got {mass[bad[0]]}")
-        if self.constraints:
-            geometry = np.array([np.concatenate([c.anchor0, c.anchor1, c.axis0, c.axis1, c.rest_rotation,
-                                                 [c.rest_angle]]) for c in self.constraints])  # fmt: skip
-            bad = np.flatnonzero(~np.all(np.isfinite(geometry), axis=1))
-            if bad.size:
-                raise SceneError(f"joint {self.joints[self.constraints[bad[0]].joint].name!r}: anchor or axis "
-                                 "contains NaN or Inf")  # fmt: skip
         for force in self.forces:
             if not (np.all(np.isfinite(force.force)) and np.all(np.isfinite(force.torque))):
                 raise SceneError(f"force on body {self.bodies[force.body].name!r} contains NaN or Inf")
