@@ -127,3 +127,18 @@ def world_inverse_inertia(
     b = wp.tid()
     r = wp.quat_to_matrix(body_q[b])
     inv_inertia_world[b] = r * body_inv_inertia[b] * wp.transpose(r)
+
+
+@wp.kernel
+def count_nonfinite(
+    x: wp.array(dtype=vec3d),
+    q: wp.array(dtype=quatd),
+    v: wp.array(dtype=vec3d),
+    w: wp.array(dtype=vec3d),
+    count: wp.array(dtype=int),
+):
+    """count[0] += 1 for every body with a NaN or Inf in its state: one int to read back per step."""
+    b = wp.tid()
+    s = wp.length_sq(x[b]) + wp.length_sq(v[b]) + wp.length_sq(w[b]) + wp.dot(q[b], q[b])
+    if not wp.isfinite(s):
+        wp.atomic_add(count, 0, 1)

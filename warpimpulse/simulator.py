@@ -108,6 +108,7 @@ class Simulator:
         self._launches_by_h: dict[float, tuple] = {}
         self._v0 = wp.zeros_like(self.state.v)
         self._w0 = wp.zeros_like(self.state.w)
+        self._nonfinite = wp.zeros(1, dtype=wp.int32, device=d)
         self._record_launches()
         self._update_frames()
 
@@ -133,6 +134,10 @@ class Simulator:
              wp.float64(self.velocity_tolerance), f.inv_inertia_world, f.jac_lin, f.jac_ang, s.v, s.w,
              self.sweep_error],
         )  # fmt: skip
+        self._check_states = {
+            id(st): rec(rigid_kernels.count_nonfinite, nb, [st.x, st.q, st.v, st.w, self._nonfinite])
+            for st in (s, self.pred)
+        }
         self._use_step_size(self.dt)
 
     def _rec(self, kernel, dim: int, inputs: list) -> wp.Launch:
@@ -330,14 +335,18 @@ class Simulator:
         return False
 
     def _check_finite(self, state: State, step: int) -> None:
+        """Counted on the device (one int comes back); only a failure reads the state to name the bodies."""
+        self._nonfinite.zero_()
+        self._check_states[id(state)].launch()
+        if not int(self._nonfinite.numpy()[0]):
+            return
         arrays = [a.numpy().reshape(self.model.body_count, -1) for a in (state.x, state.q, state.v, state.w)]
         bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
-        if bad.any():
-            names = [self.model.builder.bodies[b].name for b in np.flatnonzero(bad)[:10]]
-            raise SimulationError(
-                f"step {step}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
-                + ", ".join(repr(n) for n in names)
-            )
+        names = [self.model.builder.bodies[b].name for b in np.flatnonzero(bad)[:10]]
+        raise SimulationError(
+            f"step {step}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
+            + ", ".join(repr(n) for n in names)
+        )
 
     def simulate(self, duration: float, callback=None) -> list[StepStats]:
         """Run whole steps covering `duration` seconds; `callback(sim, stats)` after each."""
