@@ -8,7 +8,9 @@ valid file, says so, and exits 1 (130 for Ctrl-C).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -19,17 +21,43 @@ from .scenes import SCENES
 EXIT_USAGE = 2
 
 
+class ArgumentParser(argparse.ArgumentParser):
+    """Reports a usage mistake in one line (the full usage is one `--help` away), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _positive(kind):
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not value > 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        if not (value > 0 and math.isfinite(value)):
+            raise argparse.ArgumentTypeError(f"must be positive and finite, got {text}")
         return value
 
     return parse
+
+
+def check_writable(path: Path, create_parent: bool = False) -> None:
+    """Refuse an output path that cannot be written, before any work: a long run must not fail at the end."""
+    if path.is_dir():
+        raise SceneError(f"{path}: is a directory; give a file name")
+    parent = path.parent
+    if create_parent:
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise SceneError(f"{path}: cannot create the directory {parent} ({err.strerror or err})") from None
+    if not parent.is_dir():
+        raise SceneError(f"{path}: the directory {parent} does not exist")
+    try:  # os.access is not enough: root passes it, and some file systems refuse new files anyway
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as err:
+        raise SceneError(f"{path}: cannot write in {parent} ({err.strerror or err})") from None
 
 
 def _add_simulate(sub) -> None:
@@ -69,7 +97,7 @@ def _simulate(args) -> int:
     if args.input:
         source = Path(args.input)
         if not source.is_file():
-            raise SceneError(f"{source}: no such file")
+            raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
         scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
         builder, name = scene.builder, source.stem
     else:
@@ -79,6 +107,7 @@ def _simulate(args) -> int:
     dt = args.dt if args.dt is not None else 1.0 / args.fps
     usd.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
     out = args.out or Path(f"{name}.usdc")
+    check_writable(out)
     sim = Simulator(
         builder.finalize(args.device),
         dt,
@@ -119,13 +148,16 @@ def _simulate(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="warpimpulse", description="Impulse-based articulated rigid bodies on Warp")
+    parser = ArgumentParser(prog="warpimpulse", description="Impulse-based articulated rigid bodies on Warp")
     parser.add_argument("--version", action="version", version=f"warpimpulse {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
     sub.add_parser("bench", help="benchmark harness (see `warpimpulse bench --help`)", add_help=False)
     sub.add_parser("stress", help="stress suite (see `warpimpulse stress --help`)", add_help=False)
     args, rest = parser.parse_known_args(argv)
+    from .simulator import SimulationError
+    from .solver import SingularSystemError
+
     try:
         if args.command == "bench":
             from .benchmark import main as bench_main
@@ -138,9 +170,15 @@ def main(argv: list[str] | None = None) -> int:
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return _simulate(args)
-    except (SceneError, ValueError, OSError) as err:
+    except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except SimulationError as err:
+        print(f"warpimpulse: stopped: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\nwarpimpulse: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -26,7 +26,6 @@ after E_ref. The worst gain over the samples is also reported.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -504,8 +503,8 @@ def _row(r: Result) -> str:
     its = "-" if r.iterations_mean is None else f"{r.iterations_mean:.2f}/{r.iterations_max}"
     total = r.setup_s + r.run_s
     return (f"{r.name:34s} {r.bodies:6d} {r.steps_done:>6d}/{r.steps_planned:<6d} {_g(r.max_joint_error):>9s} "
-            f"{_g(r.energy_drift, '+.2e'):>10s} {its:>9s} {_g(r.ms_per_step, '.2f'):>9s} {total:8.2f}  "
-            f"{r.status:4s} {r.outcome}")  # fmt: skip
+            f"{_g(r.energy_drift, '+.2e'):>10s} {its:>9s} {_g(r.ms_per_step, '.2f'):>9s} {r.setup_s:7.2f} "
+            f"{total:8.2f}  {r.status:4s} {r.outcome}")  # fmt: skip
 
 
 HEADER = (f"{'case':34s} {'bodies':>6s} {'steps':>13s} {'max joint':>9s} {'E drift':>10s} {'it/step':>9s} "
@@ -518,7 +517,9 @@ def _short(text: str, n: int = 240) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="warpimpulse stress", description="the stress suite (issue 5)")
+    from .cli import ArgumentParser, check_writable
+
+    parser = ArgumentParser(prog="warpimpulse stress", description="the stress suite (issue 5)")
     parser.add_argument("--quick", action="store_true", help=f"reduced cases, under {QUICK_BUDGET_S:g} s on 2 cores")
     parser.add_argument("--json", nargs="?", const=str(DEFAULT_JSON), default=None, metavar="PATH",
                         help=f"write the results as JSON (default path {DEFAULT_JSON})")  # fmt: skip
@@ -540,6 +541,12 @@ def main(argv: list[str] | None = None) -> int:
     if not selected:
         print(f"warpimpulse stress: error: no case matches {args.case}", file=sys.stderr)
         return 2
+    if args.json:
+        try:
+            check_writable(Path(args.json), create_parent=True)
+        except SceneError as err:
+            print(f"warpimpulse stress: error: {err}", file=sys.stderr)
+            return 2
     mode = "quick" if args.quick else "full"
     print(f"warpimpulse stress ({mode}): {len(selected)} cases; warp {wp.config.version}, {os.cpu_count()} cores")
     print(HEADER, flush=True)
@@ -565,7 +572,6 @@ def main(argv: list[str] | None = None) -> int:
         print("failed: " + ", ".join(r.name for r in failed))
     if args.json:
         path = Path(args.json)
-        path.parent.mkdir(parents=True, exist_ok=True)
         doc = {
             "mode": mode,
             "warp": wp.config.version,
