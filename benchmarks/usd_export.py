@@ -146,10 +146,29 @@ def child(method: str, n: int, frames: int, out: str) -> dict:
     }
 
 
+def summarize(rows: list[dict], cases: list[tuple[int, int]], methods: list[str]) -> list[dict]:
+    """Per case and method: medians over the repeats, the speed-up of the medians against plain, and the
+    speed-up run by run (repeat r of a method against repeat r of plain, which ran just before it)."""
+    out = []
+    for n, frames in cases:
+        group = {m: [r for r in rows if (r["bodies"], r["frames"], r["method"]) == (n, frames, m)] for m in methods}
+        plain = group.get("plain", [])
+        base = {k: float(np.median([r[k] for r in plain])) for k in ("seconds", "cpu_seconds")} if plain else None
+        for m, runs in group.items():
+            row = {"method": m, "bodies": n, "frames": frames, "runs": len(runs)}
+            row |= {k: float(np.median([r[k] for r in runs])) for k in runs[0] if isinstance(runs[0][k], float)}
+            row["speedup_vs_plain"] = base["seconds"] / row["seconds"] if base else None
+            row["cpu_speedup_vs_plain"] = base["cpu_seconds"] / row["cpu_seconds"] if base else None
+            row["speedup_per_run"] = [p["seconds"] / r["seconds"] for p, r in zip(plain, runs)]
+            out.append(row)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", default="1000x300,10000x100", help="BODIESxFRAMES, comma separated")
     ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--repeats", type=int, default=3, help="runs of each method per case; medians are reported")
     ap.add_argument("--json", default=os.path.join(HERE, "results", "usd_export.json"))
     ap.add_argument("--child", nargs=4, metavar=("METHOD", "BODIES", "FRAMES", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -162,37 +181,38 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n, frames in cases:
-            for m in methods:
-                out = os.path.join(tmp, f"{m}_{n}x{frames}.usd")
-                proc = subprocess.run(
-                    [sys.executable, __file__, "--child", m, str(n), str(frames), out],
-                    capture_output=True, text=True, cwd=ROOT,
-                )  # fmt: skip
-                if proc.returncode != 0:
-                    sys.exit(f"{m} {n}x{frames} failed:\n{proc.stderr}")
-                row = json.loads(proc.stdout.strip().splitlines()[-1])
-                rows.append(row)
-                print(f"  {m:9s} {n:6d} x {frames:4d}: {row['seconds']:8.2f} s", flush=True)
-    print()
-    print(f"{'bodies x frames':>16} {'method':>10} {'wall s':>9} {'cpu s':>9} {'us/body/frame':>14} "
-          f"{'speed-up':>9} {'(cpu)':>9} {'peak RSS MiB':>13} {'(+ over start)':>15} {'file MiB':>9}")  # fmt: skip
-    for n, frames in cases:
-        group = [r for r in rows if r["bodies"] == n and r["frames"] == frames]
-        plain = next((r for r in group if r["method"] == "plain"), None)
-        for r in group:
-            r["speedup_vs_plain"] = plain["seconds"] / r["seconds"] if plain else None
-            r["cpu_speedup_vs_plain"] = plain["cpu_seconds"] / r["cpu_seconds"] if plain else None
-            sp = f"{r['speedup_vs_plain']:.1f}x" if plain else "-"
-            csp = f"{r['cpu_speedup_vs_plain']:.1f}x" if plain else "-"
-            print(f"{f'{n} x {frames}':>16} {r['method']:>10} {r['seconds']:9.2f} {r['cpu_seconds']:9.2f} "
-                  f"{r['us_per_body_frame']:14.2f} {sp:>9} {csp:>9} {r['peak_rss_mb']:13.1f} "
-                  f"{r['peak_rss_over_start_mb']:15.1f} {r['file_mb']:9.2f}")  # fmt: skip
+            for rep in range(args.repeats):  # methods interleaved, so that a busy spell hits them alike
+                for m in methods:
+                    out = os.path.join(tmp, f"{m}_{n}x{frames}.usd")
+                    proc = subprocess.run(
+                        [sys.executable, __file__, "--child", m, str(n), str(frames), out],
+                        capture_output=True, text=True, cwd=ROOT,
+                    )  # fmt: skip
+                    if proc.returncode != 0:
+                        sys.exit(f"{m} {n}x{frames} failed:\n{proc.stderr}")
+                    row = json.loads(proc.stdout.strip().splitlines()[-1]) | {"repeat": rep}
+                    rows.append(row)
+                    print(f"  {m:9s} {n:6d} x {frames:4d} #{rep}: {row['seconds']:8.2f} s", flush=True)
+    summary = summarize(rows, cases, methods)
+    print(f"\nmedians of {args.repeats} runs each")
+    print(f"{'bodies x frames':>16} {'method':>10} {'wall s':>9} {'cpu s':>9} {'us/body/frame':>14} {'speed-up':>9} "
+          f"{'(cpu)':>7} {'runs':>16} {'peak RSS MiB':>13} {'(+ start)':>10} {'file MiB':>9}")  # fmt: skip
+    for r in summary:
+        case = f"{r['bodies']} x {r['frames']}"
+        sp = f"{r['speedup_vs_plain']:.1f}x" if r["speedup_vs_plain"] else "-"
+        csp = f"{r['cpu_speedup_vs_plain']:.1f}x" if r["cpu_speedup_vs_plain"] else "-"
+        runs = ",".join(f"{v:.1f}" for v in r["speedup_per_run"])
+        print(f"{case:>16} {r['method']:>10} {r['seconds']:9.2f} {r['cpu_seconds']:9.2f} "
+              f"{r['us_per_body_frame']:14.2f} {sp:>9} {csp:>7} {runs:>16} {r['peak_rss_mb']:13.1f} "
+              f"{r['peak_rss_over_start_mb']:10.1f} {r['file_mb']:9.2f}")  # fmt: skip
     from pxr import Usd
 
     result = {
         "benchmark": "usd_export",
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "usd": Usd.GetVersion()},
         "bar": {"writer_vs_plain": 3.0, "instancer_vs_plain": 50.0},
+        "repeats": args.repeats,
+        "summary": summary,
         "rows": rows,
     }
     os.makedirs(os.path.dirname(args.json), exist_ok=True)
