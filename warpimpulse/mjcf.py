@@ -5,14 +5,13 @@ its parent. Each MuJoCo body frame is placed exactly at our body frame (origin a
 axes along the builder's orientation), so `xpos`/`xquat` compare with our positions/orientations
 directly and the inertia tensor goes in unchanged.
 
-Only `to_mjcf` is pure Python; the helpers below it import `mujoco` when called.
+The model is built through `mujoco.MjSpec` (`to_spec`); `to_mjcf` serializes it. Everything that needs
+`mujoco` imports it when called, so this module imports without it.
 """
 
 from __future__ import annotations
 
 import math
-import sys
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -25,10 +24,6 @@ if TYPE_CHECKING:
     import mujoco
 
 INTEGRATORS = ("Euler", "implicitfast", "RK4")
-
-
-def _fmt(values) -> str:
-    return " ".join(repr(float(v)) for v in np.ravel(values))
 
 
 def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
@@ -95,40 +90,38 @@ def _joint_elements(joint: Joint, to_local) -> list[tuple[str, np.ndarray]]:
     raise NotImplementedError(f"MJCF export: joint {joint.name!r} of kind {kind!r} has no MuJoCo equivalent")
 
 
-def to_mjcf(
-    builder: SceneBuilder,
-    timestep: float = 0.01,
-    integrator: str = "RK4",
-    model_name: str = "warpimpulse",
-    memory: str | None = None,
-) -> str:
-    """The builder's scene as an MJCF document: same bodies, masses, inertias, joints, gravity; contacts off.
+_JOINT_TYPES = {"ball": "mjJNT_BALL", "hinge": "mjJNT_HINGE", "slide": "mjJNT_SLIDE"}
 
-    Forces and initial velocities are not part of MJCF; `MujocoScene` applies them at run time.
-    `memory` sets MuJoCo's arena size (e.g. "512M"); its default is too small for thousands of bodies.
+
+def to_spec(builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK4", model_name: str = "warpimpulse"):
+    """The builder's scene as a `mujoco.MjSpec`: same bodies, masses, inertias, joints, gravity; contacts off.
+
+    Built through MjSpec rather than MJCF text because MuJoCo's XML parser refuses documents nested more
+    than a few hundred bodies deep (a long chain). Forces and initial velocities are not part of the
+    model; `MujocoScene` applies them at run time.
     """
+    import mujoco
+
     parents = parent_joints(builder)
     children: dict[int, list[int]] = {}
     for b, joint in enumerate(parents):
         host = joint.parent if joint is not None else WORLD
         children.setdefault(host, []).append(b)
 
-    root = ET.Element("mujoco", model=model_name)
-    ET.SubElement(root, "compiler", angle="radian", autolimits="true")
-    option = ET.SubElement(
-        root, "option", timestep=repr(float(timestep)), integrator=integrator, gravity=_fmt(builder.gravity)
-    )
-    ET.SubElement(option, "flag", contact="disable", energy="enable")
-    if memory is not None:
-        ET.SubElement(root, "size", memory=memory)
-    world = ET.SubElement(root, "worldbody")
+    spec = mujoco.MjSpec()
+    spec.modelname = model_name
+    spec.option.timestep = float(timestep)
+    spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}")
+    spec.option.gravity = np.asarray(builder.gravity, dtype=np.float64)
+    spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+    if len(builder.bodies) > 1000:  # the default arena is too small for thousands of bodies
+        spec.memory = max(64, len(builder.bodies) // 16) << 20
 
     # Depth-first with an explicit stack: a chain of thousands of links nests thousands of bodies deep.
-    stack = [(world, WORLD, b, 1) for b in reversed(children.get(WORLD, []))]
-    depth = 0
+    stack = [(spec.worldbody, WORLD, b) for b in reversed(children.get(WORLD, []))]
     while stack:
-        parent_el, parent, b, level = stack.pop()
-        depth = max(depth, level)
+        parent_el, parent, b = stack.pop()
         body = builder.bodies[b]
         if parent == WORLD:
             pos, quat = body.position, body.orientation
@@ -136,33 +129,39 @@ def to_mjcf(
             pb = builder.bodies[parent]
             pos = quat_rotate(quat_conj(pb.orientation), body.position - pb.position)
             quat = quat_mul(quat_conj(pb.orientation), body.orientation)
-        el = ET.SubElement(parent_el, "body", name=body.name, pos=_fmt(pos), quat=_fmt(_wxyz(quat)))
+        el = parent_el.add_body(name=body.name, pos=pos, quat=_wxyz(quat))
         if not body.static:
             i = body.inertia
-            full = (i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2])
-            ET.SubElement(el, "inertial", pos="0 0 0", mass=repr(body.mass), fullinertia=_fmt(full))
+            el.explicitinertial = True
+            el.mass = float(body.mass)
+            el.ipos = np.zeros(3)
+            el.fullinertia = np.array([i[0, 0], i[1, 1], i[2, 2], i[0, 1], i[0, 2], i[1, 2]])
             joint = parents[b]
             if joint is None:
-                ET.SubElement(el, "freejoint", name=f"{body.name}_free")
+                el.add_freejoint(name=f"{body.name}_free")
             else:
                 q_inv = quat_conj(body.orientation)
                 anchor = quat_rotate(q_inv, joint.anchor - body.position)
                 elements = _joint_elements(joint, lambda v, q_inv=q_inv: quat_rotate(q_inv, v))
                 for k, (kind, axis) in enumerate(elements):
-                    name = joint.name if len(elements) == 1 else f"{joint.name}_{k}"
-                    attrs = {"name": name, "type": kind, "pos": _fmt(anchor)}
-                    if kind != "ball":
-                        attrs["axis"] = _fmt(axis)
-                    ET.SubElement(el, "joint", attrs)
-        stack.extend((el, b, c, level + 1) for c in reversed(children.get(b, [])))
-    # ElementTree serializes recursively, a few frames per level.
-    limit = sys.getrecursionlimit()
-    sys.setrecursionlimit(max(limit, 4 * depth + 1000))
-    try:
-        ET.indent(root)
-        return ET.tostring(root, encoding="unicode")
-    finally:
-        sys.setrecursionlimit(limit)
+                    el.add_joint(
+                        name=joint.name if len(elements) == 1 else f"{joint.name}_{k}",
+                        type=getattr(mujoco.mjtJoint, _JOINT_TYPES[kind]),
+                        pos=anchor,
+                        axis=axis,
+                    )
+        stack.extend((el, b, c) for c in reversed(children.get(b, [])))
+    return spec
+
+
+def to_mjcf(
+    builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK4", model_name: str = "warpimpulse"
+) -> str:
+    """The same model as MJCF text (to inspect or load elsewhere; MuJoCo reads it back only for scenes nested
+    less than a few hundred bodies deep)."""
+    spec = to_spec(builder, timestep, integrator, model_name)
+    spec.compile()
+    return spec.to_xml()
 
 
 @dataclass
@@ -177,9 +176,7 @@ class MujocoScene:
     def from_builder(cls, builder: SceneBuilder, timestep: float, integrator: str = "RK4") -> MujocoScene:
         import mujoco
 
-        # The arena holds per-dof work arrays, some of size nv^2 / body count; 64 KiB a body is ample.
-        memory = f"{max(64, len(builder.bodies) // 16)}M" if len(builder.bodies) > 1000 else None
-        model = mujoco.MjModel.from_xml_string(to_mjcf(builder, timestep, integrator, memory=memory))
+        model = to_spec(builder, timestep, integrator).compile()
         ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b.name) for b in builder.bodies]
         return cls(builder, model, np.array(ids, dtype=np.int64))
 

@@ -1,0 +1,210 @@
+"""pinocchio (the articulated-body algorithm, ABA) on a builder's scene: the benchmark's second reference
+and a peer.
+
+The model comes from the same SceneBuilder description that `warpimpulse.mjcf` gives MuJoCo: each body's
+parent joint becomes one pinocchio joint (a composite where MuJoCo needs several elements), its frame at
+the anchor with the body's orientation, the body at its centre of mass in that frame. A fixed joint welds
+the body to its parent's joint; a static body welds to the universe. pinocchio has no integrator, so
+`PinocchioRunner` steps with classical RK4 in the tangent space (MuJoCo's RK4 scheme): ABA in C++, the four
+stages in Python.
+
+Everything imports `pinocchio` when called, so this module imports without it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .builder import WORLD, SceneBuilder
+from .mjcf import _joint_elements, parent_joints
+from .transforms import quat_conj, quat_rotate, quat_to_matrix
+
+if TYPE_CHECKING:
+    import pinocchio
+
+
+def pinocchio_available() -> str | None:
+    """None when pinocchio imports, else why not."""
+    try:
+        import pinocchio  # noqa: F401
+    except ImportError:
+        return "pinocchio is not installed (pip install pin)"
+    return None
+
+
+def _joint_model(elements: list[tuple[str, np.ndarray]]):
+    import pinocchio as pin
+
+    models = []
+    for kind, axis in elements:
+        if kind == "ball":
+            models.append(pin.JointModelSpherical())
+        elif kind == "hinge":
+            models.append(pin.JointModelRevoluteUnaligned(*axis))
+        else:
+            models.append(pin.JointModelPrismaticUnaligned(*axis))
+    if len(models) == 1:
+        return models[0]
+    composite = pin.JointModelComposite()
+    for m in models:
+        composite.addJoint(m)
+    return composite
+
+
+@dataclass
+class PinocchioScene:
+    """A pinocchio model of a builder's scene, one frame per builder body (at its centre of mass)."""
+
+    builder: SceneBuilder
+    model: pinocchio.Model
+    frame_ids: list[int]
+    joint_ids: np.ndarray  # the joint each builder body moves with (0: the universe)
+
+    @classmethod
+    def from_builder(cls, builder: SceneBuilder) -> PinocchioScene:
+        import pinocchio as pin
+
+        def se3(rotation_xyzw: np.ndarray, translation: np.ndarray) -> pin.SE3:
+            return pin.SE3(quat_to_matrix(rotation_xyzw), np.asarray(translation, dtype=np.float64))
+
+        parents = parent_joints(builder)
+        model = pin.Model()
+        model.gravity = pin.Motion(np.concatenate([builder.gravity, np.zeros(3)]))
+        n = len(builder.bodies)
+        joint_of, joint_pose = np.zeros(n, dtype=np.int64), [pin.SE3.Identity()] * n  # host joint, its rest pose
+        frame_ids = [0] * n
+        done = [False] * n
+
+        def place(b: int) -> None:
+            body, joint = builder.bodies[b], parents[b]
+            pose = se3(body.orientation, body.position)
+            host = WORLD if joint is None else joint.parent
+            host_id, host_pose = (0, pin.SE3.Identity()) if host == WORLD else (joint_of[host], joint_pose[host])
+            if body.static or (joint is not None and joint.kind == "fixed"):
+                jid, jpose = host_id, host_pose
+            else:
+                if joint is None:
+                    jm, origin = pin.JointModelFreeFlyer(), body.position
+                else:
+                    q_inv = quat_conj(body.orientation)
+                    jm = _joint_model(_joint_elements(joint, lambda v: quat_rotate(q_inv, v)))
+                    origin = joint.anchor
+                jpose = se3(body.orientation, origin)
+                jid = model.addJoint(int(host_id), jm, host_pose.actInv(jpose), joint.name if joint else body.name)
+            local = jpose.actInv(pose)
+            if not body.static:
+                model.appendBodyToJoint(int(jid), pin.Inertia(body.mass, np.zeros(3), body.inertia), local)
+            joint_of[b], joint_pose[b] = jid, jpose
+            frame_ids[b] = model.addFrame(pin.Frame(body.name, int(jid), local, pin.FrameType.OP_FRAME))
+            done[b] = True
+
+        # Parents before children: follow each body up to the first placed ancestor (no recursion).
+        for start in range(n):
+            path, b = [], start
+            while not done[b]:
+                path.append(b)
+                joint = parents[b]
+                if joint is None or joint.parent == WORLD:
+                    break
+                b = joint.parent
+            for b in reversed(path):
+                place(b)
+        return cls(builder, model, frame_ids, joint_of)
+
+    def initial_state(self, data) -> tuple[np.ndarray, np.ndarray]:
+        """(q, v) at the builder's pose; v fitted by least squares to the bodies' velocities, as MuJoCo's."""
+        import pinocchio as pin
+
+        q = pin.neutral(self.model)
+        v = np.zeros(self.model.nv)
+        dynamic = [b for b, body in enumerate(self.builder.bodies) if not body.static]
+        target = np.concatenate(
+            [np.concatenate([self.builder.bodies[b].linear_velocity, self.builder.bodies[b].angular_velocity])
+             for b in dynamic]
+        )  # fmt: skip
+        if np.any(target != 0.0):
+            pin.computeJointJacobians(self.model, data, q)
+            pin.updateFramePlacements(self.model, data)
+            rows = np.vstack(
+                [pin.getFrameJacobian(self.model, data, self.frame_ids[b], pin.LOCAL_WORLD_ALIGNED) for b in dynamic]
+            )
+            v, *_ = np.linalg.lstsq(rows, target, rcond=None)
+            residual = float(np.abs(rows @ v - target).max())
+            if residual > 1e-8 * (1.0 + float(np.abs(target).max())):
+                raise ValueError(f"initial body velocities violate the joints (residual {residual:.3g})")
+        return q, v
+
+
+class PinocchioRunner:
+    """RK4 over h with the ABA accelerations; the scene's forces act on the steps that start before `until`
+    (constant in the world frame over the step), as in MujocoRunner."""
+
+    def __init__(self, scene: PinocchioScene, rate: int) -> None:
+        import pinocchio as pin
+
+        self._pin = pin
+        self.scene, self.model = scene, scene.model
+        self.data = self.model.createData()
+        self.h, self.rate, self.steps = 1.0 / rate, rate, 0
+        self.q, self.v = scene.initial_state(self.data)
+        self.tau = np.zeros(self.model.nv)
+        self._fext = pin.StdVec_Force()
+        for _ in range(self.model.njoints):
+            self._fext.append(pin.Force.Zero())
+        # Steps at which the set of active forces changes (the first step starting at or after an `until`).
+        self._until = [(math.ceil(f.until * rate - 1e-6), f) for f in scene.builder.forces]
+
+    def _accel(self, q: np.ndarray, v: np.ndarray, forces: list) -> np.ndarray:
+        pin = self._pin
+        if not forces:
+            return pin.aba(self.model, self.data, q, v, self.tau)
+        pin.forwardKinematics(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+        for k in range(self.model.njoints):
+            self._fext[k] = pin.Force.Zero()
+        for f in forces:
+            jid = int(self.scene.joint_ids[f.body])
+            com = self.data.oMf[self.scene.frame_ids[f.body]].translation
+            world = pin.Force(f.force, f.torque + np.cross(com, f.force))  # about the world origin
+            self._fext[jid] = self._fext[jid] + self.data.oMi[jid].actInv(world)
+        return pin.aba(self.model, self.data, q, v, self.tau, self._fext)
+
+    def step(self) -> None:
+        pin, model, h = self._pin, self.model, self.h
+        forces = [f for end, f in self._until if self.steps < end]
+        q, v = self.q, self.v
+        a1 = self._accel(q, v, forces).copy()
+        v2 = v + 0.5 * h * a1
+        a2 = self._accel(pin.integrate(model, q, 0.5 * h * v), v2, forces).copy()
+        v3 = v + 0.5 * h * a2
+        a3 = self._accel(pin.integrate(model, q, 0.5 * h * v2), v3, forces).copy()
+        v4 = v + h * a3
+        a4 = self._accel(pin.integrate(model, q, h * v3), v4, forces)
+        self.q = pin.integrate(model, q, h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4))
+        self.v = v + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        self.steps += 1
+
+    def check(self) -> None:
+        if not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.v))):
+            from .benchmark import StepFailed
+
+            raise StepFailed(f"pinocchio diverged before t = {self.steps / self.rate:.4g} s")
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres of mass (N, 3) and orientations (N, 4, xyzw) in builder order."""
+        pin = self._pin
+        pin.framesForwardKinematics(self.model, self.data, self.q)
+        frames = [self.data.oMf[f] for f in self.scene.frame_ids]
+        x = np.array([m.translation for m in frames])
+        q = np.array([pin.Quaternion(m.rotation).coeffs() for m in frames])
+        return x, q
+
+    def energy(self) -> tuple[float, float]:
+        """(total, kinetic): kinetic plus potential in the scene's gravity."""
+        kinetic = self._pin.computeKineticEnergy(self.model, self.data, self.q, self.v)
+        potential = self._pin.computePotentialEnergy(self.model, self.data, self.q)
+        return float(kinetic + potential), float(kinetic)
