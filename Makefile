@@ -23,10 +23,16 @@ lint: $(STAMP)
 stress: $(STAMP)
 	$(VENV)/bin/warpimpulse stress
 
+# The paper's tables, then run time against error and scaling (apart, so either can be re-run alone), then
+# plots, RESULTS.md and README.md's results block from the two JSON files.
+RESULTS := benchmarks/results
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[bench]"
 	$(PY) benchmarks/paper_tables.py
-	$(PY) -m warpimpulse.benchmark --json benchmarks/results/bench.json --plots benchmarks/results --readme benchmarks/results/RESULTS.md
+	$(PY) benchmarks/run_vs_error.py --json $(RESULTS)/run_vs_error.json > /dev/null
+	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
+	$(PY) -m warpimpulse.benchmark --from-json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
+		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme README.md
 
 clean:
 	rm -rf $(VENV) build *.egg-info tree127.usdc

@@ -153,15 +153,25 @@ def test_benchmark_harness_end_to_end(tmp_path) -> None:
     sweep = benchmark.run_vs_error(["double_pendulum"], [60], [1e-6], repeats=1, progress=False)
     ref = sweep["references"]["double_pendulum"]
     assert ref["self_check_residual"] < 1e-8
-    rk4 = next(r for r in sweep["runs"] if r["variant"] == "RK4")
+    rk4 = next(r for r in sweep["runs"] if r["variant"] == "RK4" and r["engine"] == "mujoco")
     assert rk4["failed"] is None and rk4["trajectory_error"] < 1e-3 and rk4["energy_drift"] < 1e-2
     assert rk4["time_per_step"] > 0.0 and rk4["joint_error_anchor_gap"] < 1e-12
-    results = {"run_vs_error": sweep, "missing": sweep.pop("missing")}
+    results = {"run_vs_error": sweep}
     report = benchmark.markdown(results)
-    assert "| mujoco | RK4 | 1/60 |" in report
+    assert "| mujoco | RK4 | 1/60 |" in report and "## Where we win and lose" in report
     written = benchmark.plots(results, tmp_path)
     assert {p.name for p in written} == {"pareto_double_pendulum.png", "energy_drift.png"}
-    assert "## Results" in benchmark.readme_section(results)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# title\n\nkept\n{benchmark.README_BEGIN}\nold\n{benchmark.README_END}\nkept too\n")
+    benchmark.write_readme_block(readme, benchmark.readme_block(results))
+    text = readme.read_text()
+    assert text.startswith("# title\n\nkept\n") and text.endswith(f"{benchmark.README_END}\nkept too\n")
+    assert "old" not in text and "pareto_double_pendulum.png" in text and "The bar" not in text
+
+
+def test_mujoco_builds_chains_deeper_than_its_xml_parser_allows() -> None:
+    scene = MujocoScene.from_builder(scenes.chain(700), 1.0 / 60.0)
+    assert scene.model.nbody == 701 and scene.model.nv == 700
 
 
 def test_speed_ratio_picks_the_fastest_peer_at_least_as_accurate() -> None:

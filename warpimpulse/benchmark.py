@@ -21,6 +21,7 @@ import argparse
 import gc
 import json
 import math
+import os
 import platform
 import statistics
 import sys
@@ -48,11 +49,13 @@ ERROR_TIME = 2.0  # s: trajectory error is measured here
 DRIFT_DURATION = 10.0  # s of conservative motion after the last force stops
 SAMPLE_RATE = 30  # Hz: energy and joint-error samples (divides every rate of the sweep)
 SCALING_TREES = tuple(2**k - 1 for k in range(5, 17))  # 31 ... 65535 bodies
-SCALING_CHAINS = (10, 100, 1000, 10000)
+SCALING_CHAINS = (10, 100, 1000, 3000, 10000)
 QUICK_SCALING_TREES = (31, 127, 511, 2047)
 QUICK_SCALING_CHAINS = (10, 100, 1000)
 SCALING_RATE = 60
 SCALING_TOLERANCE = 1e-6
+SCALING_STEPS, SCALING_REPEATS = 20, 3  # timed blocks of steps per scaling point, after one warm-up block
+SCALING_BUDGET, QUICK_SCALING_BUDGET = 300.0, 40.0  # s per scaling point, set-up included
 BAR_SCENE = "tree127"
 
 
@@ -252,6 +255,12 @@ def mujoco_available() -> str | None:
     return None
 
 
+def pinocchio_available() -> str | None:
+    from .pinocchio_peer import pinocchio_available
+
+    return pinocchio_available()
+
+
 # ------------------------------------------------------------------------------------------ measuring
 def accuracy_run(runner, rate: int, probe: Probe, duration: float) -> dict:
     """Step to `duration`, sampling energy and anchor gap at SAMPLE_RATE, tracked points at ERROR_TIME."""
@@ -324,10 +333,13 @@ class Reference:
     energy: np.ndarray
     energy_scale: float  # J: work done by the scene's forces, or the peak kinetic energy without forces
     self_check: float  # m: max distance of the tracked points, h = 1/3000 against 1/6000, at ERROR_TIME
+    pinocchio_residual: float | None  # m: pinocchio RK4 at h = 1/3000 against it, at ERROR_TIME (None: absent)
     seconds: float
 
 
 def reference(builder: SceneBuilder, probe: Probe, duration: float, t_forces: float) -> Reference:
+    """MuJoCo RK4 at 1/3000 over the whole run, checked against itself at 1/6000 and, where installed, against
+    pinocchio's ABA with RK4 at 1/3000 (an independent implementation) over the first ERROR_TIME seconds."""
     from .mjcf import MujocoScene
 
     start = time.perf_counter()
@@ -342,7 +354,16 @@ def reference(builder: SceneBuilder, probe: Probe, duration: float, t_forces: fl
     else:
         scale = float(ref["kinetic"].max())
     residual = float(np.linalg.norm(ref["points"] - check["points"], axis=1).max())
-    return Reference(ref["points"], ref["times"], ref["energy"], scale, residual, time.perf_counter() - start)
+    cross = None
+    if pinocchio_available() is None:
+        from .pinocchio_peer import PinocchioRunner, PinocchioScene
+
+        pin = accuracy_run(PinocchioRunner(PinocchioScene.from_builder(builder), REFERENCE_RATE), REFERENCE_RATE,
+                           probe, ERROR_TIME)  # fmt: skip
+        if pin["failed"]:
+            raise RuntimeError(f"the pinocchio cross-check failed: {pin['failed']}")
+        cross = float(np.linalg.norm(ref["points"] - pin["points"], axis=1).max())
+    return Reference(ref["points"], ref["times"], ref["energy"], scale, residual, cross, time.perf_counter() - start)
 
 
 def summarize(acc: dict, ref: Reference, t_forces: float) -> dict:
@@ -389,6 +410,14 @@ class Progress:
         sys.stderr.flush()
 
 
+def quiet_warp() -> None:
+    """No banner or module-load lines from Warp inside the report (Warp 1.19 logs them at INFO level)."""
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
+
+
 def log(msg: str) -> None:
     sys.stderr.write(msg + "\n")
     sys.stderr.flush()
@@ -405,14 +434,20 @@ def run_vs_error(
 ) -> dict:
     """The accuracy/time sweep of every scene, for every engine that is available."""
     from .mjcf import MujocoScene
+    from .pinocchio_peer import PinocchioRunner, PinocchioScene
 
     scene_names, rates, tolerances = list(scene_names), list(rates), list(tolerances)
-    ours_missing, mujoco_missing = warpimpulse_available(), mujoco_available()
+    ours_missing, mujoco_missing, pin_missing = warpimpulse_available(), mujoco_available(), pinocchio_available()
     if mujoco_missing:
         raise RuntimeError(f"the reference needs MuJoCo: {mujoco_missing}")
     if ours_missing:
         log(f"note: {ours_missing}; measuring the peers only")
-    per_scene = len(rates) * (len(MUJOCO_INTEGRATORS) + (0 if ours_missing else len(tolerances)))
+    if pin_missing:
+        log(f"note: {pin_missing}; no pinocchio peer, no cross-check of the reference")
+    configs = [("mujoco", integ, None) for integ in MUJOCO_INTEGRATORS]
+    configs += [] if pin_missing else [("pinocchio", "RK4", None)]
+    configs += [] if ours_missing else [("warpimpulse", solver, tol) for tol in tolerances]
+    per_scene = len(rates) * len(configs)
     bar = Progress(len(scene_names) * (per_scene + 1), progress)
     rows, refs = [], {}
     for name in scene_names:
@@ -425,19 +460,23 @@ def run_vs_error(
             "rate": REFERENCE_RATE, "check_rate": CHECK_RATE, "self_check_residual": ref.self_check,
             "energy_scale": ref.energy_scale, "seconds": ref.seconds, "bodies": len(builder.bodies),
             "tracked_points": len(probe.bodies), "forces_end": t_forces, "duration": duration,
+            "pinocchio_residual": ref.pinocchio_residual,
         }  # fmt: skip
-        log(f"\n{name}: reference RK4 h=1/{REFERENCE_RATE} vs 1/{CHECK_RATE}: residual {ref.self_check:.3g} m")
+        log(f"\n{name}: reference MuJoCo RK4 h=1/{REFERENCE_RATE} vs 1/{CHECK_RATE}: residual {ref.self_check:.3g} m"
+            + ("" if ref.pinocchio_residual is None
+               else f"; vs pinocchio RK4 h=1/{REFERENCE_RATE}: residual {ref.pinocchio_residual:.3g} m"))  # fmt: skip
         bar.advance(f"{name} reference")
         mscene = MujocoScene.from_builder(builder, 1.0 / REFERENCE_RATE)
         model = None if ours_missing else builder.finalize("cpu")
-        configs = [("mujoco", integ, None) for integ in MUJOCO_INTEGRATORS]
-        if not ours_missing:
-            configs += [("warpimpulse", solver, tol) for tol in tolerances]
+        pscene = None if pin_missing else PinocchioScene.from_builder(builder)
         for engine, variant, tol in configs:
             for rate in rates:
                 if engine == "mujoco":
                     factory = partial(MujocoRunner, mscene, variant, rate)
                     runner = MujocoRunner(mscene, variant, rate, energy=True)
+                elif engine == "pinocchio":
+                    factory = partial(PinocchioRunner, pscene, rate)
+                    runner = factory()
                 else:
                     factory = partial(WarpimpulseRunner, builder, rate, tol, solver, model)
                     runner = WarpimpulseRunner(builder, rate, tol, solver, model)
@@ -453,7 +492,8 @@ def run_vs_error(
                 row["time_per_step"] = statistics.median(times) if times else None
                 rows.append(row)
                 bar.advance(f"{name} {engine} {variant} 1/{rate}" + (f" tol {tol:g}" if tol else ""))
-    return {"references": refs, "runs": rows, "missing": {"warpimpulse": ours_missing, "mujoco": mujoco_missing}}
+    missing = {"warpimpulse": ours_missing, "mujoco": mujoco_missing, "pinocchio": pin_missing}
+    return {"references": refs, "runs": rows, "missing": missing}
 
 
 def scaling(
@@ -466,60 +506,136 @@ def scaling(
 ) -> list[dict]:
     """Time per step against body count (h = 1/60; ours at tolerance 1e-6; MuJoCo implicitfast and RK4).
 
-    A size whose projected cost (the previous size's measured cost times the growth in bodies, or
-    more for a chain in MuJoCo, whose mass matrix is dense) exceeds `budget_s` is skipped and reported.
+    Each point runs in a child process stopped at `budget_s` seconds (set-up plus timing), so a size that
+    is too slow, or too big for memory, is reported instead of hanging the run. A size whose projected
+    cost already exceeds the budget is skipped without trying, with the projection as the reason.
     """
-    from .mjcf import MujocoScene
-
     ours_missing, mujoco_missing = warpimpulse_available(), mujoco_available()
     families = [("tree", n) for n in trees] + [("chain", n) for n in chains]
     engines = ([] if ours_missing else [("warpimpulse", "auto")]) + (
         [] if mujoco_missing else [("mujoco", "implicitfast"), ("mujoco", "RK4")]
     )
     bar = Progress(len(families) * len(engines), progress)
-    rows, last_cost = [], {}
+    rows: list[dict] = []
+    history: dict[tuple, list[dict]] = {}
     for family, n in families:
-        builder = scenes.binary_tree(n) if family == "tree" else scenes.chain(n)
-        mscene, model = None, None
+        plan = []
         for engine, variant in engines:
-            key = (family, engine, variant)
             row = {"family": family, "bodies": n, "engine": engine, "variant": variant, "rate": SCALING_RATE}
-            if key in last_cost:
-                prev_n, prev_cost = last_cost[key]
-                growth = (n / prev_n) ** (2 if family == "chain" and engine == "mujoco" else 1)
-                if prev_cost * growth > budget_s:
-                    row["skipped"] = f"projected {prev_cost * growth:.0f} s > budget {budget_s:.0f} s"
-                    rows.append(row)
-                    bar.advance(f"{family}{n} {engine} {variant} skipped")
-                    continue
-            start = time.perf_counter()
-            try:
-                if engine == "mujoco":
-                    if mscene is None:
-                        mscene = MujocoScene.from_builder(builder, 1.0 / SCALING_RATE)
-                    row["setup_s"] = time.perf_counter() - start
-                    factory = partial(MujocoRunner, mscene, variant, SCALING_RATE)
-                else:
-                    if model is None:
-                        model = builder.finalize("cpu")
-                    row["setup_s"] = time.perf_counter() - start
-                    factory = partial(WarpimpulseRunner, builder, SCALING_RATE, SCALING_TOLERANCE, "auto", model)
-                runs, iters = _time_block(factory, steps, repeats)
-                row["time_per_step_runs"] = runs
-                row["time_per_step"] = statistics.median(runs)
-                row["time_per_body_step"] = row["time_per_step"] / n
-                row.update(iters)
-            except (StepFailed, MemoryError, ValueError) as e:
-                row["failed"] = " ".join(str(e).split())[:200]
-            last_cost[key] = (n, time.perf_counter() - start)
+            row["skipped"] = _over_budget(history.get((family, engine, variant), []), family, engine, n,
+                                          steps * (repeats + 1), budget_s)  # fmt: skip
+            plan.append(row)
+        builder, build_s = None, None
+        for row in plan:
+            if row["skipped"] is None:
+                if builder is None:
+                    start = time.perf_counter()
+                    builder = scenes.binary_tree(n) if family == "tree" else scenes.chain(n)
+                    build_s = time.perf_counter() - start
+                point = partial(scaling_point, builder, row["engine"], row["variant"], steps, repeats)
+                row.update(_isolated(point, budget_s), scene_build_s=build_s)
+                history.setdefault((family, row["engine"], row["variant"]), []).append(row)
             rows.append(row)
-            bar.advance(f"{family}{n} {engine} {variant}")
+            bar.advance(f"{family}{n} {row['engine']} {row['variant']}" + (" skipped" if row["skipped"] else ""))
     return rows
 
 
-def _time_block(factory: Callable[[], object], steps: int, repeats: int) -> tuple[list[float], dict]:
-    """`repeats` timed blocks of `steps` steps after `steps` warm-up steps, on one runner."""
-    runner = factory()
+# Growth exponents (cost ~ bodies^k) assumed before two sizes are measured: set-up, then per step. MuJoCo's
+# chain has a dense mass matrix (per step ~ n^2) and its compiler solves with it once per body (~ n^3).
+_GROWTH = {("chain", "mujoco"): (3.0, 2.0)}
+_PROJECT_FROM_S = 0.5  # below this a cost is mostly fixed overhead and says nothing about growth
+
+
+def _over_budget(done: list[dict], family: str, engine: str, n: int, steps: int, budget_s: float) -> str | None:
+    """Why size `n` is not tried (None: try it), from the smaller sizes already measured for this engine.
+
+    Only costs big enough to grow are projected; the child's hard stop at the budget covers the rest.
+    """
+    if not done:
+        return None
+    last = done[-1]
+    if last.get("over_budget"):
+        return f"a smaller size ({last['bodies']}) already ran past the budget"
+    if last.get("time_per_step") is None:
+        return None  # failed for another reason: the next size may run
+    growth = dict(zip(("setup", "steps"), _GROWTH.get((family, engine), (1.0, 1.0))))
+    cost = {"setup": lambda r: r["setup_s"], "steps": lambda r: steps * r["time_per_step"]}
+    measured = [r for r in done if r.get("time_per_step") is not None]
+    projected, exponents = 0.0, []
+    for part, of in cost.items():
+        if of(last) < _PROJECT_FROM_S:
+            continue
+        k = growth[part]
+        if len(measured) >= 2 and of(measured[-2]) >= _PROJECT_FROM_S:
+            a, b = measured[-2], measured[-1]
+            k = min(3.0, max(1.0, math.log(of(b) / of(a)) / math.log(b["bodies"] / a["bodies"])))
+        projected += of(last) * (n / last["bodies"]) ** k
+        exponents.append(f"{part} ~n^{k:.1f}")
+    if projected > budget_s:
+        return f"projected {projected:.0f} s ({', '.join(exponents)}) > budget {budget_s:.0f} s"
+    return None
+
+
+def scaling_point(builder: SceneBuilder, engine: str, variant: str, steps: int, repeats: int) -> dict:
+    """One scaling measurement (run in a child process): set-up time, then timed blocks of steps."""
+    import warp as wp
+
+    from .mjcf import MujocoScene
+
+    quiet_warp()
+    wp.init()
+    mujoco_available()  # silences MuJoCo's warnings in this process too
+    n = len(builder.bodies)
+    start = time.perf_counter()
+    if engine == "mujoco":
+        runner = MujocoRunner(MujocoScene.from_builder(builder, 1.0 / SCALING_RATE), variant, SCALING_RATE)
+    else:
+        runner = WarpimpulseRunner(builder, SCALING_RATE, SCALING_TOLERANCE, variant, builder.finalize("cpu"))
+    row: dict = {"setup_s": time.perf_counter() - start}
+    try:
+        runs = _time_block(runner, steps, repeats)
+    except StepFailed as e:
+        return row | {"failed": " ".join(str(e).split())[:200]}
+    row.update(time_per_step_runs=runs, time_per_step=statistics.median(runs))
+    row["time_per_body_step"] = row["time_per_step"] / n
+    if isinstance(runner, WarpimpulseRunner):
+        row.update(runner.iteration_stats())
+    return row
+
+
+def _isolated(fn: Callable[[], dict], budget_s: float) -> dict:
+    """fn() in a fresh process, stopped after `budget_s` seconds; its result, or why there is none."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")  # not fork: Warp and MuJoCo hold threads and caches
+    receive, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(fn, send), daemon=True)
+    proc.start()
+    send.close()
+    try:
+        if receive.poll(budget_s):
+            return receive.recv()
+        return {"skipped": f"stopped at the budget of {budget_s:.0f} s", "over_budget": True}
+    except EOFError:
+        proc.join()
+        return {"failed": f"the measuring process died (exit code {proc.exitcode}; out of memory?)"}
+    finally:
+        if proc.is_alive():
+            proc.kill()
+        proc.join()
+
+
+def _child(fn: Callable[[], dict], send) -> None:
+    try:
+        result = fn()
+    except Exception as e:  # any failure of the engine is a result to report
+        result = {"failed": f"{type(e).__name__}: {' '.join(str(e).split())[:200]}"}
+    send.send(result)
+    send.close()
+
+
+def _time_block(runner, steps: int, repeats: int) -> list[float]:
+    """Seconds per step of `repeats` timed blocks of `steps` steps, after `steps` warm-up steps."""
     for _ in range(steps):
         runner.step()
     runs = []
@@ -534,8 +650,7 @@ def _time_block(factory: Callable[[], object], steps: int, repeats: int) -> tupl
         finally:
             gc.enable()
     runner.check()
-    iters = runner.iteration_stats() if isinstance(runner, WarpimpulseRunner) else {}
-    return runs, iters
+    return runs
 
 
 # ------------------------------------------------------------------------------------------ the bar
@@ -576,31 +691,25 @@ def _us(seconds) -> str:
 
 
 def markdown(results: dict) -> str:
-    """The full report: references, one table per scene, the tree127 bar, the scaling table."""
+    """The full report (RESULTS.md): references, one table per scene, where we win and lose, the tree127 bar,
+    scaling."""
     lines = ["# warpimpulse benchmark", ""]
-    meta = results.get("meta", {})
-    if meta:
-        lines += [f"Command: `{meta.get('command', '')}`  ", f"Machine: {meta.get('machine', '')}  ",
-                  f"Versions: {meta.get('versions', '')}", ""]  # fmt: skip
-    for why in filter(None, results.get("missing", {}).values()):
-        lines.append(f"> Not measured: {why}")
-    sweep = results.get("run_vs_error")
+    sweep, scale = results.get("run_vs_error"), results.get("scaling")
     if sweep:
-        lines += ["## Run time against error", "",
-                  f"Reference: MuJoCo RK4 at h = 1/{REFERENCE_RATE}, checked against h = 1/{CHECK_RATE}. Trajectory "
-                  f"error: max distance at t = {ERROR_TIME:g} s over every centre of mass and leaf tip. Energy "
-                  f"drift: max |E(t) - E(t_f)| over {DRIFT_DURATION:g} s after the forces stop (t_f), divided by "
-                  "the work the forces did (trees) or the peak kinetic energy (no forces). Joint error: max "
-                  "distance between a point joint's two anchors over the run, from body poses, for every engine "
-                  "(MuJoCo's reduced coordinates keep it at round-off); ours also reports its own max joint error "
-                  "(m or rad) after each step. Time: median over repeats of the mean time per step over the "
-                  f"first {ERROR_TIME:g} s.", "",
-                  "| scene | bodies | reference self-check (m) | energy scale (J) |", "|---|---|---|---|"]  # fmt: skip
+        lines += ["## Run time against error", "", *_provenance(sweep),
+                  f"Reference: MuJoCo RK4 at h = 1/{REFERENCE_RATE}, checked against itself at h = 1/{CHECK_RATE} and "
+                  f"against pinocchio (ABA, RK4) at h = 1/{REFERENCE_RATE}. Trajectory error: max distance at "
+                  f"t = {ERROR_TIME:g} s over every centre of mass and leaf tip. Energy drift: max |E(t) - E(t_f)| "
+                  f"over {DRIFT_DURATION:g} s after the forces stop (t_f), divided by the work the forces did (trees) "
+                  "or the peak kinetic energy (no forces). Joint error: max distance between a point joint's two "
+                  "anchors over the run, from body poses, for every engine (reduced coordinates keep it at "
+                  "round-off); ours also reports its own max joint error (m or rad) after each step. Time: median "
+                  f"over repeats of the mean time per step over the first {ERROR_TIME:g} s, after a warm-up run. "
+                  "pinocchio's RK4 is stepped from Python (four ABA calls a step), so its small scenes time the "
+                  "Python loop more than pinocchio.", "",
+                  *summary_markdown(sweep)]  # fmt: skip
         for name, ref in sweep["references"].items():
-            lines.append(f"| {name} | {ref['bodies']} | {ref['self_check_residual']:.2e} | {ref['energy_scale']:.4g} |")
-        lines.append("")
-        for name in sweep["references"]:
-            lines += [f"### {name}", "",
+            lines += [f"### {name}", "", f"Energy scale {ref['energy_scale']:.4g} J.", "",
                       "| engine | variant | h | tolerance | µs/step | trajectory error (m) | energy drift | "
                       "anchor gap (m) | our joint error | joint it/step | note |",
                       "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
@@ -613,20 +722,57 @@ def markdown(results: dict) -> str:
                 )
             lines.append("")
         lines += bar_markdown(sweep["runs"])
-    if results.get("scaling"):
-        lines += scaling_markdown(results["scaling"])
+    if scale:
+        lines += scaling_markdown(scale)
     return "\n".join(lines) + "\n"
 
 
-def bar_markdown(runs: list[dict], scene: str = BAR_SCENE) -> list[str]:
+def _provenance(section: dict) -> list[str]:
+    meta = section.get("meta")
+    lines = (
+        [f"Measured with `{meta['command']}` on {meta['machine']}, {meta['date']} ({meta['versions']}).", ""]
+        if meta
+        else []
+    )
+    return lines + [f"> Not measured: {why}" for why in filter(None, section.get("missing", {}).values())] + [""]
+
+
+def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
+    """Per scene: how far the references agree, and in how many of our configurations we beat MuJoCo."""
+    lines = [f"{level} Where we win and lose", "",
+             "Per scene, each of our configurations (h, tolerance) against the cheapest MuJoCo configuration "
+             "(integrator, h) whose trajectory error is at most ours; ratio = its run time per simulated second "
+             "over ours (> 1: we are faster).", "",
+             "| scene | bodies | reference self-check (m) | pinocchio vs reference (m) | we are faster | "
+             "best ratio | worst ratio |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for name, ref in sweep["references"].items():
+        ratios = speed_ratios(sweep["runs"], name)
+        wins = [r for r in ratios if r["ratio"] is None or r["ratio"] > 1.0]
+        known = [r for r in ratios if r["ratio"] is not None]
+        best = max(known, key=lambda r: r["ratio"], default=None)
+        worst = min(known, key=lambda r: r["ratio"], default=None)
+        lines.append(
+            f"| {name} | {ref['bodies']} | {ref['self_check_residual']:.2e} | {_num(ref.get('pinocchio_residual'))} "
+            f"| {len(wins)} of {len(ratios)} | {_ratio_cell(best)} | {_ratio_cell(worst)} |"
+        )
+    return lines + [""]
+
+
+def _ratio_cell(r: dict | None) -> str:
+    return "—" if r is None else f"{r['ratio']:.2f} (1/{r['rate']}, tol {r['tolerance']:g} vs {r['mujoco']})"
+
+
+def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") -> list[str]:
+    if not any(r["scene"] == scene for r in runs):
+        return []
     ratios = speed_ratios(runs, scene)
     if not ratios:
-        return [f"## The bar ({scene})", "", "No warpimpulse run on this scene.", ""]
-    lines = [f"## The bar: {scene} at matched trajectory error", "",
-             "Ratio = run time per simulated second of the cheapest MuJoCo configuration whose error is at most "
+        return [f"{level} The bar ({scene})", "", "No warpimpulse run on this scene.", ""]
+    lines = [f"{level} The bar: {scene} at matched trajectory error", "",
+             "Ratio = run time per simulated second of the fastest MuJoCo configuration whose error is at most "
              "ours, over ours (> 1: warpimpulse is faster). Per second, not per step: h differs between the two.",
              "",
-             "| our h | tolerance | our error (m) | our µs/step | our ms/sim s | cheapest MuJoCo at ≤ that error | "
+             "| our h | tolerance | our error (m) | our µs/step | our ms/sim s | fastest MuJoCo at ≤ that error | "
              "its error (m) | its µs/step | its ms/sim s | ratio |",
              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in ratios:
@@ -645,6 +791,7 @@ def bar_markdown(runs: list[dict], scene: str = BAR_SCENE) -> list[str]:
         lines.append(f"Best: h=1/{best['rate']}, tol {best['tolerance']:g}, error {best['trajectory_error']:.3g} m, "
                      + ("no MuJoCo configuration of the sweep is that accurate." if best["ratio"] is None
                         else f"{best['ratio']:.2f}x faster than MuJoCo {best['mujoco']}."))  # fmt: skip
+        lines.append("We win at: " + ", ".join(f"1/{r['rate']} tol {r['tolerance']:g}" for r in wins) + ".")
     if losses:
         worst = min(losses, key=lambda r: r["ratio"])
         lines.append(f"Worst: h=1/{worst['rate']}, tol {worst['tolerance']:g}, error {worst['trajectory_error']:.3g} "
@@ -652,42 +799,90 @@ def bar_markdown(runs: list[dict], scene: str = BAR_SCENE) -> list[str]:
     return lines + [""]
 
 
-def scaling_markdown(rows: list[dict]) -> list[str]:
-    lines = ["## Scaling", "",
-             f"h = 1/{SCALING_RATE}; warpimpulse at tolerance {SCALING_TOLERANCE:g}; median of timed blocks after "
-             "a warm-up block.", "",
-             "| family | bodies | engine | variant | µs/step | µs/body/step | joint it/step | linear it/step | note |",
-             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+def scaling_markdown(scale: dict, level: str = "##") -> list[str]:
+    rows = scale["rows"]
+    lines = [f"{level} Scaling", "", *_provenance(scale),
+             f"h = 1/{SCALING_RATE}; warpimpulse at tolerance {SCALING_TOLERANCE:g}. Each point runs in its own "
+             f"process, stopped at the budget of {scale['budget_s']:.0f} s (set-up and timing); a size projected "
+             f"past it is skipped. Time: median of {scale['repeats']} blocks of {scale['steps']} steps after a "
+             "warm-up block. Set-up: our model and symbolic analysis, or MuJoCo's compiler (not the scene "
+             "description, built once for all engines).", "",
+             "| family | bodies | engine | variant | set-up (s) | µs/step | µs/body/step | joint it/step (max) | "
+             "linear it/step | note |",
+             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
         note = " ".join((r.get("skipped") or r.get("failed") or "").split())
         per_body = r.get("time_per_body_step")
+        iters = r.get("joint_iterations_mean")
         lines.append(
-            f"| {r['family']} | {r['bodies']} | {r['engine']} | {r['variant']} | {_us(r.get('time_per_step'))} | "
-            f"{'—' if per_body is None else f'{per_body * 1e6:.3f}'} | {_num(r.get('joint_iterations_mean'), '.2f')} "
-            f"| {_num(r.get('linear_iterations_mean'), '.1f')} | {note} |"
+            f"| {r['family']} | {r['bodies']} | {r['engine']} | {r['variant']} | {_num(r.get('setup_s'), '.2f')} | "
+            f"{_us(r.get('time_per_step'))} | {'—' if per_body is None else f'{per_body * 1e6:.3f}'} | "
+            + ("—" if iters is None else f"{iters:.2f} ({r['joint_iterations_max']})")
+            + f" | {_num(r.get('linear_iterations_mean'), '.1f')} | {note} |"
         )
-    return lines + [""]
+    return lines + [""] + growth_lines(rows) + [""]
 
 
-def readme_section(results: dict, plots: str = "benchmarks/results") -> str:
-    """The README's results section, generated from the JSON so it is never typed by hand."""
+def growth_lines(rows: list[dict]) -> list[str]:
+    """How time per step and our iteration counts grow with size: log-log slopes over sizes of 100 and up."""
+    lines = []
+    for family in dict.fromkeys(r["family"] for r in rows):
+        for key in dict.fromkeys((r["engine"], r["variant"]) for r in rows if r["family"] == family):
+            mine = [r for r in rows if r["family"] == family and (r["engine"], r["variant"]) == key]
+            pts = [(r["bodies"], r["time_per_step"]) for r in mine if r.get("time_per_step")]
+            big = [(n, t) for n, t in pts if n >= 100]
+            if len(big) >= 2:
+                slope = np.polyfit(np.log([n for n, _ in big]), np.log([t for _, t in big]), 1)[0]
+                lines.append(f"- {family}s, {' '.join(key)}: time per step ~ n^{slope:.2f} "
+                             f"({big[0][0]} to {big[-1][0]} bodies).")  # fmt: skip
+        ours = [r for r in rows if r["family"] == family and r["engine"] == "warpimpulse" and r.get("time_per_step")]
+        if ours:
+            counts = ", ".join(f"{r['joint_iterations_mean']:.2f} at {r['bodies']}" for r in ours)
+            lines.append(f"- {family}s, warpimpulse joint-correction iterations per step: {counts}.")
+    return lines
+
+
+README_BEGIN, README_END = "<!-- results:begin -->", "<!-- results:end -->"
+
+
+def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
+    """The README's benchmark section, generated from the JSON so it is never typed by hand."""
     lines = [
-        "## Results",
-        "",
-        f"<!-- generated from the JSON in {plots}/ by `python -m warpimpulse.benchmark --from-json ... --readme` -->",
+        "<!-- generated from benchmarks/results/*.json by `python -m warpimpulse.benchmark --from-json ... --readme "
+        "README.md` (make bench): edit the generator, not this text -->",
         "",
     ]
-    meta = results.get("meta", {})
-    if meta:
-        lines += [f"Measured with `{meta.get('command', '')}` on {meta.get('machine', '')}.", ""]
-    sweep = results.get("run_vs_error")
+    sweep, scale = results.get("run_vs_error"), results.get("scaling")
     if sweep:
-        lines += bar_markdown(sweep["runs"])
-        lines += [f"![Pareto {name}]({plots}/pareto_{name}.png)" for name in sweep["references"]]
-        lines += ["", f"![Energy drift]({plots}/energy_drift.png)", ""]
-    if results.get("scaling"):
-        lines += scaling_markdown(results["scaling"]) + [f"![Scaling]({plots}/scaling.png)", ""]
+        runs = sweep["runs"]
+        rates = sorted({r["rate"] for r in runs})
+        tolerances = sorted({r["tolerance"] for r in runs if r["tolerance"] is not None}, reverse=True)
+        grid = (
+            f"h in {{{', '.join(f'1/{r}' for r in rates)}}} and tolerance in "
+            f"{{{', '.join(f'{t:g}' for t in tolerances)}}}"
+        )
+        peers = ", ".join(dict.fromkeys(f"{r['engine']} {r['variant']}" for r in runs if r["engine"] != "warpimpulse"))
+        lines += [f"`warpimpulse bench` (`pip install -e .[bench]`; `make bench` regenerates the JSON, the plots, "
+                  f"[RESULTS.md]({plots_dir}/RESULTS.md) and this section) runs {grid} "
+                  f"on {', '.join(sweep['references'])} against {peers}, with MuJoCo RK4 at h = 1/{REFERENCE_RATE} as "
+                  f"the reference (checked against h = 1/{CHECK_RATE} and against pinocchio).", "",
+                  *_provenance(sweep), *summary_markdown(sweep, "###"), *bar_markdown(runs, level="###")]  # fmt: skip
+        lines += [f"![Pareto {name}]({plots_dir}/pareto_{name}.png)" for name in sweep["references"]]
+        lines += ["", f"![Energy drift]({plots_dir}/energy_drift.png)", ""]
+    if scale:
+        lines += scaling_markdown(scale, "###") + [f"![Scaling]({plots_dir}/scaling.png)", ""]
     return "\n".join(lines)
+
+
+def write_readme_block(path: Path, block: str) -> None:
+    """Replace the text between the results markers of `path`, and nothing else."""
+    text = path.read_text()
+    begin, end = text.find(README_BEGIN), text.find(README_END)
+    if begin < 0 or end < begin:
+        raise ValueError(f"{path} has no {README_BEGIN} ... {README_END} block to regenerate")
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text[: begin + len(README_BEGIN)] + "\n" + block.strip() + "\n" + text[end:])
+    tmp.replace(path)
 
 
 def plots(results: dict, directory: Path) -> list[Path]:
@@ -735,17 +930,22 @@ def plots(results: dict, directory: Path) -> list[Path]:
         axes[-1, 0].set_xlabel("time (s)")
         written.append(_save(fig, directory / "energy_drift.png"))
     if results.get("scaling"):
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-        for ax, family in zip(axes, ("tree", "chain")):
-            rows = [r for r in results["scaling"] if r["family"] == family and r.get("time_per_step")]
-            for key in sorted({(r["engine"], r["variant"]) for r in rows}):
-                pts = sorted(
-                    (r["bodies"], r["time_per_step"] * 1e6) for r in rows if (r["engine"], r["variant"]) == key
-                )
-                ax.plot(*zip(*pts), "o-", label=" ".join(key))
-            ax.set(xscale="log", yscale="log", xlabel="bodies", ylabel="time per step (µs)", title=f"{family}s")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=8)
+        rows = [r for r in results["scaling"]["rows"] if r.get("time_per_step")]
+        panels = (("time per step (µs)", lambda r: r["time_per_step"] * 1e6),
+                  ("time per body per step (µs)", lambda r: r["time_per_body_step"] * 1e6),
+                  ("our joint iterations per step", lambda r: r.get("joint_iterations_mean")))  # fmt: skip
+        fig, axes = plt.subplots(len(panels), 2, figsize=(11, 3.6 * len(panels)), squeeze=False)
+        for col, family in enumerate(("tree", "chain")):
+            mine = [r for r in rows if r["family"] == family]
+            for ax, (ylabel, of) in zip(axes[:, col], panels):
+                for key in sorted({(r["engine"], r["variant"]) for r in mine}):
+                    pts = sorted((r["bodies"], of(r)) for r in mine if (r["engine"], r["variant"]) == key)
+                    pts = [p for p in pts if p[1] is not None]
+                    if pts:
+                        ax.plot(*zip(*pts), "o-", label=" ".join(key))
+                ax.set(xscale="log", yscale="log", xlabel="bodies", ylabel=ylabel, title=f"{family}s")
+                ax.grid(True, which="both", alpha=0.3)
+                ax.legend(fontsize=8)
         written.append(_save(fig, directory / "scaling.png"))
     return written
 
@@ -755,7 +955,9 @@ def _curves(runs: list[dict], scene: str) -> dict[str, list[dict]]:
     for r in runs:
         if r["scene"] != scene:
             continue
-        label = f"MuJoCo {r['variant']}" if r["engine"] == "mujoco" else f"warpimpulse tol {r['tolerance']:g}"
+        label = (
+            f"warpimpulse tol {r['tolerance']:g}" if r["engine"] == "warpimpulse" else f"{r['engine']} {r['variant']}"
+        )
         curves.setdefault(label, []).append(r)
     return curves
 
@@ -771,7 +973,7 @@ def _save(fig, path: Path) -> Path:
 
 def metadata(argv: list[str]) -> dict:
     versions = {"python": platform.python_version(), "numpy": np.__version__}
-    for module in ("warp", "mujoco"):
+    for module in ("warp", "mujoco", "pinocchio"):
         try:
             versions[module] = __import__(module).__version__
         except ImportError:
@@ -793,10 +995,12 @@ def _cpu_count() -> int:
 # ------------------------------------------------------------------------------------------ entry point
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="warpimpulse bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="reduced sweep, under 5 minutes on 2 cores")
+    p.add_argument("--quick", action="store_true", help="reduced sweep and scaling, under 5 minutes on 2 cores")
     p.add_argument("--json", type=Path, help="write every raw number here")
     p.add_argument("--plots", type=Path, help="write the PNG plots into this directory")
-    p.add_argument("--readme", type=Path, help="write the README results section (markdown) here")
+    p.add_argument("--report", type=Path, help="write the full markdown report (the stdout table) here too")
+    p.add_argument("--readme", type=Path,
+                   help=f"regenerate the block between {README_BEGIN} and {README_END} in this file")  # fmt: skip
     p.add_argument(
         "--from-json", type=Path, nargs="+", help="report and plot earlier --json files (merged); measure nothing"
     )
@@ -805,7 +1009,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, help="timed repeats per configuration (default 5, quick 3)")
     p.add_argument("--no-sweep", action="store_true", help="skip run time against error")
     p.add_argument("--no-scaling", action="store_true", help="skip scaling")
-    p.add_argument("--scaling-budget", type=float, default=120.0, help="seconds allowed per scaling point")
+    p.add_argument("--scaling-budget", type=float, help="seconds allowed per scaling point (default 300, quick 40)")
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -818,10 +1022,9 @@ def main(argv: list[str] | None = None) -> int:
         for path in args.from_json:  # e.g. the sweep's and the scaling's files, measured apart
             results.update(json.loads(path.read_text()))
     else:
-        import warp as wp
-
-        wp.config.quiet = True
-        results = {"meta": metadata(argv)}
+        quiet_warp()
+        meta = metadata(argv)
+        results = {}
         repeats = args.repeats or (3 if args.quick else 5)
         if not args.no_sweep:
             results["run_vs_error"] = run_vs_error(
@@ -829,24 +1032,31 @@ def main(argv: list[str] | None = None) -> int:
                 QUICK_RATES if args.quick else SWEEP_RATES,
                 QUICK_TOLERANCES if args.quick else SWEEP_TOLERANCES,
                 repeats, args.solver, not args.no_progress,
-            )  # fmt: skip
-            results["missing"] = results["run_vs_error"].pop("missing")
+            ) | {"meta": meta}  # fmt: skip
         if not args.no_scaling:
-            results["scaling"] = scaling(
+            budget = args.scaling_budget or (QUICK_SCALING_BUDGET if args.quick else SCALING_BUDGET)
+            rows = scaling(
                 QUICK_SCALING_TREES if args.quick else SCALING_TREES,
                 QUICK_SCALING_CHAINS if args.quick else SCALING_CHAINS,
-                repeats=repeats, budget_s=args.scaling_budget, progress=not args.no_progress,
+                steps=SCALING_STEPS, repeats=SCALING_REPEATS, budget_s=budget, progress=not args.no_progress,
             )  # fmt: skip
-    if args.json and not args.from_json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=1))
+            results["scaling"] = {"meta": meta, "budget_s": budget, "steps": SCALING_STEPS,
+                                  "repeats": SCALING_REPEATS, "rows": rows}  # fmt: skip
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(results, indent=1))
     if args.plots:
         for path in plots(results, args.plots):
             log(f"wrote {path}")
+    report = markdown(results)
+    if args.report:
+        args.report.parent.mkdir(parents=True, exist_ok=True)
+        args.report.write_text(report)
     if args.readme:
-        args.readme.parent.mkdir(parents=True, exist_ok=True)
-        args.readme.write_text(readme_section(results) + "\n")
-    sys.stdout.write(markdown(results))
+        plots_dir = os.path.relpath(args.plots or Path("benchmarks/results"), args.readme.resolve().parent)
+        write_readme_block(args.readme, readme_block(results, Path(plots_dir).as_posix()))
+        log(f"regenerated the results block of {args.readme}")
+    sys.stdout.write(report)
     return 0
 
 

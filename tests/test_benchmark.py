@@ -1,0 +1,57 @@
+"""The benchmark harness's own logic: scaling budgets, isolation of slow points, the scaling report."""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+
+import pytest
+
+from warpimpulse import benchmark
+
+
+def _row(n: int, setup: float, step: float) -> dict:
+    return {"bodies": n, "setup_s": setup, "time_per_step": step}
+
+
+def test_cheap_sizes_are_always_tried() -> None:
+    """Fixed overheads say nothing about growth: below half a second nothing is projected."""
+    done = [_row(10, 0.2, 1e-4)]
+    assert benchmark._over_budget(done, "chain", "mujoco", 100_000, 80, 1.0) is None
+
+
+def test_a_costly_size_is_projected_with_the_measured_growth() -> None:
+    done = [_row(1000, 1.0, 0.01), _row(4000, 4.0, 0.04)]  # linear
+    assert benchmark._over_budget(done, "tree", "warpimpulse", 16000, 80, 60.0) is None  # 16 + 12.8 s
+    why = benchmark._over_budget(done, "tree", "warpimpulse", 64000, 80, 60.0)  # 64 + 51 s
+    assert why is not None and why.startswith("projected 115 s") and "n^1.0" in why
+
+
+def test_mujoco_chains_are_projected_cubic_before_two_sizes_are_measured() -> None:
+    why = benchmark._over_budget([_row(1000, 3.0, 0.001)], "chain", "mujoco", 3000, 80, 60.0)
+    assert why is not None and "setup ~n^3.0" in why
+
+
+def test_a_size_after_one_past_the_budget_is_skipped() -> None:
+    done = [{"bodies": 100, "over_budget": True}]
+    assert "already ran past" in benchmark._over_budget(done, "tree", "warpimpulse", 200, 80, 60.0)
+
+
+def test_a_point_past_its_budget_is_stopped_and_reported() -> None:
+    start = time.perf_counter()
+    result = benchmark._isolated(partial(time.sleep, 60), 2.0)
+    assert result["over_budget"] and "budget of 2 s" in result["skipped"]
+    assert time.perf_counter() - start < 30.0
+
+
+@pytest.mark.slow
+def test_scaling_end_to_end(tmp_path) -> None:
+    pytest.importorskip("mujoco")
+    pytest.importorskip("matplotlib")
+    rows = benchmark.scaling([15], [3], steps=2, repeats=1, budget_s=60.0, progress=False)
+    assert len(rows) == 6 and all(r["time_per_step"] > 0.0 and r["setup_s"] > 0.0 for r in rows)
+    ours = [r for r in rows if r["engine"] == "warpimpulse"]
+    assert all(r["joint_iterations_mean"] >= 1.0 for r in ours)
+    results = {"scaling": {"budget_s": 60.0, "steps": 2, "repeats": 1, "rows": rows}}
+    assert "| tree | 15 | warpimpulse | auto |" in benchmark.markdown(results)
+    assert [p.name for p in benchmark.plots(results, tmp_path)] == ["scaling.png"]
