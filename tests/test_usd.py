@@ -18,6 +18,7 @@ pxr = pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics  # noqa: E402
 
 from warpimpulse import SceneBuilder, SceneError, Shape, scenes, usd  # noqa: E402
+from warpimpulse.cli import main as cli_main  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DT, FPS, TOL = 1e-3, 50.0, 1e-6
@@ -230,7 +231,8 @@ def test_load_mechanism_maps_every_joint_type(mechanism):
     # centre of mass: rig origin + R(30 deg) * (scale 2 * (0.0625, 0, 0))
     np.testing.assert_allclose(base.position, [0.5 + 0.125 * np.cos(np.radians(30)), 0.125 * 0.5, 1.0], atol=1e-12)
     assert base.mass == 2.0
-    np.testing.assert_allclose(np.linalg.eigvalsh(base.inertia), [0.25, 0.375, 0.5], rtol=1e-6)
+    axes = np.array(Gf.Matrix3d(Gf.Rotation(Gf.Quatd(0.9238795, 0, 0.3826834, 0))).GetTranspose())  # columns
+    np.testing.assert_allclose(base.inertia, axes @ np.diag([0.5, 0.25, 0.375]) @ axes.T, atol=1e-6)
     slider = b.bodies[names.index("/World/Rig/slider")]
     assert slider.mass == pytest.approx(800.0 * 0.5**3, rel=1e-6)  # cube of edge 0.25, scaled by 2
     np.testing.assert_allclose(slider.inertia, np.eye(3) * slider.mass * 0.5**2 / 6.0, rtol=1e-5, atol=1e-9)
@@ -334,6 +336,14 @@ def test_procedural_export_is_a_physics_scene(tmp_path):
         np.testing.assert_allclose(new.inertia, orig.inertia, rtol=1e-5, atol=1e-7 * np.abs(orig.inertia).max())
         assert new.mass == pytest.approx(orig.mass, rel=1e-6)
     assert len(back.builder.forces) == 1 and back.builder.forces[0].until == 0.5
+    assert back.loop_joints == ["/World/Joints/angle"]  # line + angle on one pair: the second closes a loop
+    layer = Sdf.Layer.FindOrOpen(out)
+    root = layer.pseudoRoot
+    assert (root.GetInfo("upAxis"), root.GetInfo("metersPerUnit"), root.GetInfo("kilogramsPerUnit")) == ("Z", 1.0, 1.0)
+    assert layer.timeCodesPerSecond == layer.framesPerSecond == 30.0
+    assert (layer.startTimeCode, layer.endTimeCode) == (0.0, 2.0)
+    data = layer.customLayerData
+    assert data["warpimpulse:dt"] == 1e-3 and data["warpimpulse:mode"] == "procedural" and data["warpimpulse:version"]
     anim = usd.read_animation(out)
     np.testing.assert_allclose(anim.positions[2], x0 + [0, 0, 0.25], atol=1e-12)
     stage = Usd.Stage.Open(out)
@@ -441,6 +451,44 @@ def test_failed_write_leaves_old_file(tmp_path, monkeypatch):
     assert os.listdir(tmp_path) == ["keep.usda"]
 
 
+def test_frames_cross_chunk_boundaries(tmp_path, monkeypatch):
+    monkeypatch.setattr(usd, "_CHUNK_FRAMES", 3)  # 8 frames: chunks of 3, 3 and 2
+    b = scenes.chain(3)
+    x0 = np.array([body.position for body in b.bodies])
+    q0 = np.array([body.orientation for body in b.bodies])
+    out = str(tmp_path / "chunks.usdc")
+    with usd.AnimationWriter(out, b, 30.0) as w:
+        assert w._buf_t.shape[1] == 3
+        for f in range(8):
+            w.write_frame(f, x0 + [0.0, 0.0, 0.1 * f], q0)
+    anim = usd.read_animation(out)
+    np.testing.assert_array_equal(anim.time_codes, np.arange(8))
+    np.testing.assert_array_equal(anim.positions - x0, [[[0.0, 0.0, 0.1 * f]] * 3 for f in range(8)])
+
+
+def test_progress_bar(capsys):
+    class Still:
+        dt = 0.1
+
+        def step(self):
+            pass
+
+        def positions(self):
+            return np.zeros((1, 3))
+
+        def orientations(self):
+            return np.array([[0.0, 0.0, 0.0, 1.0]])
+
+    b = SceneBuilder()
+    b.add_body(1.0, [1, 1, 1], (0, 0, 0))
+    for progress in (True, None):  # None: only on a terminal, and stderr is not one under pytest
+        w = usd.AnimationWriter("/nonexistent/never_written.usd", b, 10.0)
+        assert usd.record(Still(), w, 1.0, progress=progress) == 11
+        w._closed = True  # never written
+        err = capsys.readouterr().err
+        assert ("[" + "#" * 30 + "] 10/10 frames" in err and err.endswith("\n")) if progress else err == ""
+
+
 def test_frames_and_steps():
     assert usd.frame_steps(1e-3, 50.0) == 20
     assert usd.frame_steps(1.0 / 300.0, 30.0) == 10
@@ -510,7 +558,14 @@ BAD = {
     ),
     "unsupported_type": (
         lambda s: _joint(s, "/W/dist", UsdPhysics.DistanceJoint, None, "/W/a", (0, 0, 0), (0, 0, 0)),
-        ["/W/dist", "unsupported joint type", "PhysicsDistanceJoint"],
+        ["/W/dist", "joint type PhysicsDistanceJoint", "not simulated", "--ignore-unsupported"],
+    ),
+    "non_uniform_parent": (
+        lambda s: (
+            UsdGeom.Xform.Define(s, "/W/squash").AddScaleOp().Set(Gf.Vec3f(1, 2, 1)),
+            _body(s, "/W/squash/b", (1, 0, 0), mass=1.0, inertia=(1, 1, 1)),
+        ),
+        ["/W/squash/b", "non-uniformly scaled parent", "[1.0, 2.0, 1.0]", "bake the scale"],
     ),
 }
 
@@ -554,7 +609,16 @@ def _with_d6_limit(s):
     limit.CreateHighAttr(30.0)
 
 
-@pytest.mark.parametrize("build,word", [(_with_drive, "drive"), (_with_limit, "limit"), (_with_d6_limit, "rotX")])
+def _with_distance_joint(s):
+    _joint(s, "/W/j", UsdPhysics.DistanceJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))  # dropped with a warning
+    _joint(s, "/W/ball", UsdPhysics.SphericalJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))  # kept
+
+
+@pytest.mark.parametrize(
+    "build,word",
+    [(_with_drive, "drive"), (_with_limit, "limit"), (_with_d6_limit, "rotX"),
+     (_with_distance_joint, "PhysicsDistanceJoint")],
+)  # fmt: skip
 def test_unsupported_features_error_or_warn(tmp_path, build, word):
     path = _bad_stage(tmp_path, word, build)
     with pytest.raises(usd.UnsupportedFeatureError, match=f"/W/j: .*{word}"):
@@ -562,6 +626,40 @@ def test_unsupported_features_error_or_warn(tmp_path, build, word):
     with pytest.warns(UserWarning, match=f"/W/j: .*{word}"):
         scene = usd.load_stage(path, ignore_unsupported=True)
     assert len(scene.builder.joints) == 1
+    out = tmp_path / "out.usda"  # and the command line runs it, with a warning on stderr
+    assert cli_main(["simulate", path, "--duration", "0.1", "--out", str(out), "--ignore-unsupported"]) == 0
+    assert usd.validate(str(out)) == []
+
+
+# ---------------------------------------------------------------------------------------------- command line
+def test_cli_refuses_a_dt_that_does_not_divide_the_frame_time(tmp_path, capsys):
+    out = tmp_path / "x.usda"
+    assert cli_main(["simulate", "--scene", "chain", "--fps", "30", "--dt", "0.003", "--out", str(out)]) == 2
+    assert "not a whole multiple" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_cli_ctrl_c_keeps_a_valid_file_with_the_frames_done(tmp_path, monkeypatch, capsys):
+    from warpimpulse import simulator
+
+    real_step, calls = simulator.Simulator.step, []
+
+    def step(self):
+        calls.append(1)
+        if len(calls) == 5:  # the step to frame 5 (one step a frame)
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    monkeypatch.setattr(simulator.Simulator, "step", step)
+    out = tmp_path / "stopped.usdc"
+    argv = ["simulate", "--scene", "chain", "--duration", "10", "--out", str(out)]
+    assert cli_main(argv) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert os.listdir(tmp_path) == ["stopped.usdc"]
+    layer = Sdf.Layer.FindOrOpen(str(out))
+    assert layer.customLayerData["warpimpulse:stoppedEarly"] == "interrupted"
+    assert usd.read_animation(str(out)).time_codes.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert usd.validate(str(out)) == []
 
 
 # ---------------------------------------------------------------------------------------------- scenes/
@@ -586,6 +684,16 @@ def test_scene_files_load_and_validate(path):
         assert len(ref.bodies) == len(scene.builder.bodies)
         assert [j.kind for j in ref.joints] == [j.kind for j in scene.builder.joints]
         assert len(ref.forces) == len(scene.builder.forces)
+
+
+@pytest.mark.parametrize("path", SCENE_FILES, ids=os.path.basename)
+def test_scene_files_run_with_the_cli(path, tmp_path):
+    out = tmp_path / "out.usda"
+    assert cli_main(["simulate", path, "--duration", "0.1", "--out", str(out)]) == 0
+    layer = Sdf.Layer.FindOrOpen(str(out))
+    assert (layer.startTimeCode, layer.endTimeCode, layer.timeCodesPerSecond) == (0.0, 3.0, 30.0)  # 0.1 s at 30 fps
+    assert layer.customLayerData["warpimpulse:complete"] is True
+    assert usd.validate(str(out)) == []
 
 
 def test_static_bodies_are_not_sampled_and_signs_stay_continuous(tmp_path):

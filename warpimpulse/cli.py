@@ -12,6 +12,7 @@ import math
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 from . import __version__
@@ -78,7 +79,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--flatten", action="store_true", help="one self-contained file instead of a layer over the input")
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
-    p.add_argument("--ignore-unsupported", action="store_true", help="warn about drives and limits instead of stopping")
+    p.add_argument("--ignore-unsupported", action="store_true",
+                   help="drop drives, limits, unsupported joint types with a warning instead of stopping")  # fmt: skip
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
 
@@ -98,7 +100,9 @@ def _simulate(args) -> int:
         source = Path(args.input)
         if not source.is_file():
             raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
-        scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+        with warnings.catch_warnings():  # what --ignore-unsupported drops: one line each, no source excerpt
+            warnings.showwarning = lambda message, *_: print(f"warpimpulse: warning: {message}", file=sys.stderr)
+            scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
         builder, name = scene.builder, source.stem
     else:
         name = args.scene or "tree127"

@@ -376,6 +376,9 @@ def _body_mass(prim, desc, frame: _Similarity, xcache, report: _Reporter):
 
 
 _IDENT_Q = np.array([0.0, 0.0, 0.0, 1.0])
+# Under a non-uniform scale a rigid motion needs a shearing local matrix (a matrix op, or orient-scale-orient),
+# not the translate / orient pair that is animated; such bodies (rare) are refused with this advice.
+_NON_UNIFORM = "unsupported: move the body out from under the scale, or bake the scale into the geometry"
 
 
 def _joint_frame(stage, joint_prim, side: int, xcache, mpu: float) -> tuple[np.ndarray, np.ndarray]:
@@ -561,14 +564,16 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         if anc and not anc.IsPseudoRoot():
             a = index[str(anc.GetPath())]
             if not frames[a].uniform:
-                raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled rigid body {anc.GetPath()}")
+                raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled rigid body {anc.GetPath()}; "
+                                    f"{_NON_UNIFORM}")  # fmt: skip
             anc_m = np.asarray(xcache.GetLocalToWorldTransform(anc), dtype=np.float64)
             rel = _decompose(parent_m @ np.linalg.inv(anc_m), f"{p} (relative to {anc.GetPath()})")
             parent_index[i] = a
         else:
             rel = _decompose(parent_m, f"{p} (parent transform)")
         if not rel.uniform:
-            raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled parent; unsupported")
+            raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled parent (scale "
+                                f"{np.round(rel.s, 9).tolist()}); {_NON_UNIFORM}")  # fmt: skip
         parent_pos[i], parent_quat[i], parent_scale[i] = rel.t, rel.q, rel.s[0]
 
     joint_paths: list[str] = []
@@ -584,10 +589,8 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             notes.append(f"{jpath}: joint disabled (physics:jointEnabled = false); skipped")
             continue
         if t not in supported:
-            raise UsdSceneError(
-                f"{jpath}: unsupported joint type {jprim.GetTypeName() or t.name} (supported: revolute, "
-                f"prismatic, spherical, fixed and generic D6 joints)"
-            )
+            report.unsupported(jpath, _joint_type_text(jprim.GetTypeName() or t.name))
+            continue
         ends = []
         for side, rel, body in ((0, desc.rel0, desc.body0), (1, desc.rel1, desc.body1)):
             if rel.isEmpty:
@@ -647,7 +650,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     parsed_joints = {j[0] for j in all_joints}
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
         if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:
-            raise UsdSceneError(f"{prim.GetPath()}: unsupported joint type {prim.GetTypeName()}")
+            report.unsupported(str(prim.GetPath()), _joint_type_text(prim.GetTypeName()))
     if not bodies:
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
     default_prim = stage.GetDefaultPrim()
@@ -662,6 +665,10 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
         xform_ops=xform_ops, loop_joints=loop_joints, notes=notes,
     )  # fmt: skip
+
+
+def _joint_type_text(type_name: str) -> str:
+    return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed and generic D6 joints)"
 
 
 def _op_names(prim) -> tuple[str, str]:
