@@ -693,7 +693,25 @@ def test_scene_files_run_with_the_cli(path, tmp_path):
     layer = Sdf.Layer.FindOrOpen(str(out))
     assert (layer.startTimeCode, layer.endTimeCode, layer.timeCodesPerSecond) == (0.0, 3.0, 30.0)  # 0.1 s at 30 fps
     assert layer.customLayerData["warpimpulse:complete"] is True
+    assert layer.customLayerData["warpimpulse:dt"] == (usd.load_stage(path).dt or 1.0 / 30.0)  # the file's, if any
     assert usd.validate(str(out)) == []
+
+
+def test_a_scene_file_may_record_its_step_size(tmp_path, capsys):
+    path = tmp_path / "chain.usda"
+    usd.save_scene(scenes.chain(2), path, dt=0.005)
+    assert usd.load_stage(path).dt == 0.005
+    assert usd.load_stage(os.path.join(ROOT, "scenes", "tree31.usda")).dt is None
+    out = str(tmp_path / "o.usda")
+    assert cli_main(["simulate", str(path), "--duration", "0.1", "--out", out, "--fps", "30"]) == 2  # 1/30 / 0.005
+    assert "warpimpulse:dt; pass --dt" in capsys.readouterr().err
+    assert cli_main(["simulate", str(path), "--duration", "0.1", "--out", out, "--fps", "40"]) == 0
+    assert Sdf.Layer.FindOrOpen(out).customLayerData["warpimpulse:dt"] == 0.005
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    layer.customLayerData = dict(layer.customLayerData) | {"warpimpulse:dt": -1.0}
+    layer.Save()
+    with pytest.raises(usd.UsdSceneError, match="chain.usda: customLayerData warpimpulse:dt must be a positive"):
+        usd.load_stage(path)
 
 
 def test_static_bodies_are_not_sampled_and_signs_stay_continuous(tmp_path):

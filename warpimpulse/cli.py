@@ -68,7 +68,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--out", "-o", type=Path, help="output USD file (default: <scene>.usdc)")
     p.add_argument("--duration", type=_positive(float), default=10.0, help="seconds (default 10)")
     p.add_argument("--fps", type=_positive(float), default=30.0, help="frames per second written (default 30)")
-    p.add_argument("--dt", type=_positive(float), help="step size in seconds; 1/fps must be a multiple (default 1/fps)")
+    p.add_argument("--dt", type=_positive(float),
+                   help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
     p.add_argument("--tolerance", type=_positive(float), default=1e-6, help="joint tolerance, m or rad (default 1e-6)")
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
     p.add_argument("--solver", choices=("auto", "cholesky", "cg", "iterative"), default="auto")
@@ -108,8 +109,12 @@ def _simulate(args) -> int:
         name = args.scene or "tree127"
         builder = SCENES[name]()
         scene = builder
-    dt = args.dt if args.dt is not None else 1.0 / args.fps
-    usd.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
+    file_dt = scene.dt if args.input else None  # a scene file may record the step size it needs
+    dt = args.dt if args.dt is not None else (file_dt or 1.0 / args.fps)
+    try:
+        usd.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
+    except ValueError as err:
+        raise ValueError(f"{err} (dt from {source}'s warpimpulse:dt; pass --dt)" if dt == file_dt else err) from None
     out = args.out or Path(f"{name}.usdc")
     check_writable(out)
     sim = Simulator(

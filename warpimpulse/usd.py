@@ -196,6 +196,7 @@ class UsdScene:
     xform_ops: list[tuple[str, str]] | None = None  # (translate, orient) op names per body; None: plain
     loop_joints: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    dt: float | None = None  # the step size the file asks for (customLayerData warpimpulse:dt), if any
 
     @property
     def body_count(self) -> int:
@@ -663,8 +664,18 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
         parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
-        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes,
+        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, dt=_recorded_dt(stage, path),
     )  # fmt: skip
+
+
+def _recorded_dt(stage, path: str) -> float | None:
+    """The step size a scene file records (our outputs and `save_scene` write it): some scenes need one."""
+    dt = stage.GetRootLayer().customLayerData.get("warpimpulse:dt")
+    if dt is None:
+        return None
+    if not (isinstance(dt, (int, float)) and not isinstance(dt, bool) and dt > 0.0 and math.isfinite(dt)):
+        raise UsdSceneError(f"{path}: customLayerData warpimpulse:dt must be a positive number of seconds, got {dt!r}")
+    return float(dt)
 
 
 def _joint_type_text(type_name: str) -> str:
@@ -708,7 +719,7 @@ def _local_poses(scene: UsdScene, positions: np.ndarray, orientations: np.ndarra
     if not nested.any():
         pt, pq, ps = scene.parent_pos, scene.parent_quat, scene.parent_scale
         if not (pt.any() or reset.any() or (ps != 1.0).any() or (pq != _IDENT_Q).any()):
-            return origin, q.copy()  # every parent frame is the world's (procedural scenes): nothing to do
+            return origin, q + 0.0  # every parent frame is the world's (procedural scenes); + 0.0: no -0 in files
     else:  # parent frame = ancestor body's simulated pose composed with the static relative transform
         anc = np.where(nested, a, 0)
         anc_t = np.where(nested[:, None], origin[anc], 0.0)
@@ -1222,12 +1233,15 @@ def _vt_value(v: Any) -> Any:
     return str(v)
 
 
-def save_scene(scene: UsdScene | SceneBuilder | Any, path: str | os.PathLike, fps: float = 60.0) -> str:
-    """Write a builder as a UsdPhysics scene file (bodies at their initial pose, no time samples)."""
+def save_scene(
+    scene: UsdScene | SceneBuilder | Any, path: str | os.PathLike, fps: float = 60.0, dt: float | None = None
+) -> str:
+    """Write a builder as a UsdPhysics scene file (bodies at their initial pose, no time samples). `dt`: the
+    step size to record for `warpimpulse simulate`, for scenes that need a smaller one than 1/fps."""
     sc = _as_scene(scene)
     if sc.source_path is not None:
         sc = scene_from_builder(sc.builder)
-    return AnimationWriter(path, sc, fps, instancer=False).close()
+    return AnimationWriter(path, sc, fps, {} if dt is None else {"dt": float(dt)}, instancer=False).close()
 
 
 # ---------------------------------------------------------------------------------------------- driving
