@@ -87,6 +87,16 @@ def test_main_exit_status_and_json(tmp_path, monkeypatch, capsys):
     assert stress.main(["--quick", "--case", "no-such-case"]) == 2
 
 
+def test_table_rows_line_up_with_the_header():
+    res = stress.Result("case", "group", status="PASS", outcome="held", bodies=3, steps_planned=2, steps_done=2,
+                        max_joint_error=1e-7, energy_drift=0.01, iterations_mean=2.0, iterations_max=3,
+                        ms_per_step=0.5, setup_s=0.1, run_s=0.2)  # fmt: skip
+    row = stress._row(res)
+    for label, value in (("max joint", "1.00e-07"), ("E drift", "+1.00e-02"), ("it/step", "2.00/3"),
+                         ("ms/step", "0.50"), ("setup s", "0.10"), ("total s", "0.30")):  # fmt: skip
+        assert stress.HEADER.index(label) + len(label) == row.index(value) + len(value), (label, row)
+
+
 def test_isolated_case_runs_in_a_child():
     res = stress._run_isolated(_case("redundant_fixed_hinge_cholesky", budget_s=120.0), quick=True)
     assert res.status == "PASS" and "SingularSystemError" in res.error
