@@ -67,8 +67,12 @@ class Simulator:
         velocity_tolerance = tolerance if velocity_tolerance is None else velocity_tolerance
         if not (math.isfinite(velocity_tolerance) and velocity_tolerance > 0.0):
             raise ValueError(f"velocity_tolerance must be positive, got {velocity_tolerance!r}")
-        if not (isinstance(max_iterations, int) and max_iterations >= 1):
+        if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
             raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
+        if not (
+            isinstance(max_substep_depth, int) and not isinstance(max_substep_depth, bool) and max_substep_depth >= 0
+        ):
+            raise ValueError(f"max_substep_depth must be an integer >= 0, got {max_substep_depth!r}")
         if formulation not in ("auto", *FORMULATIONS):
             raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
         if solver not in SOLVER_NAMES:
@@ -322,7 +326,9 @@ class Simulator:
         worst = ", ".join(f"{self.model.builder.joints[j].name!r} ({joints[j]:.3g})" for j in bad)
         tolerance = self.tolerance if what == "joint" else self.velocity_tolerance
         failure = (
-            f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}; a smaller dt helps)"
+            f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the step halved "
+            f"{self.max_substep_depth} times already; a smaller dt, a looser tolerance or smaller mass ratios "
+            "between jointed bodies may help)"
             if diverging
             else f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         )
