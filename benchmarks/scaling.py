@@ -1,6 +1,6 @@
 """Scaling: time per step and per body per step, binary trees of 31..65535 bodies and chains to 10,000 links.
 
-    python benchmarks/scaling.py [--quick] [--json FILE] [--plots DIR] [--scaling-budget SECONDS]
+    python benchmarks/scaling.py [--quick] [--json FILE] [--plots DIR] [--report FILE] [--scaling-budget SECONDS]
 
 A thin wrapper over `warpimpulse.benchmark` (the same options as `warpimpulse bench`), without the sweep.
 """

@@ -84,7 +84,8 @@ def test_reference_is_cross_checked_against_pinocchio() -> None:
     from warpimpulse import benchmark
 
     builder = scenes.double_pendulum()
-    ref = benchmark.reference(builder, Probe.from_builder(builder), benchmark.ERROR_TIME, 0.0)
+    mscene, pscene = MujocoScene.from_builder(builder, 1e-3), PinocchioScene.from_builder(builder)
+    ref = benchmark.reference(mscene, pscene, Probe.from_builder(builder), benchmark.ERROR_TIME, 0.0)
     assert ref.pinocchio_residual is not None and ref.pinocchio_residual < 1e-7
 
 

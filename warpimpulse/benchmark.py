@@ -1,23 +1,27 @@
-"""Benchmark harness: run time against error, for warpimpulse and MuJoCo on the same scenes.
+"""Benchmark harness: run time against error, for warpimpulse, MuJoCo and pinocchio on the same scenes.
 
 Users pick a simulator by how fast it reaches the accuracy they need, so every configuration (engine,
 integrator or tolerance, step size) is measured twice, apart:
 - an accuracy run (not timed): trajectory error at t = 2 s against a reference, energy drift over 10 s
   of free motion after the scene's forces stop, joint position error;
-- timing runs: the same first 2 s, repeated, nothing but steps in the timed loop; median time per step.
+- timing runs: the same first 2 s, repeated after a warm-up run, nothing but steps in the timed loop;
+  median time per step.
 
 The reference is MuJoCo RK4 at h = 1/3000 in reduced coordinates, an independent implementation; it is
-checked against itself at h = 1/6000 and the residual printed. MuJoCo's peers (Euler, implicitfast, RK4)
-run the same scene, exported by `warpimpulse.mjcf`. Peers are optional: a missing one is reported and
-skipped.
+checked against itself at h = 1/6000 and against pinocchio (ABA, RK4) at h = 1/3000, and both residuals
+printed. The peers, MuJoCo's Euler, implicitfast and RK4 and pinocchio's RK4, run the same scene, built by
+`warpimpulse.mjcf` and `warpimpulse.pinocchio_peer`. Peers are optional: a missing one is reported and
+skipped. Scaling points run in child processes under a time budget, so a size too slow or too big is
+reported, not waited for.
 
-Entry point: `main(argv)` (the future `warpimpulse bench`); `benchmarks/run_vs_error.py` and
-`benchmarks/scaling.py` call it.
+Entry point: `main(argv)`, as `warpimpulse bench` and `python -m warpimpulse.benchmark`;
+`benchmarks/run_vs_error.py` and `benchmarks/scaling.py` call it with one half switched off.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import json
 import math
@@ -40,7 +44,7 @@ from .transforms import quat_rotate
 SWEEP_RATES = (30, 60, 120, 300)  # steps per second: h = 1/30 ... 1/300
 SWEEP_TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 SWEEP_SCENES = ("double_pendulum", "tree31", "tree127", "chain50", "star127")
-QUICK_RATES = (30, 60, 120, 300)
+QUICK_RATES = (30, 60, 120)
 QUICK_TOLERANCES = (1e-4, 1e-8)
 QUICK_SCENES = ("double_pendulum", "tree31", "tree127")
 MUJOCO_INTEGRATORS = ("Euler", "implicitfast", "RK4")
@@ -51,7 +55,7 @@ SAMPLE_RATE = 30  # Hz: energy and joint-error samples (divides every rate of th
 SCALING_TREES = tuple(2**k - 1 for k in range(5, 17))  # 31 ... 65535 bodies
 SCALING_CHAINS = (10, 100, 1000, 3000, 10000)
 QUICK_SCALING_TREES = (31, 127, 511, 2047)
-QUICK_SCALING_CHAINS = (10, 100, 1000)
+QUICK_SCALING_CHAINS = (10, 100, 500)
 SCALING_RATE = 60
 SCALING_TOLERANCE = 1e-6
 SCALING_STEPS, SCALING_REPEATS = 20, 3  # timed blocks of steps per scaling point, after one warm-up block
@@ -329,21 +333,18 @@ def time_steps(
 @dataclass
 class Reference:
     points: np.ndarray
-    times: np.ndarray
-    energy: np.ndarray
     energy_scale: float  # J: work done by the scene's forces, or the peak kinetic energy without forces
     self_check: float  # m: max distance of the tracked points, h = 1/3000 against 1/6000, at ERROR_TIME
     pinocchio_residual: float | None  # m: pinocchio RK4 at h = 1/3000 against it, at ERROR_TIME (None: absent)
     seconds: float
 
 
-def reference(builder: SceneBuilder, probe: Probe, duration: float, t_forces: float) -> Reference:
+def reference(mscene, pscene, probe: Probe, duration: float, t_forces: float) -> Reference:
     """MuJoCo RK4 at 1/3000 over the whole run, checked against itself at 1/6000 and, where installed, against
-    pinocchio's ABA with RK4 at 1/3000 (an independent implementation) over the first ERROR_TIME seconds."""
-    from .mjcf import MujocoScene
+    pinocchio's ABA with RK4 at 1/3000 (an independent implementation) over the first ERROR_TIME seconds.
 
+    `mscene`: a `MujocoScene`; `pscene`: a `PinocchioScene`, or None without pinocchio."""
     start = time.perf_counter()
-    mscene = MujocoScene.from_builder(builder, 1.0 / REFERENCE_RATE)
     ref = accuracy_run(MujocoRunner(mscene, "RK4", REFERENCE_RATE, energy=True), REFERENCE_RATE, probe, duration)
     check = accuracy_run(MujocoRunner(mscene, "RK4", CHECK_RATE, energy=True), CHECK_RATE, probe, ERROR_TIME)
     if ref["failed"] or check["failed"]:
@@ -355,15 +356,14 @@ def reference(builder: SceneBuilder, probe: Probe, duration: float, t_forces: fl
         scale = float(ref["kinetic"].max())
     residual = float(np.linalg.norm(ref["points"] - check["points"], axis=1).max())
     cross = None
-    if pinocchio_available() is None:
-        from .pinocchio_peer import PinocchioRunner, PinocchioScene
+    if pscene is not None:
+        from .pinocchio_peer import PinocchioRunner
 
-        pin = accuracy_run(PinocchioRunner(PinocchioScene.from_builder(builder), REFERENCE_RATE), REFERENCE_RATE,
-                           probe, ERROR_TIME)  # fmt: skip
+        pin = accuracy_run(PinocchioRunner(pscene, REFERENCE_RATE), REFERENCE_RATE, probe, ERROR_TIME)
         if pin["failed"]:
             raise RuntimeError(f"the pinocchio cross-check failed: {pin['failed']}")
         cross = float(np.linalg.norm(ref["points"] - pin["points"], axis=1).max())
-    return Reference(ref["points"], ref["times"], ref["energy"], scale, residual, cross, time.perf_counter() - start)
+    return Reference(ref["points"], scale, residual, cross, time.perf_counter() - start)
 
 
 def summarize(acc: dict, ref: Reference, t_forces: float) -> dict:
@@ -455,7 +455,9 @@ def run_vs_error(
         probe = Probe.from_builder(builder)
         t_forces = forces_end(builder)
         duration = t_forces + DRIFT_DURATION
-        ref = reference(builder, probe, duration, t_forces)
+        mscene = MujocoScene.from_builder(builder, 1.0 / REFERENCE_RATE)
+        pscene = None if pin_missing else PinocchioScene.from_builder(builder)
+        ref = reference(mscene, pscene, probe, duration, t_forces)
         refs[name] = {
             "rate": REFERENCE_RATE, "check_rate": CHECK_RATE, "self_check_residual": ref.self_check,
             "energy_scale": ref.energy_scale, "seconds": ref.seconds, "bodies": len(builder.bodies),
@@ -466,9 +468,7 @@ def run_vs_error(
             + ("" if ref.pinocchio_residual is None
                else f"; vs pinocchio RK4 h=1/{REFERENCE_RATE}: residual {ref.pinocchio_residual:.3g} m"))  # fmt: skip
         bar.advance(f"{name} reference")
-        mscene = MujocoScene.from_builder(builder, 1.0 / REFERENCE_RATE)
         model = None if ours_missing else builder.finalize("cpu")
-        pscene = None if pin_missing else PinocchioScene.from_builder(builder)
         for engine, variant, tol in configs:
             for rate in rates:
                 if engine == "mujoco":
@@ -583,7 +583,8 @@ def scaling_point(builder: SceneBuilder, engine: str, variant: str, steps: int, 
     from .mjcf import MujocoScene
 
     quiet_warp()
-    wp.init()
+    with _stderr_to_devnull():  # Warp's native "no CUDA driver" line, once per child, would break the progress bar
+        wp.init()
     mujoco_available()  # silences MuJoCo's warnings in this process too
     n = len(builder.bodies)
     start = time.perf_counter()
@@ -601,6 +602,19 @@ def scaling_point(builder: SceneBuilder, engine: str, variant: str, steps: int, 
     if isinstance(runner, WarpimpulseRunner):
         row.update(runner.iteration_stats())
     return row
+
+
+@contextlib.contextmanager
+def _stderr_to_devnull():
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
 
 
 def _isolated(fn: Callable[[], dict], budget_s: float) -> dict:
@@ -759,7 +773,7 @@ def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
 
 
 def _ratio_cell(r: dict | None) -> str:
-    return "—" if r is None else f"{r['ratio']:.2f} (1/{r['rate']}, tol {r['tolerance']:g} vs {r['mujoco']})"
+    return "—" if r is None else f"{r['ratio']:.3g} (1/{r['rate']}, tol {r['tolerance']:g} vs {r['mujoco']})"
 
 
 def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") -> list[str]:
@@ -781,7 +795,7 @@ def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") ->
             f"| 1/{r['rate']} | {r['tolerance']:g} | {r['trajectory_error']:.3g} | {_us(r['time_per_step'])} | "
             f"{r['time_per_second'] * 1e3:.1f} | {r['mujoco'] or 'none reaches it'} | {_num(r['mujoco_error'])} | "
             f"{_us(r['mujoco_time_per_step'])} | {'—' if theirs is None else f'{theirs * 1e3:.1f}'} | "
-            f"{_num(r['ratio'], '.2f')} |"
+            f"{_num(r['ratio'], '.3g')} |"
         )
     wins = [r for r in ratios if r["ratio"] is None or r["ratio"] > 1.0]
     losses = [r for r in ratios if r["ratio"] is not None and r["ratio"] <= 1.0]

@@ -57,10 +57,15 @@ def _joint_model(elements: list[tuple[str, np.ndarray]]):
 
 @dataclass
 class PinocchioScene:
-    """A pinocchio model of a builder's scene, one frame per builder body (at its centre of mass)."""
+    """A pinocchio model of a builder's scene, one frame per builder body (at its centre of mass).
+
+    Its Data is the runners' shared workspace (they hold their state in q and v): pinocchio sizes some of it
+    by joints x dofs^2, 1.7 GB for the 127-body tree, too much to allocate per runner.
+    """
 
     builder: SceneBuilder
     model: pinocchio.Model
+    data: pinocchio.Data
     frame_ids: list[int]
     joint_ids: np.ndarray  # the joint each builder body moves with (0: the universe)
 
@@ -113,9 +118,9 @@ class PinocchioScene:
                 b = joint.parent
             for b in reversed(path):
                 place(b)
-        return cls(builder, model, frame_ids, joint_of)
+        return cls(builder, model, model.createData(), frame_ids, joint_of)
 
-    def initial_state(self, data) -> tuple[np.ndarray, np.ndarray]:
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         """(q, v) at the builder's pose; v fitted by least squares to the bodies' velocities, as MuJoCo's."""
         import pinocchio as pin
 
@@ -127,10 +132,13 @@ class PinocchioScene:
              for b in dynamic]
         )  # fmt: skip
         if np.any(target != 0.0):
-            pin.computeJointJacobians(self.model, data, q)
-            pin.updateFramePlacements(self.model, data)
+            pin.computeJointJacobians(self.model, self.data, q)
+            pin.updateFramePlacements(self.model, self.data)
             rows = np.vstack(
-                [pin.getFrameJacobian(self.model, data, self.frame_ids[b], pin.LOCAL_WORLD_ALIGNED) for b in dynamic]
+                [
+                    pin.getFrameJacobian(self.model, self.data, self.frame_ids[b], pin.LOCAL_WORLD_ALIGNED)
+                    for b in dynamic
+                ]
             )
             v, *_ = np.linalg.lstsq(rows, target, rcond=None)
             residual = float(np.abs(rows @ v - target).max())
@@ -148,9 +156,9 @@ class PinocchioRunner:
 
         self._pin = pin
         self.scene, self.model = scene, scene.model
-        self.data = self.model.createData()
+        self.data = scene.data
         self.h, self.rate, self.steps = 1.0 / rate, rate, 0
-        self.q, self.v = scene.initial_state(self.data)
+        self.q, self.v = scene.initial_state()
         self.tau = np.zeros(self.model.nv)
         self._fext = pin.StdVec_Force()
         for _ in range(self.model.njoints):
