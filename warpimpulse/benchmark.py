@@ -742,13 +742,15 @@ def markdown(results: dict) -> str:
 
 
 def _provenance(section: dict) -> list[str]:
+    """Which command measured a section, where and when; which peers were missing."""
+    lines = []
     meta = section.get("meta")
-    lines = (
-        [f"Measured with `{meta['command']}` on {meta['machine']}, {meta['date']} ({meta['versions']}).", ""]
-        if meta
-        else []
-    )
-    return lines + [f"> Not measured: {why}" for why in filter(None, section.get("missing", {}).values())] + [""]
+    if meta:
+        quick = " (the reduced `--quick` sweep)" if "--quick" in meta["command"].split() else ""
+        where = f"{meta['machine']}, {meta['date']} ({meta['versions']})"
+        lines += [f"Measured with `{meta['command']}`{quick} on {where}.", ""]
+    missing = [f"> Not measured: {why}" for why in filter(None, section.get("missing", {}).values())]
+    return lines + (missing + [""] if missing else [])
 
 
 def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
