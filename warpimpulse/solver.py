@@ -108,14 +108,21 @@ class CholeskySolver:
         self._backward_args = [col_start, _int(pat.col_row, d), col_sign]
         self._solves: dict[tuple[int, int], list[wp.Launch]] = {}
 
+    @property
+    def prepare_launches(self) -> list[wp.Launch]:
+        """Assemble the matrix at the current frames and factor it; `check()` afterwards."""
+        return [self._assemble, *self._factor]
+
     def prepare(self) -> None:
-        """Assemble the matrix at the current frames and factor it."""
-        self.singular.zero_()
-        self._assemble.launch()
-        for launch in self._factor:
+        for launch in self.prepare_launches:
             launch.launch()
+        self.check()
+
+    def check(self) -> None:
+        """Raise SingularSystemError naming the joint (or body) whose pivot the last factorization lost."""
         col = int(self.singular.numpy()[0])
         if col:
+            self.singular.zero_()
             unknown = int(self.pattern.perm[col - 1])
             builder = self.model.builder
             if self._augmented and unknown < self._offset:
@@ -128,7 +135,14 @@ class CholeskySolver:
                 "its constraints are redundant with others on the same bodies, or degenerate"
             )
 
-    def _solve_launches(self, rhs: wp.array, out: wp.array) -> list[wp.Launch]:
+    def solve_launches(self, rhs: wp.array, out: wp.array) -> list[wp.Launch]:
+        """The launches of one solve from `rhs` into `out`, recorded once per pair of arrays."""
+        key = (rhs.ptr, out.ptr)
+        if key not in self._solves:
+            self._solves[key] = self._record_solve(rhs, out)
+        return self._solves[key]
+
+    def _record_solve(self, rhs: wp.array, out: wp.array) -> list[wp.Launch]:
         d = self.model.device
         launches = []
         if self._augmented:
@@ -162,10 +176,7 @@ class CholeskySolver:
         )  # fmt: skip
 
     def solve(self, rhs: wp.array, out: wp.array, warm_key: str | None = None) -> int:
-        key = (rhs.ptr, out.ptr)
-        if key not in self._solves:
-            self._solves[key] = self._solve_launches(rhs, out)
-        for launch in self._solves[key]:
+        for launch in self.solve_launches(rhs, out):
             launch.launch()
         return 1
 
@@ -207,9 +218,16 @@ class CGSolver:
         ]
         self.iterations = 0
 
+    @property
+    def prepare_launches(self) -> list[wp.Launch]:
+        return [self._assemble, self._diag]
+
     def prepare(self) -> None:
         self._assemble.launch()
         self._diag.launch()
+
+    def check(self) -> None:
+        """CG finds a singular K while it iterates (`solve`)."""
 
     def _rr(self) -> float:
         s = self._scalars_host if self._scalars_host is not None else self.scalars.numpy()
