@@ -23,15 +23,15 @@ lint: $(STAMP)
 stress: $(STAMP)
 	$(VENV)/bin/warpimpulse stress
 
-# The paper's tables, then run time against error and scaling (apart, so either can be re-run alone), then
-# plots, RESULTS.md and README.md's results block from the two JSON files.
+# The paper's tables, run time against error and scaling (apart, so each can be re-run alone), then the
+# plots, RESULTS.md and README.md's results block from the three JSON files.
 RESULTS := benchmarks/results
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[bench]"
 	$(PY) benchmarks/paper_tables.py
 	$(PY) benchmarks/run_vs_error.py --json $(RESULTS)/run_vs_error.json > /dev/null
 	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
-	$(PY) -m warpimpulse.benchmark --from-json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
+	$(PY) -m warpimpulse.benchmark --from-json $(RESULTS)/paper_tables.json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
 		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme README.md
 
 clean:

@@ -20,6 +20,7 @@ import warp as wp
 
 import warpimpulse as wi
 from warpimpulse import scenes
+from warpimpulse.benchmark import paper_markdown, quiet_warp
 
 # Pentium 4 3.4 GHz, ms per step (Tables 2 and 3) and Table 1's iteration counts.
 PAPER_WITHOUT = {
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--sizes", type=int, nargs="+", default=[31, 63, 127, 255])
     parser.add_argument("--json", type=Path, default=Path(__file__).parent / "results" / "paper_tables.json")
     args = parser.parse_args(argv)
-    wp.config.quiet = True
+    quiet_warp()
     wp.init()
 
     rows = []
@@ -72,44 +73,6 @@ def main(argv: list[str] | None = None) -> dict:
                 r["scene"] = f"tree{n}"
                 rows.append(r)
     star = [measure(scenes.star(127), s, 1e-4, args.steps) | {"scene": "star127"} for s in ("iterative", "cholesky")]
-
-    def cell(scene, solver, tol):
-        return next(r for r in rows if r["scene"] == scene and r["solver"] == solver and r["tolerance"] == tol)
-
-    print("## Table 1: tree of 127 bodies, h = 1/30 s, tolerance 1e-6\n")
-    print("| | paper without SLE | ours without SLE | paper with SLE | ours with SLE |")
-    print("|---|---:|---:|---:|---:|")
-    it, ch = cell("tree127", "iterative", 1e-6), cell("tree127", "cholesky", 1e-6)
-    p_it, p_ch = PAPER_TABLE1["iterative"], PAPER_TABLE1["cholesky"]
-    print(f"| time per step (ms) | {p_it['ms']} | {it['median_ms']:.3f} | {p_ch['ms']} | {ch['median_ms']:.3f} |")
-    print(f"| joint-correction iterations | {p_it['jc']} | {it['joint_iterations']:.2f} | {p_ch['jc']} | "
-          f"{ch['joint_iterations']:.2f} |")  # fmt: skip
-    print(f"| velocity-correction iterations | {p_it['vc']} | {it['velocity_iterations']:.2f} | {p_ch['vc']} | "
-          f"{ch['velocity_iterations']:.2f} |\n")  # fmt: skip
-
-    for title, solver, paper in (
-        ("Table 2: without SLE", "iterative", PAPER_WITHOUT),
-        ("Table 3: with SLE", "cholesky", PAPER_WITH),
-    ):
-        print(f"## {title}, ms per step (paper / ours), mean joint iterations in brackets\n")
-        print("| | " + " | ".join(f"{t:g}" for t in TOLERANCES) + " |")
-        print("|---|" + "---:|" * len(TOLERANCES))
-        for n in args.sizes:
-            cells = []
-            for k, tol in enumerate(TOLERANCES):
-                r = cell(f"tree{n}", solver, tol)
-                ref = paper[n][k] if n in paper else float("nan")
-                cells.append(f"{ref} / {r['median_ms']:.3f} ({r['joint_iterations']:.1f})")
-            print(f"| tree {n} | " + " | ".join(cells) + " |")
-        print()
-    s_it, s_ch = star
-    print("## Star of 127 (all joints on the root), tolerance 1e-4\n")
-    print("| | without SLE | with SLE | speed-up |")
-    print("|---|---:|---:|---:|")
-    speedup = s_it["median_ms"] / s_ch["median_ms"]
-    print(f"| ms per step | {s_it['median_ms']:.3f} | {s_ch['median_ms']:.3f} | {speedup:.1f}x (paper: almost 80x) |")
-    print(f"| joint iterations | {s_it['joint_iterations']:.1f} | {s_ch['joint_iterations']:.1f} | |")
-
     result = {
         "machine": {"processor": platform.processor() or platform.machine(), "python": platform.python_version(),
                     "warp": wp.config.version},
@@ -118,6 +81,7 @@ def main(argv: list[str] | None = None) -> dict:
         "star": star,
         "paper": {"without_sle": PAPER_WITHOUT, "with_sle": PAPER_WITH, "table1": PAPER_TABLE1},
     }  # fmt: skip
+    print("\n".join(paper_markdown(result)))
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(result, indent=1))
     print(f"\nwrote {args.json}")

@@ -55,3 +55,21 @@ def test_scaling_end_to_end(tmp_path) -> None:
     results = {"scaling": {"budget_s": 60.0, "steps": 2, "repeats": 1, "rows": rows}}
     assert "| tree | 15 | warpimpulse | auto |" in benchmark.markdown(results)
     assert [p.name for p in benchmark.plots(results, tmp_path)] == ["scaling.png"]
+
+
+def test_paper_tables_render_from_their_json() -> None:
+    """RESULTS.md carries the paper's tables, rendered from paper_tables.py's JSON like everything else."""
+    row = {"steps": 90, "median_ms": 1.0, "mean_ms": 1.0, "joint_iterations": 2.0, "velocity_iterations": 1.0}
+    rows = [row | {"scene": "tree127", "solver": s, "tolerance": t} for s in ("iterative", "cholesky")
+            for t in (1e-2, 1e-4, 1e-6)]  # fmt: skip
+    tables = {
+        "machine": {"processor": "x86_64", "python": "3.11", "warp": "1.19"}, "dt": 1 / 30, "rows": rows,
+        "star": [row | {"scene": "star127", "solver": s, "tolerance": 1e-4} for s in ("iterative", "cholesky")],
+        "paper": {"with_sle": {"127": [18.78, 18.95, 20.09]}, "without_sle": {"127": [6.25, 87.05, 228.57]},
+                  "table1": {"iterative": {"ms": 228.57, "jc": 518.15, "vc": 745.54},
+                             "cholesky": {"ms": 20.09, "jc": 2, "vc": 1}}},
+    }  # fmt: skip
+    text = "\n".join(benchmark.paper_markdown(tables))
+    assert "| time per step (ms) | 228.57 | 1.000 | 20.09 | 1.000 |" in text
+    assert "| tree 127 | 18.78 / 1.000 (2.0) | 18.95 / 1.000 (2.0) | 20.09 / 1.000 (2.0) |" in text
+    assert "1.0x; the paper reports almost 80x" in text

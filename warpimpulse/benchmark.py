@@ -708,6 +708,8 @@ def markdown(results: dict) -> str:
     """The full report (RESULTS.md): references, one table per scene, where we win and lose, the tree127 bar,
     scaling."""
     lines = ["# warpimpulse benchmark", ""]
+    if results.get("paper_tables"):
+        lines += paper_markdown(results["paper_tables"])
     sweep, scale = results.get("run_vs_error"), results.get("scaling")
     if sweep:
         lines += ["## Run time against error", "", *_provenance(sweep),
@@ -739,6 +741,70 @@ def markdown(results: dict) -> str:
     if scale:
         lines += scaling_markdown(scale)
     return "\n".join(lines) + "\n"
+
+
+def paper_markdown(tables: dict, level: str = "##") -> list[str]:
+    """The method paper's Tables 1-3 and its star beside ours, from `benchmarks/paper_tables.py`'s JSON."""
+    tolerances = sorted({r["tolerance"] for r in tables["rows"]}, reverse=True)
+    sizes = sorted({int(r["scene"][4:]) for r in tables["rows"]})
+    paper = tables["paper"]
+
+    def cell(n: int, solver: str, tol: float) -> dict:
+        return next(
+            r for r in tables["rows"] if r["scene"] == f"tree{n}" and r["solver"] == solver and r["tolerance"] == tol
+        )
+
+    machine = tables["machine"]
+    lines = [
+        f"{level} The paper's tables",
+        "",
+        f"`python benchmarks/paper_tables.py` on {machine['processor']} (Python {machine['python']}, Warp "
+        f"{machine['warp']}), h = 1/{round(1 / tables['dt'])} s, median time per step over "
+        f"{tables['rows'][0]['steps']} steps; the paper's figures are from a Pentium 4 at 3.4 GHz.",
+    ]
+    if 127 in sizes and 1e-6 in tolerances:  # Table 1 is the 127-body tree at 1e-6
+        header = "| | paper without SLE | ours without SLE | paper with SLE | ours with SLE |"
+        lines += ["", "Table 1: the 127-body tree, tolerance 1e-6.", "", header, "|---|---:|---:|---:|---:|"]
+        it, ch = cell(127, "iterative", 1e-6), cell(127, "cholesky", 1e-6)
+        p_it, p_ch = paper["table1"]["iterative"], paper["table1"]["cholesky"]
+        table1 = (
+            ("time per step (ms)", "ms", "median_ms"),
+            ("joint-correction iterations", "jc", "joint_iterations"),
+            ("velocity-correction iterations", "vc", "velocity_iterations"),
+        )
+        for label, key, ours in table1:
+            digits = 3 if key == "ms" else 2
+            lines.append(f"| {label} | {p_it[key]} | {it[ours]:.{digits}f} | {p_ch[key]} | {ch[ours]:.{digits}f} |")
+    for title, solver, figures in (
+        ("Table 3: with the system", "cholesky", paper["with_sle"]),
+        ("Table 2: without the system", "iterative", paper["without_sle"]),
+    ):
+        lines += [
+            "",
+            f"{title} (ms per step, paper / ours, mean joint iterations in brackets).",
+            "",
+            "| | " + " | ".join(f"{t:g}" for t in tolerances) + " |",
+            "|---|" + "---:|" * len(tolerances),
+        ]
+        for n in sizes:
+            ref = figures.get(str(n), figures.get(n))
+            cells = [
+                f"{'—' if ref is None else ref[k]} / {cell(n, solver, t)['median_ms']:.3f} "
+                f"({cell(n, solver, t)['joint_iterations']:.1f})"
+                for k, t in enumerate(tolerances)
+            ]
+            lines.append(f"| tree {n} | " + " | ".join(cells) + " |")
+    star = {r["solver"]: r for r in tables["star"]}
+    s_it, s_ch = star["iterative"], star["cholesky"]
+    lines += [
+        "",
+        f"The star of 127 (every joint on the root), tolerance {s_ch['tolerance']:g}: "
+        f"{s_ch['median_ms']:.3f} ms "
+        f"a step with the system against {s_it['median_ms']:.3f} ms without "
+        f"({s_it['median_ms'] / s_ch['median_ms']:.1f}x; the paper reports almost 80x).",
+        "",
+    ]
+    return lines
 
 
 def _provenance(section: dict) -> list[str]:
@@ -1018,7 +1084,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--readme", type=Path,
                    help=f"regenerate the block between {README_BEGIN} and {README_END} in this file")  # fmt: skip
     p.add_argument(
-        "--from-json", type=Path, nargs="+", help="report and plot earlier --json files (merged); measure nothing"
+        "--from-json",
+        type=Path,
+        nargs="+",
+        help="report and plot earlier --json files (merged; paper_tables.json too); measure nothing",
     )
     p.add_argument("--scenes", nargs="+", help=f"scenes of the sweep (default {' '.join(SWEEP_SCENES)})")
     p.add_argument("--solver", default="auto", choices=("auto", "cholesky", "cg", "iterative"))
@@ -1035,8 +1104,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     if args.from_json:
         results: dict = {}
-        for path in args.from_json:  # e.g. the sweep's and the scaling's files, measured apart
-            results.update(json.loads(path.read_text()))
+        for path in args.from_json:  # e.g. the paper's tables, the sweep and the scaling, measured apart
+            data = json.loads(path.read_text())
+            results.update({"paper_tables": data} if "paper" in data else data)
     else:
         quiet_warp()
         meta = metadata(argv)
