@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -143,21 +144,26 @@ class Simulator:
             for st in (s, self.pred)
         }
         prepare = self.linear.prepare_launches if self.linear is not None else []
-        self._frames_graph = self._capture([self._inertia, self._frames, *prepare])
+        frames = [self._inertia, self._frames, *prepare]
+        self._frames_graph = self._capture(*frames)
+        # Accept the prediction as the new state, count its NaN/Inf bodies and factor K there, in one replay.
+        accept = [lambda: self.state.copy_from(self.pred), self._nonfinite.zero_, self._check_states[id(s)]]
+        self._accept_graph = self._capture(*accept, *frames)
+        self._save_velocities = self._capture(lambda: wp.copy(self._v0, s.v), lambda: wp.copy(self._w0, s.w))
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
             solve = self.linear.solve_launches(self.rhs, self.impulse)
-            self._velocity_fix = self._capture([*solve, self._apply, self._velocity_errors])
+            self._velocity_fix = self._capture(*solve, self._apply, self._velocity_errors)
         self._use_step_size(self.dt)
 
-    def _capture(self, launches: list[wp.Launch]) -> wp.Graph:
-        """Launches that always run together, replayed as one captured graph (DESIGN.md: on a CPU ~0.3 us a
-        launch against ~3-5 us for a recorded one)."""
+    def _capture(self, *work: wp.Launch | Callable[[], object]) -> wp.Graph:
+        """Recorded launches (or array copies) that always run together, replayed as one captured graph
+        (DESIGN.md: on a CPU ~0.3 us a launch against ~3-5 us for a recorded one)."""
         d = self.model.device
         wp.capture_begin(device=d)
         try:
-            for launch in launches:
-                launch.launch()
+            for item in work:
+                item.launch() if isinstance(item, wp.Launch) else item()
         finally:
             graph = wp.capture_end(device=d)
         return graph
@@ -189,11 +195,11 @@ class Simulator:
                            f.jac_lin, f.jac_ang, s.v, s.w, self.sweep_error]),
             )  # fmt: skip
             predict, errors = self._launches_by_h[h][:2]
-            evaluate = self._capture([predict, errors])
+            evaluate = self._capture(predict, errors)
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iterate = self._capture([*solve, self._apply, predict, errors])
+                iterate = self._capture(*solve, self._apply, predict, errors)
             self._launches_by_h[h] += (evaluate, iterate)
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate,
          self._iterate) = self._launches_by_h[h]  # fmt: skip
@@ -250,8 +256,7 @@ class Simulator:
 
     def _advance(self, h: float, depth: int) -> StepStats:
         self._use_step_size(h)
-        wp.copy(self._v0, self.state.v)
-        wp.copy(self._w0, self.state.w)
+        wp.capture_launch(self._save_velocities)
         final = depth >= self.max_substep_depth
         joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
         if not ok:
@@ -268,9 +273,10 @@ class Simulator:
                 first.linear_iterations + second.linear_iterations + linear_iterations,
                 first.substeps + second.substeps,
             )
-        self.state.copy_from(self.pred)
-        self._check_finite(self.state, self.step_count + 1)
-        self._update_frames()
+        wp.capture_launch(self._accept_graph)
+        self._report_nonfinite(self.state, self.step_count + 1)
+        if self.linear is not None:
+            self.linear.check()
 
         if self.linear is None:
             vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
@@ -381,6 +387,9 @@ class Simulator:
         """Counted on the device (one int comes back); only a failure reads the state to name the bodies."""
         self._nonfinite.zero_()
         self._check_states[id(state)].launch()
+        self._report_nonfinite(state, step)
+
+    def _report_nonfinite(self, state: State, step: int) -> None:
         if not int(self._nonfinite.numpy()[0]):
             return
         arrays = [a.numpy().reshape(self.model.body_count, -1) for a in (state.x, state.q, state.v, state.w)]
