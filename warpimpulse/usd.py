@@ -795,7 +795,7 @@ def _f(v: float) -> str:
 
 
 def _tup(v) -> str:
-    return "(" + ", ".join(repr(float(x)) for x in v) + ")"
+    return "(" + ", ".join(map(repr, map(float, v))) + ")"
 
 
 def _quat_text(q) -> str:
@@ -895,10 +895,12 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
     forces: dict[int, list] = {}
     for f in builder.forces:
         forces.setdefault(f.body, []).append(f)
-    local_t, local_q = poses
-    # Principal moments and axes of every body in one batched call (per-body eigh costs ~30 us each).
+    local_t, local_q = poses[0].tolist(), poses[1].tolist()
+    # Principal moments and axes of every body in one batched eigh; bodies often share axes, and a shape.
     moments, axes = np.linalg.eigh(np.array([b.inertia for b in builder.bodies], dtype=np.float64).reshape(-1, 3, 3))
     axes[np.linalg.det(axes) < 0.0, :, 0] *= -1.0  # a proper rotation
+    principal: dict[bytes, str] = {}
+    geometry: dict[Shape, str] = {}
     for i, (b, path) in enumerate(zip(builder.bodies, scene.body_paths)):
         name = path.rsplit("/", 1)[1]
         schemas = '"PhysicsRigidBodyAPI"' + ("" if b.static else ', "PhysicsMassAPI"')
@@ -907,10 +909,13 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
         if b.static:
             lines.append("bool physics:kinematicEnabled = 1")
         else:
+            key = axes[i].tobytes()
+            if key not in principal:
+                principal[key] = _quat_text(quat_from_matrix(axes[i]))
             lines += [
                 f"float physics:mass = {_f(b.mass)}",
                 f"float3 physics:diagonalInertia = {_tup(moments[i])}",
-                f"quatf physics:principalAxes = {_quat_text(quat_from_matrix(axes[i]))}",
+                f"quatf physics:principalAxes = {principal[key]}",
                 "point3f physics:centerOfMass = (0, 0, 0)",
                 f"vector3f physics:velocity = {_tup(b.linear_velocity)}",
                 f"vector3f physics:angularVelocity = {_tup(np.degrees(b.angular_velocity))}",
@@ -928,7 +933,10 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
             'uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:orient"]',
         ]
         out.append("".join(f"        {line}\n" for line in lines))
-        out.append(_geometry_usda("geom", _body_display_shape(b), "        "))
+        shape = _body_display_shape(b)
+        if shape not in geometry:
+            geometry[shape] = _geometry_usda("geom", shape, "        ")
+        out.append(geometry[shape])
         out.append("    }\n")
     if builder.joints:
         loops = _loop_joints(builder)
@@ -1137,13 +1145,13 @@ class AnimationWriter:
             local_q = local_q[self._moving]
             if self._prev_q is not None:  # q and -q are one rotation; keep the sign continuous for slerp
                 local_q[np.einsum("ij,ij->i", local_q, self._prev_q) < 0.0] *= -1.0
-            self._prev_q = local_q
+            if len(self._buf_times) == self._buf_t.shape[1]:
+                self._flush()  # before this frame goes in: a frame counted below is in the buffer or the layer
             j = len(self._buf_times)
             self._buf_t[:, j] = local_t[self._moving]
             self._buf_q[:, j] = local_q
             self._buf_times.append(tc)
-            if j + 1 == self._buf_t.shape[1]:
-                self._flush()
+            self._prev_q = local_q
         self.frames_written += 1
         self.first_time = time_code if self.first_time is None else min(self.first_time, time_code)
         self.last_time = time_code if self.last_time is None else max(self.last_time, time_code)
