@@ -66,7 +66,7 @@ class CholeskySolver:
 
     name = "cholesky"
 
-    def __init__(self, model: Model, frames: Frames, pivot_tolerance: float = 1e-12, formulation: str = "auto") -> None:
+    def __init__(self, model: Model, frames: Frames, pivot_tolerance: float = 1e-14, formulation: str = "auto") -> None:
         self.model = model
         d = model.device
         pat = model.topology.pattern(formulation)
