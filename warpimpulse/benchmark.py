@@ -934,6 +934,8 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
         "README.md` (make bench): edit the generator, not this text -->",
         "",
     ]
+    if results.get("paper_tables"):
+        lines += paper_markdown(results["paper_tables"], "###")
     sweep, scale = results.get("run_vs_error"), results.get("scaling")
     if sweep:
         runs = sweep["runs"]
