@@ -1,11 +1,12 @@
 """USD export speed: our Sdf-API writer vs a plain UsdGeom / attr.Set writer vs the PointInstancer mode.
 
-    python benchmarks/usd_export.py                 # 1,000 bodies x 300 frames and 10,000 x 100
-    python benchmarks/usd_export.py --cases 200x50  # a quick look
+    python benchmarks/usd_export.py                 # 1,000 bodies x 300 frames and 10,000 x 100, 3 runs each
+    python benchmarks/usd_export.py --cases 200x50 --repeats 1  # a quick look
 
 Every writer gets the same bodies (capsules) and the same frames (a cheap closed-form motion, generated
 frame by frame, so no writer holds the whole animation) and writes a binary .usd file. Each run is a
-fresh process so that its peak resident memory is its own. Prints a table and writes
+fresh process so that its peak resident memory is its own; the methods take turns, run by run, so that a
+busy spell on a shared machine hits them alike. Prints medians and per-run speed-ups and writes
 benchmarks/results/usd_export.json. The bar (issue 3): writer >= 3x faster than plain, instancer >= 50x.
 """
 

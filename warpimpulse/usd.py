@@ -32,8 +32,11 @@ from .joints import JOINT_TYPES
 from .shapes import Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
 
-# Above this many bodies a procedural export uses a PointInstancer unless told otherwise
-# (benchmarks/usd_export.py: per-body prims cost ~1 us per body per frame; see the closing note there).
+# Above this many bodies a procedural export uses a PointInstancer unless told otherwise. Measured with
+# benchmarks/usd_export.py (10,000 bodies x 100 frames): per-body prims hold ~0.7 KB of memory and take
+# ~10 us of writing per body and frame, the instancer ~30 B and ~0.2 us. A default run (10 s at 30 fps) of
+# 5,000 bodies would hold ~1 GB and write for ~15 s; beyond that the instancer (float positions, half
+# orientations, display only) is the better default.
 INSTANCER_AUTO_BODIES = 5000
 
 # Per-body frames are buffered attribute-major in numpy (at most this many bytes, or frames) and authored
