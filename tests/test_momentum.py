@@ -12,6 +12,7 @@ from conftest import momenta, sim_state
 from scipy.spatial.transform import Rotation
 
 import warpimpulse
+import warpimpulse as wi
 
 JOINTS = ("ball", "revolute", "universal", "cylindrical", "prismatic", "planar", "fixed")
 
@@ -93,3 +94,12 @@ def test_linear_momentum_at_default_tolerance():
         sim.step()
     linear, _ = momenta(builder, *sim_state(sim))
     assert np.linalg.norm(linear - linear0) < 1e-12 * np.linalg.norm(linear0)
+
+
+def test_free_bodies_without_joints_fall_exactly():
+    """A scene with no joints (e.g. a USD file whose joints were all dropped) has no system to solve."""
+    b = wi.SceneBuilder()
+    b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 1.0), name="free", linear_velocity=(1.0, 0.0, 0.0))
+    sim = wi.Simulator(b.finalize(), 1 / 60)
+    sim.simulate(0.5)
+    assert np.allclose(sim.positions()[0], (0.5, 0.0, 1.0 - 0.5 * 9.81 * 0.25), atol=1e-12)

@@ -31,6 +31,13 @@ SOLVER_NAMES = ("auto", "cholesky", "cg", "iterative")
 POLICIES = ("raise", "warn")
 
 
+class _Nothing:
+    """Stands for a launch over zero elements (a scene of free bodies has no constraints)."""
+
+    def launch(self) -> None:
+        pass
+
+
 class SimulationError(RuntimeError):
     """The simulation cannot go on: divergence (NaN/Inf) or joints that did not converge."""
 
@@ -105,7 +112,9 @@ class Simulator:
         self.impulse = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.sweep_error = wp.zeros(1, dtype=wp.float64, device=d)
         self.linear = None
-        if self.solver_name == "cholesky":
+        if nc == 0:  # free bodies only: nothing to solve
+            pass
+        elif self.solver_name == "cholesky":
             self.linear = CholeskySolver(model, self.frames, formulation=formulation)
         elif self.solver_name == "cg":
             self.linear = CGSolver(model, self.frames)
@@ -163,12 +172,14 @@ class Simulator:
         wp.capture_begin(device=d)
         try:
             for item in work:
-                item.launch() if isinstance(item, wp.Launch) else item()
+                item.launch() if isinstance(item, (wp.Launch, _Nothing)) else item()
         finally:
             graph = wp.capture_end(device=d)
         return graph
 
-    def _rec(self, kernel, dim: int, inputs: list) -> wp.Launch:
+    def _rec(self, kernel, dim: int, inputs: list) -> wp.Launch | _Nothing:
+        if dim == 0:  # Warp records no launch over nothing
+            return _Nothing()
         return wp.launch(kernel, dim=dim, inputs=inputs, device=self.model.device, record_cmd=True)
 
     @property
