@@ -194,24 +194,33 @@ class Simulator:
             m, s, p, f, c, nb, nc = self.model, self.state, self.pred, self.frames, self.control, *self._counts
             hd = wp.float64(h)
             body_model = [m.body_inv_mass, m.body_inertia, m.body_inv_inertia, m.gravity, hd]
-            self._launches_by_h[h] = (
-                self._rec(rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque,
-                                                      p.x, p.q, p.v, p.w]),
-                self._rec(constraint_kernels.position_errors, nc,
-                          [*self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, wp.float64(1.0 / h),
-                           f.proj, p.x, p.q, self.errors, self.rhs]),
-                self._rec(iterative_kernels.sweep_positions, 1,
-                          [nc, *self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model,
-                           wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj,
-                           f.jac_lin, f.jac_ang, s.v, s.w, self.sweep_error]),
-            )  # fmt: skip
-            predict, errors = self._launches_by_h[h][:2]
-            evaluate = self._capture(predict, errors)
+            predict = self._rec(
+                rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque, p.x, p.q, p.v, p.w]
+            )
+            errors = self._rec(
+                constraint_kernels.position_errors,
+                nc,
+                [
+                    *self._geometry,
+                    m.constraint_rest_rotation,
+                    m.constraint_rest_angle,
+                    wp.float64(1.0 / h),
+                    f.proj,
+                    p.x,
+                    p.q,
+                    self.errors,
+                    self.rhs,
+                ],
+            )
+            sweep = self._rec(iterative_kernels.sweep_positions, 1,
+                              [nc, *self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model,
+                               wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj,
+                               f.jac_lin, f.jac_ang, s.v, s.w, self.sweep_error])  # fmt: skip
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
                 iterate = self._capture(*solve, self._apply, predict, errors)
-            self._launches_by_h[h] += (evaluate, iterate)
+            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, errors), iterate)
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate,
          self._iterate) = self._launches_by_h[h]  # fmt: skip
 
@@ -291,6 +300,8 @@ class Simulator:
 
         if self.linear is None:
             vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+            self._velocity_errors.launch()
+            vel_err = self._max_error("velocity")
         else:
             vel_it = 0
             self._velocity_errors.launch()
@@ -305,9 +316,6 @@ class Simulator:
                     self._velocity_errors.launch()
                 vel_it = 1
                 vel_err = self._max_error("velocity")
-        if self.linear is None:
-            self._velocity_errors.launch()
-            vel_err = self._max_error("velocity")
         if vel_err > self.velocity_tolerance and self.linear is not None:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
             # ill-conditioned K) is reported under the same policy as an iteration limit.

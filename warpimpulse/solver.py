@@ -223,8 +223,8 @@ class CGSolver:
         return [self._assemble, self._diag]
 
     def prepare(self) -> None:
-        self._assemble.launch()
-        self._diag.launch()
+        for launch in self.prepare_launches:
+            launch.launch()
 
     def check(self) -> None:
         """CG finds a singular K while it iterates (`solve`)."""

@@ -293,24 +293,22 @@ def body_pattern(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int
     every pivot then has a definite sign (+ for bodies, - for constraints) and a tree has no fill beyond the
     blocks of one body and one joint."""
     nb, nc = len(builder.bodies), len(builder.constraints)
-    dynamic = [_dynamic(builder, b) for b in range(nb)]
     if perm is None:
         loops = set(loop_joints)
         keys = []
         for b in range(nb):
-            if dynamic[b]:
+            if _dynamic(builder, b):
                 keys += [(False, -2 * depth[b], 0, b, 0), (False, -2 * depth[b], 0, b, 1)]
         for c, con in enumerate(builder.constraints):
-            level = max(depth[b] for b in (con.body0, con.body1) if b != WORLD and dynamic[b])
+            level = max(depth[b] for b in (con.body0, con.body1) if _dynamic(builder, b))
             keys.append((con.joint in loops, 1 - 2 * level, 1, c, 0))
         perm = np.array([2 * nb + k[3] if k[2] else k[3] + k[4] * nb for k in sorted(keys)], dtype=np.int64)
     adj: list[set[int]] = [set() for _ in range(2 * nb + nc)]
-    for c, con in enumerate(builder.constraints):
-        for b in (con.body0, con.body1):
-            if b != WORLD and dynamic[b]:
-                for u in (b, nb + b):
-                    adj[u].add(2 * nb + c)
-                    adj[2 * nb + c].add(u)
+    for b, constraints in enumerate(_constraints_on_bodies(builder)):
+        for c in constraints:
+            for u in (b, nb + b):
+                adj[u].add(2 * nb + c)
+                adj[2 * nb + c].add(u)
     st = _structure(perm, adj, 2 * nb + nc)
     side_of = {(c, b): 2 * c + side for c, con in enumerate(builder.constraints)
                for side, b in enumerate((con.body0, con.body1))}  # fmt: skip
