@@ -130,15 +130,18 @@ def world_inverse_inertia(
 
 
 @wp.kernel
-def count_nonfinite(
+def summarize_state(
     x: wp.array(dtype=vec3d),
     q: wp.array(dtype=quatd),
     v: wp.array(dtype=vec3d),
     w: wp.array(dtype=vec3d),
-    count: wp.array(dtype=int),
+    summary: wp.array(dtype=f64),
 ):
-    """count[0] += 1 for every body with a NaN or Inf in its state: one int to read back per step."""
+    """summary[0] += 1 for every body with a NaN or Inf in its state; summary[1] = the largest finite |w|.
+    Two numbers to read back per step: the divergence check and the spin that sets the next step's substeps."""
     b = wp.tid()
     s = wp.length_sq(x[b]) + wp.length_sq(v[b]) + wp.length_sq(w[b]) + wp.dot(q[b], q[b])
-    if not wp.isfinite(s):
-        wp.atomic_add(count, 0, 1)
+    if wp.isfinite(s):
+        wp.atomic_max(summary, 1, wp.length(w[b]))
+    else:
+        wp.atomic_add(summary, 0, f64(1.0))

@@ -192,6 +192,56 @@ def test_failing_step_is_redone_as_substeps():
     assert sim.joint_errors().max() <= 1e-6
 
 
+def _spinning_pendulum(omega: float) -> wi.SceneBuilder:
+    """A rod hanging on a world ball joint, spinning about its own (vertical) axis at omega rad/s."""
+    builder = wi.SceneBuilder()
+    body, _ = stress._capsule(builder, np.zeros(3), [0.0, 0.0, -1.0], 1.0, "rod")
+    builder.bodies[body].angular_velocity[:] = (0.0, 0.0, omega)
+    builder.add_joint_ball(None, body, np.zeros(3), name="hang")
+    return builder
+
+
+@pytest.mark.parametrize("solver", ["cholesky", "iterative"])
+def test_a_fast_spin_splits_the_step(solver):
+    """100 rad/s at h = 1/60 turns 1.67 rad a step: 4 substeps of 0.42 rad at the default max_rotation 0.5."""
+    model = _spinning_pendulum(100.0).finalize()
+    assert wi.Simulator(model, 1 / 60, solver=solver).step().substeps == 4
+    assert wi.Simulator(model, 1 / 60, solver=solver, max_rotation=None).step().substeps == 1
+    assert wi.Simulator(model, 1 / 60, solver=solver, max_rotation=2.0).step().substeps == 1
+    assert wi.Simulator(model, 1 / 60, solver=solver, max_rotation=0.5, max_substep_depth=1).step().substeps == 2
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), float("inf")])
+def test_max_rotation_is_validated(bad):
+    with pytest.raises(ValueError, match="max_rotation"):
+        wi.Simulator(scenes.chain(2).finalize(), 1 / 60, max_rotation=bad)
+
+
+def _energy_gain(sim: wi.Simulator, steps: int) -> float:
+    """The largest energy gain over the run, as a fraction of the largest kinetic energy seen."""
+    e0, gain, scale = sim.energy(), 0.0, 0.0
+    for _ in range(steps):
+        sim.step()
+        v = sim.linear_velocities()
+        scale = max(scale, 0.5 * float(np.sum(sim.model.body_mass * np.sum(v * v, axis=1))))
+        gain = max(gain, sim.energy() - e0)
+    return gain / scale
+
+
+def test_a_whipping_chain_is_split_where_it_spins_up():
+    """A heavy root (1:1e6) whips its light chain to ~80 rad/s: whole steps of 1/100 gain energy, then fail;
+    the steps the whip turns too far in are halved and the energy holds."""
+    model = stress.mass_ratio_chain(1e6, "root").finalize()
+    sim = wi.Simulator(model, 1 / 100, max_rotation=None, max_substep_depth=0, on_max_iterations="warn")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        whole = _energy_gain(sim, 300)
+    assert not whole <= 0.05  # NaN (diverged) counts as a gain
+    sim = wi.Simulator(model, 1 / 100)
+    assert _energy_gain(sim, 300) < 0.01
+    assert sim.joint_errors().max() <= 1e-6
+
+
 @pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
 def test_iteration_limit_warn_goes_on_and_records_it(solver):
     sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1,

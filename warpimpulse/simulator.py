@@ -50,7 +50,20 @@ class StepStats:
     max_velocity_error: float  # after the velocity correction, in m/s or rad/s
     converged: bool = True
     linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
-    substeps: int = 1  # > 1 when a failing step was redone as smaller ones
+    substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
+
+
+def _combined(parts: list[StepStats]) -> StepStats:
+    """The stats of one step taken as consecutive substeps."""
+    return StepStats(
+        sum(p.joint_iterations for p in parts),
+        sum(p.velocity_iterations for p in parts),
+        max(p.max_joint_error for p in parts),
+        parts[-1].max_velocity_error,
+        all(p.converged for p in parts),
+        sum(p.linear_iterations for p in parts),
+        sum(p.substeps for p in parts),
+    )
 
 
 class Simulator:
@@ -63,11 +76,17 @@ class Simulator:
         solver: str = "auto",
         max_iterations: int = 100,
         on_max_iterations: str = "raise",
-        max_substep_depth: int = 3,
+        max_substep_depth: int = 7,
         formulation: str = "auto",
+        max_rotation: float | None = 0.5,
     ) -> None:
         """`formulation` ("auto", "constraint" or "body") picks the matrix the Cholesky solver factors; see
-        `topology.Pattern`. "auto" takes the augmented body-joint matrix only where a body has many joints."""
+        `topology.Pattern`. "auto" takes the augmented body-joint matrix only where a body has many joints.
+
+        `max_rotation` (rad): a step in which some body would turn further than this, at the angular velocity
+        it starts with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth), because the
+        method is second order in the rotation per step: a whipping chain or a tumbling body at 100 rad/s
+        gains energy, then diverges, at one step per frame. None takes every step whole."""
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         if not (math.isfinite(tolerance) and tolerance > 0.0):
@@ -81,6 +100,8 @@ class Simulator:
             isinstance(max_substep_depth, int) and not isinstance(max_substep_depth, bool) and max_substep_depth >= 0
         ):
             raise ValueError(f"max_substep_depth must be an integer >= 0, got {max_substep_depth!r}")
+        if max_rotation is not None and not (math.isfinite(max_rotation) and max_rotation > 0.0):
+            raise ValueError(f"max_rotation must be a positive angle in radians or None, got {max_rotation!r}")
         if formulation not in ("auto", *FORMULATIONS):
             raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
         if solver not in SOLVER_NAMES:
@@ -94,6 +115,7 @@ class Simulator:
         self.max_iterations = max_iterations
         self.on_max_iterations = on_max_iterations
         self.max_substep_depth = int(max_substep_depth)
+        self.max_rotation = max_rotation
         self.solver_name = "cholesky" if solver == "auto" else solver
         self.time = 0.0
         self.step_count = 0
@@ -122,9 +144,11 @@ class Simulator:
         self._launches_by_h: dict[float, tuple] = {}
         self._v0 = wp.zeros_like(self.state.v)
         self._w0 = wp.zeros_like(self.state.w)
-        self._nonfinite = wp.zeros(1, dtype=wp.int32, device=d)
+        self._summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
+        self._spin = 0.0  # the largest |w| of the current state, in rad/s
         self._record_launches()
         self._update_frames()
+        self._check_finite(self.state, 0)
 
     # ---------------------------------------------------------------- launches
     def _record_launches(self) -> None:
@@ -149,14 +173,14 @@ class Simulator:
              self.sweep_error],
         )  # fmt: skip
         self._check_states = {
-            id(st): rec(rigid_kernels.count_nonfinite, nb, [st.x, st.q, st.v, st.w, self._nonfinite])
+            id(st): rec(rigid_kernels.summarize_state, nb, [st.x, st.q, st.v, st.w, self._summary])
             for st in (s, self.pred)
         }
         prepare = self.linear.prepare_launches if self.linear is not None else []
         frames = [self._inertia, self._frames, *prepare]
         self._frames_graph = self._capture(*frames)
         # Accept the prediction as the new state, count its NaN/Inf bodies and factor K there, in one replay.
-        accept = [lambda: self.state.copy_from(self.pred), self._nonfinite.zero_, self._check_states[id(s)]]
+        accept = [lambda: self.state.copy_from(self.pred), self._summary.zero_, self._check_states[id(s)]]
         self._accept_graph = self._capture(*accept, *frames)
         self._save_velocities = self._capture(lambda: wp.copy(self._v0, s.v), lambda: wp.copy(self._w0, s.w))
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
@@ -216,11 +240,13 @@ class Simulator:
                               [nc, *self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model,
                                wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj,
                                f.jac_lin, f.jac_ang, s.v, s.w, self.sweep_error])  # fmt: skip
+            # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
+            measure = [errors, self._summary.zero_, self._check_states[id(p)]]
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iterate = self._capture(*solve, self._apply, predict, errors)
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, errors), iterate)
+                iterate = self._capture(*solve, self._apply, predict, *measure)
+            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate)
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate,
          self._iterate) = self._launches_by_h[h]  # fmt: skip
 
@@ -265,10 +291,12 @@ class Simulator:
 
     # ---------------------------------------------------------------- the step
     def step(self) -> StepStats:
-        """Advance by dt. A step whose joint correction diverges or runs out of iterations is redone as two
-        half steps, down to dt / 2**max_substep_depth, before the failure is reported."""
+        """Advance by dt, as 2**k substeps when a body spins faster than max_rotation / dt. A (sub)step whose
+        joint correction diverges or runs out of iterations is redone as two half steps, down to
+        dt / 2**max_substep_depth, before the failure is reported."""
         self._update_forces()
-        stats = self._advance(self.dt, 0)
+        depth = self._spin_depth()
+        stats = _combined([self._advance(self.dt / 2**depth, depth) for _ in range(2**depth)])
         self._use_step_size(self.dt)
         self.step_count += 1
         self.time = self.step_count * self.dt
@@ -279,20 +307,15 @@ class Simulator:
         wp.capture_launch(self._save_velocities)
         final = depth >= self.max_substep_depth
         joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        if ok and not final and self._turns(h) > 1.0:
+            ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in a step)
         if not ok:
             wp.copy(self.state.v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
             wp.copy(self.state.w, self._w0)
-            first = self._advance(0.5 * h, depth + 1)
-            second = self._advance(0.5 * h, depth + 1)
-            return StepStats(
-                first.joint_iterations + second.joint_iterations + joint_it,
-                first.velocity_iterations + second.velocity_iterations,
-                max(first.max_joint_error, second.max_joint_error),
-                second.max_velocity_error,
-                first.converged and second.converged,
-                first.linear_iterations + second.linear_iterations + linear_iterations,
-                first.substeps + second.substeps,
-            )
+            halves = _combined([self._advance(0.5 * h, depth + 1) for _ in range(2)])
+            halves.joint_iterations += joint_it  # the failed attempt's work counts too
+            halves.linear_iterations += linear_iterations
+            return halves
         wp.capture_launch(self._accept_graph)
         self._report_nonfinite(self.state, self.step_count + 1)
         if self.linear is not None:
@@ -323,14 +346,27 @@ class Simulator:
         converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
         return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1)
 
+    def _spin_depth(self) -> int:
+        """k such that 2**k substeps turn the fastest body of the state at most max_rotation each
+        (k <= max_substep_depth)."""
+        if self.max_rotation is None:
+            return 0
+        turns = self._spin * self.dt / self.max_rotation
+        return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
+
+    def _turns(self, h: float) -> float:
+        """How many times max_rotation the fastest body of the last prediction turns in a step of h."""
+        if self.max_rotation is None:
+            return 0.0
+        return float(self._summary.numpy()[1]) * h / self.max_rotation
+
     def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
         """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
 
         ok is False when the correction failed and a smaller step may still succeed (not `final`)."""
         if self.linear is None:
             sweeps, err = self._sweep(self._sweep_positions, self.tolerance, "joint", final)
-            self._predict.launch()
-            self._position_errors.launch()
+            wp.capture_launch(self._evaluate)
             err = self._max_error("joint")
             return sweeps, err, 0, err <= self.tolerance or final
         iterations, linear_iterations, best = 0, 0, math.inf
@@ -403,13 +439,15 @@ class Simulator:
         return False
 
     def _check_finite(self, state: State, step: int) -> None:
-        """Counted on the device (one int comes back); only a failure reads the state to name the bodies."""
-        self._nonfinite.zero_()
+        """Counted on the device (two numbers come back); only a failure reads the state to name the bodies."""
+        self._summary.zero_()
         self._check_states[id(state)].launch()
         self._report_nonfinite(state, step)
 
     def _report_nonfinite(self, state: State, step: int) -> None:
-        if not int(self._nonfinite.numpy()[0]):
+        count, spin = self._summary.numpy()
+        if not count:
+            self._spin = float(spin)
             return
         arrays = [a.numpy().reshape(self.model.body_count, -1) for a in (state.x, state.q, state.v, state.w)]
         bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
@@ -459,6 +497,7 @@ class Simulator:
                     self.linear._warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
         self._active_forces = None
         self._update_frames()
+        self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
 
     # ---------------------------------------------------------------- numpy accessors
     def positions(self) -> np.ndarray:
