@@ -534,6 +534,49 @@ def _bad_stage(tmp_path, name, build) -> str:
     return path
 
 
+NAN, INF = float("nan"), float("inf")
+F, F3, Q = Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Float3, Sdf.ValueTypeNames.Quatf
+
+
+def _author(path, name, value, type_name=F):
+    """A build step: set attribute `name` of prim `path`, creating it if the prim lacks it."""
+
+    def build(stage):
+        prim = stage.GetPrimAtPath(path)
+        (prim.GetAttribute(name) or prim.CreateAttribute(name, type_name)).Set(value)
+
+    return build
+
+
+def _hinge(name, value, type_name=F):
+    """A build step: a revolute joint /W/j from the world to /W/a, with attribute `name` set to `value`."""
+
+    def build(stage):
+        _joint(stage, "/W/j", UsdPhysics.RevoluteJoint, None, "/W/a", (0, 0, 0), (0, 0, 0), axis="X")
+        _author("/W/j", name, value, type_name)(stage)
+
+    return build
+
+
+def _d6_nan_limit(stage):
+    j = _joint(stage, "/W/j", UsdPhysics.Joint, None, "/W/a", (0, 0, 0), (0, 0, 0))
+    _lock(j, "transX", "transY", "transZ")
+    UsdPhysics.LimitAPI.Apply(j, "rotX").CreateHighAttr(NAN)
+
+
+def _nan_matrix_parent(stage):
+    UsdGeom.Xform.Define(stage, "/W/m").AddTransformOp().Set(Gf.Matrix4d(1).SetTranslate(Gf.Vec3d(NAN, 0, 0)))
+    _body(stage, "/W/m/b", (1, 0, 0), mass=1.0, inertia=(1, 1, 1))
+
+
+def _cube_size(size):
+    def build(stage):
+        _body(stage, "/W/c", (1, 0, 0), density=1.0, shape="cube")
+        stage.GetPrimAtPath("/W/c/geom").GetAttribute("size").Set(size)
+
+    return build
+
+
 BAD = {
     "missing_target": (
         lambda s: _joint(s, "/W/j", UsdPhysics.RevoluteJoint, "/W/nothing", "/W/a", (0, 0, 0), (0, 0, 0)),
@@ -567,6 +610,65 @@ BAD = {
         ),
         ["/W/squash/b", "non-uniformly scaled parent", "[1.0, 2.0, 1.0]", "bake the scale"],
     ),
+    # Zero and non-finite values, each named with its prim and attribute (not silently read as something else,
+    # nor reported as another attribute's fault after numpy RuntimeWarnings).
+    "orient_zero": (
+        _author("/W/a", "xformOp:orient", Gf.Quatf(0, 0, 0, 0)),
+        ["/W/a", "xformOp:orient", "zero quaternion"],
+    ),
+    "orient_nan": (_author("/W/a", "xformOp:orient", Gf.Quatf(NAN, 0, 0, 0)), ["/W/a", "xformOp:orient", "not finite"]),
+    "translate_nan": (_author("/W/a", "xformOp:translate", Gf.Vec3d(NAN, 0, 0)), ["/W/a", "xformOp:translate"]),
+    "scale_inf": (
+        lambda s: UsdGeom.Xformable(s.GetPrimAtPath("/W/a")).AddScaleOp().Set(Gf.Vec3f(INF, 1, 1)),
+        ["/W/a", "xformOp:scale", "not finite"],
+    ),
+    "parent_matrix_nan": (_nan_matrix_parent, ["/W/m", "xformOp:transform", "not finite"]),
+    "density_nan": (_author("/W/a", "physics:density", NAN), ["/W/a", "physics:density"]),
+    "center_of_mass_nan": (
+        _author("/W/a", "physics:centerOfMass", Gf.Vec3f(NAN, 0, 0), F3),
+        ["/W/a", "physics:centerOfMass", "not finite"],
+    ),
+    "center_of_mass_inf": (
+        _author("/W/a", "physics:centerOfMass", Gf.Vec3f(INF, 0, 0), F3),
+        ["/W/a", "physics:centerOfMass", "not finite"],
+    ),
+    "principal_axes_nan": (
+        _author("/W/a", "physics:principalAxes", Gf.Quatf(NAN, 0, 0, 0)),
+        ["/W/a", "physics:principalAxes", "not finite"],
+    ),
+    "principal_axes_inf": (
+        _author("/W/a", "physics:principalAxes", Gf.Quatf(INF, 0, 0, 0)),
+        ["/W/a", "physics:principalAxes", "not finite"],
+    ),
+    "velocity_inf": (
+        _author("/W/a", "physics:velocity", Gf.Vec3f(INF, 0, 0), F3),
+        ["/W/a", "physics:velocity", "not finite"],
+    ),
+    "angular_velocity_inf": (
+        _author("/W/a", "physics:angularVelocity", Gf.Vec3f(INF, 0, 0), F3),
+        ["/W/a", "physics:angularVelocity", "not finite"],
+    ),
+    "local_pos1_inf": (_hinge("physics:localPos1", Gf.Vec3f(INF, 0, 0), F3), ["/W/j", "physics:localPos1"]),
+    "local_rot0_nan": (_hinge("physics:localRot0", Gf.Quatf(NAN, 0, 0, 0), Q), ["/W/j", "physics:localRot0"]),
+    "local_rot1_zero": (
+        _hinge("physics:localRot1", Gf.Quatf(0, 0, 0, 0), Q),
+        ["/W/j", "physics:localRot1", "zero quaternion"],
+    ),
+    "axis_token": (_hinge("physics:axis", "W"), ["/W/j", "physics:axis", "X, Y or Z", "'W'"]),
+    "lower_limit_nan": (_hinge("physics:lowerLimit", NAN), ["/W/j", "physics:lowerLimit", "not finite"]),
+    "d6_limit_nan": (_d6_nan_limit, ["/W/j", "limit:rotX:physics:high", "not finite"]),
+    "gravity_inf": (_author("/W/scene", "physics:gravityMagnitude", INF), ["/W/scene", "physics:gravityMagnitude"]),
+    "meters_per_unit_zero": (lambda s: UsdGeom.SetStageMetersPerUnit(s, 0.0), ["metersPerUnit", "positive"]),
+    "kilograms_per_unit_zero": (
+        lambda s: UsdPhysics.SetStageKilogramsPerUnit(s, 0.0),
+        ["kilogramsPerUnit", "positive"],
+    ),
+    "cube_size_nan": (_cube_size(NAN), ["/W/c/geom", "size", "not finite"]),
+    "cube_size_negative": (_cube_size(-1.0), ["/W/c/geom", "size", "negative"]),
+    "mass_zero_no_shapes": (
+        lambda s: _body(s, "/W/zero", (1, 0, 0), mass=0.0, inertia=(1, 1, 1)),
+        ["/W/zero", "physics:mass = 0", "collision shapes"],
+    ),
 }
 
 
@@ -574,10 +676,38 @@ BAD = {
 def test_bad_input_names_the_prim(tmp_path, case):
     build, words = BAD[case]
     path = _bad_stage(tmp_path, case, build)
-    with pytest.raises(SceneError) as info:
+    with pytest.raises(SceneError) as info, warnings.catch_warnings():
+        warnings.simplefilter("error")  # the error alone: no numpy RuntimeWarning on the way to it
         usd.load_stage(path)
     for word in words:
         assert word in str(info.value), (case, str(info.value))
+
+
+@pytest.mark.parametrize("case", ["orient_zero", "translate_nan", "angular_velocity_inf", "local_rot1_zero"])
+def test_cli_reports_bad_input_in_one_line(tmp_path, capsys, case):
+    build, words = BAD[case]
+    path = _bad_stage(tmp_path, case, build)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code = cli_main(["simulate", path, "--duration", "0.1", "--out", str(tmp_path / "out.usda")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "Traceback" not in err[0], err
+    assert all(word in err[0] for word in words), err
+
+
+def test_joint_to_a_disabled_body_attaches_to_it_as_static(tmp_path):
+    """The parser leaves a body with physics:rigidBodyEnabled = false out of a joint's body0; it is a
+    static body here, and the joint holds the other body to it (not 'not a rigid body')."""
+
+    def build(s):
+        UsdPhysics.RigidBodyAPI(s.GetPrimAtPath("/W/a")).CreateRigidBodyEnabledAttr(False)
+        _body(s, "/W/b", (1, 0, 0), mass=1.0, inertia=(1, 1, 1))
+        _joint(s, "/W/j", UsdPhysics.RevoluteJoint, "/W/a", "/W/b", (0.5, 0, 0), (-0.5, 0, 0), axis="Y")
+
+    scene = usd.load_stage(_bad_stage(tmp_path, "disabled", build))
+    (joint,) = scene.builder.joints
+    assert scene.builder.bodies[joint.parent].name == "/W/a" and scene.builder.bodies[joint.parent].static
+    assert scene.builder.bodies[joint.child].name == "/W/b"
 
 
 @pytest.mark.parametrize("content", [b"this is not a scene\n", b"\x00\x01PXR-USDC garbage", b""])

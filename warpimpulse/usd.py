@@ -161,6 +161,65 @@ def _gf_quat(q) -> np.ndarray:
     return np.array([im[0], im[1], im[2], q.GetReal()], dtype=np.float64)
 
 
+def _real(path: str, name: str, value: Any, infinite_ok: bool = False) -> np.ndarray:
+    """Attribute `name` of prim `path` as float64 (a Gf quaternion as x, y, z, w). NaN, or infinity unless
+    `infinite_ok`, is an error naming both: let through, it would surface later, after numpy RuntimeWarnings,
+    as an error about something else (or as nothing at all)."""
+    a = _gf_quat(value) if hasattr(value, "GetReal") else np.asarray(value, dtype=np.float64)
+    if np.any(np.isnan(a)) or not (infinite_ok or np.all(np.isfinite(a))):
+        raise UsdSceneError(f"{path}: {name} is not finite: {value}")
+    return a
+
+
+def _unit_quat(path: str, name: str, value: Any) -> np.ndarray:
+    """A quaternion attribute, normalized. The zero quaternion is no rotation at all (XformCache reads it as
+    the identity, placing the prim wrong without a word), so it is an error naming the prim."""
+    q = _real(path, name, value)
+    n = float(np.linalg.norm(q))
+    if n == 0.0:
+        raise UsdSceneError(
+            f"{path}: {name} is the zero quaternion, which is no rotation (the identity is (1, 0, 0, 0))"
+        )
+    return q / n
+
+
+class _Xforms:
+    """World matrices from an XformCache, after checking the xformOps of the prim and its ancestors (each
+    prim once): the cache reads a zero or NaN orient as the identity and drops a non-finite matrix op."""
+
+    def __init__(self) -> None:
+        _, _, _, Usd, UsdGeom, *_ = _pxr()
+        self._cache = UsdGeom.XformCache(Usd.TimeCode.Default())
+        self._xformable = UsdGeom.Xformable
+        self._orient = UsdGeom.XformOp.TypeOrient
+        self._checked: set[str] = set()
+
+    def _check(self, prim) -> None:
+        while prim and not prim.IsPseudoRoot() and str(prim.GetPath()) not in self._checked:
+            path = str(prim.GetPath())
+            if prim.IsA(self._xformable):
+                for op in self._xformable(prim).GetOrderedXformOps():
+                    value = op.Get()
+                    if value is None:
+                        continue
+                    if op.GetOpType() == self._orient:
+                        _unit_quat(path, op.GetName(), value)
+                    else:
+                        _real(path, op.GetName(), value)
+            self._checked.add(path)
+            prim = prim.GetParent()
+
+    def world(self, prim) -> np.ndarray:
+        """The prim's local-to-world matrix (USD row-vector convention)."""
+        self._check(prim)
+        return np.asarray(self._cache.GetLocalToWorldTransform(prim), dtype=np.float64)
+
+    def parent(self, prim) -> np.ndarray:
+        """The matrix of the prim's parent frame, in which its own xformOps and velocities are authored."""
+        self._check(prim)
+        return np.asarray(self._cache.GetParentToWorldTransform(prim), dtype=np.float64)
+
+
 def _frame_axes(axis: np.ndarray, second: np.ndarray | None = None) -> np.ndarray:
     """A rotation matrix whose first column is `axis` (second column along `second` if given)."""
     x = axis / np.linalg.norm(axis)
@@ -283,28 +342,33 @@ class _Reporter:
         warnings.warn(msg, stacklevel=4)
 
 
-def _shape_mass_info(prim, body_frame: _Similarity, xcache, report: _Reporter):
+def _shape_mass_info(prim, body_frame: _Similarity, xforms: _Xforms, report: _Reporter):
     """MassInformation (unit density) of one collision prim, in the body's rigid frame."""
     Gf, _, _, _, UsdGeom, UsdPhysics, _ = _pxr()
     path = str(prim.GetPath())
-    sim = _decompose(xcache.GetLocalToWorldTransform(prim), path)
+    sim = _decompose(xforms.world(prim), path)
     kind, axis = None, 2
+
+    def dim(name: str) -> float:
+        value = float(_real(path, name, prim.GetAttribute(name).Get()))
+        if value < 0.0:
+            raise UsdSceneError(f"{path}: {name} must not be negative, got {value}")
+        return value
+
     if prim.IsA(UsdGeom.Cube):
-        size = prim.GetAttribute("size").Get() * sim.s
-        shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
+        shape, kind = Shape("box", size=tuple(float(v) for v in dim("size") * sim.s)), "box"
     elif prim.IsA(UsdGeom.Sphere):
-        shape, kind = Shape("sphere", radius=float(prim.GetAttribute("radius").Get() * sim.s.max())), "sphere"
+        shape, kind = Shape("sphere", radius=dim("radius") * float(sim.s.max())), "sphere"
     elif prim.IsA(UsdGeom.Capsule) or prim.IsA(UsdGeom.Cylinder):
         kind = "capsule" if prim.IsA(UsdGeom.Capsule) else "cylinder"
         axis = "XYZ".index(str(prim.GetAttribute("axis").Get() or "Z"))
         others = [sim.s[i] for i in range(3) if i != axis]
-        radius = float(prim.GetAttribute("radius").Get() * max(others))
-        shape = Shape(kind, radius=radius, length=float(prim.GetAttribute("height").Get() * sim.s[axis]))
+        shape = Shape(kind, radius=dim("radius") * float(max(others)), length=dim("height") * float(sim.s[axis]))
     else:
         extent = prim.GetAttribute("extent").Get() if prim.HasAttribute("extent") else None
         if not extent or len(extent) != 2:
             raise UsdSceneError(f"{path}: cannot compute the mass of a {prim.GetTypeName()} collider without extent")
-        lo, hi = np.array(extent[0], dtype=float), np.array(extent[1], dtype=float)
+        lo, hi = _real(path, "extent", extent)
         size = (hi - lo) * sim.s
         report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
         shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
@@ -325,7 +389,7 @@ def _shape_mass_info(prim, body_frame: _Similarity, xcache, report: _Reporter):
     return info
 
 
-def _body_mass(prim, desc, frame: _Similarity, xcache, report: _Reporter):
+def _body_mass(prim, desc, frame: _Similarity, xforms: _Xforms, report: _Reporter):
     """(mass, diagonal inertia, centre of mass in the rigid frame, principal axes xyzw), stage units."""
     _, _, _, _, _, UsdPhysics, _ = _pxr()
     path = str(prim.GetPath())
@@ -337,24 +401,26 @@ def _body_mass(prim, desc, frame: _Similarity, xcache, report: _Reporter):
     if mass_api:
         mass = float(mass_api.GetMassAttr().Get() or 0.0)
         density = float(mass_api.GetDensityAttr().Get() or 0.0)
-        diag = np.array(mass_api.GetDiagonalInertiaAttr().Get() or (0.0, 0.0, 0.0), dtype=np.float64)
+        diag = _real(path, "physics:diagonalInertia", mass_api.GetDiagonalInertiaAttr().Get() or (0.0, 0.0, 0.0))
         c = mass_api.GetCenterOfMassAttr().Get()
-        if c is not None and np.all(np.isfinite(np.array(c, dtype=float))):
-            com = np.array(c, dtype=np.float64) * frame.s
+        if c is not None and not np.all(np.isneginf(np.asarray(c, dtype=np.float64))):  # -inf's mean unset
+            com = _real(path, "physics:centerOfMass", c) * frame.s
         pa = mass_api.GetPrincipalAxesAttr().Get()
-        if pa is not None and pa.GetLength() > 0.0:  # (0, 0, 0, 0) means unset
-            axes = _gf_quat(pa) / pa.GetLength()
-    if mass < 0.0 or not math.isfinite(mass):
-        raise UsdSceneError(f"{path}: physics:mass must be positive, got {mass}")
-    if density < 0.0:
-        raise UsdSceneError(f"{path}: physics:density must be positive, got {density}")
-    if np.any(diag != 0.0) and (np.any(diag <= 0.0) or not np.all(np.isfinite(diag))):
+        if pa is not None and np.any(_real(path, "physics:principalAxes", pa)):  # (0, 0, 0, 0) means unset
+            axes = _unit_quat(path, "physics:principalAxes", pa)
+    for name, value in (("physics:mass", mass), ("physics:density", density)):  # 0 means unset
+        if not (value >= 0.0 and math.isfinite(value)):
+            raise UsdSceneError(f"{path}: {name} must be positive and finite, got {value}")
+    if np.any(diag != 0.0) and np.any(diag <= 0.0):
         raise UsdSceneError(f"{path}: the inertia (physics:diagonalInertia) must be positive, got {diag.tolist()}")
     shapes = [str(p) for p in desc.collisions]
     if not shapes:
         if mass <= 0.0:
+            zero = mass_api is not None and mass_api.GetMassAttr().HasAuthoredValue()
             raise UsdSceneError(
-                f"{path}: rigid body with neither a mass (MassAPI physics:mass) nor collision shapes to compute it"
+                f"{path}: physics:mass = 0 means 'compute it from the collision shapes', and the body has none"
+                if zero
+                else f"{path}: rigid body with neither a mass (MassAPI physics:mass) nor collision shapes to compute it"
             )
         if np.all(diag == 0.0):
             raise UsdSceneError(
@@ -366,10 +432,10 @@ def _body_mass(prim, desc, frame: _Similarity, xcache, report: _Reporter):
     stage = prim.GetStage()
 
     def info_fn(shape_prim):
-        return _shape_mass_info(shape_prim, frame, xcache, report)
+        return _shape_mass_info(shape_prim, frame, xforms, report)
 
     for s in shapes:  # fail here with the shape's own path rather than inside the callback
-        _shape_mass_info(stage.GetPrimAtPath(s), frame, xcache, _Reporter(True, []))
+        _shape_mass_info(stage.GetPrimAtPath(s), frame, xforms, _Reporter(True, []))
     m, d, c, pa = UsdPhysics.RigidBodyAPI(prim).ComputeMassProperties(info_fn)
     diag = np.array(d, dtype=np.float64)
     if not (m > 0.0 and math.isfinite(m)):
@@ -380,25 +446,27 @@ def _body_mass(prim, desc, frame: _Similarity, xcache, report: _Reporter):
 
 
 _IDENT_Q = np.array([0.0, 0.0, 0.0, 1.0])
+# Joint attributes that may be infinite (no limit, unbreakable) but not NaN: limits of every joint type
+# (physics:lowerLimit, physics:coneAngle0Limit, limit:rotX:physics:low, ...) and break thresholds.
+_JOINT_BOUNDS = ("Limit", ":physics:low", ":physics:high", "physics:breakForce", "physics:breakTorque")
 # Under a non-uniform scale a rigid motion needs a shearing local matrix (a matrix op, or orient-scale-orient),
 # not the translate / orient pair that is animated; such bodies (rare) are refused with this advice.
 _NON_UNIFORM = "unsupported: move the body out from under the scale, or bake the scale into the geometry"
 
 
-def _joint_frame(stage, joint_prim, side: int, xcache, mpu: float) -> tuple[np.ndarray, np.ndarray]:
+def _joint_frame(stage, joint_prim, side: int, xforms: _Xforms, mpu: float) -> tuple[np.ndarray, np.ndarray]:
     """World (anchor in metres, rotation xyzw) of a joint's frame on body `side` (0 or 1)."""
+    jpath = str(joint_prim.GetPath())
     pos = joint_prim.GetAttribute(f"physics:localPos{side}").Get()
     rot = joint_prim.GetAttribute(f"physics:localRot{side}").Get()
-    pos = np.zeros(3) if pos is None else np.array(pos, dtype=np.float64)
-    rot = _IDENT_Q.copy() if rot is None else _gf_quat(rot)
-    rot /= np.linalg.norm(rot)
+    pos = np.zeros(3) if pos is None else _real(jpath, f"physics:localPos{side}", pos)
+    rot = _IDENT_Q.copy() if rot is None else _unit_quat(jpath, f"physics:localRot{side}", rot)
     rel = joint_prim.GetRelationship(f"physics:body{side}")
     targets = rel.GetTargets() if rel else []
     if not targets:
         return pos * mpu, rot
     target = stage.GetPrimAtPath(targets[0])
-    m = np.asarray(xcache.GetLocalToWorldTransform(target), dtype=np.float64)
-    frame = _decompose(m, str(targets[0]))
+    frame = _decompose(xforms.world(target), str(targets[0]))
     anchor = frame.t + _qrot(frame.q, frame.s * pos)
     return anchor * mpu, _qmul(frame.q, rot)
 
@@ -482,13 +550,16 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     naming the prim for input that cannot be simulated; drives, limits and break forces raise
     `UnsupportedFeatureError` unless `ignore_unsupported`, which warns and drops them.
     """
-    Gf, Sdf, _, Usd, UsdGeom, UsdPhysics, _ = _pxr()
+    _, Sdf, _, _, UsdGeom, UsdPhysics, _ = _pxr()
     path = os.fspath(path)
     stage = _open_stage(path)
     notes: list[str] = []
     report = _Reporter(ignore_unsupported, notes)
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
     kpu = float(UsdPhysics.GetStageKilogramsPerUnit(stage))
+    for key, value in (("metersPerUnit", mpu), ("kilogramsPerUnit", kpu)):
+        if not (value > 0.0 and math.isfinite(value)):
+            raise UsdSceneError(f"{path}: the stage's {key} must be positive and finite, got {value}")
     up = str(UsdGeom.GetStageUpAxis(stage))
     try:
         parsed = UsdPhysics.UsdPhysicsLoadStageFromPrimRange(stage, [Sdf.Path("/")])
@@ -503,9 +574,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     if scenes:
         if len(scenes) > 1:
             report.note(f"{path}: {len(scenes)} PhysicsScene prims; using {scenes[0][0]}")
-        sd = scenes[0][1]
-        direction = np.array(sd.gravityDirection, dtype=np.float64)
-        magnitude = float(sd.gravityMagnitude)
+        spath, sd = str(scenes[0][0]), scenes[0][1]
+        direction = _real(spath, "physics:gravityDirection", sd.gravityDirection)
+        magnitude = float(_real(spath, "physics:gravityMagnitude", sd.gravityMagnitude))
         if np.linalg.norm(direction) < 1e-12:
             direction = -np.array(up_vec)
         gravity = direction / np.linalg.norm(direction) * magnitude * mpu
@@ -514,7 +585,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         notes.append(f"{path}: no PhysicsScene; gravity 9.81 m/s^2 down the up axis ({up})")
     builder = SceneBuilder(gravity=gravity)
 
-    xcache = UsdGeom.XformCache(Usd.TimeCode.Default())
+    xforms = _Xforms()
     order = {str(p.GetPath()): k for k, p in enumerate(stage.Traverse())}  # bodies and joints in file order
     bodies = sorted(get(T.RigidBody), key=lambda pd: order.get(str(pd[0]), len(order)))
     index: dict[str, int] = {}
@@ -528,7 +599,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     for i, (p, desc) in enumerate(bodies):
         bpath = str(p)
         prim = stage.GetPrimAtPath(p)
-        frame = _decompose(xcache.GetLocalToWorldTransform(prim), bpath)
+        frame = _decompose(xforms.world(prim), bpath)
         frames.append(frame)
         scales[i] = frame.s
         xform_ops.append(_op_names(prim))
@@ -538,15 +609,15 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         if static:
             mass, diag, com, axes = 0.0, np.ones(3), np.zeros(3), _IDENT_Q
         else:
-            mass, diag, com, axes = _body_mass(prim, desc, frame, xcache, report)
+            mass, diag, com, axes = _body_mass(prim, desc, frame, xforms, report)
         com_offsets[i] = com
         position = (frame.t + _qrot(frame.q, com)) * mpu
         rpa = _rot(axes)
         inertia = rpa @ np.diag(diag) @ rpa.T * (kpu * mpu * mpu)
         # Velocities are authored in the space of the prim's xform, i.e. its parent's frame.
-        pq = _decompose(xcache.GetParentToWorldTransform(prim), bpath).q
-        v = _qrot(pq, np.array(desc.linearVelocity, dtype=np.float64)) * mpu
-        w = _qrot(pq, np.radians(np.array(desc.angularVelocity, dtype=np.float64)))
+        pq = _decompose(xforms.parent(prim), bpath).q
+        v = _qrot(pq, _real(bpath, "physics:velocity", desc.linearVelocity)) * mpu
+        w = _qrot(pq, np.radians(_real(bpath, "physics:angularVelocity", desc.angularVelocity)))
         try:
             if static:
                 index[bpath] = builder.add_static_body(position, frame.q, name=bpath)
@@ -561,16 +632,14 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         reset[i] = UsdGeom.Xformable(prim).GetResetXformStack() if prim.IsA(UsdGeom.Xformable) else False
         if reset[i]:
             continue
-        anc = prim.GetParent()
-        while anc and not anc.IsPseudoRoot() and str(anc.GetPath()) not in index:
-            anc = anc.GetParent()
-        parent_m = np.asarray(xcache.GetParentToWorldTransform(prim), dtype=np.float64)
-        if anc and not anc.IsPseudoRoot():
+        anc = _rigid_ancestor(prim.GetParent(), index)
+        parent_m = xforms.parent(prim)
+        if anc is not None:
             a = index[str(anc.GetPath())]
             if not frames[a].uniform:
                 raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled rigid body {anc.GetPath()}; "
                                     f"{_NON_UNIFORM}")  # fmt: skip
-            anc_m = np.asarray(xcache.GetLocalToWorldTransform(anc), dtype=np.float64)
+            anc_m = xforms.world(anc)
             rel = _decompose(parent_m @ np.linalg.inv(anc_m), f"{p} (relative to {anc.GetPath()})")
             parent_index[i] = a
         else:
@@ -596,29 +665,40 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             report.unsupported(jpath, _joint_type_text(jprim.GetTypeName() or t.name))
             continue
         ends = []
-        for side, rel, body in ((0, desc.rel0, desc.body0), (1, desc.rel1, desc.body1)):
+        for side, rel in ((0, desc.rel0), (1, desc.rel1)):
             if rel.isEmpty:
                 ends.append(None)
                 continue
             target = stage.GetPrimAtPath(rel)
             if not target:
                 raise UsdSceneError(f"{jpath}: physics:body{side} targets {rel}, which does not exist")
-            if body.isEmpty or str(body) not in index:
-                raise UsdSceneError(f"{jpath}: physics:body{side} targets {rel}, which is not a rigid body")
-            ends.append(index[str(body)])
+            # Not the parser's body0/body1: it leaves out bodies with physics:rigidBodyEnabled = false (static here).
+            body = _rigid_ancestor(target, index)
+            if body is None:
+                raise UsdSceneError(
+                    f"{jpath}: physics:body{side} targets {rel}, which is not a rigid body or inside one "
+                    f"(leave physics:body{side} empty to attach the joint to the world)"
+                )
+            ends.append(index[str(body.GetPath())])
         if ends[0] is None and ends[1] is None:
             raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
+        for attr in jprim.GetAuthoredAttributes():  # the parser reads a NaN limit as no limit
+            if attr.GetName().endswith(_JOINT_BOUNDS) and attr.Get() is not None:
+                _real(jpath, attr.GetName(), attr.Get(), infinite_ok=True)
         if math.isfinite(desc.breakForce) or math.isfinite(desc.breakTorque):
             report.unsupported(jpath, "a break force or torque")
-        a0, q0 = _joint_frame(stage, jprim, 0, xcache, mpu)
-        a1, q1 = _joint_frame(stage, jprim, 1, xcache, mpu)
+        a0, q0 = _joint_frame(stage, jprim, 0, xforms, mpu)
+        a1, q1 = _joint_frame(stage, jprim, 1, xforms, mpu)
         r0, r1 = _rot(q0), _rot(q1)
         if t in (T.RevoluteJoint, T.PrismaticJoint):
+            token = jprim.GetAttribute("physics:axis").Get()
+            if token not in ("X", "Y", "Z"):  # the parser reads any other token as X
+                raise UsdSceneError(f"{jpath}: physics:axis must be X, Y or Z, got {token!r}")
             if desc.limit.enabled:
                 report.unsupported(jpath, f"a limit [{desc.limit.lower}, {desc.limit.upper}]")
             if desc.drive.enabled:
                 report.unsupported(jpath, "a drive")
-            ax = r0[:, int(desc.axis)]
+            ax = r0[:, "XYZ".index(token)]
             plans = [_JointPlan("revolute" if t == T.RevoluteJoint else "prismatic", ax)]
         elif t == T.SphericalJoint:
             if desc.limit.enabled:
@@ -669,6 +749,15 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
         xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, dt=_recorded_dt(stage, path),
     )  # fmt: skip
+
+
+def _rigid_ancestor(prim, index: dict[str, int]):
+    """The nearest rigid body at or above `prim` (one whose motion moves it), or None."""
+    while prim and not prim.IsPseudoRoot():
+        if str(prim.GetPath()) in index:
+            return prim
+        prim = prim.GetParent()
+    return None
 
 
 def _recorded_dt(stage, path: str) -> float | None:
