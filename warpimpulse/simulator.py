@@ -145,7 +145,7 @@ class Simulator:
         self._v0 = wp.zeros_like(self.state.v)
         self._w0 = wp.zeros_like(self.state.w)
         self._summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
-        self._spin = 0.0  # the largest |w| of the current state, in rad/s
+        self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._update_frames()
         self._check_finite(self.state, 0)
@@ -179,9 +179,8 @@ class Simulator:
         prepare = self.linear.prepare_launches if self.linear is not None else []
         frames = [self._inertia, self._frames, *prepare]
         self._frames_graph = self._capture(*frames)
-        # Accept the prediction as the new state, count its NaN/Inf bodies and factor K there, in one replay.
-        accept = [lambda: self.state.copy_from(self.pred), self._summary.zero_, self._check_states[id(s)]]
-        self._accept_graph = self._capture(*accept, *frames)
+        # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
+        self._accept_graph = self._capture(lambda: self.state.copy_from(self.pred), *frames)
         self._save_velocities = self._capture(lambda: wp.copy(self._v0, s.v), lambda: wp.copy(self._w0, s.w))
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
@@ -307,8 +306,10 @@ class Simulator:
         wp.capture_launch(self._save_velocities)
         final = depth >= self.max_substep_depth
         joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
-        if ok and not final and self._turns(h) > 1.0:
-            ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in a step)
+        if ok:
+            self._report_nonfinite(self.pred, self.step_count + 1)  # measured with the last prediction
+            if not final and self._turns(h) > 1.0:
+                ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
             wp.copy(self.state.v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
             wp.copy(self.state.w, self._w0)
@@ -317,7 +318,6 @@ class Simulator:
             halves.linear_iterations += linear_iterations
             return halves
         wp.capture_launch(self._accept_graph)
-        self._report_nonfinite(self.state, self.step_count + 1)
         if self.linear is not None:
             self.linear.check()
 
@@ -356,9 +356,7 @@ class Simulator:
 
     def _turns(self, h: float) -> float:
         """How many times max_rotation the fastest body of the last prediction turns in a step of h."""
-        if self.max_rotation is None:
-            return 0.0
-        return float(self._summary.numpy()[1]) * h / self.max_rotation
+        return 0.0 if self.max_rotation is None else self._spin * h / self.max_rotation
 
     def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
         """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
