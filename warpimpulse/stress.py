@@ -198,10 +198,16 @@ def cases(quick: bool) -> list[Case]:
     out: list[Case] = []
     for ratio in (1e3, 1e6):
         for heavy in ("tip", "root", "alternate"):
+            # Under a tip 1e6 times heavier, the light links' transverse (string) mode has a frequency of
+            # thousands of rad/s, beyond what a step of 1/100 s can hold (README, "Known limits"): a clear
+            # stop is what this case can ask for.
+            beyond = ratio == 1e6 and heavy == "tip"
             out.append(Case(
                 f"mass_ratio_1e{round(math.log10(ratio))}_{heavy}", "mass ratio",
                 (lambda r=ratio, h=heavy: mass_ratio_chain(r, h)), dt=1 / 100, steps=100 if q else 500,
-                note=f"8 revolute links, neighbour mass ratio 1:{ratio:g}, heavy {heavy}",
+                expect="hold_or_stop" if beyond else "hold",
+                note=f"8 revolute links, neighbour mass ratio 1:{ratio:g}, heavy {heavy}"
+                + ("; string mode beyond h = 1/100" if beyond else ""),
             ))  # fmt: skip
     out.append(Case("chain_1000", "size", _chain(1000), dt=1 / 60, steps=60 if q else 600,
                     note="1,000 revolute links falling from horizontal"))  # fmt: skip
