@@ -48,6 +48,7 @@ def assert_one_line_error(argv: list[str], message: str, capsys, code: int = 2) 
         (["--max-iterations", "1.5"], "argument --max-iterations: expected a number"),
         (["--solver", "lu"], "argument --solver: invalid choice: 'lu'"),
         (["--on-max-iterations", "ignore"], "argument --on-max-iterations: invalid choice"),
+        (["--max-rotation", "0"], "argument --max-rotation: must be positive"),
         (["--bogus"], "unrecognized arguments: --bogus"),
     ],
 )
@@ -152,3 +153,15 @@ def test_the_installed_command_prints_no_traceback(tmp_path):
         proc = subprocess.run([sys.executable, "-m", "warpimpulse.cli", *argv], capture_output=True, text=True,
                               timeout=120)  # fmt: skip
         assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize(
+    ("flags", "recorded"), [([], 0.5), (["--max-rotation", "0.25"], 0.25), (["--whole-steps"], 0.0)]
+)
+def test_substep_flags_are_recorded(flags, recorded, tmp_path, capsys):
+    from pxr import Sdf
+
+    out = tmp_path / "x.usda"
+    code, _ = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), *flags], capsys)
+    assert code == 0
+    assert Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:max_rotation"] == recorded

@@ -76,6 +76,9 @@ def _add_simulate(sub) -> None:
     p.add_argument("--max-iterations", type=_positive(int), default=100)
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
+    p.add_argument("--max-rotation", type=_positive(float), default=0.5,
+                   help="rad a body may turn per substep: faster steps are split (default 0.5)")  # fmt: skip
+    p.add_argument("--whole-steps", action="store_true", help="never split a step for a fast spin")
     p.add_argument("--device", default="cpu", help="Warp device (cpu, cuda)")
     p.add_argument("--flatten", action="store_true", help="one self-contained file instead of a layer over the input")
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
@@ -125,6 +128,7 @@ def _simulate(args) -> int:
         solver=args.solver,
         max_iterations=args.max_iterations,
         on_max_iterations=args.on_max_iterations,
+        max_rotation=None if args.whole_steps else args.max_rotation,
     )
     settings = {
         "dt": dt,
@@ -132,6 +136,7 @@ def _simulate(args) -> int:
         "velocity_tolerance": sim.velocity_tolerance,
         "solver": sim.solver_name,
         "max_iterations": args.max_iterations,
+        "max_rotation": sim.max_rotation or 0.0,  # 0: whole steps
         "version": __version__,
     }
     start = time.perf_counter()
