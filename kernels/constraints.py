@@ -4,7 +4,11 @@ Every constraint i is stored as 3 rows; a constraint of dimension k < 3 has zero
 projection P_i and Jacobian, and a unit diagonal in its block of K (DESIGN.md, "Jacobian form").
 Side 0 is body0 (the parent, sign +1), side 1 is body1 (the child, sign -1). A body index < 0 is the world.
 Convention: the error c = A - B (or its rotational analogue) and J v = dc/dt.
+The kernels that depend on the kind come from `specialized(kinds)`: a scene compiles only the kinds it has.
 """
+
+import functools
+from types import SimpleNamespace
 
 import warp as wp
 
@@ -155,28 +159,24 @@ def projected_error(kind: int, p: mat33d, d: vec3d) -> vec3d:
     return pd
 
 
-@wp.kernel
-def frames(
-    # model
-    constraint_kind: wp.array(dtype=int),
+@wp.func
+def constraint_frame(
+    kind: int,
+    i: int,
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     anchor0: wp.array(dtype=vec3d),
     anchor1: wp.array(dtype=vec3d),
     axis0: wp.array(dtype=vec3d),
     axis1: wp.array(dtype=vec3d),
-    # data in
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
-    # data out: P_i and the Jacobian blocks [lin | ang] of both sides, signs included
     proj: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
 ):
     """P_i and J_ib at the current poses: J = s P [I | -r*] (translational, r from each body's centre to the
     joint point B) or s P [0 | I] (rotational)."""
-    i = wp.tid()
-    kind = constraint_kind[i]
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
     x0 = pose_x(b0, body_x)
@@ -200,10 +200,10 @@ def frames(
         jac_ang[2 * i + 1] = -p
 
 
-@wp.kernel
-def position_errors(
-    # model
-    constraint_kind: wp.array(dtype=int),
+@wp.func
+def position_error(
+    kind: int,
+    i: int,
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     anchor0: wp.array(dtype=vec3d),
@@ -213,26 +213,23 @@ def position_errors(
     rest_rotation: wp.array(dtype=quatd),
     rest_angle: wp.array(dtype=f64),
     inv_h: f64,
-    # data in
     proj: wp.array(dtype=mat33d),
     pred_x: wp.array(dtype=vec3d),
     pred_q: wp.array(dtype=quatd),
-    # data out
     error: wp.array(dtype=f64),
     rhs: wp.array(dtype=vec3d),
 ):
     """Projected error P_i d_i(t0+h) of the predicted state, and the joint-correction right-hand side
     -P_i d_i / h (section 4.5, equation 14)."""
-    i = wp.tid()
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
     d = constraint_error(
-        constraint_kind[i],
+        kind,
         pose_x(b0, pred_x), pose_q(b0, pred_q), pose_x(b1, pred_x), pose_q(b1, pred_q),
         anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i],
     )  # fmt: skip
     error[i] = wp.length(d)
-    rhs[i] = -projected_error(constraint_kind[i], proj[i], d) * inv_h
+    rhs[i] = -projected_error(kind, proj[i], d) * inv_h
 
 
 @wp.func
@@ -256,22 +253,100 @@ def constraint_velocity(
     return jv
 
 
-@wp.kernel
-def velocity_errors(
-    # model
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    # data in
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    body_lin_v: wp.array(dtype=vec3d),
-    body_ang_v: wp.array(dtype=vec3d),
-    # data out
-    error: wp.array(dtype=f64),
-    rhs: wp.array(dtype=vec3d),
-):
-    """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
-    i = wp.tid()
-    jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_lin_v, body_ang_v)
-    error[i] = wp.length(jv)
-    rhs[i] = -jv
+ALL_KINDS = frozenset((POINT, LINE, PLANE, ROTATION, AXIS, ANGLE))
+
+
+@functools.cache
+def specialized(kinds: frozenset[int]) -> SimpleNamespace:
+    """The constraint kernels compiled for the constraint kinds in `kinds` only: `frames`, `position_errors`,
+    `velocity_errors` and the sorted `kinds`.
+
+    `frames` and `position_errors` dispatch on their constraint's kind to the @wp.func above, called with the
+    kind as a compile-time constant (`wp.static`), so the compiler folds away the other kinds' branches, and
+    a kind not in `kinds` has no code: its constraints are left untouched. `velocity_errors` does not depend
+    on the kind; it is here so that a scene compiles one module of constraint kernels, as before (each
+    module costs its compiler start-up). One module per set of kinds, compiled once and cached on disk
+    (benchmarks/skips.py measures what this saves and costs).
+    """
+    ks = tuple(sorted(int(k) for k in kinds))
+    module = f"{__name__}.kinds_{'_'.join(map(str, ks))}"
+    wp.set_module_options({"enable_backward": False}, module)
+
+    @wp.kernel(module=module)
+    def frames(
+        # model
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        anchor0: wp.array(dtype=vec3d),
+        anchor1: wp.array(dtype=vec3d),
+        axis0: wp.array(dtype=vec3d),
+        axis1: wp.array(dtype=vec3d),
+        # data in
+        body_x: wp.array(dtype=vec3d),
+        body_q: wp.array(dtype=quatd),
+        # data out: P_i and the Jacobian blocks [lin | ang] of both sides, signs included
+        proj: wp.array(dtype=mat33d),
+        jac_lin: wp.array(dtype=mat33d),
+        jac_ang: wp.array(dtype=mat33d),
+    ):
+        i = wp.tid()
+        kind = constraint_kind[i]
+        for k in range(wp.static(len(ks))):
+            if kind == wp.static(ks[k]):
+                constraint_frame(
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, anchor0, anchor1, axis0, axis1,
+                    body_x, body_q, proj, jac_lin, jac_ang,
+                )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def position_errors(
+        # model
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        anchor0: wp.array(dtype=vec3d),
+        anchor1: wp.array(dtype=vec3d),
+        axis0: wp.array(dtype=vec3d),
+        axis1: wp.array(dtype=vec3d),
+        rest_rotation: wp.array(dtype=quatd),
+        rest_angle: wp.array(dtype=f64),
+        inv_h: f64,
+        # data in
+        proj: wp.array(dtype=mat33d),
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        # data out
+        error: wp.array(dtype=f64),
+        rhs: wp.array(dtype=vec3d),
+    ):
+        i = wp.tid()
+        kind = constraint_kind[i]
+        for k in range(wp.static(len(ks))):
+            if kind == wp.static(ks[k]):
+                position_error(
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, anchor0, anchor1, axis0, axis1,
+                    rest_rotation, rest_angle, inv_h, proj, pred_x, pred_q, error, rhs,
+                )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def velocity_errors(
+        # model
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        # data in
+        jac_lin: wp.array(dtype=mat33d),
+        jac_ang: wp.array(dtype=mat33d),
+        body_lin_v: wp.array(dtype=vec3d),
+        body_ang_v: wp.array(dtype=vec3d),
+        # data out
+        error: wp.array(dtype=f64),
+        rhs: wp.array(dtype=vec3d),
+    ):
+        """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
+        i = wp.tid()
+        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_lin_v, body_ang_v)
+        error[i] = wp.length(jv)
+        rhs[i] = -jv
+
+    return SimpleNamespace(kinds=ks, frames=frames, position_errors=position_errors, velocity_errors=velocity_errors)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -73,15 +74,17 @@ def star(bodies: int = 127) -> SceneBuilder:
     return _tree(bodies, to_root=True)
 
 
-def chain(links: int = 10, joint: str = "revolute", link_length: float = 1.0) -> SceneBuilder:
-    """A horizontal chain of capsules hinged about y, the first one to a world point at the origin."""
+def chain(links: int = 10, joint: str | Sequence[str] = "revolute", link_length: float = 1.0) -> SceneBuilder:
+    """A horizontal chain of capsules hinged about y, the first one to a world point at the origin. A sequence
+    of joint types is cycled along the chain (a scene with several constraint kinds)."""
     builder = SceneBuilder()
     x_axis, y_axis, z_axis = np.eye(3)
+    joints = [joint] if isinstance(joint, str) else list(joint)
     top = np.zeros(3)
     parent = None
     for i in range(links):
         body, bottom = _capsule_body(builder, top, x_axis, link_length, f"link{i}", (0.3, 0.5, 0.8))
-        builder.add_joint(joint, parent, body, top, y_axis, z_axis, f"j{i}")
+        builder.add_joint(joints[i % len(joints)], parent, body, top, y_axis, z_axis, f"j{i}")
         parent, top = body, bottom
     return builder
 

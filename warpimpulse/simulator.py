@@ -79,6 +79,7 @@ class Simulator:
         max_substep_depth: int = 7,
         formulation: str = "auto",
         max_rotation: float | None = 0.5,
+        specialize: bool = True,
     ) -> None:
         """`formulation` ("auto", "constraint" or "body") picks the matrix the Cholesky solver factors; see
         `topology.Pattern`. "auto" takes the augmented body-joint matrix only where a body has many joints.
@@ -86,7 +87,10 @@ class Simulator:
         `max_rotation` (rad): a step in which some body would turn further than this, at the angular velocity
         it starts with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth), because the
         method is second order in the rotation per step: a whipping chain or a tumbling body at 100 rad/s
-        gains energy, then diverges, at one step per frame. None takes every step whole."""
+        gains energy, then diverges, at one step per frame. None takes every step whole.
+
+        `specialize` compiles the constraint kernels for the scene's constraint kinds only (one module per set
+        of kinds, compiled once and cached on disk); False shares one module for all six kinds."""
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         if not (math.isfinite(tolerance) and tolerance > 0.0):
@@ -127,6 +131,9 @@ class Simulator:
         self._user_torque = np.zeros((model.body_count, 3))
         self._active_forces: tuple | None = None
         self.frames = Frames(model)
+        self.kernels = constraint_kernels.specialized(
+            frozenset(model.kinds) if specialize else constraint_kernels.ALL_KINDS
+        )
         nc = model.constraint_count
         d = model.device
         self.errors = wp.zeros(nc, dtype=wp.float64, device=d)
@@ -156,9 +163,9 @@ class Simulator:
         nb, nc = self._counts
         rec = self._rec
         self._inertia = rec(rigid_kernels.world_inverse_inertia, nb, [m.body_inv_inertia, s.q, f.inv_inertia_world])
-        self._frames = rec(constraint_kernels.frames, nc, [*self._geometry, s.x, s.q, f.proj, f.jac_lin, f.jac_ang])
+        self._frames = rec(self.kernels.frames, nc, [*self._geometry, s.x, s.q, f.proj, f.jac_lin, f.jac_ang])
         self._velocity_errors = rec(
-            constraint_kernels.velocity_errors, nc,
+            self.kernels.velocity_errors, nc,
             [m.constraint_body0, m.constraint_body1, f.jac_lin, f.jac_ang, s.v, s.w, self.errors, self.rhs],
         )  # fmt: skip
         self._apply = rec(
@@ -221,7 +228,7 @@ class Simulator:
                 rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque, p.x, p.q, p.v, p.w]
             )
             errors = self._rec(
-                constraint_kernels.position_errors,
+                self.kernels.position_errors,
                 nc,
                 [
                     *self._geometry,
