@@ -85,7 +85,7 @@ class Simulator:
         `topology.Pattern`. "auto" takes the augmented body-joint matrix only where a body has many joints.
 
         `max_rotation` (rad): a step in which some body would turn further than this, at the angular velocity
-        it starts with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth), because the
+        it starts with or ends with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth), because the
         method is second order in the rotation per step: a whipping chain or a tumbling body at 100 rad/s
         gains energy, then diverges, at one step per frame. None takes every step whole.
 
@@ -356,13 +356,12 @@ class Simulator:
     def _spin_depth(self) -> int:
         """k such that 2**k substeps turn the fastest body of the state at most max_rotation each
         (k <= max_substep_depth)."""
-        if self.max_rotation is None:
-            return 0
-        turns = self._spin * self.dt / self.max_rotation
+        turns = self._turns(self.dt)
         return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
 
     def _turns(self, h: float) -> float:
-        """How many times max_rotation the fastest body of the last prediction turns in a step of h."""
+        """How many times max_rotation the fastest body of the last prediction turns in a step of h (0 when
+        steps are never split)."""
         return 0.0 if self.max_rotation is None else self._spin * h / self.max_rotation
 
     def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
