@@ -8,6 +8,7 @@ Cholesky (fill slots share no body and assemble to zero) and the full pattern fo
 
 import warp as wp
 
+from ..types import Slot
 from .constraints import constraint_dim
 
 wp.set_module_options({"enable_backward": False})
@@ -78,20 +79,21 @@ def diagonal_block(
 
 @wp.kernel
 def assemble(
-    # model
+    # Model:
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
+    # Pattern: the slots to fill
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
-    # data in
-    inv_inertia_world: wp.array(dtype=mat33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    # data out
-    values: wp.array(dtype=mat33d),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out:
+    values_out: wp.array(dtype=mat33d),
 ):
     s = wp.tid()
     i = slot_row[s]
@@ -101,41 +103,42 @@ def assemble(
     if sides[0] >= 0:
         k += shared_body_block(
             i, sides[0], j, sides[1], constraint_body0, constraint_body1,
-            body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
         )  # fmt: skip
     if sides[2] >= 0:
         k += shared_body_block(
             i, sides[2], j, sides[3], constraint_body0, constraint_body1,
-            body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
         )  # fmt: skip
     if i == j:
         k = pad_unused_rows(k, constraint_kind[i])
-    values[s] = k
+    values_out[s] = k
 
 
-# What a slot of the augmented matrix holds: warpimpulse/topology.py, SLOT_*.
-SLOT_MASS = wp.constant(1)
-SLOT_INERTIA = wp.constant(2)
-SLOT_JLIN = wp.constant(3)
-SLOT_JANG = wp.constant(4)
-SLOT_JLIN_T = wp.constant(5)
-SLOT_JANG_T = wp.constant(6)
-SLOT_PAD = wp.constant(7)
+# What a slot of the augmented matrix holds (`types.Slot`).
+SLOT_MASS = wp.constant(int(Slot.MASS))
+SLOT_INERTIA = wp.constant(int(Slot.INERTIA))
+SLOT_JLIN = wp.constant(int(Slot.JLIN))
+SLOT_JANG = wp.constant(int(Slot.JANG))
+SLOT_JLIN_T = wp.constant(int(Slot.JLIN_T))
+SLOT_JANG_T = wp.constant(int(Slot.JANG_T))
+SLOT_PAD = wp.constant(int(Slot.PAD))
 
 
 @wp.kernel
 def assemble_augmented(
-    # model
+    # Model:
     constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
+    # Pattern:
     slot_code: wp.array(dtype=int),
     slot_ref: wp.array(dtype=int),
-    # data in
-    inv_inertia_world: wp.array(dtype=mat33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    # data out
-    values: wp.array(dtype=mat33d),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out:
+    values_out: wp.array(dtype=mat33d),
 ):
     """The blocks of [[M, J^T], [J, 0]] (Baraff 1996): a body's mass and world inertia, a constraint's
     Jacobian on a body, zero elsewhere; the unused rows of a constraint of dimension < 3 get a -1 pivot."""
@@ -146,16 +149,16 @@ def assemble_augmented(
     if code == SLOT_MASS:
         k = wp.identity(3, dtype=f64) / body_inv_mass[r]
     elif code == SLOT_INERTIA:
-        k = wp.inverse(inv_inertia_world[r])
+        k = wp.inverse(inv_inertia_world_in[r])
     elif code == SLOT_JLIN:
-        k = jac_lin[r]
+        k = jac_lin_in[r]
     elif code == SLOT_JANG:
-        k = jac_ang[r]
+        k = jac_ang_in[r]
     elif code == SLOT_JLIN_T:
-        k = wp.transpose(jac_lin[r])
+        k = wp.transpose(jac_lin_in[r])
     elif code == SLOT_JANG_T:
-        k = wp.transpose(jac_ang[r])
+        k = wp.transpose(jac_ang_in[r])
     elif code == SLOT_PAD:
         for row in range(constraint_dim(constraint_kind[r]), 3):
             k[row, row] = f64(-1.0)
-    values[s] = k
+    values_out[s] = k

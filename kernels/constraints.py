@@ -12,6 +12,8 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from ..types import ConstraintKind
+
 wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
@@ -19,12 +21,13 @@ quatd = wp.quatd
 mat33d = wp.mat33d
 f64 = wp.float64
 
-POINT = wp.constant(0)
-LINE = wp.constant(1)
-PLANE = wp.constant(2)
-ROTATION = wp.constant(3)
-AXIS = wp.constant(4)
-ANGLE = wp.constant(5)
+# The kinds' codes, from the one definition the host uses.
+POINT = wp.constant(int(ConstraintKind.POINT))
+LINE = wp.constant(int(ConstraintKind.LINE))
+PLANE = wp.constant(int(ConstraintKind.PLANE))
+ROTATION = wp.constant(int(ConstraintKind.ROTATION))
+AXIS = wp.constant(int(ConstraintKind.AXIS))
+ANGLE = wp.constant(int(ConstraintKind.ANGLE))
 
 
 @wp.func
@@ -274,79 +277,80 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
 
     @wp.kernel(module=module)
     def frames(
-        # model
+        # Model:
         constraint_kind: wp.array(dtype=int),
         constraint_body0: wp.array(dtype=int),
         constraint_body1: wp.array(dtype=int),
-        anchor0: wp.array(dtype=vec3d),
-        anchor1: wp.array(dtype=vec3d),
-        axis0: wp.array(dtype=vec3d),
-        axis1: wp.array(dtype=vec3d),
-        # data in
-        body_x: wp.array(dtype=vec3d),
-        body_q: wp.array(dtype=quatd),
-        # data out: P_i and the Jacobian blocks [lin | ang] of both sides, signs included
-        proj: wp.array(dtype=mat33d),
-        jac_lin: wp.array(dtype=mat33d),
-        jac_ang: wp.array(dtype=mat33d),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        # Data in:
+        body_x_in: wp.array(dtype=vec3d),
+        body_q_in: wp.array(dtype=quatd),
+        # Data out: P_i and the Jacobian blocks [lin | ang] of both sides, signs included
+        proj_out: wp.array(dtype=mat33d),
+        jac_lin_out: wp.array(dtype=mat33d),
+        jac_ang_out: wp.array(dtype=mat33d),
     ):
         i = wp.tid()
         kind = constraint_kind[i]
         for k in range(wp.static(len(ks))):
             if kind == wp.static(ks[k]):
                 constraint_frame(
-                    wp.static(ks[k]), i, constraint_body0, constraint_body1, anchor0, anchor1, axis0, axis1,
-                    body_x, body_q, proj, jac_lin, jac_ang,
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                    constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out,
                 )  # fmt: skip
 
     @wp.kernel(module=module)
     def position_errors(
-        # model
+        # Model:
         constraint_kind: wp.array(dtype=int),
         constraint_body0: wp.array(dtype=int),
         constraint_body1: wp.array(dtype=int),
-        anchor0: wp.array(dtype=vec3d),
-        anchor1: wp.array(dtype=vec3d),
-        axis0: wp.array(dtype=vec3d),
-        axis1: wp.array(dtype=vec3d),
-        rest_rotation: wp.array(dtype=quatd),
-        rest_angle: wp.array(dtype=f64),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        # Data in: 1/h, the projections of t0, the predicted state
         inv_h: f64,
-        # data in
-        proj: wp.array(dtype=mat33d),
-        pred_x: wp.array(dtype=vec3d),
-        pred_q: wp.array(dtype=quatd),
-        # data out
-        error: wp.array(dtype=f64),
-        rhs: wp.array(dtype=vec3d),
+        proj_in: wp.array(dtype=mat33d),
+        body_x_in: wp.array(dtype=vec3d),
+        body_q_in: wp.array(dtype=quatd),
+        # Data out:
+        errors_out: wp.array(dtype=f64),
+        rhs_out: wp.array(dtype=vec3d),
     ):
         i = wp.tid()
         kind = constraint_kind[i]
         for k in range(wp.static(len(ks))):
             if kind == wp.static(ks[k]):
                 position_error(
-                    wp.static(ks[k]), i, constraint_body0, constraint_body1, anchor0, anchor1, axis0, axis1,
-                    rest_rotation, rest_angle, inv_h, proj, pred_x, pred_q, error, rhs,
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                    constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h,
+                    proj_in, body_x_in, body_q_in, errors_out, rhs_out,
                 )  # fmt: skip
 
     @wp.kernel(module=module)
     def velocity_errors(
-        # model
+        # Model:
         constraint_body0: wp.array(dtype=int),
         constraint_body1: wp.array(dtype=int),
-        # data in
-        jac_lin: wp.array(dtype=mat33d),
-        jac_ang: wp.array(dtype=mat33d),
-        body_lin_v: wp.array(dtype=vec3d),
-        body_ang_v: wp.array(dtype=vec3d),
-        # data out
-        error: wp.array(dtype=f64),
-        rhs: wp.array(dtype=vec3d),
+        # Data in:
+        jac_lin_in: wp.array(dtype=mat33d),
+        jac_ang_in: wp.array(dtype=mat33d),
+        body_v_in: wp.array(dtype=vec3d),
+        body_w_in: wp.array(dtype=vec3d),
+        # Data out:
+        errors_out: wp.array(dtype=f64),
+        rhs_out: wp.array(dtype=vec3d),
     ):
         """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
         i = wp.tid()
-        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_lin_v, body_ang_v)
-        error[i] = wp.length(jv)
-        rhs[i] = -jv
+        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in)
+        errors_out[i] = wp.length(jv)
+        rhs_out[i] = -jv
 
     return SimpleNamespace(kinds=ks, frames=frames, position_errors=position_errors, velocity_errors=velocity_errors)

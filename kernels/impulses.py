@@ -14,18 +14,18 @@ f64 = wp.float64
 
 @wp.kernel
 def apply_impulses(
-    # model
+    # Model:
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    # data in
-    inv_inertia_world: wp.array(dtype=mat33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    impulse: wp.array(dtype=vec3d),
-    # data out
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    impulse_in: wp.array(dtype=vec3d),
+    # Data out (updated in place):
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
 ):
     """v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over the Jacobian rows on this body."""
     b = wp.tid()
@@ -33,8 +33,8 @@ def apply_impulses(
     dl = vec3d()
     for k in range(body_rows_start[b], body_rows_start[b + 1]):
         r = body_rows[k]
-        lam = impulse[r // 2]
-        dv += wp.transpose(jac_lin[r]) * lam
-        dl += wp.transpose(jac_ang[r]) * lam
-    body_v[b] = body_v[b] + dv * body_inv_mass[b]
-    body_w[b] = body_w[b] + inv_inertia_world[b] * dl
+        lam = impulse_in[r // 2]
+        dv += wp.transpose(jac_lin_in[r]) * lam
+        dl += wp.transpose(jac_ang_in[r]) * lam
+    body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
+    body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl

@@ -71,95 +71,96 @@ def correct_alone(
 
 @wp.kernel
 def sweep_positions(
-    # model
+    # Model:
     constraint_count: int,
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    anchor0: wp.array(dtype=vec3d),
-    anchor1: wp.array(dtype=vec3d),
-    axis0: wp.array(dtype=vec3d),
-    axis1: wp.array(dtype=vec3d),
-    rest_rotation: wp.array(dtype=quatd),
-    rest_angle: wp.array(dtype=f64),
+    constraint_anchor0: wp.array(dtype=vec3d),
+    constraint_anchor1: wp.array(dtype=vec3d),
+    constraint_axis0: wp.array(dtype=vec3d),
+    constraint_axis1: wp.array(dtype=vec3d),
+    constraint_rest_rotation: wp.array(dtype=quatd),
+    constraint_rest_angle: wp.array(dtype=f64),
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
     gravity: vec3d,
+    # Data in:
     h: f64,
     tolerance: f64,
-    # data in
-    body_x: wp.array(dtype=vec3d),
-    body_q: wp.array(dtype=quatd),
-    body_force: wp.array(dtype=vec3d),
-    body_torque: wp.array(dtype=vec3d),
-    inv_inertia_world: wp.array(dtype=mat33d),
-    proj: wp.array(dtype=mat33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    # data in/out
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-    max_error: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_force_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    proj_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out (velocities updated in place):
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+    sweep_error_out: wp.array(dtype=f64),
 ):
-    """One joint-correction sweep; max_error[0] = the largest error met before its correction."""
+    """One joint-correction sweep; sweep_error_out[0] = the largest error met before its correction."""
     worst = f64(0.0)
     for i in range(constraint_count):
         b0 = constraint_body0[i]
         b1 = constraint_body1[i]
-        x0 = pose_x(b0, body_x)
-        q0 = pose_q(b0, body_q)
+        x0 = pose_x(b0, body_x_in)
+        q0 = pose_q(b0, body_q_in)
         if b0 >= 0:
             x0, q0, v0, w0 = predict_body(
-                body_x[b0], body_q[b0], body_v[b0], body_w[b0], body_inv_mass[b0], body_inertia[b0],
-                body_inv_inertia[b0], body_force[b0], body_torque[b0], gravity, h,
+                body_x_in[b0], body_q_in[b0], body_v_out[b0], body_w_out[b0], body_inv_mass[b0], body_inertia[b0],
+                body_inv_inertia[b0], body_force_in[b0], body_torque_in[b0], gravity, h,
             )  # fmt: skip
         x1, q1, v1, w1 = predict_body(
-            body_x[b1], body_q[b1], body_v[b1], body_w[b1], body_inv_mass[b1], body_inertia[b1],
-            body_inv_inertia[b1], body_force[b1], body_torque[b1], gravity, h,
+            body_x_in[b1], body_q_in[b1], body_v_out[b1], body_w_out[b1], body_inv_mass[b1], body_inertia[b1],
+            body_inv_inertia[b1], body_force_in[b1], body_torque_in[b1], gravity, h,
         )  # fmt: skip
         d = constraint_error(
             constraint_kind[i], x0, q0, x1, q1,
-            anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i],
+            constraint_anchor0[i], constraint_anchor1[i], constraint_axis0[i], constraint_axis1[i],
+            constraint_rest_rotation[i], constraint_rest_angle[i],
         )  # fmt: skip
         e = wp.length(d)
         worst = wp.max(worst, e)
         if e > tolerance:
-            rhs = -projected_error(constraint_kind[i], proj[i], d) / h
+            rhs = -projected_error(constraint_kind[i], proj_in[i], d) / h
             correct_alone(
                 i, rhs, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w,
+                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
             )  # fmt: skip
-    max_error[0] = worst
+    sweep_error_out[0] = worst
 
 
 @wp.kernel
 def sweep_velocities(
-    # model
+    # Model:
     constraint_count: int,
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    tolerance: f64,
-    # data in
-    inv_inertia_world: wp.array(dtype=mat33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    # data in/out
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-    max_error: wp.array(dtype=f64),
+    # Data in:
+    velocity_tolerance: f64,
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out (velocities updated in place):
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+    sweep_error_out: wp.array(dtype=f64),
 ):
-    """One velocity-correction sweep; max_error[0] = the largest |J_i v| met before its correction."""
+    """One velocity-correction sweep; sweep_error_out[0] = the largest |J_i v| met before its correction."""
     worst = f64(0.0)
     for i in range(constraint_count):
-        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w)
+        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_out, body_w_out)
         e = wp.length(jv)
         worst = wp.max(worst, e)
-        if e > tolerance:
+        if e > velocity_tolerance:
             correct_alone(
                 i, -jv, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w,
+                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
             )  # fmt: skip
-    max_error[0] = worst
+    sweep_error_out[0] = worst

@@ -86,62 +86,69 @@ def predict_body(
 
 @wp.kernel
 def predict(
-    # model
+    # Model:
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
     gravity: vec3d,
+    # Data in:
     h: f64,
-    # data in
-    body_x: wp.array(dtype=vec3d),
-    body_q: wp.array(dtype=quatd),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-    body_force: wp.array(dtype=vec3d),
-    body_torque: wp.array(dtype=vec3d),
-    # data out
-    pred_x: wp.array(dtype=vec3d),
-    pred_q: wp.array(dtype=quatd),
-    pred_v: wp.array(dtype=vec3d),
-    pred_w: wp.array(dtype=vec3d),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    body_force_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+    # Data out: the prediction
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
 ):
+    """Every body's free motion over h from the state in (section 3)."""
     b = wp.tid()
     x, q, v, w = predict_body(
-        body_x[b], body_q[b], body_v[b], body_w[b],
+        body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b],
         body_inv_mass[b], body_inertia[b], body_inv_inertia[b],
-        body_force[b], body_torque[b], gravity, h,
+        body_force_in[b], body_torque_in[b], gravity, h,
     )  # fmt: skip
-    pred_x[b] = x
-    pred_q[b] = q
-    pred_v[b] = v
-    pred_w[b] = w
+    body_x_out[b] = x
+    body_q_out[b] = q
+    body_v_out[b] = v
+    body_w_out[b] = w
 
 
 @wp.kernel
 def world_inverse_inertia(
+    # Model:
     body_inv_inertia: wp.array(dtype=mat33d),
-    body_q: wp.array(dtype=quatd),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    # Data in:
+    body_q_in: wp.array(dtype=quatd),
+    # Data out:
+    inv_inertia_world_out: wp.array(dtype=mat33d),
 ):
     """J~^-1 = R J^-1 R^T at the current orientation (section 4.1); zero for static bodies."""
     b = wp.tid()
-    r = wp.quat_to_matrix(body_q[b])
-    inv_inertia_world[b] = r * body_inv_inertia[b] * wp.transpose(r)
+    r = wp.quat_to_matrix(body_q_in[b])
+    inv_inertia_world_out[b] = r * body_inv_inertia[b] * wp.transpose(r)
 
 
 @wp.kernel
 def summarize_state(
-    x: wp.array(dtype=vec3d),
-    q: wp.array(dtype=quatd),
-    v: wp.array(dtype=vec3d),
-    w: wp.array(dtype=vec3d),
-    summary: wp.array(dtype=f64),
+    # Data in:
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out:
+    summary_out: wp.array(dtype=f64),
 ):
     """summary[0] += 1 for every body with a NaN or Inf in its state; summary[1] = the largest finite |w|.
     Two numbers to read back per step: the divergence check and the spin that sets the next step's substeps."""
     b = wp.tid()
-    s = wp.length_sq(x[b]) + wp.length_sq(v[b]) + wp.length_sq(w[b]) + wp.dot(q[b], q[b])
+    w = body_w_in[b]
+    s = wp.length_sq(body_x_in[b]) + wp.length_sq(body_v_in[b]) + wp.length_sq(w) + wp.dot(body_q_in[b], body_q_in[b])
     if wp.isfinite(s):
-        wp.atomic_max(summary, 1, wp.length(w[b]))
+        wp.atomic_max(summary_out, 1, wp.length(w))
     else:
-        wp.atomic_add(summary, 0, f64(1.0))
+        wp.atomic_add(summary_out, 0, f64(1.0))

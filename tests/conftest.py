@@ -11,11 +11,13 @@ import numpy as np
 import warp as wp
 from scipy.spatial.transform import Rotation
 
+from warpimpulse.types import ConstraintKind
+
 wp.config.quiet = True
 # Warp 1.19 no longer reads `config.quiet`; its start-up and module-load messages are info-level logs.
 wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
 
-POINT, LINE, PLANE, ROTATION, AXIS, ANGLE = range(6)
+POINT, LINE, PLANE, ROTATION, AXIS, ANGLE = ConstraintKind
 
 
 def rotations(q) -> np.ndarray:

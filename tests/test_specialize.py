@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import warp as wp
 from conftest import sim_state
 from test_joints import DT, JOINTS, TOL, Rig
 from warpimpulse.kernels import constraints
 
 import warpimpulse
 from warpimpulse import scenes
-from warpimpulse.joints import JOINT_TYPES, ConstraintKind
+from warpimpulse.joints import JOINT_TYPES
+from warpimpulse.launch import record
+from warpimpulse.types import ConstraintKind
 
 # Custom joints of one basic constraint each, beside the seven catalogue joints.
 CASES = [(joint, None) for joint in JOINTS] + [
@@ -57,10 +58,6 @@ def test_absent_kinds_have_no_code():
     is_point = m.constraint_kind.numpy() == ConstraintKind.POINT
     sim.errors.fill_(-1.0)
     points_only = constraints.specialized(frozenset({ConstraintKind.POINT}))
-    wp.launch(
-        points_only.position_errors, m.constraint_count,
-        [*sim._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, wp.float64(1.0 / DT), f.proj,
-         sim.state.x, sim.state.q, sim.errors, sim.rhs],
-    )  # fmt: skip
+    record(points_only.position_errors, m.constraint_count, m.device, (m, f, sim), sim.state, inv_h=1.0 / DT).launch()
     errors = sim.errors.numpy()
     assert np.all(errors[is_point] >= 0.0) and np.all(errors[~is_point] == -1.0)

@@ -122,7 +122,7 @@ def test_checkpoint_resume_is_bit_identical(tmp_path, solver):
     assert resumed.step_count == 12 and resumed.time == first.time
     stats = [resumed.step() for _ in range(12)]
     for name in ("x", "q", "v", "w"):
-        a, b = getattr(straight.state, name).numpy(), getattr(resumed.state, name).numpy()
+        a, b = getattr(straight.state, f"body_{name}").numpy(), getattr(resumed.state, f"body_{name}").numpy()
         assert np.array_equal(a, b), f"{solver}: {name} differs by {np.abs(a - b).max():.3g} after resume"
     assert resumed.time == straight.time and all(s.converged for s in stats)
 
@@ -143,9 +143,9 @@ def test_nan_in_the_state_stops_naming_the_body(solver, field, body, value):
     sim = wi.Simulator(builder.finalize(), 1 / 60, solver=solver)
     for _ in range(3):
         sim.step()
-    arr = getattr(sim.state, field).numpy()
+    arr = getattr(sim.state, f"body_{field}").numpy()
     arr[body, 0] = value
-    getattr(sim.state, field).assign(arr)
+    getattr(sim.state, f"body_{field}").assign(arr)
     with pytest.raises(wi.SimulationError, match=r"step \d+") as info:
         sim.step()
     msg = str(info.value)
@@ -156,9 +156,9 @@ def test_nan_message_names_the_step_being_computed():
     sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 60)
     for _ in range(3):
         sim.step()
-    v = sim.state.v.numpy()
+    v = sim.state.body_v.numpy()
     v[5, 0] = np.nan
-    sim.state.v.assign(v)
+    sim.state.body_v.assign(v)
     with pytest.raises(wi.SimulationError, match=r"^step 4\b"):
         sim.step()
 
@@ -252,4 +252,4 @@ def test_iteration_limit_warn_goes_on_and_records_it(solver):
     assert sim.step_count == 3
     assert not stats[0].converged and stats[0].max_joint_error > sim.tolerance
     assert any("did not reach" in str(w.message) and w.category is RuntimeWarning for w in caught)
-    assert all(np.all(np.isfinite(getattr(sim.state, n).numpy())) for n in ("x", "q", "v", "w"))
+    assert all(np.all(np.isfinite(getattr(sim.state, f"body_{n}").numpy())) for n in "xqvw")

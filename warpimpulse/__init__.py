@@ -1,11 +1,12 @@
 """warpimpulse: impulse-based articulated rigid bodies (Bender & Schmitt 2006) on NVIDIA Warp."""
 
 from .builder import SceneBuilder, SceneError
-from .joints import JOINT_TYPES, ConstraintKind
+from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import Shape
 from .simulator import SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
+from .types import WORLD, ConstraintKind, Quat, Vec3
 
 __version__ = "0.1.0"
 
@@ -20,5 +21,8 @@ __all__ = [
     "Simulator",
     "SingularSystemError",
     "StepStats",
+    "Quat",
+    "Vec3",
+    "WORLD",
     "__version__",
 ]

@@ -9,18 +9,14 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .joints import JOINT_TYPES, ConstraintKind
+from .joints import JOINT_TYPES
+from .model import Model
 from .shapes import Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
-
-if TYPE_CHECKING:
-    from .model import Model
-
-WORLD = -1
+from .types import WORLD, ConstraintKind
 
 
 class SceneError(ValueError):
@@ -316,12 +312,43 @@ class SceneBuilder:
         return len(self.bodies)
 
     def finalize(self, device: str | None = "cpu") -> Model:
-        from .model import Model
-
+        """The scene as a `Model` on `device` ("cpu", "cuda", "cuda:0" or a Warp device), checked once more."""
         if not self.bodies:
             raise SceneError("the scene has no bodies")
         self._check_arrays()
-        return Model.from_builder(self, device)
+        bodies, cons, joints, forces = self.bodies, self.constraints, self.joints, self.forces
+        starts = [j.constraints[0] if j.constraints else len(cons) for j in joints]
+        return Model(
+            device,
+            gravity=self.gravity,
+            body_name=[b.name for b in bodies],
+            body_mass=np.array([b.mass for b in bodies]),
+            body_inertia=np.array([b.inertia for b in bodies]),
+            body_static=np.array([b.static for b in bodies], dtype=bool),
+            body_x=np.array([b.position for b in bodies]),
+            body_q=np.array([b.orientation for b in bodies]),
+            body_v=np.array([b.linear_velocity for b in bodies]),
+            body_w=np.array([b.angular_velocity for b in bodies]),
+            constraint_kind=np.array([int(c.kind) for c in cons], dtype=np.int32),
+            constraint_body0=np.array([c.body0 for c in cons], dtype=np.int64),
+            constraint_body1=np.array([c.body1 for c in cons], dtype=np.int64),
+            constraint_anchor0=np.array([c.anchor0 for c in cons]).reshape(-1, 3),
+            constraint_anchor1=np.array([c.anchor1 for c in cons]).reshape(-1, 3),
+            constraint_axis0=np.array([c.axis0 for c in cons]).reshape(-1, 3),
+            constraint_axis1=np.array([c.axis1 for c in cons]).reshape(-1, 3),
+            constraint_rest_rotation=np.array([c.rest_rotation for c in cons]).reshape(-1, 4),
+            constraint_rest_angle=np.array([c.rest_angle for c in cons]),
+            constraint_joint=np.array([c.joint for c in cons], dtype=np.int64),
+            joint_name=[j.name for j in joints],
+            joint_type=[j.kind for j in joints],
+            joint_parent=np.array([j.parent for j in joints], dtype=np.int64),
+            joint_child=np.array([j.child for j in joints], dtype=np.int64),
+            joint_constraint_start=np.array([*starts, len(cons)], dtype=np.int64),
+            force_body=np.array([f.body for f in forces], dtype=np.int64),
+            force_force=np.array([f.force for f in forces]).reshape(-1, 3),
+            force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
+            force_until=np.array([f.until for f in forces]),
+        )
 
     def _check_arrays(self) -> None:
         """The add_* calls check their input, but the stored body arrays stay mutable (scenes set velocities

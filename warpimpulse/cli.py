@@ -18,6 +18,7 @@ from pathlib import Path
 from . import __version__
 from .builder import SceneError
 from .scenes import SCENES
+from .types import SOLVERS
 
 EXIT_USAGE = 2
 
@@ -72,7 +73,7 @@ def _add_simulate(sub) -> None:
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
     p.add_argument("--tolerance", type=_positive(float), default=1e-6, help="joint tolerance, m or rad (default 1e-6)")
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
-    p.add_argument("--solver", choices=("auto", "cholesky", "cg", "iterative"), default="auto")
+    p.add_argument("--solver", choices=SOLVERS, default="auto", help="auto = cholesky (see types.SOLVERS)")
     p.add_argument("--max-iterations", type=_positive(int), default=100)
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip

@@ -1,15 +1,21 @@
-"""Model (static arrays on the device), State (body poses and velocities) and Control (forces)."""
+"""Model (what a scene is: static arrays on the device), State (where its bodies are) and Control (forces).
+
+Field names are the kernels' parameter names (`launch.record` binds them by name), in the MuJoCo Warp habit:
+`body_*` per body, `constraint_*` per basic constraint, `joint_*` per joint. Frames: positions and
+velocities are world frame; anchors and axes of a constraint are in the frame of the body on that side (world
+frame on a WORLD side); quaternions are (x, y, z, w).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 import warp as wp
 
-from .builder import SceneBuilder
-from .joints import ConstraintKind
-from .topology import Topology, analyze
+from .topology import Graph, Topology, analyze
+from .types import ConstraintKind
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -18,75 +24,162 @@ def _array(values, dtype, device) -> wp.array:
 
 @dataclass
 class State:
-    x: wp.array  # centre of mass, world
-    q: wp.array  # orientation (x, y, z, w)
-    v: wp.array  # linear velocity, world
-    w: wp.array  # angular velocity, world
+    """The bodies' state at one time, world frame."""
+
+    body_x: wp.array  # centre of mass (m)
+    body_q: wp.array  # orientation (x, y, z, w), body to world
+    body_v: wp.array  # linear velocity of the centre of mass (m/s)
+    body_w: wp.array  # angular velocity (rad/s), world frame
 
     def copy_from(self, other: State) -> None:
-        for name in ("x", "q", "v", "w"):
+        for name in ("body_x", "body_q", "body_v", "body_w"):
             wp.copy(getattr(self, name), getattr(other, name))
 
 
 @dataclass
 class Control:
-    force: wp.array  # world force at the centre of mass, constant over a step
-    torque: wp.array  # world torque
+    """External loads, constant over a step."""
+
+    body_force: wp.array  # world force at the centre of mass (N)
+    body_torque: wp.array  # world torque (N m)
 
 
 class Model:
-    """Everything about a scene that does not change while it runs, as device arrays."""
+    """Everything about a scene that does not change while it runs: device arrays for the kernels, and the
+    same inputs on the host (`host`) with the names that messages and accessors use.
 
-    def __init__(self, builder: SceneBuilder, topology: Topology, device) -> None:
-        self.builder = builder
+    Built by `SceneBuilder.finalize()`, from names and arrays only (the model keeps no builder).
+    """
+
+    def __init__(
+        self,
+        device,
+        *,
+        gravity: np.ndarray,
+        body_name: list[str],
+        body_mass: np.ndarray,
+        body_inertia: np.ndarray,
+        body_static: np.ndarray,
+        body_x: np.ndarray,
+        body_q: np.ndarray,
+        body_v: np.ndarray,
+        body_w: np.ndarray,
+        constraint_kind: np.ndarray,
+        constraint_body0: np.ndarray,
+        constraint_body1: np.ndarray,
+        constraint_anchor0: np.ndarray,
+        constraint_anchor1: np.ndarray,
+        constraint_axis0: np.ndarray,
+        constraint_axis1: np.ndarray,
+        constraint_rest_rotation: np.ndarray,
+        constraint_rest_angle: np.ndarray,
+        constraint_joint: np.ndarray,
+        joint_name: list[str],
+        joint_type: list[str],
+        joint_parent: np.ndarray,
+        joint_child: np.ndarray,
+        joint_constraint_start: np.ndarray,
+        force_body: np.ndarray,
+        force_force: np.ndarray,
+        force_torque: np.ndarray,
+        force_until: np.ndarray,
+    ) -> None:
+        """Args (SI units; n bodies, m basic constraints, k joints, f forces):
+        gravity: (3,) m/s^2, world.
+        body_name, body_mass (kg, 0 for static), body_inertia ((n, 3, 3) kg m^2, body frame about the centre
+            of mass), body_static (bool), body_x / body_q / body_v / body_w: the initial state.
+        constraint_*: each basic constraint's kind, bodies (WORLD = -1), anchors and axes in its bodies'
+            frames, rest rotation q0^-1 q1 and rest angle at build time, and its joint.
+        joint_*: name, catalogue type, parent and child body, and the first of its constraints (a joint's
+            constraints are consecutive; (k + 1,) with the end last).
+        force_*: constant world forces (N) and torques (N m) on bodies, active while t < until (s).
+        """
         self.device = wp.get_device(device)
-        self.topology = topology
-        self.body_count = len(builder.bodies)
-        self.joint_count = len(builder.joints)
-        self.constraint_count = len(builder.constraints)
-        self.gravity = wp.vec3d(*builder.gravity)
         d = self.device
-        bodies, cons = builder.bodies, builder.constraints
-
-        mass = np.array([b.mass for b in bodies])
-        inertia = np.array([b.inertia for b in bodies]).reshape(-1, 3, 3)
-        dynamic = np.array([not b.static for b in bodies])
+        dynamic = ~np.asarray(body_static, dtype=bool)
+        inertia = np.asarray(body_inertia, dtype=np.float64).reshape(-1, 3, 3)
         inv_inertia = np.zeros_like(inertia)
         inv_inertia[dynamic] = np.linalg.inv(inertia[dynamic])
-        self.body_mass = mass
+        mass = np.asarray(body_mass, dtype=np.float64)
+        self.host = SimpleNamespace(
+            gravity=np.asarray(gravity, dtype=np.float64),
+            body_mass=mass,
+            body_inertia=inertia,
+            body_static=~dynamic,
+            body_x=np.asarray(body_x, np.float64).reshape(-1, 3),
+            body_q=np.asarray(body_q, np.float64).reshape(-1, 4),
+            body_v=np.asarray(body_v, np.float64).reshape(-1, 3),
+            body_w=np.asarray(body_w, np.float64).reshape(-1, 3),
+            constraint_kind=np.asarray(constraint_kind, np.int32),
+            constraint_body0=np.asarray(constraint_body0, np.int64),
+            constraint_body1=np.asarray(constraint_body1, np.int64),
+            constraint_anchor0=np.asarray(constraint_anchor0, np.float64).reshape(-1, 3),
+            constraint_anchor1=np.asarray(constraint_anchor1, np.float64).reshape(-1, 3),
+            constraint_axis0=np.asarray(constraint_axis0, np.float64).reshape(-1, 3),
+            constraint_axis1=np.asarray(constraint_axis1, np.float64).reshape(-1, 3),
+            constraint_rest_rotation=np.asarray(constraint_rest_rotation, np.float64).reshape(-1, 4),
+            constraint_rest_angle=np.asarray(constraint_rest_angle, np.float64),
+            joint_parent=np.asarray(joint_parent, np.int64),
+            joint_child=np.asarray(joint_child, np.int64),
+            joint_constraint_start=np.asarray(joint_constraint_start, np.int64),
+            force_body=np.asarray(force_body, np.int64),
+            force_force=np.asarray(force_force, np.float64).reshape(-1, 3),
+            force_torque=np.asarray(force_torque, np.float64).reshape(-1, 3),
+            force_until=np.asarray(force_until, np.float64),
+        )
+        h = self.host
+        self.body_name = list(body_name)
+        self.joint_name = list(joint_name)
+        self.joint_type = list(joint_type)
+        self.constraint_joint = np.asarray(constraint_joint, np.int64)
+        self.body_count = len(self.body_name)
+        self.joint_count = len(self.joint_name)
+        self.constraint_count = len(h.constraint_kind)
+        self.graph = Graph(
+            body_static=h.body_static,
+            constraint_body0=h.constraint_body0,
+            constraint_body1=h.constraint_body1,
+            constraint_joint=self.constraint_joint,
+            joint_parent=h.joint_parent,
+            joint_child=h.joint_child,
+        )
+        self.topology: Topology = analyze(self.graph, level_order=d.is_cuda)
+        self.kinds = sorted({ConstraintKind(int(k)) for k in h.constraint_kind})
+
+        self.gravity = wp.vec3d(*h.gravity)
         self.body_inv_mass = _array(np.where(dynamic, 1.0 / np.where(dynamic, mass, 1.0), 0.0), wp.float64, d)
         self.body_inertia = _array(inertia, wp.mat33d, d)
         self.body_inv_inertia = _array(inv_inertia, wp.mat33d, d)
-
-        self.kinds = sorted({ConstraintKind(c.kind) for c in cons})
-        self.constraint_kind = _array([int(c.kind) for c in cons], wp.int32, d)
-        self.constraint_body0 = _array([c.body0 for c in cons], wp.int32, d)
-        self.constraint_body1 = _array([c.body1 for c in cons], wp.int32, d)
-        self.constraint_anchor0 = _array([c.anchor0 for c in cons], wp.vec3d, d)
-        self.constraint_anchor1 = _array([c.anchor1 for c in cons], wp.vec3d, d)
-        self.constraint_axis0 = _array([c.axis0 for c in cons], wp.vec3d, d)
-        self.constraint_axis1 = _array([c.axis1 for c in cons], wp.vec3d, d)
-        self.constraint_rest_rotation = _array([c.rest_rotation for c in cons], wp.quatd, d)
-        self.constraint_rest_angle = _array([c.rest_angle for c in cons], wp.float64, d)
-        self.constraint_joint = np.array([c.joint for c in cons], dtype=np.int64)
-        self.body_rows_start = _array(topology.body_rows_start, wp.int32, d)
-        self.body_rows = _array(topology.body_rows, wp.int32, d)
-
-    @classmethod
-    def from_builder(cls, builder: SceneBuilder, device=None) -> Model:
-        device = wp.get_device(device)
-        return cls(builder, analyze(builder, level_order=device.is_cuda), device)
+        self.body_rows_start = _array(self.topology.body_rows_start, wp.int32, d)
+        self.body_rows = _array(self.topology.body_rows, wp.int32, d)
+        self.constraint_kind = _array(h.constraint_kind, wp.int32, d)
+        self.constraint_body0 = _array(h.constraint_body0, wp.int32, d)
+        self.constraint_body1 = _array(h.constraint_body1, wp.int32, d)
+        self.constraint_anchor0 = _array(h.constraint_anchor0, wp.vec3d, d)
+        self.constraint_anchor1 = _array(h.constraint_anchor1, wp.vec3d, d)
+        self.constraint_axis0 = _array(h.constraint_axis0, wp.vec3d, d)
+        self.constraint_axis1 = _array(h.constraint_axis1, wp.vec3d, d)
+        self.constraint_rest_rotation = _array(h.constraint_rest_rotation, wp.quatd, d)
+        self.constraint_rest_angle = _array(h.constraint_rest_angle, wp.float64, d)
 
     def state(self) -> State:
-        """A new State at the builder's initial poses and velocities."""
-        b, d = self.builder.bodies, self.device
+        """A new State at the initial poses and velocities."""
+        h, d = self.host, self.device
         return State(
-            x=_array([x.position for x in b], wp.vec3d, d),
-            q=_array([x.orientation for x in b], wp.quatd, d),
-            v=_array([x.linear_velocity for x in b], wp.vec3d, d),
-            w=_array([x.angular_velocity for x in b], wp.vec3d, d),
+            body_x=_array(h.body_x, wp.vec3d, d),
+            body_q=_array(h.body_q, wp.quatd, d),
+            body_v=_array(h.body_v, wp.vec3d, d),
+            body_w=_array(h.body_w, wp.vec3d, d),
         )
 
     def control(self) -> Control:
+        """A new Control with no load."""
         zeros = np.zeros((self.body_count, 3))
-        return Control(force=_array(zeros, wp.vec3d, self.device), torque=_array(zeros, wp.vec3d, self.device))
+        return Control(
+            body_force=_array(zeros, wp.vec3d, self.device), body_torque=_array(zeros, wp.vec3d, self.device)
+        )
+
+    def joint_constraints(self, joint: int) -> range:
+        """The indices of the basic constraints of `joint`."""
+        start = self.host.joint_constraint_start
+        return range(int(start[joint]), int(start[joint + 1]))

@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,20 +21,13 @@ from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import rigid as rigid_kernels
+from .launch import capture, record
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
-from .topology import FORMULATIONS
 from .transforms import quat_to_matrix
+from .types import FORMULATIONS, SOLVERS
 
-SOLVER_NAMES = ("auto", "cholesky", "cg", "iterative")
 POLICIES = ("raise", "warn")
-
-
-class _Nothing:
-    """Stands for a launch over zero elements (a scene of free bodies has no constraints)."""
-
-    def launch(self) -> None:
-        pass
 
 
 class SimulationError(RuntimeError):
@@ -108,8 +100,8 @@ class Simulator:
             raise ValueError(f"max_rotation must be a positive angle in radians or None, got {max_rotation!r}")
         if formulation not in ("auto", *FORMULATIONS):
             raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
-        if solver not in SOLVER_NAMES:
-            raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
         if on_max_iterations not in POLICIES:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
         self.model = model
@@ -149,105 +141,53 @@ class Simulator:
             self.linear = CGSolver(model, self.frames)
         self._counts = (model.body_count, nc)
         self._launches_by_h: dict[float, tuple] = {}
-        self._v0 = wp.zeros_like(self.state.v)
-        self._w0 = wp.zeros_like(self.state.w)
-        self._summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
+        self._v0 = wp.zeros_like(self.state.body_v)
+        self._w0 = wp.zeros_like(self.state.body_w)
+        self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._update_frames()
         self._check_finite(self.state, 0)
 
     # ---------------------------------------------------------------- launches
+    def _record(self, kernel, dim: int, data_in: State | None = None, data_out: State | None = None, **values):
+        """A recorded launch whose parameters are bound by name to the Model, Frames, Control and the
+        simulator's scratch arrays (`launch.record`)."""
+        sources = (self.model, self.frames, self.control, self)
+        return record(kernel, dim, self.model.device, sources, data_in, data_out, **values)
+
+    def _capture(self, *work) -> wp.Graph:
+        return capture(self.model.device, *work)
+
     def _record_launches(self) -> None:
-        m, s, f = self.model, self.state, self.frames
-        nb, nc = self._counts
-        rec = self._rec
-        self._inertia = rec(rigid_kernels.world_inverse_inertia, nb, [m.body_inv_inertia, s.q, f.inv_inertia_world])
-        self._frames = rec(self.kernels.frames, nc, [*self._geometry, s.x, s.q, f.proj, f.jac_lin, f.jac_ang])
-        self._velocity_errors = rec(
-            self.kernels.velocity_errors, nc,
-            [m.constraint_body0, m.constraint_body1, f.jac_lin, f.jac_ang, s.v, s.w, self.errors, self.rhs],
-        )  # fmt: skip
-        self._apply = rec(
-            impulse_kernels.apply_impulses, nb,
-            [m.body_inv_mass, m.body_rows_start, m.body_rows, f.inv_inertia_world, f.jac_lin, f.jac_ang,
-             self.impulse, s.v, s.w],
-        )  # fmt: skip
-        self._sweep_velocities = rec(
-            iterative_kernels.sweep_velocities, 1,
-            [nc, m.constraint_kind, m.constraint_body0, m.constraint_body1, m.body_inv_mass,
-             wp.float64(self.velocity_tolerance), f.inv_inertia_world, f.jac_lin, f.jac_ang, s.v, s.w,
-             self.sweep_error],
-        )  # fmt: skip
-        self._check_states = {
-            id(st): rec(rigid_kernels.summarize_state, nb, [st.x, st.q, st.v, st.w, self._summary])
-            for st in (s, self.pred)
-        }
+        s, (nb, nc) = self.state, self._counts
+        self._inertia = self._record(rigid_kernels.world_inverse_inertia, nb, s)
+        self._frames = self._record(self.kernels.frames, nc, s)
+        self._velocity_errors = self._record(self.kernels.velocity_errors, nc, s)
+        self._apply = self._record(impulse_kernels.apply_impulses, nb, data_out=s)
+        self._sweep_velocities = self._record(iterative_kernels.sweep_velocities, 1, s, s, constraint_count=nc)
+        self._check_states = {id(st): self._record(rigid_kernels.summarize_state, nb, st) for st in (s, self.pred)}
         prepare = self.linear.prepare_launches if self.linear is not None else []
         frames = [self._inertia, self._frames, *prepare]
         self._frames_graph = self._capture(*frames)
         # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
         self._accept_graph = self._capture(lambda: self.state.copy_from(self.pred), *frames)
-        self._save_velocities = self._capture(lambda: wp.copy(self._v0, s.v), lambda: wp.copy(self._w0, s.w))
+        self._save_velocities = self._capture(lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w))
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
             solve = self.linear.solve_launches(self.rhs, self.impulse)
             self._velocity_fix = self._capture(*solve, self._apply, self._velocity_errors)
         self._use_step_size(self.dt)
 
-    def _capture(self, *work: wp.Launch | Callable[[], object]) -> wp.Graph:
-        """Recorded launches (or array copies) that always run together, replayed as one captured graph
-        (DESIGN.md: on a CPU ~0.3 us a launch against ~3-5 us for a recorded one)."""
-        d = self.model.device
-        wp.capture_begin(device=d)
-        try:
-            for item in work:
-                item.launch() if isinstance(item, (wp.Launch, _Nothing)) else item()
-        finally:
-            graph = wp.capture_end(device=d)
-        return graph
-
-    def _rec(self, kernel, dim: int, inputs: list) -> wp.Launch | _Nothing:
-        if dim == 0:  # Warp records no launch over nothing
-            return _Nothing()
-        return wp.launch(kernel, dim=dim, inputs=inputs, device=self.model.device, record_cmd=True)
-
-    @property
-    def _geometry(self) -> list:
-        m = self.model
-        return [m.constraint_kind, m.constraint_body0, m.constraint_body1, m.constraint_anchor0,
-                m.constraint_anchor1, m.constraint_axis0, m.constraint_axis1]  # fmt: skip
-
     def _use_step_size(self, h: float) -> None:
         """Point the launches that depend on the step size at h (recorded once per h, then cached)."""
         if h not in self._launches_by_h:
-            m, s, p, f, c, nb, nc = self.model, self.state, self.pred, self.frames, self.control, *self._counts
-            hd = wp.float64(h)
-            body_model = [m.body_inv_mass, m.body_inertia, m.body_inv_inertia, m.gravity, hd]
-            predict = self._rec(
-                rigid_kernels.predict, nb, [*body_model, s.x, s.q, s.v, s.w, c.force, c.torque, p.x, p.q, p.v, p.w]
-            )
-            errors = self._rec(
-                self.kernels.position_errors,
-                nc,
-                [
-                    *self._geometry,
-                    m.constraint_rest_rotation,
-                    m.constraint_rest_angle,
-                    wp.float64(1.0 / h),
-                    f.proj,
-                    p.x,
-                    p.q,
-                    self.errors,
-                    self.rhs,
-                ],
-            )
-            sweep = self._rec(iterative_kernels.sweep_positions, 1,
-                              [nc, *self._geometry, m.constraint_rest_rotation, m.constraint_rest_angle, *body_model,
-                               wp.float64(self.tolerance), s.x, s.q, c.force, c.torque, f.inv_inertia_world, f.proj,
-                               f.jac_lin, f.jac_ang, s.v, s.w, self.sweep_error])  # fmt: skip
+            s, p, (nb, nc) = self.state, self.pred, self._counts
+            predict = self._record(rigid_kernels.predict, nb, s, p, h=h)
+            errors = self._record(self.kernels.position_errors, nc, p, inv_h=1.0 / h)
+            sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
             # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
-            measure = [errors, self._summary.zero_, self._check_states[id(p)]]
+            measure = [errors, self.summary.zero_, self._check_states[id(p)]]
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
@@ -282,18 +222,18 @@ class Simulator:
         return arr
 
     def _update_forces(self) -> None:
-        forces = self.model.builder.forces
-        active = tuple(self.time < f.until for f in forces)
-        if active == self._active_forces:
+        """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
+        h = self.model.host
+        active = self.time < h.force_until
+        key = tuple(active.tolist())
+        if key == self._active_forces:
             return
-        self._active_forces = active
+        self._active_forces = key
         force, torque = self._user_force.copy(), self._user_torque.copy()
-        for f, on in zip(forces, active):
-            if on:
-                force[f.body] += f.force
-                torque[f.body] += f.torque
-        self.control.force.assign(force)
-        self.control.torque.assign(torque)
+        np.add.at(force, h.force_body[active], h.force_force[active])
+        np.add.at(torque, h.force_body[active], h.force_torque[active])
+        self.control.body_force.assign(force)
+        self.control.body_torque.assign(torque)
 
     # ---------------------------------------------------------------- the step
     def step(self) -> StepStats:
@@ -318,8 +258,8 @@ class Simulator:
             if not final and self._turns(h) > 1.0:
                 ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
-            wp.copy(self.state.v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
-            wp.copy(self.state.w, self._w0)
+            wp.copy(self.state.body_v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
+            wp.copy(self.state.body_w, self._w0)
             halves = _combined([self._advance(0.5 * h, depth + 1) for _ in range(2)])
             halves.joint_iterations += joint_it  # the failed attempt's work counts too
             halves.linear_iterations += linear_iterations
@@ -425,7 +365,7 @@ class Simulator:
             (self._position_errors if what == "joint" else self._velocity_errors).launch()
         joints = self.joint_errors_from(self.errors.numpy())
         bad = [j for j in np.argsort(joints)[::-1][:5] if joints[j] > 0]
-        worst = ", ".join(f"{self.model.builder.joints[j].name!r} ({joints[j]:.3g})" for j in bad)
+        worst = ", ".join(f"{self.model.joint_name[j]!r} ({joints[j]:.3g})" for j in bad)
         tolerance = self.tolerance if what == "joint" else self.velocity_tolerance
         failure = (
             f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the step halved "
@@ -444,18 +384,21 @@ class Simulator:
 
     def _check_finite(self, state: State, step: int) -> None:
         """Counted on the device (two numbers come back); only a failure reads the state to name the bodies."""
-        self._summary.zero_()
+        self.summary.zero_()
         self._check_states[id(state)].launch()
         self._report_nonfinite(state, step)
 
     def _report_nonfinite(self, state: State, step: int) -> None:
-        count, spin = self._summary.numpy()
+        count, spin = self.summary.numpy()
         if not count:
             self._spin = float(spin)
             return
-        arrays = [a.numpy().reshape(self.model.body_count, -1) for a in (state.x, state.q, state.v, state.w)]
+        arrays = [
+            a.numpy().reshape(self.model.body_count, -1)
+            for a in (state.body_x, state.body_q, state.body_v, state.body_w)
+        ]
         bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
-        names = [self.model.builder.bodies[b].name for b in np.flatnonzero(bad)[:10]]
+        names = [self.model.body_name[b] for b in np.flatnonzero(bad)[:10]]
         raise SimulationError(
             f"step {step}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
             + ", ".join(repr(n) for n in names)
@@ -475,7 +418,7 @@ class Simulator:
     # ---------------------------------------------------------------- checkpoints
     def save_checkpoint(self, path) -> None:
         """Write the full state to an .npz file (atomically); `load_checkpoint` continues bit-identically."""
-        data = {name: getattr(self.state, name).numpy() for name in ("x", "q", "v", "w")}
+        data = {name: getattr(self.state, f"body_{name}").numpy() for name in ("x", "q", "v", "w")}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
                     user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count)  # fmt: skip
         for key, arr in getattr(self.linear, "_warm", {}).items():
@@ -493,7 +436,7 @@ class Simulator:
                     f"this simulator ({self.model.body_count} bodies, dt={self.dt})"
                 )
             for name in ("x", "q", "v", "w"):
-                getattr(self.state, name).assign(data[name])
+                getattr(self.state, f"body_{name}").assign(data[name])
             self.time, self.step_count = float(data["time"]), int(data["step_count"])
             self._user_force, self._user_torque = data["user_force"], data["user_torque"]
             for key in data.files:
@@ -505,16 +448,16 @@ class Simulator:
 
     # ---------------------------------------------------------------- numpy accessors
     def positions(self) -> np.ndarray:
-        return self.state.x.numpy().copy()
+        return self.state.body_x.numpy().copy()
 
     def orientations(self) -> np.ndarray:
-        return self.state.q.numpy().copy()
+        return self.state.body_q.numpy().copy()
 
     def linear_velocities(self) -> np.ndarray:
-        return self.state.v.numpy().copy()
+        return self.state.body_v.numpy().copy()
 
     def angular_velocities(self) -> np.ndarray:
-        return self.state.w.numpy().copy()
+        return self.state.body_w.numpy().copy()
 
     def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
         out = np.zeros(self.model.joint_count)
@@ -529,11 +472,11 @@ class Simulator:
 
     def energy(self) -> float:
         """Kinetic plus gravitational potential energy."""
-        m = self.model.body_mass
+        m = self.model.host.body_mass
         v, w, x = self.linear_velocities(), self.angular_velocities(), self.positions()
         r = quat_to_matrix(self.orientations())
-        inertia = self.model.body_inertia.numpy()
+        inertia = self.model.host.body_inertia
         iw = np.einsum("nij,njk,nlk->nil", r, inertia, r)
         kinetic = 0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w)
-        potential = -np.sum(m * (x @ self.model.builder.gravity))
+        potential = -np.sum(m * (x @ self.model.host.gravity))
         return float(kinetic + potential)

@@ -9,6 +9,7 @@ The paper's iterative method without a system needs no linear solver; see `simul
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import warp as wp
@@ -16,6 +17,7 @@ import warp as wp
 from .kernels import assemble as assemble_kernels
 from .kernels import cg as cg_kernels
 from .kernels import cholesky as cholesky_kernels
+from .launch import record
 from .model import Model
 from .topology import schedule
 
@@ -46,18 +48,12 @@ def _float(values, device) -> wp.array:
 def _assemble_launch(model: Model, frames: Frames, row, col, sides, values) -> wp.Launch:
     """K = J M^-1 J^T into the slots (row constraint, col constraint) listed."""
     d = model.device
-    return wp.launch(
-        assemble_kernels.assemble,
-        dim=len(row),
-        inputs=[
-            model.constraint_kind, model.constraint_body0, model.constraint_body1, model.body_inv_mass,
-            _int(row, d), _int(col, d), wp.array(np.asarray(sides, np.int32), dtype=wp.vec4i, device=d),
-            frames.inv_inertia_world, frames.jac_lin, frames.jac_ang,
-        ],
-        outputs=[values],
-        device=d,
-        record_cmd=True,
-    )  # fmt: skip
+    slots = SimpleNamespace(
+        slot_row=_int(row, d),
+        slot_col=_int(col, d),
+        slot_sides=wp.array(np.asarray(sides, np.int32).reshape(-1, 4), dtype=wp.vec4i, device=d),
+    )
+    return record(assemble_kernels.assemble, len(row), d, (model, frames, slots), values_out=values)
 
 
 class CholeskySolver:
@@ -76,36 +72,36 @@ class CholeskySolver:
         self.diag_inv = wp.zeros(n, dtype=wp.mat33d, device=d)
         self.singular = wp.zeros(1, dtype=wp.int32, device=d)
         self._augmented = pat.formulation == "body"
+        group_start, levels = schedule(pat, parallel=d.is_cuda)
+        # The pattern on the device, under the names the kernels' parameters have.
+        ints = ("perm", "col_start", "col_row", "update_start", "update_target", "update_a", "update_b",
+                "row_start", "row_slot", "row_col", "slot_code", "slot_ref")  # fmt: skip
+        self.device_pattern = SimpleNamespace(
+            group_start=_int(group_start, d),
+            col_sign=_float(pat.col_sign, d),
+            update_sign=_float(pat.update_sign, d),
+            **{name: _int(getattr(pat, name), d) for name in ints},
+        )
         if self._augmented:
             self._offset = 2 * model.body_count  # the constraints' place in the augmented vectors
             size = self._offset + model.constraint_count
             self._rhs, self._x = wp.zeros(size, dtype=wp.vec3d, device=d), wp.zeros(size, dtype=wp.vec3d, device=d)
-            self._assemble = wp.launch(
-                assemble_kernels.assemble_augmented, dim=len(pat.col_row),
-                inputs=[model.constraint_kind, model.body_inv_mass, _int(pat.slot_code, d), _int(pat.slot_ref, d),
-                        frames.inv_inertia_world, frames.jac_lin, frames.jac_ang],
-                outputs=[self.values], device=d, record_cmd=True,
-            )  # fmt: skip
+            self._assemble = record(
+                assemble_kernels.assemble_augmented,
+                len(pat.col_row),
+                d,
+                (model, frames, self.device_pattern),
+                values_out=self.values,
+            )
         else:
             self._assemble = _assemble_launch(model, frames, pat.slot_row, pat.slot_col, pat.slot_sides, self.values)
         self.work = wp.zeros(n, dtype=wp.vec3d, device=d)
-        group_start, levels = schedule(pat, parallel=d.is_cuda)
-        self._group_start = _int(group_start, d)
-        self._perm = _int(pat.perm, d)
-        col_start = _int(pat.col_start, d)
-        col_sign = _float(pat.col_sign, d)
-        factor_args = [
-            self._group_start, col_start, _int(pat.update_start, d), _int(pat.update_target, d),
-            _int(pat.update_a, d), _int(pat.update_b, d), _float(pat.update_sign, d), col_sign,
-            wp.float64(pivot_tolerance), self.values, self.diag_inv, self.singular,
-        ]  # fmt: skip
+        sources = (self.device_pattern, self)
         self._factor = [
-            wp.launch(cholesky_kernels.factor, dim=count, inputs=[first, *factor_args], device=d, record_cmd=True)
+            record(cholesky_kernels.factor, count, d, sources, first_group=first, pivot_tolerance=pivot_tolerance)
             for first, count in levels
         ]
         self._levels = levels
-        self._forward_args = [_int(pat.row_start, d), _int(pat.row_slot, d), _int(pat.row_col, d)]
-        self._backward_args = [col_start, _int(pat.col_row, d), col_sign]
         self._solves: dict[tuple[int, int], list[wp.Launch]] = {}
 
     @property
@@ -124,14 +120,14 @@ class CholeskySolver:
         if col:
             self.singular.zero_()
             unknown = int(self.pattern.perm[col - 1])
-            builder = self.model.builder
+            m = self.model
             if self._augmented and unknown < self._offset:
-                body = builder.bodies[unknown % self.model.body_count]
-                raise SingularSystemError(f"the system matrix is singular at body {body.name!r}: its mass or inertia")
+                body = m.body_name[unknown % m.body_count]
+                raise SingularSystemError(f"the system matrix is singular at body {body!r}: its mass or inertia")
             c = unknown - self._offset if self._augmented else unknown
-            joint = builder.joints[builder.constraints[c].joint]
+            j = int(m.constraint_joint[c])
             raise SingularSystemError(
-                f"the system matrix is singular at joint {joint.name!r} ({joint.kind}, constraint {c}): "
+                f"the system matrix is singular at joint {m.joint_name[j]!r} ({m.joint_type[j]}, constraint {c}): "
                 "its constraints are redundant with others on the same bodies, or degenerate"
             )
 
@@ -151,29 +147,20 @@ class CholeskySolver:
             rhs, x = self._rhs, self._x
         else:
             x = out
+        sources = (self.device_pattern, self)
         for first, count in self._levels:
-            launches.append(wp.launch(
-                cholesky_kernels.solve_forward, dim=count,
-                inputs=[first, self._group_start, self._perm, *self._forward_args, self.values, self.diag_inv, rhs,
-                        self.work],
-                device=d, record_cmd=True,
-            ))  # fmt: skip
+            launches.append(record(cholesky_kernels.solve_forward, count, d, sources, first_group=first, rhs=rhs,
+                                   y=self.work))  # fmt: skip
         for first, count in reversed(self._levels):
-            launches.append(wp.launch(
-                cholesky_kernels.solve_backward, dim=count,
-                inputs=[first, self._group_start, self._perm, *self._backward_args, self.values, self.diag_inv,
-                        self.work, x],
-                device=d, record_cmd=True,
-            ))  # fmt: skip
+            launches.append(record(cholesky_kernels.solve_backward, count, d, sources, first_group=first, y=self.work,
+                                   x=x))  # fmt: skip
         if self._augmented:
             launches.append(self._copy(x, self._offset, 1.0, out, 0, self.model.constraint_count))
         return launches
 
     def _copy(self, src, src_offset: int, scale: float, dst, dst_offset: int, count: int) -> wp.Launch:
-        return wp.launch(
-            cholesky_kernels.copy_scaled, dim=count, inputs=[src, src_offset, wp.float64(scale), dst, dst_offset],
-            device=self.model.device, record_cmd=True,
-        )  # fmt: skip
+        return record(cholesky_kernels.copy_scaled, count, self.model.device, src=src, src_offset=src_offset,
+                      scale=scale, dst=dst, dst_offset=dst_offset)  # fmt: skip
 
     def solve(self, rhs: wp.array, out: wp.array, warm_key: str | None = None) -> int:
         for launch in self.solve_launches(rhs, out):
@@ -194,27 +181,23 @@ class CGSolver:
         self.values = wp.zeros(len(csr.col), dtype=wp.mat33d, device=d)
         self._assemble = _assemble_launch(model, frames, csr.row, csr.col, csr.sides, self.values)
         self.precond = wp.zeros(n, dtype=wp.mat33d, device=d)
-        self._diag = wp.launch(
-            cg_kernels.diagonal_inverse, dim=n, inputs=[_int(csr.diag, d), self.values, self.precond],
-            device=d, record_cmd=True,
-        )  # fmt: skip
+        self.diag_slot = _int(csr.diag, d)
         self.row_start = _int(csr.start, d)
         self.col = _int(csr.col, d)
         self.b, self.x, self.r, self.p, self.q, self.z = (wp.zeros(n, dtype=wp.vec3d, device=d) for _ in range(6))
         self.scalars = wp.zeros(4, dtype=wp.float64, device=d)
         self._scalars_host = self.scalars.numpy() if not d.is_cuda else None
         self._warm: dict[str, wp.array] = {}
-
-        def rec(kernel, dim, inputs):
-            return wp.launch(kernel, dim=dim, inputs=inputs, device=d, record_cmd=True)
-
-        csr = [self.row_start, self.col, self.values]
-        self._start = rec(cg_kernels.cg_start, n, [*csr, self.precond, self.b, self.x, self.r, self.p, self.scalars])
+        self._diag = record(cg_kernels.diagonal_inverse, n, d, (self,))
+        self._start = record(cg_kernels.cg_start, n, d, (self,))
         self._iteration = [
-            rec(cg_kernels.cg_rotate_scalars, 1, [self.scalars]),
-            rec(cg_kernels.cg_matvec, n, [*csr, self.p, self.q, self.scalars]),
-            rec(cg_kernels.cg_step, n, [self.precond, self.p, self.q, self.x, self.r, self.z, self.scalars]),
-            rec(cg_kernels.cg_direction, n, [self.z, self.p, self.scalars]),
+            record(kernel, 1 if kernel is cg_kernels.cg_rotate_scalars else n, d, (self,))
+            for kernel in (
+                cg_kernels.cg_rotate_scalars,
+                cg_kernels.cg_matvec,
+                cg_kernels.cg_step,
+                cg_kernels.cg_direction,
+            )
         ]
         self.iterations = 0
 

@@ -313,11 +313,11 @@ def _clear_error(err: BaseException, builder: SceneBuilder | None) -> tuple[bool
 
 
 def _kinetic(sim) -> float:
-    m = sim.model.body_mass
-    v, w = sim.state.v.numpy(), sim.state.w.numpy()
+    m = sim.model.host.body_mass
+    v, w = sim.state.body_v.numpy(), sim.state.body_w.numpy()
     from .transforms import quat_to_matrix
 
-    r = quat_to_matrix(sim.state.q.numpy())
+    r = quat_to_matrix(sim.state.body_q.numpy())
     iw = np.einsum("nij,njk,nlk->nil", r, sim.model.body_inertia.numpy(), r)
     return float(0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
 
@@ -424,7 +424,7 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
     # The run went through: judge it.
     res.outcome = "held"
     if sim is not None:
-        state_ok = all(np.all(np.isfinite(getattr(sim.state, n).numpy())) for n in ("x", "q", "v", "w"))
+        state_ok = all(np.all(np.isfinite(getattr(sim.state, f"body_{n}").numpy())) for n in "xqvw")
         if not state_ok:
             res.reasons.append("the state holds NaN or Inf and no error was raised")
         final = sim.joint_errors()

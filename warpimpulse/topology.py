@@ -14,9 +14,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .builder import WORLD, SceneBuilder
+from .types import WORLD, Slot
 
-FORMULATIONS = ("constraint", "body")
+
+@dataclass(frozen=True)
+class Graph:
+    """The scene's connectivity as arrays: all the symbolic analysis reads. Body indices are WORLD (-1) for the
+    world; a static body is fixed like the world but has an index (and a pose)."""
+
+    body_static: np.ndarray  # (bodies,) bool
+    constraint_body0: np.ndarray  # (constraints,) int: the parent side of each basic constraint
+    constraint_body1: np.ndarray  # (constraints,) int: the child side
+    constraint_joint: np.ndarray  # (constraints,) int: the joint a constraint belongs to
+    joint_parent: np.ndarray  # (joints,) int
+    joint_child: np.ndarray  # (joints,) int
+
+    @property
+    def body_count(self) -> int:
+        return len(self.body_static)
+
+    @property
+    def constraint_count(self) -> int:
+        return len(self.constraint_body0)
+
+    @property
+    def joint_count(self) -> int:
+        return len(self.joint_parent)
 
 
 @dataclass
@@ -48,7 +71,7 @@ class Pattern:
     row_col: np.ndarray
     height: np.ndarray  # of each column in the elimination tree (0 = leaf)
     # assembly, "constraint": the two constraints of a slot and (side in row, side in col) of the bodies they
-    # share; "body": what a slot holds (a SLOT_* code) and the body or Jacobian row it comes from
+    # share; "body": what a slot holds (a `types.Slot` code) and the body or Jacobian row it comes from
     slot_row: np.ndarray
     slot_col: np.ndarray
     slot_sides: np.ndarray
@@ -58,10 +81,6 @@ class Pattern:
     @property
     def updates(self) -> int:
         return len(self.update_target)
-
-
-# What a slot of the augmented matrix holds (kernels/assemble.py reads these codes).
-SLOT_ZERO, SLOT_MASS, SLOT_INERTIA, SLOT_JLIN, SLOT_JANG, SLOT_JLIN_T, SLOT_JANG_T, SLOT_PAD = range(8)
 
 
 @dataclass
@@ -77,7 +96,7 @@ class BlockCSR:
 
 @dataclass
 class Topology:
-    builder: SceneBuilder
+    graph: Graph
     body_rows_start: np.ndarray  # per body: its Jacobian rows (2 * constraint + side)
     body_rows: np.ndarray
     depth: np.ndarray  # of every body in the spanning tree
@@ -92,59 +111,57 @@ class Topology:
         """The factor pattern of `formulation`, built once. "auto" takes K while every body has few
         constraints (then K is as sparse as it gets, and smaller), else the one with fewer block updates."""
         if formulation == "auto":
-            cost = constraint_cost(self.builder)
-            small = cost <= 8.0 * (len(self.builder.bodies) + len(self.builder.constraints))
+            cost = constraint_cost(self.graph)
+            small = cost <= 8.0 * (self.graph.body_count + self.graph.constraint_count)
             formulation = "constraint" if small or self.pattern("body").updates >= cost else "body"
         if formulation not in self._patterns:
             build = constraint_pattern if formulation == "constraint" else body_pattern
-            pattern = build(self.builder, self.depth, self.loop_joints)
+            pattern = build(self.graph, self.depth, self.loop_joints)
             if self.level_order:
                 order = np.argsort(pattern.height, kind="stable")
-                pattern = build(self.builder, self.depth, self.loop_joints, pattern.perm[order])
+                pattern = build(self.graph, self.depth, self.loop_joints, pattern.perm[order])
             self._patterns[formulation] = pattern
         return self._patterns[formulation]
 
     def csr(self) -> BlockCSR:
         if self._csr is None:
-            self._csr = block_csr(self.builder)
+            self._csr = block_csr(self.graph)
         return self._csr
 
 
-def _bodies(builder: SceneBuilder, c: int) -> tuple[int, int]:
-    con = builder.constraints[c]
-    return con.body0, con.body1
+def _bodies(graph: Graph, c: int) -> tuple[int, int]:
+    return int(graph.constraint_body0[c]), int(graph.constraint_body1[c])
 
 
-def _dynamic(builder: SceneBuilder, b: int) -> bool:
-    return b != WORLD and not builder.bodies[b].static
+def _dynamic(graph: Graph, b: int) -> bool:
+    return b != WORLD and not graph.body_static[b]
 
 
-def shared_sides(builder: SceneBuilder, i: int, j: int) -> list[int]:
+def shared_sides(graph: Graph, i: int, j: int) -> list[int]:
     """(side in i, side in j) for each dynamic body that constraints i and j share, flattened, -1 padded."""
     out: list[int] = []
-    bi, bj = _bodies(builder, i), _bodies(builder, j)
+    bi, bj = _bodies(graph, i), _bodies(graph, j)
     for si in (0, 1):
-        if _dynamic(builder, bi[si]):
+        if _dynamic(graph, bi[si]):
             for sj in (0, 1):
                 if bj[sj] == bi[si]:
                     out += [si, sj]
     return (out + [-1, -1, -1, -1])[:4]
 
 
-def _spanning_tree(builder: SceneBuilder) -> tuple[np.ndarray, list[int]]:
+def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
     """Depth of every body from the world (or from a root per floating island), and the loop joints."""
-    n = len(builder.bodies)
+    n = graph.body_count
     adjacency: list[list[tuple[int, int]]] = [[] for _ in range(n)]
     grounded: list[tuple[int, int]] = []
-    for ji, joint in enumerate(builder.joints):
-        if joint.parent == WORLD or builder.bodies[joint.parent].static:
-            grounded.append((joint.child, ji))
+    for ji, (parent, child) in enumerate(zip(graph.joint_parent.tolist(), graph.joint_child.tolist())):
+        if parent == WORLD or graph.body_static[parent]:
+            grounded.append((child, ji))
         else:
-            adjacency[joint.parent].append((joint.child, ji))
-            adjacency[joint.child].append((joint.parent, ji))
-    for b, body in enumerate(builder.bodies):
-        if body.static:
-            grounded.append((b, -1))
+            adjacency[parent].append((child, ji))
+            adjacency[child].append((parent, ji))
+    for b in np.flatnonzero(graph.body_static).tolist():
+        grounded.append((b, -1))
     depth = np.full(n, -1, dtype=np.int64)
     tree_joints: set[int] = set()
     queue: deque[int] = deque()
@@ -169,33 +186,33 @@ def _spanning_tree(builder: SceneBuilder) -> tuple[np.ndarray, list[int]]:
             depth[b] = 0
             queue.append(b)
             grow()
-    loops = [ji for ji in range(len(builder.joints)) if ji not in tree_joints]
+    loops = [ji for ji in range(graph.joint_count) if ji not in tree_joints]
     return depth, loops
 
 
-def elimination_order(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int]) -> np.ndarray:
+def elimination_order(graph: Graph, depth: np.ndarray, loop_joints: list[int]) -> np.ndarray:
     """Constraints deepest first; loop-closing joints last; a joint's constraints stay together."""
     loops = set(loop_joints)
     keys = []
-    for c, con in enumerate(builder.constraints):
-        level = max(depth[b] if b != WORLD else -1 for b in (con.body0, con.body1))
-        keys.append((con.joint in loops, -level, c))
+    for c in range(graph.constraint_count):
+        level = max(depth[b] if b != WORLD else -1 for b in _bodies(graph, c))
+        keys.append((int(graph.constraint_joint[c]) in loops, -level, c))
     return np.array([k[2] for k in sorted(keys)], dtype=np.int64)
 
 
-def _constraints_on_bodies(builder: SceneBuilder) -> list[list[int]]:
-    on_body: list[list[int]] = [[] for _ in builder.bodies]
-    for c, con in enumerate(builder.constraints):
-        for b in (con.body0, con.body1):
-            if _dynamic(builder, b):
+def _constraints_on_bodies(graph: Graph) -> list[list[int]]:
+    on_body: list[list[int]] = [[] for _ in range(graph.body_count)]
+    for c in range(graph.constraint_count):
+        for b in _bodies(graph, c):
+            if _dynamic(graph, b):
                 on_body[b].append(c)
     return on_body
 
 
-def _coupling(builder: SceneBuilder) -> list[set[int]]:
+def _coupling(graph: Graph) -> list[set[int]]:
     """Constraints sharing a dynamic body with each constraint (itself excluded)."""
-    adj: list[set[int]] = [set() for _ in builder.constraints]
-    for cs in _constraints_on_bodies(builder):
+    adj: list[set[int]] = [set() for _ in range(graph.constraint_count)]
+    for cs in _constraints_on_bodies(graph):
         for c in cs:
             adj[c].update(cs)
     for c, s in enumerate(adj):
@@ -203,10 +220,10 @@ def _coupling(builder: SceneBuilder) -> list[set[int]]:
     return adj
 
 
-def constraint_cost(builder: SceneBuilder) -> float:
+def constraint_cost(graph: Graph) -> float:
     """About the block updates of factoring K: the d constraints on one body are all coupled, and eliminating
     them costs about d^3 / 6 updates."""
-    return sum(len(cs) ** 3 for cs in _constraints_on_bodies(builder)) / 6.0 + len(builder.constraints)
+    return sum(len(cs) ** 3 for cs in _constraints_on_bodies(graph)) / 6.0 + graph.constraint_count
 
 
 def _structure(perm: np.ndarray, adj: list[set[int]], unknowns: int) -> dict:
@@ -279,79 +296,77 @@ def _pattern(formulation: str, st: dict, col_sign: np.ndarray, **assembly) -> Pa
     return Pattern(formulation=formulation, col_sign=col_sign, update_sign=col_sign[update_column], **st, **fields)
 
 
-def constraint_pattern(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
+def constraint_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
     """K = J M^-1 J^T with constraints deepest first: a perfect elimination order for trees."""
     if perm is None:
-        perm = elimination_order(builder, depth, loop_joints)
-    st = _structure(perm, _coupling(builder), len(builder.constraints))
-    sides = [shared_sides(builder, int(i), int(j)) for i, j in zip(st["slot_row"], st["slot_col"])]
+        perm = elimination_order(graph, depth, loop_joints)
+    st = _structure(perm, _coupling(graph), graph.constraint_count)
+    sides = [shared_sides(graph, int(i), int(j)) for i, j in zip(st["slot_row"], st["slot_col"])]
     return _pattern("constraint", st, np.ones(len(perm)), slot_sides=np.array(sides, np.int32).reshape(-1, 4))
 
 
-def body_pattern(builder: SceneBuilder, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
+def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
     """The augmented matrix, bodies deepest first, each constraint after its deeper body and before the other:
     every pivot then has a definite sign (+ for bodies, - for constraints) and a tree has no fill beyond the
     blocks of one body and one joint."""
-    nb, nc = len(builder.bodies), len(builder.constraints)
+    nb, nc = graph.body_count, graph.constraint_count
     if perm is None:
         loops = set(loop_joints)
         keys = []
         for b in range(nb):
-            if _dynamic(builder, b):
+            if _dynamic(graph, b):
                 keys += [(False, -2 * depth[b], 0, b, 0), (False, -2 * depth[b], 0, b, 1)]
-        for c, con in enumerate(builder.constraints):
-            level = max(depth[b] for b in (con.body0, con.body1) if _dynamic(builder, b))
-            keys.append((con.joint in loops, 1 - 2 * level, 1, c, 0))
+        for c in range(nc):
+            level = max(depth[b] for b in _bodies(graph, c) if _dynamic(graph, b))
+            keys.append((int(graph.constraint_joint[c]) in loops, 1 - 2 * level, 1, c, 0))
         perm = np.array([2 * nb + k[3] if k[2] else k[3] + k[4] * nb for k in sorted(keys)], dtype=np.int64)
     adj: list[set[int]] = [set() for _ in range(2 * nb + nc)]
-    for b, constraints in enumerate(_constraints_on_bodies(builder)):
+    for b, constraints in enumerate(_constraints_on_bodies(graph)):
         for c in constraints:
             for u in (b, nb + b):
                 adj[u].add(2 * nb + c)
                 adj[2 * nb + c].add(u)
     st = _structure(perm, adj, 2 * nb + nc)
-    side_of = {(c, b): 2 * c + side for c, con in enumerate(builder.constraints)
-               for side, b in enumerate((con.body0, con.body1))}  # fmt: skip
-    code = np.full(len(st["slot_row"]), SLOT_ZERO, dtype=np.int64)
+    side_of = {(c, b): 2 * c + side for c in range(nc) for side, b in enumerate(_bodies(graph, c))}
+    code = np.full(len(st["slot_row"]), Slot.ZERO, dtype=np.int64)
     ref = np.zeros(len(code), dtype=np.int64)
     for s, (r, c) in enumerate(zip(st["slot_row"].tolist(), st["slot_col"].tolist())):
         if r == c:
             kind = min(r // nb, 2) if nb else 2
-            code[s] = (SLOT_MASS, SLOT_INERTIA, SLOT_PAD)[kind]
+            code[s] = (Slot.MASS, Slot.INERTIA, Slot.PAD)[kind]
             ref[s] = r - kind * nb
         elif (r >= 2 * nb) != (c >= 2 * nb):  # a constraint and a body part: J, or J^T above the diagonal
             con, part, transposed = (r - 2 * nb, c, False) if r >= 2 * nb else (c - 2 * nb, r, True)
             row = side_of.get((con, part % nb))
             if row is not None:
-                code[s] = ((SLOT_JLIN, SLOT_JANG), (SLOT_JLIN_T, SLOT_JANG_T))[transposed][part >= nb]
+                code[s] = ((Slot.JLIN, Slot.JANG), (Slot.JLIN_T, Slot.JANG_T))[transposed][part >= nb]
                 ref[s] = row
     sign = np.where(perm >= 2 * nb, -1.0, 1.0)
     return _pattern("body", st, sign, slot_code=code, slot_ref=ref)
 
 
-def block_csr(builder: SceneBuilder) -> BlockCSR:
-    adj = _coupling(builder)
+def block_csr(graph: Graph) -> BlockCSR:
+    adj = _coupling(graph)
     n = len(adj)
     cols = [sorted(adj[i] | {i}) for i in range(n)]
     start = np.cumsum([0] + [len(c) for c in cols])
     col = np.array([c for cs in cols for c in cs], dtype=np.int64)
     row = np.repeat(np.arange(n), np.diff(start))
-    sides = np.array([shared_sides(builder, int(i), int(j)) for i, j in zip(row, col)], dtype=np.int32)
+    sides = np.array([shared_sides(graph, int(i), int(j)) for i, j in zip(row, col)], dtype=np.int32)
     diag = np.array([start[i] + cols[i].index(i) for i in range(n)], dtype=np.int64)
     return BlockCSR(start, col, row, sides.reshape(-1, 4), diag)
 
 
-def analyze(builder: SceneBuilder, level_order: bool = False) -> Topology:
+def analyze(graph: Graph, level_order: bool = False) -> Topology:
     """The spanning tree, loops and Jacobian rows per body; factor patterns are built when a solver asks."""
-    depth, loops = _spanning_tree(builder)
-    rows: list[list[int]] = [[] for _ in builder.bodies]
-    for c, con in enumerate(builder.constraints):
-        for side, b in enumerate((con.body0, con.body1)):
-            if b != WORLD:
-                rows[b].append(2 * c + side)
-    body_rows_start = np.cumsum([0] + [len(r) for r in rows])
-    body_rows = np.array([r for rs in rows for r in rs], dtype=np.int64)
-    return Topology(builder, body_rows_start, body_rows, depth, loops, level_order)
+    depth, loops = _spanning_tree(graph)
+    # Jacobian row 2 c + side of every constraint side on a body, grouped by body (a stable sort keeps the
+    # rows of one body in constraint order).
+    bodies = np.stack([graph.constraint_body0, graph.constraint_body1], axis=1).reshape(-1)
+    rows = np.flatnonzero(bodies != WORLD)
+    body_rows = rows[np.argsort(bodies[rows], kind="stable")]
+    body_rows_start = np.concatenate([[0], np.cumsum(np.bincount(bodies[rows], minlength=graph.body_count))])
+    return Topology(graph, body_rows_start, body_rows, depth, loops, level_order)
 
 
 def schedule(pattern: Pattern, parallel: bool) -> tuple[np.ndarray, list[tuple[int, int]]]:

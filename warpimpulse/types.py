@@ -1,0 +1,82 @@
+"""Names and codes shared by the host and the kernels: one source for each.
+
+The kernels read these through `wp.constant` (see `kernels/constraints.py`, `kernels/assemble.py`), the host
+through the enums, and the CLI offers the same tuples as its choices.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from enum import IntEnum
+
+import numpy as np
+
+Vec3 = Sequence[float] | np.ndarray
+"""Three floats: a point or direction in metres, a velocity in m/s or rad/s, a force in N or torque in N m."""
+
+Quat = Sequence[float] | np.ndarray
+"""A rotation as a quaternion in (x, y, z, w) order, real part last, as in Warp (USD's `Gf.Quat*` constructors
+take the real part first)."""
+
+WORLD = -1
+"""The body index of the world: a joint's parent may be the world (fixed, infinite mass)."""
+
+
+class ConstraintKind(IntEnum):
+    """The six basic constraints of sections 4.2 (translational) and 4.3 (rotational) of the method paper.
+
+    The values are the codes the kernels switch on; `dim` is the number of removed degrees of freedom.
+    """
+
+    POINT = 0  # spherical: A = B
+    LINE = 1  # B stays on a line through A, fixed to body0
+    PLANE = 2  # B stays in a plane through A, fixed to body0
+    ROTATION = 3  # fixed relative rotation
+    AXIS = 4  # common rotation axis ("orientation joint")
+    ANGLE = 5  # constant angle between an axis of each body
+
+    @property
+    def dim(self) -> int:
+        return (3, 2, 1, 3, 2, 1)[self]
+
+    @property
+    def translational(self) -> bool:
+        return self < ConstraintKind.ROTATION
+
+    @property
+    def needs_axis(self) -> bool:
+        return self in (ConstraintKind.LINE, ConstraintKind.PLANE, ConstraintKind.AXIS, ConstraintKind.ANGLE)
+
+    @classmethod
+    def parse(cls, kind: ConstraintKind | str | int) -> ConstraintKind:
+        if isinstance(kind, str):
+            try:
+                return cls[kind.upper()]
+            except KeyError:
+                names = [k.name.lower() for k in cls]
+                raise ValueError(f"unknown constraint kind {kind!r}; expected one of {names}") from None
+        return cls(kind)
+
+
+class Slot(IntEnum):
+    """What a 3x3 block of the augmented matrix [[M, J^T], [J, 0]] holds (`topology.body_pattern` writes the
+    codes, `kernels/assemble.py` reads them)."""
+
+    ZERO = 0
+    MASS = 1  # m I of a body
+    INERTIA = 2  # the world inertia tensor of a body
+    JLIN = 3  # a constraint's linear Jacobian block on a body
+    JANG = 4  # its angular block
+    JLIN_T = 5  # the transposes, above the diagonal
+    JANG_T = 6
+    PAD = 7  # a constraint's diagonal: -1 on the rows a constraint of dimension < 3 does not use
+
+
+SOLVERS = ("auto", "cholesky", "cg", "iterative")
+"""`Simulator(solver=...)`. "auto" is "cholesky": one exact factorization a step serves the velocity correction
+and the next step's joint correction, and a tree's factor is linear in its joints; "cg" iterates on the same K;
+"iterative" is the paper's sweep over joints one at a time, without a system (the baseline)."""
+
+FORMULATIONS = ("constraint", "body")
+"""The matrix the Cholesky solver factors: K = J M^-1 J^T ("constraint") or the augmented body-joint matrix
+("body"); see `topology.Pattern`."""
