@@ -1,4 +1,4 @@
-"""Block assembly of the system matrix K = J M^-1 J^T (method paper, section 4.5; DESIGN.md).
+"""Block assembly of the system matrix K = J M^-1 J^T (method paper, section 4.5; docs/architecture.md).
 
 K is stored as 3x3 blocks in "slots". Each slot is one block (row constraint i, column constraint j)
 and lists the bodies the two constraints share (at most two) by the side each has on them. The host

@@ -1,7 +1,7 @@
 """Block-Jacobi preconditioned conjugate gradient on the full block-CSR K (rows = constraints).
 
-`warp.optim.linear.cg` is too slow on a CPU (DESIGN.md), so these are our own. Scalars live in a small
-array: [rz, pq, rz_new, rr] so that every kernel reads values the previous launch finished.
+`warp.optim.linear.cg` is too slow on a CPU (docs/architecture.md, "Measured facts"), so these are our own.
+Scalars live in a small array: [rz, pq, rz_new, rr] so that every kernel reads values the previous launch finished.
 """
 
 import warp as wp

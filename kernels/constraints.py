@@ -1,7 +1,7 @@
 """The six basic constraints (method paper, sections 4.2 and 4.3): geometry, error, projection, Jacobian.
 
 Every constraint i is stored as 3 rows; a constraint of dimension k < 3 has zero rows k..2 in its
-projection P_i and Jacobian, and a unit diagonal in its block of K (DESIGN.md, "Jacobian form").
+projection P_i and Jacobian, and a unit diagonal in its block of K (docs/architecture.md, "The system matrix").
 Side 0 is body0 (the parent, sign +1), side 1 is body1 (the child, sign -1). A body index < 0 is the world.
 Convention: the error c = A - B (or its rotational analogue) and J v = dc/dt.
 The kernels that depend on the kind come from `specialized(kinds)`: a scene compiles only the kinds it has.

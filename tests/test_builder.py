@@ -74,9 +74,9 @@ def test_non_unit_quaternion_is_normalised_with_a_warning():
 
 
 def test_quaternion_policy_is_documented():
-    """Issue 5: "normalise with a warning, or reject: document which"."""
+    """A zero quaternion is refused and a non-unit one normalised with a warning: the docs say which."""
     doc = wi.SceneBuilder.add_body.__doc__
-    assert "zero orientation quaternion is refused" in doc and "normalised" in doc
+    assert "A zero quaternion is refused" in " ".join(doc.split()) and "normalised" in doc
     readme = " ".join((Path(__file__).parents[1] / "README.md").read_text().split())
     assert "zero orientation quaternion is refused, a non-unit one is normalised with a warning" in readme
 

@@ -16,7 +16,10 @@ from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
-from .types import WORLD, ConstraintKind
+from .types import WORLD, ConstraintKind, Quat, Vec3
+
+BodyRef = int | str | None
+"""A body: its index, its name, or None for the world."""
 
 
 class SceneError(ValueError):
@@ -115,18 +118,27 @@ class SceneBuilder:
     def add_body(
         self,
         mass: float,
-        inertia,
-        position,
-        orientation=(0.0, 0.0, 0.0, 1.0),
-        linear_velocity=0.0,
-        angular_velocity=0.0,
+        inertia: Vec3 | np.ndarray,
+        position: Vec3,
+        orientation: Quat = (0.0, 0.0, 0.0, 1.0),
+        linear_velocity: Vec3 | float = 0.0,
+        angular_velocity: Vec3 | float = 0.0,
         name: str | None = None,
         shape: Shape | None = None,
     ) -> int:
-        """Add a dynamic body. `inertia`: 3x3 body-frame tensor about the centre of mass, or 3 moments.
+        """Add a dynamic body and return its index.
 
-        A zero orientation quaternion is refused; one whose norm differs from 1 by more than 1e-6 is normalised
-        with a UserWarning (a quaternion rounded in a file or typed by hand is still meant as a rotation).
+        Args:
+            mass: kg, positive.
+            inertia: kg m^2 about the centre of mass in the body frame: a 3x3 symmetric positive definite
+                tensor, or its 3 principal moments (then the body frame is the principal frame).
+            position: the centre of mass, world frame (m).
+            orientation: body to world, (x, y, z, w). A zero quaternion is refused; one whose norm differs from 1
+                by more than 1e-6 is normalised with a UserWarning (a rounded quaternion is still meant as one).
+            linear_velocity: of the centre of mass, world frame (m/s); a scalar fills all three.
+            angular_velocity: world frame (rad/s); a scalar fills all three.
+            name: unique; defaults to "body<index>". Errors and outputs name the body by it.
+            shape: for display and mass only (bodies do not collide yet).
         """
         name = name or f"body{len(self.bodies)}"
         what = f"body {name!r}"
@@ -192,25 +204,54 @@ class SceneBuilder:
         return 0.5 * (arr + arr.T)
 
     # ---------------------------------------------------------------- joints
-    def add_joint_ball(self, parent, child, anchor, name=None) -> int:
+    # Every add_joint_* takes, in world coordinates at build time (the bodies' poses as added):
+    #   parent: the parent body's index or name, or None for the world; child: the child body.
+    #   anchor: the joint point (m). axis: the joint axis or plane normal (any length but zero).
+    # and returns the joint's index. The joint holds the relative pose the bodies have when it is added.
+    def add_joint_ball(self, parent: BodyRef, child: BodyRef, anchor: Vec3, name: str | None = None) -> int:
+        """A spherical joint: the anchor stays common to both bodies (3 translational DOF removed)."""
         return self.add_joint("ball", parent, child, anchor, None, None, name)
 
-    def add_joint_revolute(self, parent, child, anchor, axis, name=None) -> int:
+    def add_joint_revolute(
+        self, parent: BodyRef, child: BodyRef, anchor: Vec3, axis: Vec3, name: str | None = None
+    ) -> int:
+        """A hinge: the anchor is common and the bodies turn about `axis` only (5 DOF removed)."""
         return self.add_joint("revolute", parent, child, anchor, axis, None, name)
 
-    def add_joint_prismatic(self, parent, child, anchor, axis, name=None) -> int:
+    def add_joint_prismatic(
+        self, parent: BodyRef, child: BodyRef, anchor: Vec3, axis: Vec3, name: str | None = None
+    ) -> int:
+        """A slider: the child's anchor moves along `axis` (fixed to the parent) without turning (5 DOF)."""
         return self.add_joint("prismatic", parent, child, anchor, axis, None, name)
 
-    def add_joint_cylindrical(self, parent, child, anchor, axis, name=None) -> int:
+    def add_joint_cylindrical(
+        self, parent: BodyRef, child: BodyRef, anchor: Vec3, axis: Vec3, name: str | None = None
+    ) -> int:
+        """A slider that may also turn about its `axis` (4 DOF removed)."""
         return self.add_joint("cylindrical", parent, child, anchor, axis, None, name)
 
-    def add_joint_universal(self, parent, child, anchor, axis_parent, axis_child, name=None) -> int:
+    def add_joint_universal(
+        self,
+        parent: BodyRef,
+        child: BodyRef,
+        anchor: Vec3,
+        axis_parent: Vec3,
+        axis_child: Vec3,
+        name: str | None = None,
+    ) -> int:
+        """A Cardan joint: the anchor is common and the angle between `axis_parent` (fixed to the parent) and
+        `axis_child` (fixed to the child) stays as built (4 DOF removed); the axes must not be parallel."""
         return self.add_joint("universal", parent, child, anchor, axis_parent, axis_child, name)
 
-    def add_joint_fixed(self, parent, child, anchor, name=None) -> int:
+    def add_joint_fixed(self, parent: BodyRef, child: BodyRef, anchor: Vec3, name: str | None = None) -> int:
+        """A weld: the relative pose stays as built (6 DOF removed)."""
         return self.add_joint("fixed", parent, child, anchor, None, None, name)
 
-    def add_joint_planar(self, parent, child, anchor, normal, name=None) -> int:
+    def add_joint_planar(
+        self, parent: BodyRef, child: BodyRef, anchor: Vec3, normal: Vec3, name: str | None = None
+    ) -> int:
+        """The child's anchor stays in the plane through the anchor normal to `normal` (fixed to the parent),
+        and the child turns only about the normal (3 DOF removed)."""
         return self.add_joint("planar", parent, child, anchor, normal, None, name)
 
     def add_constraint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None) -> int:

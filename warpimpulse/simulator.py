@@ -1,4 +1,4 @@
-"""Simulator.step(): the impulse loop of the method paper (sections 4.2-4.5; DESIGN.md, "One step").
+"""Simulator.step(): the impulse loop of the method paper (sections 4.2-4.5; docs/architecture.md, "One step").
 
     predict every body over h (RK4) -> joint errors d(t0+h) -> within tolerance? else solve
     K lambda = -d/h, apply the impulses at t0, and predict again -> the last prediction is the new state
@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from . import coordinates
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
@@ -59,6 +60,11 @@ def _combined(parts: list[StepStats]) -> StepStats:
 
 
 class Simulator:
+    """Steps a Model in time with the impulse method; reads and writes its State as numpy arrays.
+
+    Frames: positions, velocities and angular velocities are world frame; quaternions are (x, y, z, w).
+    """
+
     def __init__(
         self,
         model: Model,
@@ -73,16 +79,31 @@ class Simulator:
         max_rotation: float | None = 0.5,
         specialize: bool = True,
     ) -> None:
-        """`formulation` ("auto", "constraint" or "body") picks the matrix the Cholesky solver factors; see
-        `topology.Pattern`. "auto" takes the augmented body-joint matrix only where a body has many joints.
-
-        `max_rotation` (rad): a step in which some body would turn further than this, at the angular velocity
-        it starts with or ends with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth), because the
-        method is second order in the rotation per step: a whipping chain or a tumbling body at 100 rad/s
-        gains energy, then diverges, at one step per frame. None takes every step whole.
-
-        `specialize` compiles the constraint kernels for the scene's constraint kinds only (one module per set
-        of kinds, compiled once and cached on disk); False shares one module for all six kinds."""
+        """Args:
+        model: the scene (`SceneBuilder.finalize()`).
+        dt: the step (s).
+        tolerance: the largest joint error a step may leave (m for translational constraints, rad for
+            rotational ones); the joint correction iterates until every joint holds to it.
+        velocity_tolerance: the same for the constraint velocities after the step (m/s, rad/s); defaults to
+            `tolerance`.
+        solver: "auto", "cholesky", "cg" or "iterative" (`types.SOLVERS`). "auto" is "cholesky": one exact
+            factorization a step serves the velocity correction and the next joint correction, and it is
+            linear in the joints of a tree or a star. "cg" iterates on the same matrix; "iterative" is the
+            paper's joint-by-joint baseline without a system.
+        max_iterations: joint-correction iterations (solves or sweeps) before the step fails.
+        on_max_iterations: "raise" a SimulationError naming the worst joints, or "warn" and go on with
+            `StepStats.converged` False.
+        max_substep_depth: a failing step is halved down to dt / 2**max_substep_depth before it fails.
+        formulation: "auto", "constraint" or "body": the matrix the Cholesky solver factors
+            (`topology.Pattern`); "auto" takes the augmented body-joint matrix only where a body has many
+            joints.
+        max_rotation: a step in which some body would turn further than this (rad), at the angular velocity
+            it starts or ends with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth): the
+            method is second order in the rotation per step, and a whipping chain or a body tumbling at
+            100 rad/s gains energy, then diverges, at one step per frame. None takes every step whole.
+        specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set
+            of kinds, compiled once and cached on disk); False shares one module for all six kinds.
+        """
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
         if not (math.isfinite(tolerance) and tolerance > 0.0):
@@ -446,18 +467,100 @@ class Simulator:
         self._update_frames()
         self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
 
+    # ---------------------------------------------------------------- the state
+    def reset(self) -> None:
+        """Return to the built state at t = 0, as a new Simulator of the same model: the bodies' initial poses
+        and velocities, no user loads (`set_external_forces`), no warm start."""
+        self.state.copy_from(self.model.state())
+        self.time, self.step_count = 0.0, 0
+        n = self.model.body_count
+        self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
+        self._active_forces = None
+        getattr(self.linear, "_warm", {}).clear()
+        self._update_frames()
+        self._check_finite(self.state, 0)
+
+    def set_state(
+        self,
+        positions: np.ndarray | None = None,
+        orientations: np.ndarray | None = None,
+        linear_velocities: np.ndarray | None = None,
+        angular_velocities: np.ndarray | None = None,
+    ) -> None:
+        """Overwrite part of the state; what is not given stays. The Jacobians and the factorization are
+        recomputed at once, so the next step starts from the new state (writing `sim.state` arrays directly
+        leaves them stale).
+
+        Args:
+            positions: (n, 3) centres of mass, world frame (m).
+            orientations: (n, 4) quaternions (x, y, z, w), body to world; normalised (a zero one is refused).
+            linear_velocities: (n, 3) centre-of-mass velocities, world frame (m/s).
+            angular_velocities: (n, 3) angular velocities, world frame (rad/s).
+
+        All values are checked before any is written. The joints are not projected: a state that breaks them
+        is corrected by the next steps' impulses.
+        """
+        n = self.model.body_count
+        new = {}
+        given = {"positions": positions, "orientations": orientations, "linear_velocities": linear_velocities,
+                 "angular_velocities": angular_velocities}  # fmt: skip
+        for (what, values), field in zip(given.items(), ("body_x", "body_q", "body_v", "body_w")):
+            if values is not None:
+                new[field] = self._checked(values, (n, 4 if field == "body_q" else 3), what)
+        if "body_q" in new:
+            norms = np.linalg.norm(new["body_q"], axis=1)
+            if np.any(norms < 1e-9):
+                body = self.model.body_name[int(np.argmin(norms))]
+                raise ValueError(f"orientations: the quaternion of body {body!r} is zero")
+            new["body_q"] = new["body_q"] / norms[:, None]
+        for field, values in new.items():
+            getattr(self.state, field).assign(values)
+        self._update_frames()
+        self._check_finite(self.state, self.step_count)
+
     # ---------------------------------------------------------------- numpy accessors
     def positions(self) -> np.ndarray:
+        """(n, 3) centres of mass, world frame (m)."""
         return self.state.body_x.numpy().copy()
 
     def orientations(self) -> np.ndarray:
+        """(n, 4) quaternions (x, y, z, w), body to world (USD's Gf.Quat constructors take w first)."""
         return self.state.body_q.numpy().copy()
 
     def linear_velocities(self) -> np.ndarray:
+        """(n, 3) centre-of-mass velocities, world frame (m/s)."""
         return self.state.body_v.numpy().copy()
 
     def angular_velocities(self) -> np.ndarray:
+        """(n, 3) angular velocities, world frame (rad/s)."""
         return self.state.body_w.numpy().copy()
+
+    def _joint_index(self, joint: int | str) -> int:
+        names = self.model.joint_name
+        if isinstance(joint, str):
+            if joint not in names:
+                raise ValueError(f"no joint named {joint!r}")
+            return names.index(joint)
+        if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
+            raise ValueError(f"a joint index or name is expected, got {joint!r}")
+        if not 0 <= int(joint) < len(names):
+            raise ValueError(f"joint index {joint} does not exist ({len(names)} joints)")
+        return int(joint)
+
+    def _state_arrays(self) -> tuple[np.ndarray, ...]:
+        return self.positions(), self.orientations(), self.linear_velocities(), self.angular_velocities()
+
+    def joint_coordinates(self, joint: int | str) -> np.ndarray:
+        """The joint's coordinates, zero at the build pose: a revolute's angle (rad, right-handed about its
+        axis), a prismatic's offset (m), cylindrical [offset, angle], universal [angle about the parent axis,
+        angle about the child axis], planar [x, y, angle] in the plane, a ball's relative rotation as a
+        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`)."""
+        return coordinates.coordinates(self.model, self._joint_index(joint), *self._state_arrays())
+
+    def joint_velocities(self, joint: int | str) -> np.ndarray:
+        """The rates of `joint_coordinates` (rad/s, m/s); a ball joint's relative angular velocity (rad/s) in
+        its parent's frame."""
+        return coordinates.velocities(self.model, self._joint_index(joint), *self._state_arrays())
 
     def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
         out = np.zeros(self.model.joint_count)
