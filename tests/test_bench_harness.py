@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from functools import partial
+from pathlib import Path
 
 import pytest
 
@@ -73,3 +74,14 @@ def test_paper_tables_render_from_their_json() -> None:
     assert "| time per step (ms) | 228.57 | 1.000 | 20.09 | 1.000 |" in text
     assert "| tree 127 | 18.78 / 1.000 (2.0) | 18.95 / 1.000 (2.0) | 20.09 / 1.000 (2.0) |" in text
     assert "1.0x; the paper reports almost 80x" in text
+
+
+def test_the_readme_block_is_the_committed_json_written_up() -> None:
+    """README.md's results block is generated (make bench), never typed: it equals the write-up of the JSON."""
+    root = Path(__file__).resolve().parents[1]
+    results = report.load([root / "benchmarks/results" / f"{name}.json"
+                           for name in ("paper_tables", "run_vs_error", "scaling")])  # fmt: skip
+    text = (root / "README.md").read_text()
+    begin, end = text.index(report.README_BEGIN) + len(report.README_BEGIN), text.index(report.README_END)
+    assert text[begin:end].strip() == report.readme_block(results).strip()
+    assert (root / "benchmarks/results/RESULTS.md").read_text() == report.markdown(results)

@@ -22,7 +22,7 @@ def _case(name: str, **changes) -> stress.Case:
 
 
 # ------------------------------------------------------------------------------------------------ the suite
-def test_every_issue_case_is_in_both_modes():
+def test_every_case_group_is_in_both_modes():
     for quick in (True, False):
         groups = {c.group for c in stress.cases(quick)}
         assert groups == {"mass ratio", "size", "high spin", "large steps", "long run", "near-singular", "redundant"}

@@ -41,7 +41,7 @@ from ..transforms import quat_rotate
 from .peers.mujoco import INTEGRATORS as MUJOCO_INTEGRATORS
 from .peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
 from .peers.pinocchio import PinocchioRunner, PinocchioScene, pinocchio_available
-from .runner import StepFailed
+from .runner import Runner, StepFailed
 
 SWEEP_RATES = (30, 60, 120, 300)  # steps per second: h = 1/30 ... 1/300
 SWEEP_TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
@@ -61,7 +61,6 @@ SCALING_RATE = 60
 SCALING_TOLERANCE = 1e-6
 SCALING_STEPS, SCALING_REPEATS = 20, 3  # timed blocks of steps per scaling point, after one warm-up block
 SCALING_BUDGET, QUICK_SCALING_BUDGET = 300.0, 40.0  # s per scaling point, set-up included
-BAR_SCENE = "tree127"
 
 
 # ------------------------------------------------------------------------------------------ scenes
@@ -193,7 +192,7 @@ class WarpimpulseRunner:
 
 
 # ------------------------------------------------------------------------------------------ measuring
-def accuracy_run(runner, rate: int, probe: Probe, duration: float) -> dict:
+def accuracy_run(runner: Runner, rate: int, probe: Probe, duration: float) -> dict:
     """Step to `duration`, sampling energy and anchor gap at SAMPLE_RATE, tracked points at ERROR_TIME."""
     n_total = int(round(duration * rate))
     n_error = int(round(ERROR_TIME * rate))
@@ -226,7 +225,7 @@ def accuracy_run(runner, rate: int, probe: Probe, duration: float) -> dict:
 
 
 def time_steps(
-    factory: Callable[[], object], rate: int, repeats: int, duration: float = ERROR_TIME, min_total: float = 0.5
+    factory: Callable[[], Runner], rate: int, repeats: int, duration: float = ERROR_TIME, min_total: float = 0.5
 ) -> list[float]:
     """Seconds per step for each repeat of the first `duration` seconds, from a fresh state each time.
 
@@ -565,7 +564,7 @@ def _child(fn: Callable[[], dict], send) -> None:
     send.close()
 
 
-def _time_block(runner, steps: int, repeats: int) -> list[float]:
+def _time_block(runner: Runner, steps: int, repeats: int) -> list[float]:
     """Seconds per step of `repeats` timed blocks of `steps` steps, after `steps` warm-up steps."""
     for _ in range(steps):
         runner.step()
