@@ -24,7 +24,7 @@ stress: $(STAMP)
 	$(VENV)/bin/warpimpulse stress
 
 # The paper's tables, run time against error and scaling (apart, so each can be re-run alone), then the
-# plots, RESULTS.md and README.md's results block from the three JSON files.
+# plots, RESULTS.md and README.md's results block from the three JSON files (only this step edits README.md).
 RESULTS := benchmarks/results
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[bench]"
@@ -32,7 +32,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/skips.py
 	$(PY) benchmarks/run_vs_error.py --json $(RESULTS)/run_vs_error.json > /dev/null
 	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
-	$(PY) -m warpimpulse.benchmark --from-json $(RESULTS)/paper_tables.json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
+	$(PY) -m warpimpulse.bench.report --from-json $(RESULTS)/paper_tables.json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
 		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme README.md
 
 clean:

@@ -20,7 +20,8 @@ import warp as wp
 
 import warpimpulse as wi
 from warpimpulse import scenes
-from warpimpulse.benchmark import paper_markdown, quiet_warp
+from warpimpulse.bench.harness import quiet_warp
+from warpimpulse.bench.report import paper_markdown
 
 # Pentium 4 3.4 GHz, ms per step (Tables 2 and 3) and Table 1's iteration counts.
 PAPER_WITHOUT = {

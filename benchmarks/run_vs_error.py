@@ -1,13 +1,13 @@
 """Run time against error: warpimpulse, MuJoCo (Euler, implicitfast, RK4) and pinocchio (RK4) on the sweep's scenes.
 
-    python benchmarks/run_vs_error.py [--quick] [--json FILE] [--plots DIR] [--report FILE] [--readme README.md] [...]
+    python benchmarks/run_vs_error.py [--quick] [--json FILE] [--plots DIR] [--report FILE] [...]
 
-A thin wrapper over `warpimpulse.benchmark` (the same options as `warpimpulse bench`), without scaling.
+A thin wrapper over `warpimpulse.bench.cli` (the same options as `warpimpulse bench`), without scaling.
 """
 
 import sys
 
-from warpimpulse.benchmark import main
+from warpimpulse.bench.cli import bench
 
 if __name__ == "__main__":
-    raise SystemExit(main(["--no-scaling", *sys.argv[1:]]))
+    raise SystemExit(bench(["--no-scaling", *sys.argv[1:]]))

@@ -2,12 +2,12 @@
 
     python benchmarks/scaling.py [--quick] [--json FILE] [--plots DIR] [--report FILE] [--scaling-budget SECONDS]
 
-A thin wrapper over `warpimpulse.benchmark` (the same options as `warpimpulse bench`), without the sweep.
+A thin wrapper over `warpimpulse.bench.cli` (the same options as `warpimpulse bench`), without the sweep.
 """
 
 import sys
 
-from warpimpulse.benchmark import main
+from warpimpulse.bench.cli import bench
 
 if __name__ == "__main__":
-    raise SystemExit(main(["--no-sweep", *sys.argv[1:]]))
+    raise SystemExit(bench(["--no-sweep", *sys.argv[1:]]))

@@ -30,7 +30,7 @@ from warpimpulse.kernels import constraints
 
 import warpimpulse as wi
 from warpimpulse import scenes
-from warpimpulse.benchmark import quiet_warp
+from warpimpulse.bench.harness import quiet_warp
 from warpimpulse.joints import JOINT_TYPES
 
 TREE_DT, CHAIN_DT = 1.0 / 30.0, 1.0 / 60.0

@@ -108,7 +108,8 @@ def test_bad_physics_in_a_scene_file(old, new, message, tmp_path, capsys):
 
 
 def test_redundant_joints_in_a_scene_file(tmp_path, capsys):
-    from warpimpulse import stress, usd
+    from warpimpulse import usd
+    from warpimpulse.bench import stress
 
     usd.save_scene(stress.redundant_pair(), tmp_path / "redundant.usda")
     argv = ["simulate", str(tmp_path / "redundant.usda"), "--out", str(tmp_path / "out.usda")]

@@ -19,6 +19,7 @@ def test_wheel_installs_and_imports(tmp_path):
     wheel = next(tmp_path.glob("warpimpulse-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()
     assert "warpimpulse/kernels/cholesky.py" in names
+    assert {"warpimpulse/bench/harness.py", "warpimpulse/bench/peers/mujoco.py"} <= set(names)
     assert not any(n.startswith("kernels/") for n in names)
 
     env_dir = tmp_path / "venv"

@@ -1,4 +1,4 @@
-"""Property-based tests (issue 5): random trees with random joint types (all of them), masses over six orders
+"""Property-based tests: random trees with random joint types (all of them), masses over six orders
 of magnitude and random velocities, run with every solver and formulation at random step sizes. Each one ends
 either in a clear error (SceneError, SimulationError, SingularSystemError, naming what is at fault) or in a
 valid simulation where every joint holds, checked every step from the numpy state by
@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import warpimpulse as wi
 from warpimpulse import JOINT_TYPES
-from warpimpulse.stress import _clear_error
+from warpimpulse.bench.stress import clear_error
 
 TOLERANCE = 1e-6
 STEP_SIZES = (1.0 / 30.0, 1.0 / 60.0, 1.0 / 120.0)
@@ -91,7 +91,7 @@ def check_random_tree(data, trees, solvers=SOLVERS, step_sizes=STEP_SIZES, steps
     try:
         builder = data.draw(trees)
     except wi.SceneError as err:  # e.g. the two axes of a universal joint drawn parallel
-        assert _clear_error(err, None)[0], err
+        assert clear_error(err, None)[0], err
         event("refused by the builder")
         return
     solver, formulation = data.draw(st.sampled_from(solvers))
@@ -116,7 +116,7 @@ def check_random_tree(data, trees, solvers=SOLVERS, step_sizes=STEP_SIZES, steps
             )
         event("held")
     except (wi.SimulationError, wi.SingularSystemError, wi.SceneError) as err:
-        clear, why = _clear_error(err, builder)
+        clear, why = clear_error(err, builder)
         assert clear, f"{type(err).__name__} is not clear ({why}): {err}"
         assert not must_hold, f"stopped in the comfort zone: {type(err).__name__}: {err}"
         event(f"stopped: {type(err).__name__}")

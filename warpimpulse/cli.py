@@ -10,24 +10,15 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import tempfile
 import time
 import warnings
 from pathlib import Path
 
 from . import __version__
 from .builder import SceneError
+from .cliutil import EXIT_USAGE, ArgumentParser, check_writable
 from .scenes import SCENES
 from .types import SOLVERS
-
-EXIT_USAGE = 2
-
-
-class ArgumentParser(argparse.ArgumentParser):
-    """Reports a usage mistake in one line (the full usage is one `--help` away), exit status 2."""
-
-    def error(self, message: str):
-        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _positive(kind):
@@ -41,25 +32,6 @@ def _positive(kind):
         return value
 
     return parse
-
-
-def check_writable(path: Path, create_parent: bool = False) -> None:
-    """Refuse an output path that cannot be written, before any work: a long run must not fail at the end."""
-    if path.is_dir():
-        raise SceneError(f"{path}: is a directory; give a file name")
-    parent = path.parent
-    if create_parent:
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise SceneError(f"{path}: cannot create the directory {parent} ({err.strerror or err})") from None
-    if not parent.is_dir():
-        raise SceneError(f"{path}: the directory {parent} does not exist")
-    try:  # os.access is not enough: root passes it, and some file systems refuse new files anyway
-        with tempfile.TemporaryFile(dir=parent):
-            pass
-    except OSError as err:
-        raise SceneError(f"{path}: cannot write in {parent} ({err.strerror or err})") from None
 
 
 def _add_simulate(sub) -> None:
@@ -174,14 +146,10 @@ def main(argv: list[str] | None = None) -> int:
     from .solver import SingularSystemError
 
     try:
-        if args.command == "bench":
-            from .benchmark import main as bench_main
+        if args.command in ("bench", "stress"):
+            from .bench.cli import main as harness_main  # the harness, imported only when asked for
 
-            return int(bench_main(rest) or 0)
-        if args.command == "stress":
-            from .stress import main as stress_main
-
-            return int(stress_main(rest) or 0)
+            return int(harness_main(args.command, rest) or 0)
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
         return _simulate(args)

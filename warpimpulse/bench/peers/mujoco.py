@@ -1,12 +1,13 @@
-"""Export a SceneBuilder to MJCF, so MuJoCo can simulate the very scene we simulate (benchmark peer).
+"""MuJoCo on a builder's scene: the benchmark's reference and a peer.
 
 MuJoCo works in reduced coordinates: bodies form a tree, each body carries the joints that connect it to
-its parent. Each MuJoCo body frame is placed exactly at our body frame (origin at the centre of mass,
+its parent (`reduced`). Each MuJoCo body frame is placed exactly at our body frame (origin at the centre of mass,
 axes along the builder's orientation), so `xpos`/`xquat` compare with our positions/orientations
 directly and the inertia tensor goes in unchanged.
 
-The model is built through `mujoco.MjSpec` (`to_spec`); `to_mjcf` serializes it. Everything that needs
-`mujoco` imports it when called, so this module imports without it.
+The model is built through `mujoco.MjSpec` (`to_spec`); `to_mjcf` serializes it; `MujocoScene` holds the
+compiled model and `MujocoRunner` steps it for the harness. Everything that needs `mujoco` imports it when
+called, so this module imports without it.
 """
 
 from __future__ import annotations
@@ -17,77 +18,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .builder import WORLD, Joint, SceneBuilder
-from .transforms import quat_conj, quat_mul, quat_rotate
+from ...builder import WORLD, SceneBuilder
+from ...transforms import quat_conj, quat_mul, quat_rotate
+from ..runner import StepFailed
+from .reduced import joint_elements, parent_joints
 
 if TYPE_CHECKING:
     import mujoco
 
-INTEGRATORS = ("Euler", "implicitfast", "RK4")
+INTEGRATORS = ("Euler", "implicitfast", "RK4")  # the peers of the sweep
 
 
 def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
     return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]])
-
-
-def parent_joints(builder: SceneBuilder) -> list[Joint | None]:
-    """The joint that connects each body to its parent, or None for roots.
-
-    MuJoCo bodies form a tree: a body with two parent joints, or joints forming a cycle, would need
-    loop-closing equality constraints, which this exporter does not write.
-    """
-    parents: list[Joint | None] = [None] * len(builder.bodies)
-    for joint in builder.joints:
-        child = builder.bodies[joint.child]
-        if parents[joint.child] is not None:
-            raise NotImplementedError(
-                f"MJCF export: body {child.name!r} has two parent joints ({parents[joint.child].name!r} and "
-                f"{joint.name!r}); kinematic loops are not supported"
-            )
-        if child.static:
-            raise NotImplementedError(f"MJCF export: joint {joint.name!r} has the static body {child.name!r} as child")
-        parents[joint.child] = joint
-    # Every body must reach a root by following parents, otherwise the joints form a cycle.
-    for start in range(len(builder.bodies)):
-        seen, b = set(), start
-        while parents[b] is not None and parents[b].parent != WORLD:
-            if b in seen:
-                raise NotImplementedError(
-                    f"MJCF export: the joints through body {builder.bodies[start].name!r} form a loop"
-                )
-            seen.add(b)
-            b = parents[b].parent
-    return parents
-
-
-def _in_plane(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(normal, helper)
-    u /= np.linalg.norm(u)
-    return u, np.cross(normal, u)
-
-
-def _joint_elements(joint: Joint, to_local) -> list[tuple[str, np.ndarray]]:
-    """(MuJoCo joint type, axis in the child frame) for each MuJoCo joint that makes up `joint`."""
-    kind = joint.kind
-    if kind == "ball":
-        return [("ball", np.array([0.0, 0.0, 1.0]))]
-    if kind == "fixed":
-        return []
-    axis = to_local(joint.axis)
-    if kind == "revolute":
-        return [("hinge", axis)]
-    if kind == "prismatic":
-        return [("slide", axis)]
-    if kind == "cylindrical":
-        return [("slide", axis), ("hinge", axis)]
-    if kind == "universal":
-        # Rotation about the parent's axis, then about the child's axis: keeps their angle constant.
-        return [("hinge", axis), ("hinge", to_local(joint.axis_child))]
-    if kind == "planar":
-        u, v = _in_plane(joint.axis)
-        return [("slide", to_local(u)), ("slide", to_local(v)), ("hinge", axis)]
-    raise NotImplementedError(f"MJCF export: joint {joint.name!r} of kind {kind!r} has no MuJoCo equivalent")
 
 
 _JOINT_TYPES = {"ball": "mjJNT_BALL", "hinge": "mjJNT_HINGE", "slide": "mjJNT_SLIDE"}
@@ -142,7 +85,7 @@ def to_spec(builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK
             else:
                 q_inv = quat_conj(body.orientation)
                 anchor = quat_rotate(q_inv, joint.anchor - body.position)
-                elements = _joint_elements(joint, lambda v, q_inv=q_inv: quat_rotate(q_inv, v))
+                elements = joint_elements(joint, lambda v, q_inv=q_inv: quat_rotate(q_inv, v))
                 for k, (kind, axis) in enumerate(elements):
                     el.add_joint(
                         name=joint.name if len(elements) == 1 else f"{joint.name}_{k}",
@@ -264,3 +207,54 @@ class MujocoScene:
 
         bad = int(mujoco.mjtWarning.mjWARN_BADQACC)
         return data.warning[bad].number > 0 or not math.isfinite(float(data.qpos.sum()))
+
+
+class MujocoRunner:
+    """MuJoCo on the exported scene. Forces are switched off by step count, so the timed loop holds only
+    mj_step and a comparison, as fair to MuJoCo as our loop is to us."""
+
+    def __init__(self, mscene, integrator: str, rate: int, energy: bool = False) -> None:
+        import mujoco
+
+        self._mj = mujoco
+        self.scene = mscene
+        mscene.set_integrator(integrator, 1.0 / rate)
+        mscene.set_energy(energy)
+        self.model = mscene.model
+        self.data = mscene.make_data()  # forces of the first step applied
+        self.steps = 0
+        self.rate = rate
+        # Steps at which some force switches off (the first step starting at or after its `until`).
+        switches = {math.ceil(f.until * rate - 1e-6) for f in mscene.builder.forces}
+        self._switches = sorted(switches, reverse=True)
+        self._next_switch = self._switches.pop() if self._switches else -1
+
+    def step(self) -> None:
+        if self.steps == self._next_switch:
+            self.scene.apply_forces(self.data)
+            self._next_switch = self._switches.pop() if self._switches else -1
+        self._mj.mj_step(self.model, self.data)
+        self.steps += 1
+
+    def check(self) -> None:
+        if self.scene.diverged(self.data):
+            raise StepFailed(f"MuJoCo diverged (bad qacc) before t = {self.steps / self.rate:.4g} s")
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.scene.positions(self.data), self.scene.orientations(self.data)
+
+    def energy(self) -> tuple[float, float]:
+        """(total, kinetic) at the current state; mj_forward recomputes it without changing the state."""
+        self._mj.mj_forward(self.model, self.data)
+        return float(self.data.energy[0] + self.data.energy[1]), float(self.data.energy[1])
+
+
+def mujoco_available() -> str | None:
+    try:
+        import mujoco
+    except ImportError:
+        return "mujoco is not installed (pip install 'warpimpulse[bench]')"
+    # MuJoCo would print every instability warning and append it to MUJOCO_LOG.TXT in the working
+    # directory; the harness reads the warning counters instead.
+    mujoco.set_mju_user_warning(lambda msg: None)
+    return None

@@ -1,4 +1,4 @@
-"""The stress suite's machinery on very small cases, and the failure handling of issue 5: checkpoint and
+"""The stress suite's machinery on very small cases, and the simulator's failure handling: checkpoint and
 resume bit-identical for every solver, NaN/Inf detection naming the step and the bodies, the raise/warn
 policy at the iteration limit."""
 
@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import warpimpulse as wi
-from warpimpulse import scenes, stress
+from warpimpulse import scenes
+from warpimpulse.bench import stress
 
 
 def _case(name: str, **changes) -> stress.Case:
@@ -21,7 +22,7 @@ def _case(name: str, **changes) -> stress.Case:
 
 
 # ------------------------------------------------------------------------------------------------ the suite
-def test_every_issue_case_is_in_both_modes():
+def test_every_case_group_is_in_both_modes():
     for quick in (True, False):
         groups = {c.group for c in stress.cases(quick)}
         assert groups == {"mass ratio", "size", "high spin", "large steps", "long run", "near-singular", "redundant"}
@@ -62,11 +63,11 @@ def test_a_hold_case_that_stops_fails_and_an_unclear_error_fails():
     res = stress.run_case(_case("hinge_through_com", dt=0.5, max_iterations=1, steps=5))
     assert res.status == "FAIL" and res.outcome == "stopped"
     builder = scenes.chain(2)
-    clear, _ = stress._clear_error(wi.SimulationError("step 3: did not reach 1e-6 in 5 iterations; 'j1'"), builder)
+    clear, _ = stress.clear_error(wi.SimulationError("step 3: did not reach 1e-6 in 5 iterations; 'j1'"), builder)
     assert clear
-    clear, why = stress._clear_error(wi.SimulationError("did not converge"), builder)
+    clear, why = stress.clear_error(wi.SimulationError("did not converge"), builder)
     assert not clear and "step" in why and "joints" in why
-    assert not stress._clear_error(RuntimeError("boom"), builder)[0]
+    assert not stress.clear_error(RuntimeError("boom"), builder)[0]
 
 
 def test_main_exit_status_and_json(tmp_path, monkeypatch, capsys):
@@ -90,14 +91,14 @@ def test_table_rows_line_up_with_the_header():
     res = stress.Result("case", "group", status="PASS", outcome="held", bodies=3, steps_planned=2, steps_done=2,
                         max_joint_error=1e-7, energy_drift=0.01, iterations_mean=2.0, iterations_max=3,
                         ms_per_step=0.5, setup_s=0.1, run_s=0.2)  # fmt: skip
-    row = stress._row(res)
+    row = stress.table_row(res)
     for label, value in (("max joint", "1.00e-07"), ("E drift", "+1.00e-02"), ("it/step", "2.00/3"),
                          ("ms/step", "0.50"), ("setup s", "0.10"), ("total s", "0.30")):  # fmt: skip
         assert stress.HEADER.index(label) + len(label) == row.index(value) + len(value), (label, row)
 
 
 def test_isolated_case_runs_in_a_child():
-    res = stress._run_isolated(_case("redundant_fixed_hinge_cholesky", budget_s=120.0), quick=True)
+    res = stress.run_isolated(_case("redundant_fixed_hinge_cholesky", budget_s=120.0), quick=True)
     assert res.status == "PASS" and "SingularSystemError" in res.error
 
 
@@ -195,7 +196,7 @@ def test_failing_step_is_redone_as_substeps():
 def _spinning_pendulum(omega: float) -> wi.SceneBuilder:
     """A rod hanging on a world ball joint, spinning about its own (vertical) axis at omega rad/s."""
     builder = wi.SceneBuilder()
-    body, _ = stress._capsule(builder, np.zeros(3), [0.0, 0.0, -1.0], 1.0, "rod")
+    body, _ = stress.capsule(builder, np.zeros(3), [0.0, 0.0, -1.0], 1.0, "rod")
     builder.bodies[body].angular_velocity[:] = (0.0, 0.0, omega)
     builder.add_joint_ball(None, body, np.zeros(3), name="hang")
     return builder
@@ -223,7 +224,7 @@ def _energy_gain(sim: wi.Simulator, steps: int) -> float:
     e0, gain, scale = sim.energy(), 0.0, 0.0
     for _ in range(steps):
         sim.step()
-        scale = max(scale, stress._kinetic(sim))
+        scale = max(scale, stress.kinetic_energy(sim))
         gain = max(gain, sim.energy() - e0)
     return gain / scale
 

@@ -1,18 +1,18 @@
-"""`warpimpulse stress`: the stress suite of issue 5.
+"""`warpimpulse stress`: the stress suite.
 
 Every case builds a scene, runs it, and is judged against criteria stated with the case:
 
 - ``hold``: every step converges (joint error <= tolerance, velocity error <= velocity tolerance), the state
   stays finite, the joints hold at the end (checked again from the final state), and the energy does not
   grow by more than ``energy_gain`` of the energy scale (the largest kinetic energy seen). Any stop is a FAIL.
-- ``hold_or_stop``: the issue's general rule, for set-ups beyond the method's comfort zone (large steps,
+- ``hold_or_stop``: the suite's general rule, for set-ups beyond the method's comfort zone (large steps,
   high spin, near-singular joints): either everything ``hold`` asks for, or the run stops with a *clear*
   error: a SimulationError naming the step, the iterations and the joints (or bodies) at fault, a
   SingularSystemError naming the joint, or a SceneError naming the joint. The table says which ("held" or
   "stopped") and stops are listed as findings at the end.
 - ``error``: the run must stop with a clear error of the expected kind (redundant constraints, a joint the
   builder must refuse). Holding is also accepted where ``solved_ok`` says so (a solver that solves a
-  consistent redundant system is allowed by the issue: "detect them and report them, or solve them").
+  consistent redundant system is allowed: redundant constraints are to be detected and reported, or solved).
 
 A FAIL is anything else: NaN or Inf that reached the user, a joint error above tolerance without an error
 (silent drift), an error that does not name the step / iterations / joints, another exception, a crash,
@@ -40,18 +40,25 @@ from pathlib import Path
 
 import numpy as np
 
-from .builder import SceneBuilder, SceneError
-from .shapes import Shape
-from .transforms import quat_between, quat_from_axis_angle, quat_rotate
+from ..builder import SceneBuilder, SceneError
+from ..cliutil import ArgumentParser, check_writable
+from ..scenes import binary_tree, chain, star
+from ..shapes import Shape
+from ..simulator import SimulationError, Simulator
+from ..solver import SingularSystemError
+from ..transforms import quat_between, quat_from_axis_angle, quat_rotate, quat_to_matrix
+from .harness import quiet_warp
 
 DEFAULT_JSON = Path("benchmarks/results/stress.json")
 QUICK_BUDGET_S = 300.0
 
 
 # ------------------------------------------------------------------------------------------------ scenes
-def _capsule(
+def capsule(
     builder: SceneBuilder, top, direction, length, name, mass_factor=1.0, density=1000.0
 ) -> tuple[int, np.ndarray]:
+    """A capsule of `length` m (radius 5% of it) hanging from `top` along `direction` (world frame), of
+    `density` kg/m^3 times `mass_factor`; returns the body and its far end (world, m)."""
     radius = 0.05 * length
     span = length - 2.0 * radius
     shape = Shape("capsule", radius=radius, length=span)
@@ -73,7 +80,7 @@ def mass_ratio_chain(ratio: float, heavy: str, links: int = 8, joint: str = "rev
     for i in range(links):
         factor = {"tip": ratio if i == links - 1 else 1.0, "root": ratio if i == 0 else 1.0,
                   "alternate": ratio if i % 2 else 1.0}[heavy]  # fmt: skip
-        body, bottom = _capsule(builder, top, x_axis, 0.5, f"link{i}", factor)
+        body, bottom = capsule(builder, top, x_axis, 0.5, f"link{i}", factor)
         builder.add_joint(joint, parent, body, top, y_axis, None, f"j{i}")
         parent, top = body, bottom
     return builder
@@ -82,8 +89,6 @@ def mass_ratio_chain(ratio: float, heavy: str, links: int = 8, joint: str = "rev
 def spinning_tree(bodies: int, omega) -> SceneBuilder:
     """The paper's tree with its root body given angular velocity `omega` (world, rad/s) before finalize.
     The root's linear velocity is made consistent with its world ball joint; its children start at rest."""
-    from .scenes import binary_tree
-
     builder = binary_tree(bodies)
     root = builder.bodies[0]
     root.angular_velocity[:] = omega
@@ -97,7 +102,7 @@ def near_parallel_universal(angle: float) -> SceneBuilder:
     and twisting (initial angular velocity about all three axes)."""
     builder = SceneBuilder()
     down = np.array([0.0, 0.0, -1.0])
-    body, _ = _capsule(builder, np.zeros(3), quat_rotate(quat_from_axis_angle([0, 1, 0], 0.3), down), 1.0, "rod")
+    body, _ = capsule(builder, np.zeros(3), quat_rotate(quat_from_axis_angle([0, 1, 0], 0.3), down), 1.0, "rod")
     builder.bodies[body].angular_velocity[:] = (0.5, 1.0, 2.0)
     builder.bodies[body].linear_velocity[:] = np.cross((0.5, 1.0, 2.0), builder.bodies[body].position)
     axis0 = np.array([1.0, 0.0, 0.0])
@@ -105,7 +110,7 @@ def near_parallel_universal(angle: float) -> SceneBuilder:
     builder.add_joint_universal(None, body, np.zeros(3), axis0, axis1, name="universal")
     # A second rod below, on a ball joint, so the universal joint carries a moving load.
     top = builder.bodies[body].position * 2.0
-    child, _ = _capsule(builder, top, down, 1.0, "rod2")
+    child, _ = capsule(builder, top, down, 1.0, "rod2")
     builder.add_joint_ball(body, child, top, name="ball")
     return builder
 
@@ -115,7 +120,7 @@ def hinge_through_centre() -> SceneBuilder:
     plus a free-tumbling box on a hinge through its centre of mass fixed to the world."""
     builder = SceneBuilder()
     y_axis = np.array([0.0, 1.0, 0.0])
-    rod, bottom = _capsule(
+    rod, bottom = capsule(
         builder, np.zeros(3), quat_rotate(quat_from_axis_angle(y_axis, 0.8), [0, 0, -1.0]), 1.0, "rod"
     )
     builder.add_joint_revolute(None, rod, np.zeros(3), y_axis, name="pivot")
@@ -135,29 +140,23 @@ def redundant_pair() -> SceneBuilder:
     """A rod on a world ball joint and a second rod held to it by a fixed joint and a hinge at the same point."""
     builder = SceneBuilder()
     x_axis, y_axis = np.eye(3)[0], np.eye(3)[1]
-    a, bottom = _capsule(builder, np.zeros(3), x_axis, 1.0, "rod_a")
+    a, bottom = capsule(builder, np.zeros(3), x_axis, 1.0, "rod_a")
     builder.add_joint_ball(None, a, np.zeros(3), name="hang")
-    b, _ = _capsule(builder, bottom, x_axis, 1.0, "rod_b")
+    b, _ = capsule(builder, bottom, x_axis, 1.0, "rod_b")
     builder.add_joint_fixed(a, b, bottom, name="weld")
     builder.add_joint_revolute(a, b, bottom, y_axis, name="hinge")
     return builder
 
 
 def _tree(n):
-    from .scenes import binary_tree
-
     return lambda: binary_tree(n)
 
 
 def _star(n):
-    from .scenes import star
-
     return lambda: star(n)
 
 
 def _chain(n):
-    from .scenes import chain
-
     return lambda: chain(n, "revolute")
 
 
@@ -282,11 +281,9 @@ class Result:
     reasons: list[str] = field(default_factory=list)
 
 
-def _clear_error(err: BaseException, builder: SceneBuilder | None) -> tuple[bool, str]:
-    """Is `err` a clear error in the issue's sense? Returns (clear, why not)."""
-    from .simulator import SimulationError
-    from .solver import SingularSystemError
-
+def clear_error(err: BaseException, builder: SceneBuilder | None) -> tuple[bool, str]:
+    """Is `err` a clear error: one that names the step, the iterations and the joints (or bodies) at fault?
+    Returns (clear, why not)."""
     msg = str(err)
     joint_names = {j.name for j in builder.joints} if builder is not None else set()
     body_names = {b.name for b in builder.bodies} if builder is not None else set()
@@ -312,11 +309,10 @@ def _clear_error(err: BaseException, builder: SceneBuilder | None) -> tuple[bool
     return False, f"{type(err).__name__} is not one of the engine's clear errors"
 
 
-def _kinetic(sim) -> float:
+def kinetic_energy(sim: Simulator) -> float:
+    """Kinetic energy of the simulator's state, J (translation and rotation): the suite's energy scale."""
     m = sim.model.host.body_mass
     v, w = sim.state.body_v.numpy(), sim.state.body_w.numpy()
-    from .transforms import quat_to_matrix
-
     r = quat_to_matrix(sim.state.body_q.numpy())
     iw = np.einsum("nij,njk,nlk->nil", r, sim.model.body_inertia.numpy(), r)
     return float(0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
@@ -328,9 +324,6 @@ def _f(x) -> float | None:
 
 def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Result:
     """Build and run one case in this process, and judge it."""
-    from .simulator import SimulationError, Simulator
-    from .solver import SingularSystemError
-
     phase = ["start"]
 
     def say(msg: str) -> None:
@@ -368,7 +361,7 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
             if k == ref_step:
                 e_ref = sim.energy()
             elif e_ref is not None and (k - ref_step) % case.energy_every == 0:
-                e, ke = sim.energy(), _kinetic(sim)
+                e, ke = sim.energy(), kinetic_energy(sim)
                 ke_max = max(ke_max, ke)
                 gain_max = max(gain_max, e - e_ref)
             s = sim.step()
@@ -410,7 +403,7 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
         return res
     if stopped is not None:
         res.outcome = "stopped"
-        clear, why = _clear_error(stopped, builder)
+        clear, why = clear_error(stopped, builder)
         kind = type(stopped).__name__
         if not clear:
             res.reasons.append(f"the error is not clear: {why}")
@@ -438,7 +431,7 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
             res.reasons.append(f"velocity error {res.max_velocity_error:.3g} > {sim.velocity_tolerance:g}")
         if e_ref is not None and state_ok:
             e_end = sim.energy()
-            ke_max = max(ke_max, _kinetic(sim))
+            ke_max = max(ke_max, kinetic_energy(sim))
             gain_max = max(gain_max, e_end - e_ref)
             scale = max(ke_max, 1e-300)
             res.energy_drift = _f((e_end - e_ref) / scale)
@@ -451,13 +444,13 @@ def run_case(case: Case, progress: Callable[[str], None] | None = None) -> Resul
     return res
 
 
-def _run_isolated(case: Case, quick: bool) -> Result:
+def run_isolated(case: Case, quick: bool) -> Result:
     """Run a case in a child process with the case's time budget and an address-space limit."""
     code = (
-        "import json, sys, warp as wp\n"
-        "wp.config.quiet = True; wp.config.log_level = wp.LOG_WARNING\n"
+        "import json, sys\n"
         "from dataclasses import asdict\n"
-        "from warpimpulse import stress\n"
+        "from warpimpulse.bench import stress\n"
+        "stress.quiet_warp()\n"
         f"case = next(c for c in stress.cases({quick!r}) if c.name == {case.name!r})\n"
         "res = stress.run_case(case, lambda m: print('phase:', m, file=sys.stderr, flush=True))\n"
         "print(json.dumps(asdict(res)))\n"
@@ -501,7 +494,8 @@ def _g(x, fmt=".2e") -> str:
     return "-" if x is None else format(x, fmt)
 
 
-def _row(r: Result) -> str:
+def table_row(r: Result) -> str:
+    """One case's line of the table, in the columns of HEADER."""
     its = "-" if r.iterations_mean is None else f"{r.iterations_mean:.2f}/{r.iterations_max}"
     total = r.setup_s + r.run_s
     return (f"{r.name:34s} {r.bodies:6d} {r.steps_done:>6d}/{r.steps_planned:<6d} {_g(r.max_joint_error):>9s} "
@@ -519,9 +513,7 @@ def _short(text: str, n: int = 240) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .cli import ArgumentParser, check_writable
-
-    parser = ArgumentParser(prog="warpimpulse stress", description="the stress suite (issue 5)")
+    parser = ArgumentParser(prog="warpimpulse stress", description="the stress suite")
     parser.add_argument("--quick", action="store_true", help=f"reduced cases, under {QUICK_BUDGET_S:g} s on 2 cores")
     parser.add_argument("--json", nargs="?", const=str(DEFAULT_JSON), default=None, metavar="PATH",
                         help=f"write the results as JSON (default path {DEFAULT_JSON})")  # fmt: skip
@@ -533,8 +525,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import warp as wp
 
-    wp.config.quiet = True
-    wp.config.log_level = wp.LOG_WARNING
+    quiet_warp()
     selected = [c for c in cases(args.quick) if not args.case or any(t in c.name for t in args.case)]
     if args.list:
         for c in selected:
@@ -555,9 +546,9 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     results = []
     for case in selected:
-        res = _run_isolated(case, args.quick) if case.isolate and not args.no_isolate else run_case(case)
+        res = run_isolated(case, args.quick) if case.isolate and not args.no_isolate else run_case(case)
         results.append(res)
-        print(_row(res), flush=True)
+        print(table_row(res), flush=True)
         for reason in res.reasons:
             print(f"{'':36s}-> {reason}")
         if res.error and res.outcome != "held":

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 
 from warpimpulse import SceneBuilder, scenes
-from warpimpulse.benchmark import MujocoRunner, Probe, mujoco_available
-from warpimpulse.mjcf import MujocoScene
+from warpimpulse.bench import harness
+from warpimpulse.bench.harness import Probe
+from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
+from warpimpulse.bench.peers.pinocchio import PinocchioRunner, PinocchioScene
 
 pin = pytest.importorskip("pinocchio")
-from warpimpulse.pinocchio_peer import PinocchioRunner, PinocchioScene  # noqa: E402
 
 
 @pytest.mark.parametrize("builder", [scenes.double_pendulum(), scenes.binary_tree(15), scenes.star(15)])
@@ -81,11 +82,9 @@ def test_agrees_with_mujoco_through_the_start_torque(builder: SceneBuilder) -> N
 
 def test_reference_is_cross_checked_against_pinocchio() -> None:
     pytest.importorskip("mujoco")
-    from warpimpulse import benchmark
-
     builder = scenes.double_pendulum()
     mscene, pscene = MujocoScene.from_builder(builder, 1e-3), PinocchioScene.from_builder(builder)
-    ref = benchmark.reference(mscene, pscene, Probe.from_builder(builder), benchmark.ERROR_TIME, 0.0)
+    ref = harness.reference(mscene, pscene, Probe.from_builder(builder), harness.ERROR_TIME, 0.0)
     assert ref.pinocchio_residual is not None and ref.pinocchio_residual < 1e-7
 
 

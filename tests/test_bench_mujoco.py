@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from warpimpulse import SceneBuilder, scenes
-from warpimpulse.mjcf import MujocoScene, to_mjcf
+from warpimpulse.bench import harness, report
+from warpimpulse.bench.peers.mujoco import MujocoScene, to_mjcf
 from warpimpulse.transforms import quat_from_axis_angle, quat_to_matrix
 
 mujoco = pytest.importorskip("mujoco")
@@ -148,24 +149,22 @@ def test_forces_stop_on_the_same_step_as_ours() -> None:
 def test_benchmark_harness_end_to_end(tmp_path) -> None:
     """One configuration per engine on the double pendulum: every number and every output is produced."""
     pytest.importorskip("matplotlib")
-    from warpimpulse import benchmark
-
-    sweep = benchmark.run_vs_error(["double_pendulum"], [60], [1e-6], repeats=1, progress=False)
+    sweep = harness.run_vs_error(["double_pendulum"], [60], [1e-6], repeats=1, progress=False)
     ref = sweep["references"]["double_pendulum"]
     assert ref["self_check_residual"] < 1e-8
     rk4 = next(r for r in sweep["runs"] if r["variant"] == "RK4" and r["engine"] == "mujoco")
     assert rk4["failed"] is None and rk4["trajectory_error"] < 1e-3 and rk4["energy_drift"] < 1e-2
     assert rk4["time_per_step"] > 0.0 and rk4["joint_error_anchor_gap"] < 1e-12
     results = {"run_vs_error": sweep}
-    report = benchmark.markdown(results)
-    assert "| mujoco | RK4 | 1/60 |" in report and "## Where we win and lose" in report
-    written = benchmark.plots(results, tmp_path)
+    text = report.markdown(results)
+    assert "| mujoco | RK4 | 1/60 |" in text and "## Where we win and lose" in text
+    written = report.plots(results, tmp_path)
     assert {p.name for p in written} == {"pareto_double_pendulum.png", "energy_drift.png"}
     readme = tmp_path / "README.md"
-    readme.write_text(f"# title\n\nkept\n{benchmark.README_BEGIN}\nold\n{benchmark.README_END}\nkept too\n")
-    benchmark.write_readme_block(readme, benchmark.readme_block(results))
+    readme.write_text(f"# title\n\nkept\n{report.README_BEGIN}\nold\n{report.README_END}\nkept too\n")
+    report.write_readme_block(readme, report.readme_block(results))
     text = readme.read_text()
-    assert text.startswith("# title\n\nkept\n") and text.endswith(f"{benchmark.README_END}\nkept too\n")
+    assert text.startswith("# title\n\nkept\n") and text.endswith(f"{report.README_END}\nkept too\n")
     assert "old" not in text and "pareto_double_pendulum.png" in text and "The bar" not in text
 
 
@@ -175,8 +174,6 @@ def test_mujoco_builds_chains_deeper_than_its_xml_parser_allows() -> None:
 
 
 def test_speed_ratio_picks_the_fastest_peer_at_least_as_accurate() -> None:
-    from warpimpulse.benchmark import speed_ratios
-
     def run(engine, variant, rate, error, seconds):
         return {"scene": "tree127", "engine": engine, "variant": variant, "rate": rate, "tolerance": 1e-6,
                 "failed": None, "trajectory_error": error, "time_per_step": seconds}  # fmt: skip
@@ -187,6 +184,6 @@ def test_speed_ratio_picks_the_fastest_peer_at_least_as_accurate() -> None:
         run("mujoco", "RK4", 30, 2e-3, 3e-4),  # faster but less accurate: not a match
         run("mujoco", "Euler", 300, 5e-4, 8e-4),
     ]
-    (ratio,) = speed_ratios(runs)
+    (ratio,) = report.speed_ratios(runs)
     assert ratio["mujoco"] == "RK4 1/60"
     assert ratio["ratio"] == pytest.approx(2.5)

@@ -1,7 +1,7 @@
 """pinocchio (the articulated-body algorithm, ABA) on a builder's scene: the benchmark's second reference
 and a peer.
 
-The model comes from the same SceneBuilder description that `warpimpulse.mjcf` gives MuJoCo: each body's
+The model comes from the same tree of elementary joints (`reduced`) that `mujoco` gives MuJoCo: each body's
 parent joint becomes one pinocchio joint (a composite where MuJoCo needs several elements), its frame at
 the anchor with the body's orientation, the body at its centre of mass in that frame. A fixed joint welds
 the body to its parent's joint; a static body welds to the universe. pinocchio has no integrator, so
@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .builder import WORLD, SceneBuilder
-from .mjcf import _joint_elements, parent_joints
-from .transforms import quat_conj, quat_rotate, quat_to_matrix
+from ...builder import WORLD, SceneBuilder
+from ...transforms import quat_conj, quat_rotate, quat_to_matrix
+from ..runner import StepFailed
+from .reduced import joint_elements, parent_joints
 
 if TYPE_CHECKING:
     import pinocchio
@@ -34,7 +35,7 @@ def pinocchio_available() -> str | None:
     try:
         import pinocchio  # noqa: F401
     except ImportError:
-        return "pinocchio is not installed (pip install pin)"
+        return "pinocchio is not installed (pip install 'warpimpulse[bench]', or pip install pin)"
     return None
 
 
@@ -99,7 +100,7 @@ class PinocchioScene:
                     jm, origin = pin.JointModelFreeFlyer(), body.position
                 else:
                     q_inv = quat_conj(body.orientation)
-                    jm = _joint_model(_joint_elements(joint, lambda v: quat_rotate(q_inv, v)))
+                    jm = _joint_model(joint_elements(joint, lambda v: quat_rotate(q_inv, v)))
                     origin = joint.anchor
                 jpose = se3(body.orientation, origin)
                 jid = model.addJoint(int(host_id), jm, host_pose.actInv(jpose), joint.name if joint else body.name)
@@ -255,8 +256,6 @@ class PinocchioRunner:
 
     def check(self) -> None:
         if not (np.all(np.isfinite(self.q)) and np.all(np.isfinite(self.v))):
-            from .benchmark import StepFailed
-
             raise StepFailed(f"pinocchio diverged before t = {self.steps / self.rate:.4g} s")
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,38 @@
+"""What every command line of the package shares (`warpimpulse.cli` and the harness's commands): a usage
+mistake reported in one line with exit status 2, and an output path checked before any work."""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+from .builder import SceneError
+
+EXIT_USAGE = 2
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """Reports a usage mistake in one line (the full usage is one `--help` away), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def check_writable(path: Path, create_parent: bool = False) -> None:
+    """Refuse an output path that cannot be written, before any work: a long run must not fail at the end."""
+    if path.is_dir():
+        raise SceneError(f"{path}: is a directory; give a file name")
+    parent = path.parent
+    if create_parent:
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise SceneError(f"{path}: cannot create the directory {parent} ({err.strerror or err})") from None
+    if not parent.is_dir():
+        raise SceneError(f"{path}: the directory {parent} does not exist")
+    try:  # os.access is not enough: root passes it, and some file systems refuse new files anyway
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as err:
+        raise SceneError(f"{path}: cannot write in {parent} ({err.strerror or err})") from None
