@@ -17,8 +17,9 @@ import pytest
 pxr = pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics  # noqa: E402
 
-from warpimpulse import SceneBuilder, SceneError, Shape, scenes, usd  # noqa: E402
+from warpimpulse import SceneBuilder, SceneError, Shape, run, scenes, usd  # noqa: E402
 from warpimpulse.cli import main as cli_main  # noqa: E402
+from warpimpulse.usd import writer  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DT, FPS, TOL = 1e-3, 50.0, 1e-6
@@ -150,7 +151,7 @@ def simulate(scene: usd.UsdScene, out: str, frames: int, **writer_args) -> tuple
                 qs.append(sim.orientations())
                 return qs[-1]
 
-        usd.record(Tap(), w, frames / FPS, progress=False)
+        run.record_frames(Tap(), w, frames / FPS, progress=False)
     return np.array(xs), np.array(qs)
 
 
@@ -412,7 +413,7 @@ def test_auto_instancer_threshold():
         big.add_body(1.0, [1, 1, 1], (i, 0, 0), name=f"b{i}")
     w = usd.AnimationWriter("/nonexistent/never_written.usd", big, 30.0)
     assert w.instancer
-    w._closed = True  # never written
+    w.discard()
 
 
 # ---------------------------------------------------------------------------------------------- safety
@@ -444,7 +445,7 @@ def test_failed_write_leaves_old_file(tmp_path, monkeypatch):
     def boom(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(usd.os, "replace", boom)
+    monkeypatch.setattr(os, "replace", boom)
     with pytest.raises(OSError):
         w.close()
     assert out.read_text() == "#usda 1.0\n"
@@ -452,13 +453,13 @@ def test_failed_write_leaves_old_file(tmp_path, monkeypatch):
 
 
 def test_frames_cross_chunk_boundaries(tmp_path, monkeypatch):
-    monkeypatch.setattr(usd, "_CHUNK_FRAMES", 3)  # 8 frames: chunks of 3, 3 and 2
+    monkeypatch.setattr(writer, "CHUNK_FRAMES", 3)  # 8 frames: chunks of 3, 3 and 2
     b = scenes.chain(3)
     x0 = np.array([body.position for body in b.bodies])
     q0 = np.array([body.orientation for body in b.bodies])
     out = str(tmp_path / "chunks.usdc")
     with usd.AnimationWriter(out, b, 30.0) as w:
-        assert w._buf_t.shape[1] == 3
+        assert w.chunk_frames == 3
         for f in range(8):
             w.write_frame(f, x0 + [0.0, 0.0, 0.1 * f], q0)
     anim = usd.read_animation(out)
@@ -483,17 +484,17 @@ def test_progress_bar(capsys):
     b.add_body(1.0, [1, 1, 1], (0, 0, 0))
     for progress in (True, None):  # None: only on a terminal, and stderr is not one under pytest
         w = usd.AnimationWriter("/nonexistent/never_written.usd", b, 10.0)
-        assert usd.record(Still(), w, 1.0, progress=progress) == 11
-        w._closed = True  # never written
+        assert run.record_frames(Still(), w, 1.0, progress=progress) == 11
+        w.discard()
         err = capsys.readouterr().err
         assert ("[" + "#" * 30 + "] 10/10 frames" in err and err.endswith("\n")) if progress else err == ""
 
 
 def test_frames_and_steps():
-    assert usd.frame_steps(1e-3, 50.0) == 20
-    assert usd.frame_steps(1.0 / 300.0, 30.0) == 10
+    assert run.frame_steps(1e-3, 50.0) == 20
+    assert run.frame_steps(1.0 / 300.0, 30.0) == 10
     with pytest.raises(ValueError, match="not a whole multiple"):
-        usd.frame_steps(0.003, 30.0)
+        run.frame_steps(0.003, 30.0)
 
 
 def test_record_writes_duration_times_fps_plus_one_frames(tmp_path):
@@ -517,7 +518,7 @@ def test_record_writes_duration_times_fps_plus_one_frames(tmp_path):
     b = scenes.chain(2)
     sim = Still(b)
     with usd.AnimationWriter(str(tmp_path / "r.usda"), b, 30.0) as w:
-        assert usd.record(sim, w, 1.0, progress=False) == 31
+        assert run.record_frames(sim, w, 1.0, progress=False) == 31
     assert sim.steps == 300
     assert Sdf.Layer.FindOrOpen(str(tmp_path / "r.usda")).endTimeCode == 30.0
 

@@ -65,7 +65,7 @@ def _add_simulate(sub) -> None:
 def _simulate(args) -> int:
     import warp as wp
 
-    from . import usd
+    from . import run, usd
     from .simulator import SimulationError, Simulator
     from .solver import SingularSystemError
 
@@ -88,7 +88,7 @@ def _simulate(args) -> int:
     file_dt = scene.dt if args.input else None  # a scene file may record the step size it needs
     dt = args.dt if args.dt is not None else (file_dt or 1.0 / args.fps)
     try:
-        usd.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
+        run.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
     except ValueError as err:
         raise ValueError(f"{err} (dt from {source}'s warpimpulse:dt; pass --dt)" if dt == file_dt else err) from None
     out = args.out or Path(f"{name}.usdc")
@@ -103,22 +103,13 @@ def _simulate(args) -> int:
         on_max_iterations=args.on_max_iterations,
         max_rotation=None if args.whole_steps else args.max_rotation,
     )
-    settings = {
-        "dt": dt,
-        "tolerance": args.tolerance,
-        "velocity_tolerance": sim.velocity_tolerance,
-        "solver": sim.solver_name,
-        "max_iterations": args.max_iterations,
-        "max_rotation": sim.max_rotation or 0.0,  # 0: whole steps
-        "version": __version__,
-    }
     start = time.perf_counter()
     writer = usd.AnimationWriter(
-        out, scene, args.fps, settings=settings, flatten=args.flatten, instancer=args.instancer
+        out, scene, args.fps, settings=run.settings(sim), flatten=args.flatten, instancer=args.instancer
     )
     try:
         with writer:
-            frames = usd.record(sim, writer, args.duration, dt=dt, progress=args.progress)
+            frames = run.record_frames(sim, writer, args.duration, progress=args.progress)
     except (SimulationError, SingularSystemError, FloatingPointError) as err:
         print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
         print(f"warpimpulse: {out} holds the {writer.frames_written} frames done before the stop", file=sys.stderr)

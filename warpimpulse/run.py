@@ -1,0 +1,83 @@
+"""Driving a simulation frame by frame into a writer, with a progress bar: the loop behind both
+`warpimpulse simulate` and `warpimpulse.usd.record`.
+
+Frame f holds the state at t = f / fps; between frames the simulator takes whole steps of dt, so 1/fps must
+be a whole multiple of dt (`frame_steps`). Nothing here knows USD: the writer is anything with `fps` and
+`write_frame`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any, Protocol
+
+import numpy as np
+
+
+class FrameWriter(Protocol):
+    """Where frames go (e.g. `warpimpulse.usd.AnimationWriter`)."""
+
+    fps: float
+
+    def write_frame(self, time_code: int, positions: np.ndarray, orientations: np.ndarray) -> None:
+        """Centres of mass (N, 3) in metres and orientations (N, 4) as (x, y, z, w), world frame."""
+
+
+def frame_steps(dt: float, fps: float) -> int:
+    """Steps of `dt` per frame. Raises ValueError unless 1/fps is a whole multiple of dt (to 1e-9)."""
+    ratio = 1.0 / (fps * dt)
+    steps = round(ratio)
+    if steps < 1 or abs(ratio - steps) > 1e-9 * max(ratio, 1.0):
+        raise ValueError(
+            f"1/fps = {1.0 / fps:.9g} s is not a whole multiple of dt = {dt:.9g} s ({ratio:.6g} steps a frame); "
+            f"choose dt = 1/(fps*k), e.g. dt = {1.0 / (fps * max(1, math.ceil(ratio))):.9g}"
+        )
+    return steps
+
+
+def settings(sim: Any) -> dict[str, Any]:
+    """The simulator settings an output file records (customLayerData warpimpulse:*), so a run can be
+    repeated from its file."""
+    return {
+        "dt": sim.dt,
+        "tolerance": sim.tolerance,
+        "velocity_tolerance": sim.velocity_tolerance,
+        "solver": sim.solver_name,
+        "max_iterations": sim.max_iterations,
+        "max_rotation": sim.max_rotation or 0.0,  # 0: whole steps
+    }
+
+
+def record_frames(
+    sim: Any, writer: FrameWriter, duration: float, dt: float | None = None, progress: bool | None = None
+) -> int:
+    """Step `sim` and write frames 0 .. round(duration * fps) inclusive (frame f holds t = f / fps).
+
+    `sim` needs `step()`, `positions()` and `orientations()` (and `dt` unless given). A progress bar is
+    drawn on stderr when it is a terminal (or `progress=True`). Returns the number of frames written;
+    call it inside `with writer:` so that an error or Ctrl-C still leaves a valid file. A non-finite state
+    raises FloatingPointError naming the frame.
+    """
+    dt = float(dt if dt is not None else sim.dt)
+    steps = frame_steps(dt, writer.fps)
+    frames = int(round(duration * writer.fps))
+    show = sys.stderr.isatty() if progress is None else progress
+    start = time.perf_counter()
+    for f in range(frames + 1):
+        if f > 0:
+            for _ in range(steps):
+                sim.step()
+        x, q = sim.positions(), sim.orientations()
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
+            raise FloatingPointError(f"the simulation diverged (non-finite state) before frame {f}")
+        writer.write_frame(f, x, q)
+        if show:
+            done = (f + 1) / (frames + 1)
+            bar = "#" * int(30 * done)
+            rate = (f + 1) / max(time.perf_counter() - start, 1e-9)
+            print(f"\r[{bar:<30}] {f}/{frames} frames  {rate:6.1f} fps", end="", file=sys.stderr, flush=True)
+    if show:
+        print(file=sys.stderr)
+    return frames + 1

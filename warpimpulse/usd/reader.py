@@ -1,0 +1,601 @@
+"""USD in: a UsdPhysics scene to a SceneBuilder (`load_stage`).
+
+Rigid bodies, mass and joints come from `UsdPhysics.UsdPhysicsLoadStageFromPrimRange`; transforms come from
+`UsdGeom.XformCache` in double precision (the parser's poses are float). Generic (D6) joints map to the
+combined joint their locked axes describe, or to basic constraints. Drives, limits and break forces are
+refused (or dropped with a warning when `ignore_unsupported`), never silently.
+
+Units: the simulator is SI. Inputs are converted with metersPerUnit / kilogramsPerUnit; angles in USD are
+degrees. USD stores quaternions real part first (`Gf.Quatd(w, x, y, z)`); here they are (x, y, z, w).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..builder import SceneBuilder, SceneError
+from ..joints import JOINT_TYPES
+from ..shapes import Shape
+from ..transforms import quat_conj, quat_from_matrix, quat_mul, quat_rotate, quat_to_matrix
+from .scene import IDENTITY_QUAT, UnsupportedFeatureError, UsdScene, UsdSceneError, open_stage, pxr
+
+_DOFS = ("transX", "transY", "transZ", "rotX", "rotY", "rotZ")
+_EYE = np.eye(3)
+
+
+@dataclass
+class Similarity:
+    """A decomposed USD matrix: x_world = t + R (s * x_local), s per axis (no shear)."""
+
+    t: np.ndarray
+    q: np.ndarray  # (x, y, z, w)
+    s: np.ndarray
+
+    @property
+    def uniform(self) -> bool:
+        return bool(np.ptp(self.s) <= 1e-9 * max(float(np.abs(self.s).max()), 1e-300))
+
+
+def decompose(m, what: str) -> Similarity:
+    """Split a USD (row-vector) 4x4 matrix into translation, rotation and per-axis scale."""
+    m = np.asarray(m, dtype=np.float64)
+    lin = m[:3, :3].T  # column-vector linear part
+    s = np.sqrt((lin * lin).sum(axis=0))
+    if s.min() < 1e-12:
+        raise UsdSceneError(f"{what}: the transform has a zero scale")
+    rot = lin / s
+    if np.abs(rot.T @ rot - _EYE).max() > 1e-6:
+        raise UsdSceneError(f"{what}: the transform has shear (non-uniform scale under a rotation); unsupported")
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    if a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) < 0.0:
+        raise UsdSceneError(f"{what}: the transform mirrors (negative scale); unsupported")
+    return Similarity(m[3, :3].copy(), quat_from_matrix(rot), s)
+
+
+def _gf_quat(q) -> np.ndarray:
+    """Gf.Quat* -> (x, y, z, w) float64."""
+    im = q.GetImaginary()
+    return np.array([im[0], im[1], im[2], q.GetReal()], dtype=np.float64)
+
+
+def _real(path: str, name: str, value: Any, infinite_ok: bool = False) -> np.ndarray:
+    """Attribute `name` of prim `path` as float64 (a Gf quaternion as x, y, z, w). NaN, or infinity unless
+    `infinite_ok`, is an error naming both: let through, it would surface later, after numpy RuntimeWarnings,
+    as an error about something else (or as nothing at all)."""
+    a = _gf_quat(value) if hasattr(value, "GetReal") else np.asarray(value, dtype=np.float64)
+    if np.any(np.isnan(a)) or not (infinite_ok or np.all(np.isfinite(a))):
+        raise UsdSceneError(f"{path}: {name} is not finite: {value}")
+    return a
+
+
+def _unit_quat(path: str, name: str, value: Any) -> np.ndarray:
+    """A quaternion attribute, normalized. The zero quaternion is no rotation at all (XformCache reads it as
+    the identity, placing the prim wrong without a word), so it is an error naming the prim."""
+    q = _real(path, name, value)
+    n = float(np.linalg.norm(q))
+    if n == 0.0:
+        raise UsdSceneError(
+            f"{path}: {name} is the zero quaternion, which is no rotation (the identity is (1, 0, 0, 0))"
+        )
+    return q / n
+
+
+class _Xforms:
+    """World matrices from an XformCache, after checking the xformOps of the prim and its ancestors (each
+    prim once): the cache reads a zero or NaN orient as the identity and drops a non-finite matrix op."""
+
+    def __init__(self) -> None:
+        _, _, _, Usd, UsdGeom, *_ = pxr()
+        self._cache = UsdGeom.XformCache(Usd.TimeCode.Default())
+        self._xformable = UsdGeom.Xformable
+        self._orient = UsdGeom.XformOp.TypeOrient
+        self._checked: set[str] = set()
+
+    def _check(self, prim) -> None:
+        while prim and not prim.IsPseudoRoot() and str(prim.GetPath()) not in self._checked:
+            path = str(prim.GetPath())
+            if prim.IsA(self._xformable):
+                for op in self._xformable(prim).GetOrderedXformOps():
+                    value = op.Get()
+                    if value is None:
+                        continue
+                    if op.GetOpType() == self._orient:
+                        _unit_quat(path, op.GetName(), value)
+                    else:
+                        _real(path, op.GetName(), value)
+            self._checked.add(path)
+            prim = prim.GetParent()
+
+    def world(self, prim) -> np.ndarray:
+        """The prim's local-to-world matrix (USD row-vector convention)."""
+        self._check(prim)
+        return np.asarray(self._cache.GetLocalToWorldTransform(prim), dtype=np.float64)
+
+    def parent(self, prim) -> np.ndarray:
+        """The matrix of the prim's parent frame, in which its own xformOps and velocities are authored."""
+        self._check(prim)
+        return np.asarray(self._cache.GetParentToWorldTransform(prim), dtype=np.float64)
+
+
+class _Reporter:
+    """Unsupported features: an error naming the prim, or a warning when told to ignore them."""
+
+    def __init__(self, ignore: bool, notes: list[str]) -> None:
+        self.ignore = ignore
+        self.notes = notes
+
+    def unsupported(self, prim: str, what: str) -> None:
+        if not self.ignore:
+            raise UnsupportedFeatureError(
+                f"{prim}: {what} is not simulated by warpimpulse (pass ignore_unsupported=True / "
+                f"--ignore-unsupported to drop it with a warning)"
+            )
+        msg = f"{prim}: {what} is not simulated; ignored"
+        self.notes.append(msg)
+        warnings.warn(msg, stacklevel=4)
+
+    def note(self, msg: str) -> None:
+        self.notes.append(msg)
+        warnings.warn(msg, stacklevel=4)
+
+
+def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Reporter):
+    """MassInformation (unit density) of one collision prim, in the body's rigid frame."""
+    Gf, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
+    path = str(prim.GetPath())
+    sim = decompose(xforms.world(prim), path)
+    kind, axis = None, 2
+
+    def dim(name: str) -> float:
+        value = float(_real(path, name, prim.GetAttribute(name).Get()))
+        if value < 0.0:
+            raise UsdSceneError(f"{path}: {name} must not be negative, got {value}")
+        return value
+
+    if prim.IsA(UsdGeom.Cube):
+        shape, kind = Shape("box", size=tuple(float(v) for v in dim("size") * sim.s)), "box"
+    elif prim.IsA(UsdGeom.Sphere):
+        shape, kind = Shape("sphere", radius=dim("radius") * float(sim.s.max())), "sphere"
+    elif prim.IsA(UsdGeom.Capsule) or prim.IsA(UsdGeom.Cylinder):
+        kind = "capsule" if prim.IsA(UsdGeom.Capsule) else "cylinder"
+        axis = "XYZ".index(str(prim.GetAttribute("axis").Get() or "Z"))
+        others = [sim.s[i] for i in range(3) if i != axis]
+        shape = Shape(kind, radius=dim("radius") * float(max(others)), length=dim("height") * float(sim.s[axis]))
+    else:
+        extent = prim.GetAttribute("extent").Get() if prim.HasAttribute("extent") else None
+        if not extent or len(extent) != 2:
+            raise UsdSceneError(f"{path}: cannot compute the mass of a {prim.GetTypeName()} collider without extent")
+        lo, hi = _real(path, "extent", extent)
+        size = (hi - lo) * sim.s
+        report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
+        shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
+        sim.t = sim.t + quat_rotate(sim.q, 0.5 * (lo + hi) * sim.s)
+    volume = shape.volume()
+    inertia = shape.inertia(volume)  # density 1
+    if kind in ("capsule", "cylinder") and axis != 2:
+        perm = {0: [2, 1, 0], 1: [0, 2, 1]}[axis]  # move the symmetry axis (z moments) onto `axis`
+        inertia = inertia[np.ix_(perm, perm)]
+    info = UsdPhysics.RigidBodyAPI.MassInformation()
+    info.volume = float(volume)
+    info.inertia = Gf.Matrix3f(*[float(v) for v in inertia.reshape(-1)])
+    info.centerOfMass = Gf.Vec3f(0.0, 0.0, 0.0)
+    local_pos = quat_rotate(quat_conj(body_frame.q), sim.t - body_frame.t)
+    local_rot = quat_mul(quat_conj(body_frame.q), sim.q)
+    info.localPos = Gf.Vec3f(*[float(v) for v in local_pos])
+    info.localRot = Gf.Quatf(float(local_rot[3]), *[float(v) for v in local_rot[:3]])
+    return info
+
+
+def _body_mass(prim, desc, frame: Similarity, xforms: _Xforms, report: _Reporter):
+    """(mass, diagonal inertia, centre of mass in the rigid frame, principal axes xyzw), stage units."""
+    _, _, _, _, _, UsdPhysics, _ = pxr()
+    path = str(prim.GetPath())
+    mass_api = UsdPhysics.MassAPI(prim) if prim.HasAPI(UsdPhysics.MassAPI) else None
+    mass = density = 0.0
+    diag = np.zeros(3)
+    com = None
+    axes = None
+    if mass_api:
+        mass = float(mass_api.GetMassAttr().Get() or 0.0)
+        density = float(mass_api.GetDensityAttr().Get() or 0.0)
+        diag = _real(path, "physics:diagonalInertia", mass_api.GetDiagonalInertiaAttr().Get() or (0.0, 0.0, 0.0))
+        c = mass_api.GetCenterOfMassAttr().Get()
+        if c is not None and not np.all(np.isneginf(np.asarray(c, dtype=np.float64))):  # -inf's mean unset
+            com = _real(path, "physics:centerOfMass", c) * frame.s
+        pa = mass_api.GetPrincipalAxesAttr().Get()
+        if pa is not None and np.any(_real(path, "physics:principalAxes", pa)):  # (0, 0, 0, 0) means unset
+            axes = _unit_quat(path, "physics:principalAxes", pa)
+    for name, value in (("physics:mass", mass), ("physics:density", density)):  # 0 means unset
+        if not (value >= 0.0 and math.isfinite(value)):
+            raise UsdSceneError(f"{path}: {name} must be positive and finite, got {value}")
+    if np.any(diag != 0.0) and np.any(diag <= 0.0):
+        raise UsdSceneError(f"{path}: the inertia (physics:diagonalInertia) must be positive, got {diag.tolist()}")
+    shapes = [str(p) for p in desc.collisions]
+    if not shapes:
+        if mass <= 0.0:
+            zero = mass_api is not None and mass_api.GetMassAttr().HasAuthoredValue()
+            raise UsdSceneError(
+                f"{path}: physics:mass = 0 means 'compute it from the collision shapes', and the body has none"
+                if zero
+                else f"{path}: rigid body with neither a mass (MassAPI physics:mass) nor collision shapes to compute it"
+            )
+        if np.all(diag == 0.0):
+            raise UsdSceneError(
+                f"{path}: rigid body has a mass but no physics:diagonalInertia and no collision shapes to compute it"
+            )
+    if mass > 0.0 and np.all(diag > 0.0) and (com is not None or not shapes):
+        # Everything authored: read it in double precision, no shape traversal.
+        return mass, diag, com if com is not None else np.zeros(3), axes if axes is not None else IDENTITY_QUAT
+    stage = prim.GetStage()
+
+    def info_fn(shape_prim):
+        return _shape_mass_info(shape_prim, frame, xforms, report)
+
+    for s in shapes:  # fail here with the shape's own path rather than inside the callback
+        _shape_mass_info(stage.GetPrimAtPath(s), frame, xforms, _Reporter(True, []))
+    m, d, c, pa = UsdPhysics.RigidBodyAPI(prim).ComputeMassProperties(info_fn)
+    diag = np.array(d, dtype=np.float64)
+    if not (m > 0.0 and math.isfinite(m)):
+        raise UsdSceneError(f"{path}: computed mass is not positive ({m})")
+    if np.any(diag <= 0.0):
+        raise UsdSceneError(f"{path}: inertia is not positive ({diag.tolist()})")
+    return float(m), diag, np.array(c, dtype=np.float64), _gf_quat(pa) / max(pa.GetLength(), 1e-30)
+
+
+# Joint attributes that may be infinite (no limit, unbreakable) but not NaN: limits of every joint type
+# (physics:lowerLimit, physics:coneAngle0Limit, limit:rotX:physics:low, ...) and break thresholds.
+_JOINT_BOUNDS = ("Limit", ":physics:low", ":physics:high", "physics:breakForce", "physics:breakTorque")
+# Under a non-uniform scale a rigid motion needs a shearing local matrix (a matrix op, or orient-scale-orient),
+# not the translate / orient pair that is animated; such bodies (rare) are refused with this advice.
+_NON_UNIFORM = "unsupported: move the body out from under the scale, or bake the scale into the geometry"
+
+
+def _joint_frame(stage, joint_prim, side: int, xforms: _Xforms, mpu: float) -> tuple[np.ndarray, np.ndarray]:
+    """World (anchor in metres, rotation xyzw) of a joint's frame on body `side` (0 or 1)."""
+    jpath = str(joint_prim.GetPath())
+    pos = joint_prim.GetAttribute(f"physics:localPos{side}").Get()
+    rot = joint_prim.GetAttribute(f"physics:localRot{side}").Get()
+    pos = np.zeros(3) if pos is None else _real(jpath, f"physics:localPos{side}", pos)
+    rot = IDENTITY_QUAT.copy() if rot is None else _unit_quat(jpath, f"physics:localRot{side}", rot)
+    rel = joint_prim.GetRelationship(f"physics:body{side}")
+    targets = rel.GetTargets() if rel else []
+    if not targets:
+        return pos * mpu, rot
+    target = stage.GetPrimAtPath(targets[0])
+    frame = decompose(xforms.world(target), str(targets[0]))
+    anchor = frame.t + quat_rotate(frame.q, frame.s * pos)
+    return anchor * mpu, quat_mul(frame.q, rot)
+
+
+@dataclass
+class _JointPlan:
+    kind: str  # a JOINT_TYPES name, or a basic constraint name
+    axis: np.ndarray | None = None  # world
+    axis_child: np.ndarray | None = None
+
+
+def _d6_plans(locked_t: set[int], locked_r: set[int], r0: np.ndarray, r1: np.ndarray) -> list[_JointPlan]:
+    """Map a generic joint's locked axes to a combined joint, or to one or two basic constraints.
+
+    r0 / r1: world rotation matrices of the joint frame on body0 / body1 (columns = joint X, Y, Z).
+    """
+    nt, nr = len(locked_t), len(locked_r)
+    free_t = sorted({0, 1, 2} - locked_t)
+    free_r = sorted({0, 1, 2} - locked_r)
+    trans = rot = None
+    if nt == 3:
+        trans = _JointPlan("point")
+    elif nt == 2:
+        trans = _JointPlan("line", r0[:, free_t[0]])
+    elif nt == 1:
+        trans = _JointPlan("plane", r0[:, next(iter(locked_t))])
+    if nr == 3:
+        rot = _JointPlan("rotation")
+    elif nr == 2:
+        rot = _JointPlan("axis", r0[:, free_r[0]])
+    elif nr == 1:
+        k = next(iter(locked_r))  # twist about k locked: keep the angle between axes (k+1) of body0, (k+2) of body1
+        rot = _JointPlan("angle", r0[:, (k + 1) % 3], r1[:, (k + 2) % 3])
+    t_axis = free_t[0] if nt == 2 else (next(iter(locked_t)) if nt == 1 else None)
+    r_axis = free_r[0] if nr == 2 else None
+    if trans and trans.kind == "point":
+        if rot is None:
+            return [_JointPlan("ball")]
+        if rot.kind == "rotation":
+            return [_JointPlan("fixed")]
+        if rot.kind == "axis":
+            return [_JointPlan("revolute", rot.axis)]
+        return [_JointPlan("universal", rot.axis, rot.axis_child)]
+    if trans and rot and rot.kind == "rotation" and trans.kind == "line":
+        return [_JointPlan("prismatic", trans.axis)]
+    if trans and rot and rot.kind == "axis" and t_axis == r_axis:
+        return [_JointPlan("cylindrical" if trans.kind == "line" else "planar", trans.axis)]
+    return [p for p in (trans, rot) if p is not None]
+
+
+def _check_limits_drives(desc, path: str, report: _Reporter) -> tuple[set[int], set[int]]:
+    """Locked DOFs of a D6 joint; finite limits and drives are reported as unsupported."""
+    _, _, _, _, _, UsdPhysics, _ = pxr()
+    dof_index = {
+        UsdPhysics.JointDOF.TransX: 0, UsdPhysics.JointDOF.TransY: 1, UsdPhysics.JointDOF.TransZ: 2,
+        UsdPhysics.JointDOF.RotX: 3, UsdPhysics.JointDOF.RotY: 4, UsdPhysics.JointDOF.RotZ: 5,
+    }  # fmt: skip
+    locked_t, locked_r = set(), set()
+    for pair in desc.jointLimits:
+        dof, limit = pair.first, pair.second
+        if not limit.enabled:
+            continue
+        if dof not in dof_index:
+            report.unsupported(path, f"a {dof.name} limit")
+            continue
+        i = dof_index[dof]
+        if limit.lower > limit.upper or (limit.lower == limit.upper == 0.0):
+            (locked_t if i < 3 else locked_r).add(i % 3)
+        else:
+            report.unsupported(path, f"a {_DOFS[i]} limit [{limit.lower}, {limit.upper}]")
+    for pair in desc.jointDrives:
+        if pair.second.enabled:
+            report.unsupported(path, f"a {pair.first.name} drive")
+    return locked_t, locked_r
+
+
+def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> UsdScene:
+    """Read a UsdPhysics scene into a SceneBuilder (SI units) plus what export needs.
+
+    Body and joint names in the builder are their prim paths. Raises `UsdSceneError` (a `SceneError`)
+    naming the prim for input that cannot be simulated; drives, limits and break forces raise
+    `UnsupportedFeatureError` unless `ignore_unsupported`, which warns and drops them.
+    """
+    _, Sdf, _, _, UsdGeom, UsdPhysics, _ = pxr()
+    path = os.fspath(path)
+    stage = open_stage(path)
+    notes: list[str] = []
+    report = _Reporter(ignore_unsupported, notes)
+    mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
+    kpu = float(UsdPhysics.GetStageKilogramsPerUnit(stage))
+    for key, value in (("metersPerUnit", mpu), ("kilogramsPerUnit", kpu)):
+        if not (value > 0.0 and math.isfinite(value)):
+            raise UsdSceneError(f"{path}: the stage's {key} must be positive and finite, got {value}")
+    up = str(UsdGeom.GetStageUpAxis(stage))
+    try:
+        parsed = UsdPhysics.UsdPhysicsLoadStageFromPrimRange(stage, [Sdf.Path("/")])
+    except Exception as exc:  # noqa: BLE001 - the parser raises Tf errors of several kinds
+        raise UsdSceneError(f"{path}: the UsdPhysics parser failed: {exc}") from None
+    T = UsdPhysics.ObjectType
+    get = lambda t: list(zip(*parsed[t])) if t in parsed else []  # noqa: E731
+
+    # Gravity.
+    scenes = get(T.Scene)
+    up_vec = {"X": [1.0, 0, 0], "Y": [0, 1.0, 0], "Z": [0, 0, 1.0]}[up]
+    if scenes:
+        if len(scenes) > 1:
+            report.note(f"{path}: {len(scenes)} PhysicsScene prims; using {scenes[0][0]}")
+        spath, sd = str(scenes[0][0]), scenes[0][1]
+        direction = _real(spath, "physics:gravityDirection", sd.gravityDirection)
+        magnitude = float(_real(spath, "physics:gravityMagnitude", sd.gravityMagnitude))
+        if np.linalg.norm(direction) < 1e-12:
+            direction = -np.array(up_vec)
+        gravity = direction / np.linalg.norm(direction) * magnitude * mpu
+    else:
+        gravity = -np.array(up_vec) * 9.81
+        notes.append(f"{path}: no PhysicsScene; gravity 9.81 m/s^2 down the up axis ({up})")
+    builder = SceneBuilder(gravity=gravity)
+
+    xforms = _Xforms()
+    order = {str(p.GetPath()): k for k, p in enumerate(stage.Traverse())}  # bodies and joints in file order
+    bodies = sorted(get(T.RigidBody), key=lambda pd: order.get(str(pd[0]), len(order)))
+    index: dict[str, int] = {}
+    n = len(bodies)
+    com_offsets, scales = np.zeros((n, 3)), np.ones((n, 3))
+    parent_index = np.full(n, -1)
+    parent_pos, parent_quat, parent_scale = np.zeros((n, 3)), np.tile(IDENTITY_QUAT, (n, 1)), np.ones(n)
+    reset = np.zeros(n, dtype=bool)
+    xform_ops: list[tuple[str, str]] = []
+    frames: list[Similarity] = []
+    for i, (p, desc) in enumerate(bodies):
+        bpath = str(p)
+        prim = stage.GetPrimAtPath(p)
+        frame = decompose(xforms.world(prim), bpath)
+        frames.append(frame)
+        scales[i] = frame.s
+        xform_ops.append(_op_names(prim))
+        static = bool(desc.kinematicBody) or not bool(desc.rigidBodyEnabled)
+        if desc.kinematicBody:
+            notes.append(f"{bpath}: kinematic body; held at its initial pose")
+        if static:
+            mass, diag, com, axes = 0.0, np.ones(3), np.zeros(3), IDENTITY_QUAT
+        else:
+            mass, diag, com, axes = _body_mass(prim, desc, frame, xforms, report)
+        com_offsets[i] = com
+        position = (frame.t + quat_rotate(frame.q, com)) * mpu
+        rpa = quat_to_matrix(axes)
+        inertia = rpa @ np.diag(diag) @ rpa.T * (kpu * mpu * mpu)
+        # Velocities are authored in the space of the prim's xform, i.e. its parent's frame.
+        pq = decompose(xforms.parent(prim), bpath).q
+        v = quat_rotate(pq, _real(bpath, "physics:velocity", desc.linearVelocity)) * mpu
+        w = quat_rotate(pq, np.radians(_real(bpath, "physics:angularVelocity", desc.angularVelocity)))
+        try:
+            if static:
+                index[bpath] = builder.add_static_body(position, frame.q, name=bpath)
+            else:
+                index[bpath] = builder.add_body(mass * kpu, inertia, position, frame.q, v, w, name=bpath)
+        except SceneError as exc:
+            raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
+        _read_forces(builder, prim, index[bpath], mpu, kpu)
+    # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
+    for i, (p, _desc) in enumerate(bodies):
+        prim = stage.GetPrimAtPath(p)
+        reset[i] = UsdGeom.Xformable(prim).GetResetXformStack() if prim.IsA(UsdGeom.Xformable) else False
+        if reset[i]:
+            continue
+        anc = _rigid_ancestor(prim.GetParent(), index)
+        parent_m = xforms.parent(prim)
+        if anc is not None:
+            a = index[str(anc.GetPath())]
+            if not frames[a].uniform:
+                raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled rigid body {anc.GetPath()}; "
+                                    f"{_NON_UNIFORM}")  # fmt: skip
+            anc_m = xforms.world(anc)
+            rel = decompose(parent_m @ np.linalg.inv(anc_m), f"{p} (relative to {anc.GetPath()})")
+            parent_index[i] = a
+        else:
+            rel = decompose(parent_m, f"{p} (parent transform)")
+        if not rel.uniform:
+            raise UsdSceneError(f"{p}: rigid body under a non-uniformly scaled parent (scale "
+                                f"{np.round(rel.s, 9).tolist()}); {_NON_UNIFORM}")  # fmt: skip
+        parent_pos[i], parent_quat[i], parent_scale[i] = rel.t, rel.q, rel.s[0]
+
+    joint_paths: list[str] = []
+    loop_joints: list[str] = []
+    supported = {T.RevoluteJoint, T.PrismaticJoint, T.SphericalJoint, T.FixedJoint, T.D6Joint}
+    all_joints = []
+    for t, (paths, descs) in parsed.items():
+        if "Joint" in t.name:
+            all_joints += [(str(p), t, d) for p, d in zip(paths, descs)]
+    for jpath, t, desc in sorted(all_joints, key=lambda x: order.get(x[0], len(order))):
+        jprim = stage.GetPrimAtPath(jpath)
+        if not desc.jointEnabled:
+            notes.append(f"{jpath}: joint disabled (physics:jointEnabled = false); skipped")
+            continue
+        if t not in supported:
+            report.unsupported(jpath, _joint_type_text(jprim.GetTypeName() or t.name))
+            continue
+        ends = []
+        for side, rel in ((0, desc.rel0), (1, desc.rel1)):
+            if rel.isEmpty:
+                ends.append(None)
+                continue
+            target = stage.GetPrimAtPath(rel)
+            if not target:
+                raise UsdSceneError(f"{jpath}: physics:body{side} targets {rel}, which does not exist")
+            # Not the parser's body0/body1: it leaves out bodies with physics:rigidBodyEnabled = false (static here).
+            body = _rigid_ancestor(target, index)
+            if body is None:
+                raise UsdSceneError(
+                    f"{jpath}: physics:body{side} targets {rel}, which is not a rigid body or inside one "
+                    f"(leave physics:body{side} empty to attach the joint to the world)"
+                )
+            ends.append(index[str(body.GetPath())])
+        if ends[0] is None and ends[1] is None:
+            raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
+        for attr in jprim.GetAuthoredAttributes():  # the parser reads a NaN limit as no limit
+            if attr.GetName().endswith(_JOINT_BOUNDS) and attr.Get() is not None:
+                _real(jpath, attr.GetName(), attr.Get(), infinite_ok=True)
+        if math.isfinite(desc.breakForce) or math.isfinite(desc.breakTorque):
+            report.unsupported(jpath, "a break force or torque")
+        a0, q0 = _joint_frame(stage, jprim, 0, xforms, mpu)
+        a1, q1 = _joint_frame(stage, jprim, 1, xforms, mpu)
+        r0, r1 = quat_to_matrix(q0), quat_to_matrix(q1)
+        if t in (T.RevoluteJoint, T.PrismaticJoint):
+            token = jprim.GetAttribute("physics:axis").Get()
+            if token not in ("X", "Y", "Z"):  # the parser reads any other token as X
+                raise UsdSceneError(f"{jpath}: physics:axis must be X, Y or Z, got {token!r}")
+            if desc.limit.enabled:
+                report.unsupported(jpath, f"a limit [{desc.limit.lower}, {desc.limit.upper}]")
+            if desc.drive.enabled:
+                report.unsupported(jpath, "a drive")
+            ax = r0[:, "XYZ".index(token)]
+            plans = [_JointPlan("revolute" if t == T.RevoluteJoint else "prismatic", ax)]
+        elif t == T.SphericalJoint:
+            if desc.limit.enabled:
+                report.unsupported(jpath, "a cone limit")
+            plans = [_JointPlan("ball")]
+        elif t == T.FixedJoint:
+            plans = [_JointPlan("fixed")]
+        else:
+            locked_t, locked_r = _check_limits_drives(desc, jpath, report)
+            plans = _d6_plans(locked_t, locked_r, r0, r1)
+            if not plans:
+                notes.append(f"{jpath}: generic joint with no locked axis constrains nothing; skipped")
+                continue
+        gap = float(np.linalg.norm(a0 - a1))
+        if gap > 1e-5 * max(1.0, float(np.abs(a0).max())):
+            notes.append(f"{jpath}: the joint frames of body0 and body1 are {gap:.3g} m apart; using body0's")
+        parent, child = ends
+        if child is None:  # body1 empty: the world is on the child side; swap so the child is a body
+            parent, child = None, parent
+            plans = [_JointPlan(p.kind, p.axis_child if p.axis_child is not None else p.axis,
+                                p.axis if p.axis_child is not None else None) for p in plans]  # fmt: skip
+        if desc.excludeFromArticulation:
+            loop_joints.append(jpath)
+        for plan in plans:
+            try:
+                if plan.kind in JOINT_TYPES:
+                    builder.add_joint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
+                else:
+                    builder.add_constraint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
+            except SceneError as exc:
+                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+            joint_paths.append(jpath)
+    parsed_joints = {j[0] for j in all_joints}
+    for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
+        if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:
+            report.unsupported(str(prim.GetPath()), _joint_type_text(prim.GetTypeName()))
+    if not bodies:
+        raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
+    default_prim = stage.GetDefaultPrim()
+    default_prim_name = default_prim.GetName() if default_prim else ""
+    if not default_prim_name:  # give the output a default prim even if the input lacks one
+        roots = [p for p in stage.GetPseudoRoot().GetChildren() if p.IsDefined()]
+        default_prim_name = roots[0].GetName() if roots else ""
+    return UsdScene(
+        builder=builder, source_path=os.path.abspath(path), body_paths=[str(p) for p, _ in bodies],
+        joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
+        parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
+        meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
+        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, dt=_recorded_dt(stage, path),
+    )  # fmt: skip
+
+
+def _rigid_ancestor(prim, index: dict[str, int]):
+    """The nearest rigid body at or above `prim` (one whose motion moves it), or None."""
+    while prim and not prim.IsPseudoRoot():
+        if str(prim.GetPath()) in index:
+            return prim
+        prim = prim.GetParent()
+    return None
+
+
+def _recorded_dt(stage, path: str) -> float | None:
+    """The step size a scene file records (our outputs and `save_scene` write it): some scenes need one."""
+    dt = stage.GetRootLayer().customLayerData.get("warpimpulse:dt")
+    if dt is None:
+        return None
+    if not (isinstance(dt, (int, float)) and not isinstance(dt, bool) and dt > 0.0 and math.isfinite(dt)):
+        raise UsdSceneError(f"{path}: customLayerData warpimpulse:dt must be a positive number of seconds, got {dt!r}")
+    return float(dt)
+
+
+def _joint_type_text(type_name: str) -> str:
+    return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed and generic D6 joints)"
+
+
+def _op_names(prim) -> tuple[str, str]:
+    """xformOp names for the exported pose: the plain ones unless the input gave them other value types
+    (an `over` of another type is a validation error), then ones with a `:warpimpulse` suffix."""
+    ops = []
+    for op, type_name in (("xformOp:translate", "double3"), ("xformOp:orient", "quatd")):
+        attr = prim.GetAttribute(op)
+        clash = attr and attr.HasAuthoredValue() and str(attr.GetTypeName()) != type_name
+        ops.append(f"{op}:warpimpulse" if clash else op)
+    return ops[0], ops[1]
+
+
+def _read_forces(builder: SceneBuilder, prim, body: int, mpu: float, kpu: float) -> None:
+    """Constant forces written by `save_scene` (custom warpimpulse:* attributes; UsdPhysics has none)."""
+    attr = prim.GetAttribute("warpimpulse:forces")
+    if not attr:
+        return
+    forces = np.array(attr.Get() or [], dtype=np.float64).reshape(-1, 3)
+    torques = np.array(prim.GetAttribute("warpimpulse:torques").Get() or [], dtype=np.float64).reshape(-1, 3)
+    until = np.array(prim.GetAttribute("warpimpulse:forceUntil").Get() or [], dtype=np.float64)
+    if not len(forces) == len(torques) == len(until):
+        raise UsdSceneError(f"{prim.GetPath()}: warpimpulse:forces, :torques and :forceUntil differ in length")
+    for f, t, u in zip(forces, torques, until):
+        builder.add_force(body, f * kpu * mpu, t * kpu * mpu * mpu, float(u))

@@ -1,0 +1,123 @@
+"""What the USD reader and writer share: the `UsdScene` (a SceneBuilder plus the prim paths and frames that
+put simulated bodies back on their prims), the errors, the prim paths of procedural output and the lazy pxr
+import."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..builder import SceneBuilder, SceneError
+
+WORLD_PATH = "/World"
+INSTANCER_PATH = "/World/Instancer"
+MODE_KEY = "warpimpulse:mode"  # customLayerData: "procedural", "layered" or "instancer"
+IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
+
+
+class UsdSceneError(SceneError):
+    """A USD file that cannot be simulated as it is; the message names the file or prim at fault."""
+
+
+class UnsupportedFeatureError(UsdSceneError):
+    """A drive, limit or other authored feature the simulator does not model (see `ignore_unsupported`)."""
+
+
+def pxr():
+    """Import pxr lazily: `import warpimpulse` must not pay for USD."""
+    from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
+
+    return Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
+
+
+@dataclass
+class UsdScene:
+    """A SceneBuilder plus what export needs to put simulated bodies back on their prims.
+
+    Per body (builder order): prim path, centre-of-mass offset in the prim's rigid frame (stage units),
+    the prim's own scale, and its parent frame: relative to the world (`parent_index` -1) or to an
+    ancestor rigid body, as translation / rotation (x, y, z, w) / uniform scale.
+    """
+
+    builder: SceneBuilder
+    source_path: str | None
+    body_paths: list[str]
+    joint_paths: list[str]
+    com_offsets: np.ndarray
+    body_scales: np.ndarray
+    parent_index: np.ndarray
+    parent_pos: np.ndarray
+    parent_quat: np.ndarray
+    parent_scale: np.ndarray
+    reset_xform_stack: np.ndarray
+    meters_per_unit: float = 1.0
+    kilograms_per_unit: float = 1.0
+    up_axis: str = "Z"
+    default_prim: str = ""
+    xform_ops: list[tuple[str, str]] | None = None  # (translate, orient) op names per body; None: plain
+    loop_joints: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    dt: float | None = None  # the step size the file asks for (customLayerData warpimpulse:dt), if any
+
+    @property
+    def body_count(self) -> int:
+        return len(self.body_paths)
+
+
+def scene_from_builder(builder: SceneBuilder) -> UsdScene:
+    """The UsdScene of a procedural builder: bodies at /World/<name>, centre of mass at the prim origin."""
+    _, _, Tf, *_ = pxr()
+    n = len(builder.bodies)
+    paths, used = [], set()
+    for b in builder.bodies:
+        base = Tf.MakeValidIdentifier(b.name.strip("/").replace("/", "_") or "body")
+        name, k = base, 1
+        while name in used or name in ("Joints", "PhysicsScene", "Instancer"):
+            name, k = f"{base}_{k}", k + 1
+        used.add(name)
+        paths.append(f"{WORLD_PATH}/{name}")
+    joint_paths, used = [], set()
+    for j in builder.joints:
+        base = Tf.MakeValidIdentifier(j.name.strip("/").replace("/", "_") or "joint")
+        name, k = base, 1
+        while name in used:
+            name, k = f"{base}_{k}", k + 1
+        used.add(name)
+        joint_paths.append(f"{WORLD_PATH}/Joints/{name}")
+    ident = np.tile(IDENTITY_QUAT, (n, 1))
+    return UsdScene(
+        builder=builder, source_path=None, body_paths=paths, joint_paths=joint_paths,
+        com_offsets=np.zeros((n, 3)), body_scales=np.ones((n, 3)), parent_index=np.full(n, -1),
+        parent_pos=np.zeros((n, 3)), parent_quat=ident, parent_scale=np.ones(n),
+        reset_xform_stack=np.zeros(n, dtype=bool), default_prim="World",
+    )  # fmt: skip
+
+
+def as_scene(scene: UsdScene | SceneBuilder | Any) -> UsdScene:
+    """A UsdScene as it is; a SceneBuilder, or a Model of one, as a procedural scene."""
+    if isinstance(scene, UsdScene):
+        return scene
+    if isinstance(scene, SceneBuilder):
+        return scene_from_builder(scene)
+    builder = getattr(scene, "builder", None)  # a Model
+    if isinstance(builder, SceneBuilder):
+        return scene_from_builder(builder)
+    raise TypeError(f"expected a UsdScene, SceneBuilder or Model, got {type(scene).__name__}")
+
+
+def open_stage(path: str):
+    """The stage of a file, or a UsdSceneError naming the file: missing, or not USD."""
+    _, _, Tf, Usd, *_ = pxr()
+    if not os.path.isfile(path):
+        raise UsdSceneError(f"{path}: no such file")
+    try:
+        stage = Usd.Stage.Open(path)
+    except Tf.ErrorException as exc:
+        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else ""
+        raise UsdSceneError(f"{path}: not a USD file that can be opened ({first.strip()})") from None
+    if stage is None:
+        raise UsdSceneError(f"{path}: not a USD file that can be opened")
+    return stage
