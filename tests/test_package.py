@@ -1,4 +1,5 @@
-"""The wheel maps kernels/ to warpimpulse.kernels and never installs a top-level `kernels` package."""
+"""The wheel maps kernels/ to warpimpulse.kernels and never installs a top-level `kernels` package;
+`import warpimpulse` gives the submodules a newcomer reaches for without importing them (or pxr) up front."""
 
 import os
 import site
@@ -20,6 +21,7 @@ def test_wheel_installs_and_imports(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     assert "warpimpulse/kernels/cholesky.py" in names
     assert {"warpimpulse/bench/harness.py", "warpimpulse/bench/peers/mujoco.py"} <= set(names)
+    assert "warpimpulse/usd/writer.py" in names
     assert not any(n.startswith("kernels/") for n in names)
 
     env_dir = tmp_path / "venv"
@@ -39,3 +41,18 @@ def test_wheel_installs_and_imports(tmp_path):
     out = subprocess.run([str(python), "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"
+
+
+def test_submodules_without_a_second_import():
+    code = (
+        "import sys, warpimpulse as wi\n"
+        "assert 'pxr' not in sys.modules and 'warpimpulse.usd' not in sys.modules, 'imported too early'\n"
+        "assert len(wi.scenes.chain(2).bodies) == 2\n"
+        "assert callable(wi.usd.record) and callable(wi.run.record_frames)\n"
+        "assert 'pxr' not in sys.modules, 'wi.usd imported pxr before it was used'\n"
+        "assert {'scenes', 'usd', 'run'} <= set(dir(wi))\n"
+        "try:\n    wi.nonexistent\nexcept AttributeError as e:\n    print('ok', e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("ok module 'warpimpulse' has no attribute 'nonexistent'"), out.stdout

@@ -1,4 +1,10 @@
-"""warpimpulse: impulse-based articulated rigid bodies (Bender & Schmitt 2006) on NVIDIA Warp."""
+"""warpimpulse: impulse-based articulated rigid bodies (Bender & Schmitt 2006) on NVIDIA Warp.
+
+`import warpimpulse as wi` gives the builder and simulator; `wi.scenes` (built-in scenes), `wi.usd` (USD in
+and out) and `wi.run` (the frame loop) are imported on first use, so that `import warpimpulse` stays fast.
+"""
+
+import importlib
 
 from .builder import SceneBuilder, SceneError
 from .joints import JOINT_TYPES
@@ -25,4 +31,20 @@ __all__ = [
     "Vec3",
     "WORLD",
     "__version__",
+    "run",
+    "scenes",
+    "usd",
 ]
+
+_LAZY = ("run", "scenes", "usd")
+
+
+def __getattr__(name: str):
+    """The submodules in `_LAZY`, imported on first access (PEP 562)."""
+    if name in _LAZY:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
