@@ -523,6 +523,39 @@ def test_record_writes_duration_times_fps_plus_one_frames(tmp_path):
     assert Sdf.Layer.FindOrOpen(str(tmp_path / "r.usda")).endTimeCode == 30.0
 
 
+
+def test_record_from_python(tmp_path):
+    """wi.usd.record: the file holds duration * fps + 1 time samples on every moving body, each the pose the
+    simulator had at that frame, and the simulator's settings."""
+    import warpimpulse as wi
+
+    dt, fps = 1.0 / 120.0, 30.0
+    sim = wi.Simulator(wi.scenes.chain(3).finalize("cpu"), dt)
+    twin = wi.Simulator(wi.scenes.chain(3).finalize("cpu"), dt)  # stepped by hand, frame by frame
+    out = tmp_path / "out" / "chain.usdc"  # the folder does not exist yet
+    rec = wi.usd.record(sim, out, duration=0.5, fps=fps)
+    assert (rec.path, rec.frames, rec.fps, rec.steps) == (str(out), 16, fps, 60)
+    stage = Usd.Stage.Open(str(out))
+    for prim in stage.Traverse():
+        if prim.HasAPI(UsdPhysics.RigidBodyAPI):
+            assert UsdGeom.Xformable(prim).GetTimeSamples() == [float(f) for f in range(16)], prim.GetPath()
+    data = stage.GetRootLayer().customLayerData
+    assert (data["warpimpulse:dt"], data["warpimpulse:tolerance"], data["warpimpulse:complete"]) == (dt, 1e-6, True)
+    anim = wi.usd.read_animation(out)
+    assert anim.time_codes.tolist() == list(range(16))
+    for f in range(16):
+        if f:
+            for _ in range(4):
+                twin.step()
+        np.testing.assert_allclose(anim.positions[f], twin.positions(), rtol=0, atol=1e-12)
+        dots = np.abs(np.einsum("ij,ij->i", anim.orientations[f], twin.orientations()))  # q and -q: one rotation
+        np.testing.assert_allclose(dots, 1.0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(anim.positions[-1], sim.positions(), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="not a whole multiple"):
+        wi.usd.record(sim, tmp_path / "bad.usdc", duration=0.1, fps=7.0)
+    assert not (tmp_path / "bad.usdc").exists()
+
+
 # ---------------------------------------------------------------------------------------------- bad input
 def _bad_stage(tmp_path, name, build) -> str:
     path = str(tmp_path / f"{name}.usda")

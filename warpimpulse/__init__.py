@@ -13,6 +13,9 @@ from .shapes import Shape
 from .simulator import SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
 from .types import WORLD, ConstraintKind, Quat, Vec3
+from .verbosity import quiet_by_default
+
+quiet_by_default()  # no Warp banner or module-load lines unless asked (Simulator(verbose=True), --verbose)
 
 __version__ = "0.1.0"
 

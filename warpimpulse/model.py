@@ -16,6 +16,7 @@ import warp as wp
 
 from .topology import Graph, Topology, analyze
 from .types import ConstraintKind
+from .verbosity import device as warp_device
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -94,7 +95,7 @@ class Model:
             constraints are consecutive; (k + 1,) with the end last).
         force_*: constant world forces (N) and torques (N m) on bodies, active while t < until (s).
         """
-        self.device = wp.get_device(device)
+        self.device = warp_device(device)  # the first call initialises Warp quietly
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)
         inertia = np.asarray(body_inertia, dtype=np.float64).reshape(-1, 3, 3)

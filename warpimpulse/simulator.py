@@ -27,6 +27,7 @@ from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
 from .transforms import quat_to_matrix
 from .types import FORMULATIONS, SOLVERS
+from .verbosity import verbose as show_warp_messages
 
 POLICIES = ("raise", "warn")
 
@@ -78,6 +79,7 @@ class Simulator:
         formulation: str = "auto",
         max_rotation: float | None = 0.5,
         specialize: bool = True,
+        verbose: bool = False,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -103,6 +105,8 @@ class Simulator:
             100 rad/s gains energy, then diverges, at one step per frame. None takes every step whole.
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set
             of kinds, compiled once and cached on disk); False shares one module for all six kinds.
+        verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
+            off by default (`warpimpulse.verbosity`).
         """
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
@@ -125,6 +129,8 @@ class Simulator:
             raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
         if on_max_iterations not in POLICIES:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
+        if verbose:
+            show_warp_messages()
         self.model = model
         self.dt = float(dt)
         self.tolerance = float(tolerance)

@@ -78,6 +78,7 @@ def record(
     simulation stops (SimulationError, FloatingPointError, Ctrl-C), the frames done so far are written,
     the file records the stop (warpimpulse:stoppedEarly), and the exception propagates.
     """
+    frame_steps(sim.dt, fps)  # a bad fps is refused before a file is touched
     start_steps, start = sim.step_count, time.perf_counter()
     writer = AnimationWriter(
         path, sim.model if scene is None else scene, fps, settings(sim), flatten=flatten, instancer=instancer
