@@ -1,5 +1,7 @@
-"""Issue 5, CLI and scene files: every user mistake ends in one clear line on stderr and a non-zero exit
-status, never a traceback; the checks run before any simulation work."""
+"""CLI and scene files: every user mistake ends in one clear line on stderr and a non-zero exit status, never
+a traceback; the checks run before any simulation work. A good run is quiet (no Warp banner, module loads or
+CUDA-driver warning unless --verbose), writes into out/ by default and says when it overwrites a file;
+`preview` draws a written run."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from warpimpulse.cli import main
@@ -16,14 +19,14 @@ SCENES = Path(__file__).parents[1] / "scenes"
 
 
 def run(argv: list[str], capsys) -> tuple[int, list[str]]:
-    """Exit status and the lines on stderr (Warp's own start-up notices left out)."""
+    """Exit status and the lines on stderr."""
     try:
         code = main(argv)
     except SystemExit as exc:  # argparse exits by itself
         code = exc.code
     err = capsys.readouterr().err
     assert "Traceback" not in err, err
-    return code, [line for line in err.splitlines() if line.strip() and not line.startswith("Warp")]
+    return code, [line for line in err.splitlines() if line.strip()]
 
 
 def assert_one_line_error(argv: list[str], message: str, capsys, code: int = 2) -> None:
@@ -166,3 +169,89 @@ def test_substep_flags_are_recorded(flags, recorded, tmp_path, capsys):
     code, _ = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), *flags], capsys)
     assert code == 0
     assert Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:max_rotation"] == recorded
+
+
+def run_command(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """The CLI in a child process, as from a shell: what it prints from a fresh start, Warp's included."""
+    return subprocess.run([sys.executable, "-m", "warpimpulse.cli", *argv], capture_output=True, text=True,
+                          cwd=cwd, timeout=300)  # fmt: skip
+
+
+def test_a_run_is_quiet_and_writes_into_out(tmp_path):
+    argv = ["simulate", "--scene", "chain", "--duration", "0.1"]
+    proc = run_command(argv, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""  # no banner, no CUDA-driver warning on the CPU, no overwrite notice
+    assert proc.stdout.startswith(f"wrote {Path('out', 'chain.usdc')}: 4 frames") and proc.stdout.count("\n") == 1
+    assert (tmp_path / "out" / "chain.usdc").is_file()
+
+    proc = run_command([*argv, "--verbose"], tmp_path)  # asked: Warp's messages; and the file is replaced
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines()[-1] == f"warpimpulse: overwriting {Path('out', 'chain.usdc')}"
+    assert "Module warpimpulse.kernels.rigid" in proc.stdout and "initialized" in proc.stdout
+
+
+def test_the_python_api_is_quiet(tmp_path):
+    for verbose in (False, True):
+        code = (
+            f"import warpimpulse as wi\nwi.Simulator(wi.scenes.chain(2).finalize(), 1 / 60, verbose={verbose}).step()"
+        )
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+        assert proc.returncode == 0 and proc.stderr == "", proc.stderr  # no CUDA-driver warning on the CPU
+        assert proc.stdout.startswith("Module warpimpulse.kernels") if verbose else proc.stdout == "", proc.stdout
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> dict[str, Path]:
+    """A 3-link chain, 0.3 s at 30 fps (10 frames), as body prims and as a PointInstancer."""
+    import warpimpulse as wi
+
+    folder = tmp_path_factory.mktemp("preview")
+    files = {}
+    for name, instancer in (("prims", False), ("instancer", True)):
+        sim = wi.Simulator(wi.scenes.chain(3).finalize("cpu"), 1.0 / 30.0)
+        files[name] = Path(wi.usd.record(sim, folder / f"{name}.usdc", 0.3, 30.0, instancer=instancer).path)
+    return files
+
+
+def test_preview_reads_the_bodies_and_joints(recorded):
+    from warpimpulse import preview, usd
+
+    anim, pairs, anchors = preview.read(recorded["prims"])
+    np.testing.assert_array_equal(anim.positions, usd.read_animation(recorded["prims"]).positions)
+    assert anim.positions.shape == (10, 3, 3)
+    assert pairs.tolist() == [[-1, 0], [0, 1], [1, 2]]  # the world, then link to link
+    np.testing.assert_allclose(anchors[0], [0.0, 0.0, 0.0], atol=1e-12)
+    anim, pairs, _ = preview.read(recorded["instancer"])
+    assert anim.positions.shape == (10, 3, 3) and len(pairs) == 0  # an instancer holds no joints
+
+
+def test_preview_draws_png_and_gif(recorded, tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    from PIL import Image
+
+    png, gif = tmp_path / "chain.png", tmp_path / "chain.gif"
+    assert main(["preview", str(recorded["prims"]), "-o", str(png)]) == 0
+    assert capsys.readouterr().out.startswith(f"wrote {png}: 3 bodies at 4 of 10 frames")
+    pixels = np.asarray(Image.open(png).convert("L"))
+    assert pixels.shape[1] > 3 * pixels.shape[0] and (pixels < 128).mean() > 0.001  # 4 panels, something drawn
+    assert main(["preview", str(recorded["instancer"]), "-o", str(gif), "--gif-frames", "5"]) == 0
+    assert Image.open(gif).n_frames == 5
+    assert main(["preview", str(recorded["prims"]), "-o", str(png), "--frames", "2"]) == 0
+    assert capsys.readouterr().err == f"warpimpulse: overwriting {png}\n"
+    assert_one_line_error(
+        ["preview", str(recorded["prims"]), "-o", str(tmp_path / "x.jpg")], "must end in .png", capsys
+    )
+    assert_one_line_error(["preview", str(tmp_path / "missing.usdc")], "no such file", capsys)
+
+
+def test_preview_without_matplotlib_says_what_to_install(recorded):
+    code = (
+        "import sys\n"
+        "sys.modules['matplotlib'] = None  # as if it were not installed\n"
+        "from warpimpulse.cli import main\n"
+        f"sys.exit(main(['preview', {str(recorded['prims'])!r}]))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and 'pip install "warpimpulse[preview]"' in proc.stderr, proc.stderr

@@ -523,7 +523,6 @@ def test_record_writes_duration_times_fps_plus_one_frames(tmp_path):
     assert Sdf.Layer.FindOrOpen(str(tmp_path / "r.usda")).endTimeCode == 30.0
 
 
-
 def test_record_from_python(tmp_path):
     """wi.usd.record: the file holds duration * fps + 1 time samples on every moving body, each the pose the
     simulator had at that frame, and the simulator's settings."""

@@ -1,4 +1,4 @@
-"""Command line: `warpimpulse simulate | bench | stress`.
+"""Command line: `warpimpulse simulate | preview | bench | stress`.
 
 User mistakes (bad flags, bad scene files) print one clear line and exit 2, never a traceback. A run
 that stops early (divergence, joints that do not converge, Ctrl-C) keeps the frames done so far in a
@@ -38,7 +38,7 @@ def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scene and write USD animation")
     p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc); or use --scene")
     p.add_argument("--scene", choices=sorted(SCENES), help="a built-in procedural scene (default: tree127)")
-    p.add_argument("--out", "-o", type=Path, help="output USD file (default: <scene>.usdc)")
+    p.add_argument("--out", "-o", type=Path, help="output USD file (default: out/<scene>.usdc)")
     p.add_argument("--duration", type=_positive(float), default=10.0, help="seconds (default 10)")
     p.add_argument("--fps", type=_positive(float), default=30.0, help="frames per second written (default 30)")
     p.add_argument("--dt", type=_positive(float),
@@ -60,17 +60,26 @@ def _add_simulate(sub) -> None:
                    help="drop drives, limits, unsupported joint types with a warning instead of stopping")  # fmt: skip
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
+    p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")
+
+
+def _add_preview(sub) -> None:
+    p = sub.add_parser("preview", help="draw the bodies of a written USD file at a few frames (needs matplotlib)")
+    p.add_argument("input", type=Path, help="a file written by `warpimpulse simulate` or warpimpulse.usd.record")
+    p.add_argument("--out", "-o", type=Path, help="picture to write: .png (a few frames side by side) or .gif "
+                   "(every frame, up to --gif-frames) (default: <input>.png)")  # fmt: skip
+    p.add_argument("--frames", type=_positive(int), default=4, help="panels in a .png (default 4)")
+    p.add_argument("--gif-frames", type=_positive(int), default=60, help="most frames in a .gif (default 60)")
 
 
 def _simulate(args) -> int:
-    import warp as wp
-
     from . import run, usd
     from .simulator import SimulationError, Simulator
     from .solver import SingularSystemError
+    from .verbosity import verbose
 
-    wp.config.quiet = True
-    wp.config.log_level = wp.LOG_WARNING
+    if args.verbose:
+        verbose()
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
     if args.input:
@@ -91,8 +100,10 @@ def _simulate(args) -> int:
         run.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
     except ValueError as err:
         raise ValueError(f"{err} (dt from {source}'s warpimpulse:dt; pass --dt)" if dt == file_dt else err) from None
-    out = args.out or Path(f"{name}.usdc")
-    check_writable(out)
+    out = args.out or Path("out") / f"{name}.usdc"
+    check_writable(out, create_parent=args.out is None)
+    if out.exists():
+        print(f"warpimpulse: overwriting {out}", file=sys.stderr)
     sim = Simulator(
         builder.finalize(args.device),
         dt,
@@ -130,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", action="version", version=f"warpimpulse {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
+    _add_preview(sub)
     sub.add_parser("bench", help="benchmark harness (see `warpimpulse bench --help`)", add_help=False)
     sub.add_parser("stress", help="stress suite (see `warpimpulse stress --help`)", add_help=False)
     args, rest = parser.parse_known_args(argv)
@@ -143,6 +155,10 @@ def main(argv: list[str] | None = None) -> int:
             return int(harness_main(args.command, rest) or 0)
         if rest:
             parser.error(f"unrecognized arguments: {' '.join(rest)}")
+        if args.command == "preview":
+            from .preview import main as preview_main
+
+            return preview_main(args.input, args.out, args.frames, args.gif_frames)
         return _simulate(args)
     except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run
         print(f"warpimpulse: error: {err}", file=sys.stderr)

@@ -16,13 +16,15 @@ from .scene import INSTANCER_PATH, MODE_KEY, UsdScene, open_stage, pxr
 
 @dataclass
 class Animation:
-    """Frames read back from an exported file: centres of mass (F, N, 3) in metres, orientations xyzw."""
+    """Frames read back from an exported file: centres of mass (F, N, 3) in metres and orientations
+    (F, N, 4) as (x, y, z, w), both in the stage's world frame, whose vertical is `up_axis`."""
 
     time_codes: np.ndarray
     body_paths: list[str]
     positions: np.ndarray
     orientations: np.ndarray
     fps: float
+    up_axis: str = "Z"
 
 
 def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> Animation:
@@ -32,6 +34,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
     stage = open_stage(path)
     layer = stage.GetRootLayer()
     fps = float(layer.timeCodesPerSecond)
+    up = str(UsdGeom.GetStageUpAxis(stage))
     mode = layer.customLayerData.get(MODE_KEY, "")
     if mode == "instancer":
         inst = UsdGeom.PointInstancer(stage.GetPrimAtPath(INSTANCER_PATH))
@@ -39,7 +42,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
         pos = np.array([np.array(inst.GetPositionsAttr().Get(t), dtype=np.float64) for t in times])
         ori = np.array([np.array(inst.GetOrientationsAttr().Get(t), dtype=np.float64) for t in times])
         n = pos.shape[1] if len(times) else 0
-        return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps)
+        return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps, up)
     scene = scene or load_stage(path, ignore_unsupported=True)
     prims = [stage.GetPrimAtPath(p) for p in scene.body_paths]
     times = sorted({t for p in prims for t in UsdGeom.Xformable(p).GetTimeSamples()})
@@ -51,7 +54,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
             fr = decompose(cache.GetLocalToWorldTransform(prim), str(prim.GetPath()))
             pos[k, i] = (fr.t + quat_rotate(fr.q, scene.com_offsets[i])) * scene.meters_per_unit
             ori[k, i] = fr.q
-    return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps)
+    return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps, up)
 
 
 def validate(path_or_stage: Any) -> list[str]:
