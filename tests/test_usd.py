@@ -20,6 +20,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics  # noqa: E402
 from warpimpulse import SceneBuilder, SceneError, Shape, run, scenes, usd  # noqa: E402
 from warpimpulse.cli import main as cli_main  # noqa: E402
 from warpimpulse.usd import writer  # noqa: E402
+from warpimpulse.usd.scene import builder_from_model  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DT, FPS, TOL = 1e-3, 50.0, 1e-6
@@ -377,6 +378,23 @@ def mechanism_builder() -> SceneBuilder:
     return b
 
 
+def test_a_model_rebuilds_the_builder_it_came_from():
+    """A model keeps no builder; builder_from_model (what wi.usd.record writes from) finalizes to the same
+    arrays: every joint type and basic constraint, a static body, a force."""
+    b = mechanism_builder()
+    post = b.add_static_body((0, 0, 2), name="post")
+    b.add_joint_ball(post, "box", (0.5, 0, 1), name="tether")
+    model = b.finalize("cpu")
+    again = builder_from_model(model).finalize("cpu")
+    assert (again.body_name, again.joint_name, again.joint_type) == (
+        model.body_name,
+        model.joint_name,
+        model.joint_type,
+    )
+    for name, value in vars(model.host).items():
+        np.testing.assert_allclose(getattr(again.host, name), value, rtol=0, atol=1e-12, err_msg=name)
+
+
 def test_procedural_round_trip_with_simulator(tmp_path):
     b = scenes.chain(4)
     out = str(tmp_path / "chain.usdc")
@@ -550,6 +568,7 @@ def test_record_from_python(tmp_path):
         dots = np.abs(np.einsum("ij,ij->i", anim.orientations[f], twin.orientations()))  # q and -q: one rotation
         np.testing.assert_allclose(dots, 1.0, rtol=0, atol=1e-12)
     np.testing.assert_allclose(anim.positions[-1], sim.positions(), rtol=0, atol=1e-12)
+    assert [j.kind for j in wi.usd.load_stage(out).builder.joints] == ["revolute"] * 3  # a scene, joints and all
     with pytest.raises(ValueError, match="not a whole multiple"):
         wi.usd.record(sim, tmp_path / "bad.usdc", duration=0.1, fps=7.0)
     assert not (tmp_path / "bad.usdc").exists()

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from ..builder import SceneBuilder
 from ..run import frame_steps, record_frames, settings
 from .check import Animation, read_animation, validate
 from .reader import load_stage
@@ -56,7 +57,7 @@ def record(
     path: str | os.PathLike,
     duration: float,
     fps: float = 30.0,
-    scene: UsdScene | None = None,
+    scene: UsdScene | SceneBuilder | None = None,
     flatten: bool = False,
     instancer: bool | None = None,
     progress: bool | None = None,
@@ -69,8 +70,10 @@ def record(
         duration: simulated seconds; frames 0 .. round(duration * fps) are written.
         fps: frames (time codes) per second.
         scene: the `UsdScene` from `load_stage` when the simulation was read from a file, so the output
-            is a layer of `over`s on the input's prims; by default the simulator's own bodies are written
-            as a whole UsdPhysics scene that reads back with `load_stage`.
+            is a layer of `over`s on the input's prims; or the `SceneBuilder` the model was built from, to
+            keep its shapes. By default the model's bodies, joints and forces are written as a whole
+            UsdPhysics scene that reads back with `load_stage`, each body drawn as a sphere of its mean
+            inertia (a model holds no shapes).
         flatten, instancer: as for `AnimationWriter`.
         progress: a progress bar on stderr (default: when stderr is a terminal).
 

@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from ..builder import SceneBuilder, SceneError
+from ..joints import JOINT_TYPES
+from ..model import Model
+from ..transforms import quat_rotate
+from ..types import WORLD, ConstraintKind
 
 WORLD_PATH = "/World"
 INSTANCER_PATH = "/World/Instancer"
@@ -96,15 +99,42 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
     )  # fmt: skip
 
 
-def as_scene(scene: UsdScene | SceneBuilder | Any) -> UsdScene:
-    """A UsdScene as it is; a SceneBuilder, or a Model of one, as a procedural scene."""
+def builder_from_model(model: Model) -> SceneBuilder:
+    """A SceneBuilder that finalizes to `model` again: the bodies at their initial state, each joint from its
+    first constraint's build-time anchor and axes (the builder gives all of a joint's constraints the same
+    ones), the forces. A model holds no shapes, so the bodies have none: the writer draws each as a sphere
+    of the same mean inertia (write the SceneBuilder itself to keep its shapes)."""
+    h = model.host
+    builder = SceneBuilder(gravity=h.gravity)
+    for i, name in enumerate(model.body_name):
+        if h.body_static[i]:
+            builder.add_static_body(h.body_x[i], h.body_q[i], name=name)
+        else:
+            builder.add_body(h.body_mass[i], h.body_inertia[i], h.body_x[i], h.body_q[i], h.body_v[i], h.body_w[i],
+                             name=name)  # fmt: skip
+    for k, (name, kind) in enumerate(zip(model.joint_name, model.joint_type)):
+        first, end = h.joint_constraint_start[k], h.joint_constraint_start[k + 1]
+        kinds = [ConstraintKind(int(c)) for c in h.constraint_kind[first:end]]
+        parent, child = int(h.joint_parent[k]), int(h.joint_child[k])
+        x0, q0 = (np.zeros(3), IDENTITY_QUAT) if parent == WORLD else (h.body_x[parent], h.body_q[parent])
+        anchor = x0 + quat_rotate(q0, h.constraint_anchor0[first])
+        axis = quat_rotate(q0, h.constraint_axis0[first]) if any(c.needs_axis for c in kinds) else None
+        axis_child = quat_rotate(h.body_q[child], h.constraint_axis1[first]) if ConstraintKind.ANGLE in kinds else None
+        add = builder.add_joint if kind in JOINT_TYPES else builder.add_constraint
+        add(kind, None if parent == WORLD else parent, child, anchor, axis, axis_child, name)
+    for body, force, torque, until in zip(h.force_body, h.force_force, h.force_torque, h.force_until):
+        builder.add_force(int(body), force, torque, float(until))
+    return builder
+
+
+def as_scene(scene: UsdScene | SceneBuilder | Model) -> UsdScene:
+    """A UsdScene as it is; a SceneBuilder, or a Model (through `builder_from_model`), as a procedural scene."""
     if isinstance(scene, UsdScene):
         return scene
     if isinstance(scene, SceneBuilder):
         return scene_from_builder(scene)
-    builder = getattr(scene, "builder", None)  # a Model
-    if isinstance(builder, SceneBuilder):
-        return scene_from_builder(builder)
+    if isinstance(scene, Model):
+        return scene_from_builder(builder_from_model(scene))
     raise TypeError(f"expected a UsdScene, SceneBuilder or Model, got {type(scene).__name__}")
 
 
