@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(VENV)/bin/warpimpulse simulate --scene tree127 --duration 10 --fps 30 --out out/tree127.usdc
+	$(VENV)/bin/warpimpulse simulate --scene tree127 --duration 10 --fps 30  # -> out/tree127.usdc
 
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" tests

@@ -1,6 +1,6 @@
 """USD out: simulated motion as time samples (`AnimationWriter`), and a builder as a scene file (`save_scene`).
 
-Frames stream into an Sdf layer through the Sdf API (about 4x faster than `attr.Set`; docs/architecture.md)
+Frames stream into an Sdf layer through the Sdf API (3.6-3.8x faster than `attr.Set`; docs/architecture.md)
 and the file is written atomically (a temporary file in the same folder, then a rename). A scene read from
 a file is exported as a small layer that sublayers the input and holds `over`s on the body prims; a
 procedural scene is written whole, as usda text with geometry and UsdPhysics schemas, so that the output
