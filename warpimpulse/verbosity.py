@@ -32,7 +32,7 @@ def verbose() -> None:
     wp.config.log_level = min(wp.config.log_level, wp.LOG_INFO)
 
 
-def device(spec: str | wp.context.Device | None = None) -> wp.context.Device:
+def device(spec: str | wp.Device | None = None) -> wp.Device:
     """`wp.get_device(spec)`; the first call initialises Warp, without the missing-CUDA-driver warning unless
     `spec` names a CUDA device (where the warning explains the error that follows)."""
     global _initialised
