@@ -73,7 +73,8 @@ def _add_preview(sub) -> None:
 
 
 def _simulate(args) -> int:
-    from . import run, usd
+    from . import checks, run, usd
+    from .energy import EnergyWatch
     from .simulator import SimulationError, Simulator
     from .solver import SingularSystemError
     from .verbosity import verbose
@@ -82,6 +83,11 @@ def _simulate(args) -> int:
         verbose()
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
+    checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
+    try:
+        run.frame_count(args.duration, args.fps)
+    except ValueError as err:
+        raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
     if args.input:
         source = Path(args.input)
         if not source.is_file():
@@ -118,9 +124,11 @@ def _simulate(args) -> int:
     writer = usd.AnimationWriter(
         out, scene, args.fps, settings=run.settings(sim), flatten=args.flatten, instancer=args.instancer
     )
+    energy = EnergyWatch(sim)
+    on_frame = energy.follow(writer.settings)
     try:
         with writer:
-            frames = run.record_frames(sim, writer, args.duration, progress=args.progress)
+            frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame)
     except (SimulationError, SingularSystemError, FloatingPointError) as err:
         print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
         print(f"warpimpulse: {out} holds the {writer.frames_written} frames done before the stop", file=sys.stderr)
@@ -129,6 +137,8 @@ def _simulate(args) -> int:
         print(f"\nwarpimpulse: interrupted; {out} holds the {writer.frames_written} frames done", file=sys.stderr)
         return 130
     elapsed = time.perf_counter() - start
+    if energy.warning():
+        print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
     print(
         f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {sim.step_count} steps of {dt:.6g} s "
         f"in {elapsed:.2f} s ({1e3 * elapsed / max(sim.step_count, 1):.3f} ms a step, output included)"

@@ -14,9 +14,9 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from . import checks
 from .topology import Graph, Topology, analyze
 from .types import ConstraintKind
-from .verbosity import device as warp_device
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -95,7 +95,7 @@ class Model:
             constraints are consecutive; (k + 1,) with the end last).
         force_*: constant world forces (N) and torques (N m) on bodies, active while t < until (s).
         """
-        self.device = warp_device(device)  # the first call initialises Warp quietly
+        self.device = checks.device(device)  # the first call initialises Warp quietly
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)
         inertia = np.asarray(body_inertia, dtype=np.float64).reshape(-1, 3, 3)
