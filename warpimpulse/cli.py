@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 import time
 import warnings
@@ -17,6 +18,7 @@ from pathlib import Path
 from . import __version__
 from .builder import SceneError
 from .cliutil import EXIT_USAGE, ArgumentParser, check_writable
+from .files import Interrupted, WriteError, same_file, signals_interrupt
 from .scenes import SCENES
 from .types import SOLVERS
 
@@ -107,8 +109,10 @@ def _simulate(args) -> int:
     except ValueError as err:
         raise ValueError(f"{err} (dt from {source}'s warpimpulse:dt; pass --dt)" if dt == file_dt else err) from None
     out = args.out or Path("out") / f"{name}.usdc"
+    if args.input and same_file(out, source):
+        raise SceneError(f"{out}: is the input scene; the output would replace it (choose another --out)")
     check_writable(out, create_parent=args.out is None)
-    if out.exists():
+    if out.is_file():
         print(f"warpimpulse: overwriting {out}", file=sys.stderr)
     sim = Simulator(
         builder.finalize(args.device),
@@ -126,16 +130,24 @@ def _simulate(args) -> int:
     )
     energy = EnergyWatch(sim)
     on_frame = energy.follow(writer.settings)
+
+    def kept() -> str:  # true whatever happened: the file holds the frames only once it is saved
+        return f"{out} holds the {writer.frames_written} frames done" if writer.saved else f"{out} was not written"
+
     try:
         with writer:
             frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame)
+    except WriteError as err:  # disk full, a file size limit: the previous file is unchanged
+        print(f"warpimpulse: error: {err}", file=sys.stderr)
+        return 1
     except (SimulationError, SingularSystemError, FloatingPointError) as err:
         print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
-        print(f"warpimpulse: {out} holds the {writer.frames_written} frames done before the stop", file=sys.stderr)
+        print(f"warpimpulse: {kept()} before the stop", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"\nwarpimpulse: interrupted; {out} holds the {writer.frames_written} frames done", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
+        print(f"\nwarpimpulse: interrupted ({signal.Signals(signum).name}); {kept()}", file=sys.stderr)
+        return 128 + signum
     elapsed = time.perf_counter() - start
     if energy.warning():
         print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
@@ -169,16 +181,18 @@ def main(argv: list[str] | None = None) -> int:
             from .preview import main as preview_main
 
             return preview_main(args.input, args.out, args.frames, args.gif_frames)
-        return _simulate(args)
+        with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
+            return _simulate(args)
     except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except SimulationError as err:
         print(f"warpimpulse: stopped: {err}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("\nwarpimpulse: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:  # before the run (reading the scene)
+        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
+        print(f"\nwarpimpulse: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + signum
 
 
 if __name__ == "__main__":
