@@ -13,6 +13,8 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 if TYPE_CHECKING:
     from .simulator import Simulator
 
@@ -25,11 +27,14 @@ class EnergyWatch:
 
     The reference E_ref is the first sample taken while no force acts; a force (the builder's, before its
     `until`, or `set_external_forces`) does work, so while one acts the reference is dropped and taken again
-    after it stops. E_scale is the largest kinetic energy seen since the reference, floored at 1e-9 of |E_ref|
-    (a scene at rest has no kinetic scale, only round-off)."""
+    after it stops. E_scale is the largest kinetic energy seen since the reference, floored at 1e-6 of the
+    energy that would lift the bodies by 1 m or move them at 1 m/s (a scene at rest has no kinetic scale,
+    only round-off)."""
 
     def __init__(self, sim: Simulator, threshold: float = GAIN_WARNING) -> None:
         self.sim = sim
+        h = sim.model.host  # 1e-6 of lifting the bodies by 1 m, or of moving them at 1 m/s (J)
+        self.floor = 1e-6 * float(h.body_mass.sum()) * (float(np.linalg.norm(h.gravity)) + 1.0)
         self.threshold = threshold
         self.reference: float | None = None
         self.scale = 0.0
@@ -43,7 +48,7 @@ class EnergyWatch:
         e = self.sim.energy()
         if self.reference is None:
             self.reference, self.scale, self.worst, self.last = e, 0.0, 0.0, 0.0
-        self.scale = max(self.scale, self.sim.kinetic_energy(), 1e-9 * abs(self.reference), 1e-300)
+        self.scale = max(self.scale, self.sim.kinetic_energy(), self.floor)
         self.last = e - self.reference
         self.worst = max(self.worst, self.last)
 

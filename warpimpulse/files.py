@@ -9,7 +9,8 @@
   stderr says so) and raised once the file is whole, so that a second Ctrl-C cannot lose it.
 - `signals_interrupt`: SIGTERM and SIGHUP (sent by `timeout`, `kill`, batch schedulers, containers and a
   closed terminal) raise `Interrupted`, a KeyboardInterrupt, so that they end a run like Ctrl-C does.
-- `usd_message`: the description in a `pxr.Tf.ErrorException`, without USD's C++ function names.
+- `usd_message`: the description in a `pxr.Tf.ErrorException`, without USD's C++ function names;
+  `fd2_captured` and `usd_warnings`: what USD's C++ code writes to stderr, caught and made one line each.
 """
 
 from __future__ import annotations
@@ -192,3 +193,36 @@ def _export(path: str, tmp: str, export: Callable[[str], None]) -> None:
         raise OSError(usd_message(err)) from None
     if ok is False:
         raise OSError(f"USD could not export {path}")
+
+
+@contextlib.contextmanager
+def fd2_captured() -> Iterator[list[bytes]]:
+    """Within the block, what is written to file descriptor 2 (USD's C++ warnings) is caught; the list
+    yielded holds it afterwards."""
+    caught: list[bytes] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as sink:
+            os.dup2(sink.fileno(), 2)
+            try:
+                yield caught
+            finally:
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+                sink.seek(0)
+                caught.append(sink.read())
+    finally:
+        os.close(saved)
+
+
+def usd_warnings(caught: list[bytes]) -> list[str]:
+    """USD's warnings ("Warning: in Fn at line N of file.cpp -- text (context)") as their text, one each."""
+    text = b"".join(caught).decode(errors="replace")
+    out = []
+    for line in text.splitlines():
+        line = re.sub(r"^Warning: (in \S+ at line \d+ of \S+ -- )?", "", line.strip())
+        line = re.sub(r" \((instantiating stage on stage|in stage) @[^)]*\)$", "", line)
+        if line:
+            out.append(re.sub(r"\s*\[python[\d.]*\]$", "", line))
+    return out
