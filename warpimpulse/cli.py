@@ -1,8 +1,9 @@
 """Command line: `warpimpulse simulate | preview | bench | stress`.
 
 User mistakes (bad flags, bad scene files) print one clear line and exit 2, never a traceback. A run
-that stops early (divergence, joints that do not converge, Ctrl-C) keeps the frames done so far in a
-valid file, says so, and exits 1 (130 for Ctrl-C).
+that stops early (divergence, joints that do not converge, Ctrl-C, SIGTERM, SIGHUP) keeps the frames done
+so far in a valid file, says so once the file holds them, and exits 1 (128 + the signal for a signal). An
+output the file system refuses (disk full, a size limit) is one line and exit 1, the previous file intact.
 """
 
 from __future__ import annotations

@@ -29,12 +29,12 @@ class EnergyWatch:
     `until`, or `set_external_forces`) does work, so while one acts the reference is dropped and taken again
     after it stops. E_scale is the largest kinetic energy seen since the reference, floored at 1e-6 of the
     energy that would lift the bodies by 1 m or move them at 1 m/s (a scene at rest has no kinetic scale,
-    only round-off)."""
+    only round-off; static bodies have no mass to count, and a scene of them no energy to gain)."""
 
     def __init__(self, sim: Simulator, threshold: float = GAIN_WARNING) -> None:
         self.sim = sim
         h = sim.model.host  # 1e-6 of lifting the bodies by 1 m, or of moving them at 1 m/s (J)
-        self.floor = 1e-6 * float(h.body_mass.sum()) * (float(np.linalg.norm(h.gravity)) + 1.0)
+        self.floor = max(1e-6 * float(h.body_mass.sum()) * (float(np.linalg.norm(h.gravity)) + 1.0), 1e-300)
         self.threshold = threshold
         self.reference: float | None = None
         self.scale = 0.0
