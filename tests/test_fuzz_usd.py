@@ -3,12 +3,13 @@
 Every generated scene must end in one of: a clear one-line error and exit 2 (bad input), a clear stop with
 the frames done kept and exit 1 (a run that cannot go on), or a valid simulation (exit 0) whose output holds
 no NaN or Inf. Never a traceback, a C++ fragment, a hang (hypothesis' deadline) or a non-finite sample.
-Bounded (max_examples, deadline) so that `make test` stays fast.
+Bounded (max_examples, deadline) and derandomized so that `make test` stays fast and repeatable.
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
@@ -166,8 +167,13 @@ def _nonfinite_samples(path) -> list[str]:
     return bad
 
 
+# make test runs a fixed set of 60 scenes; WARPIMPULSE_FUZZ_EXAMPLES=2000 (say) runs that many new ones.
+EXAMPLES = int(os.environ.get("WARPIMPULSE_FUZZ_EXAMPLES", "0"))
+
+
 @settings(
-    max_examples=60,
+    max_examples=EXAMPLES or 60,
+    derandomize=not EXAMPLES,
     deadline=20_000,  # ms: a hang (or a run far too slow for two steps) fails instead of blocking
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large],
     database=None,
