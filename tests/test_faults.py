@@ -325,3 +325,23 @@ def test_save_checkpoint_leaves_no_temporary_file_on_failure(tmp_path):
     with pytest.raises(OSError):
         sim.save_checkpoint(target)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.npz"]
+
+
+# ------------------------------------------------------------------------------------------------ usd.record
+def test_record_refuses_a_duration_without_a_frame(tmp_path):
+    sim = _tree_sim(7)
+    out = tmp_path / "o.usdc"
+    with pytest.raises(ValueError, match="fps 30: a frame lasts 0.0333333 s, longer than the duration 0.01 s"):
+        wi.usd.record(sim, out, duration=0.01, fps=30)
+    assert not out.exists() and sim.step_count == 0
+
+
+def test_record_warns_of_an_energy_gain_and_records_it(tmp_path):
+    from pxr import Sdf
+
+    sim = Simulator(scenes.binary_tree(31).finalize(), 0.5, max_rotation=None)
+    out = tmp_path / "o.usdc"
+    with pytest.warns(RuntimeWarning, match=r"the energy grew by \d+\.\d% .* above the 5% threshold"):
+        wi.usd.record(sim, out, duration=6.0, fps=2)
+    data = Sdf.Layer.FindOrOpen(str(out)).customLayerData
+    assert data["warpimpulse:energyGain"] > 0.05
