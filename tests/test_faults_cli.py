@@ -29,6 +29,16 @@ def test_unavailable_device(device, tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.skipif(wp.get_cuda_device_count() > 0, reason="this machine has a GPU")
+def test_cuda_without_a_gpu_is_exactly_one_line(tmp_path):
+    """In a fresh process, so that Warp's own CUDA messages (written to file descriptor 2) would show."""
+    proc = subprocess.run([sys.executable, "-m", "warpimpulse.cli", "simulate", "--device", "cuda", "--out",
+                           str(tmp_path / "o.usdc")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        "warpimpulse: error: device 'cuda' is not available (Warp finds no CUDA GPU or driver); this machine has: cpu"
+    ], proc.stderr
+
+
 @pytest.mark.parametrize("fps,duration", [("0.1", "1"), ("1", "0.4"), ("0.5", "0.9")])
 def test_no_frame_in_the_duration_is_refused(fps, duration, tmp_path, capsys):
     out = tmp_path / "o.usdc"

@@ -90,6 +90,11 @@ def device(name: Any):
 
     from .verbosity import device as warp_device
 
+    if str(name).startswith("cuda"):  # ask Warp how many GPUs before it tries one (and prints CUDA errors)
+        warp_device("cpu")
+        if wp.get_cuda_device_count() == 0:
+            raise SceneError(f"device {name!r} is not available (Warp finds no CUDA GPU or driver); this machine "
+                             "has: cpu")  # fmt: skip
     try:
         return warp_device(name)
     except (RuntimeError, ValueError, TypeError) as err:
