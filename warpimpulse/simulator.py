@@ -9,7 +9,6 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
-import os
 import warnings
 import zipfile
 import zlib
@@ -20,6 +19,7 @@ import numpy as np
 import warp as wp
 
 from . import checks, coordinates, diagnose
+from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
@@ -469,23 +469,18 @@ class Simulator:
 
     # ---------------------------------------------------------------- checkpoints
     def save_checkpoint(self, path) -> None:
-        """Write the full state to an .npz file (atomically); `load_checkpoint` continues bit-identically.
+        """Write the full state to an .npz file; `load_checkpoint` continues bit-identically.
 
-        The file also holds the scene's fingerprint (`SceneBuilder.fingerprint`), so that a checkpoint is
-        never loaded into another scene of the same body count."""
+        The file also holds the scene's fingerprint (`diagnose.fingerprint`), so that a checkpoint is never
+        loaded into another scene of the same body count. Written as the output files are
+        (`files.write_atomically`): a failed write raises WriteError and leaves the previous checkpoint."""
         data = {name: getattr(self.state, f"body_{name}").numpy() for name in STATE}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
                     user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count)  # fmt: skip
         data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        try:
-            np.savez(tmp, **data)
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
+        write_atomically(path, lambda tmp: np.savez(tmp, **data), ".npz")
 
     def load_checkpoint(self, path) -> None:
         """Continue from a checkpoint of this scene. Everything in the file is read and checked before any of
