@@ -1,0 +1,359 @@
+"""Order in time: trajectory error against run time for the paper's step (order 2), its symmetric compositions
+(orders 4 and 6, every scheme in `warpimpulse.composition.SCHEMES`), Richardson extrapolation of the paper's
+step followed by a projection onto the constraints, and MuJoCo's integrators, on the same scenes.
+
+Error: the largest distance of a tracked point (every centre of mass and leaf tip) from the reference at
+t = 2 s. Reference: MuJoCo RK4 at h = 1/3000 (checked against 1/6000); without MuJoCo, our own order 6 at
+h = 1/960. Cost: median wall time per simulated second over repeated runs of the first 2 s (one warm-up run
+discarded), nothing but steps in the timed loop.
+
+    .venv/bin/python benchmarks/orders.py                # all scenes -> benchmarks/results/orders.json
+    .venv/bin/python benchmarks/orders.py --from-json    # only the tables again: docs/time-order.md, README.md
+
+The README's "Order in time" table and docs/time-order.md are generated from the JSON (`--from-json`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import statistics
+import sys
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpimpulse import composition
+from warpimpulse.benchmark import (
+    ERROR_TIME,
+    MujocoRunner,
+    Probe,
+    StepFailed,
+    make_scene,
+    mujoco_available,
+    quiet_warp,
+    time_steps,
+)
+from warpimpulse.simulator import SimulationError, Simulator
+from warpimpulse.transforms import quat_mul
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results" / "orders.json"
+DOC = ROOT / "docs" / "time-order.md"
+README = ROOT / "README.md"
+SCENES = ("tree127", "double_pendulum", "chain50")
+LEVELS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)  # m: the error levels of the tables
+OURS = {  # scheme -> steps per second
+    "base": (30, 60, 120, 240, 480, 960),
+    "suzuki5": (15, 30, 60, 120, 240),
+    "mclachlan5": (15, 30, 60, 120, 240),
+    "yoshida3": (30, 60, 120, 240),
+    "kahanli9": (15, 30, 60, 120),
+    "yoshida7": (15, 30, 60, 120),
+}
+RICHARDSON_RATES = (30, 60, 120, 240)
+MUJOCO = {"RK4": (30, 60, 120, 240, 480, 1000), "implicitfast": (60, 120, 240, 480, 1000, 2000, 4000)}
+TOLERANCE_STUDY = {"tree127": [("suzuki5", 60), ("suzuki5", 120), ("kahanli9", 30), ("kahanli9", 60)]}
+TOLERANCES = (1e-6, 1e-8, 1e-10, 1e-12)
+QUICK = {"scenes": ("double_pendulum",), "rates": 2}
+
+
+# ------------------------------------------------------------------------------------------ runners
+class Ours:
+    """The Simulator at an order and scheme; the benchmark harness's runner interface (step, poses)."""
+
+    def __init__(self, model, rate: int, scheme: str, tolerance: float | None = None) -> None:
+        order = composition.SCHEMES[scheme].order
+        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, order=order, scheme=scheme)
+        self.linear_iterations = self.steps = 0
+
+    def step(self) -> None:
+        try:
+            self.linear_iterations += self.sim.step().linear_iterations
+        except SimulationError as e:
+            raise StepFailed(str(e).split(";")[0]) from e
+        self.steps += 1
+
+    def poses(self):
+        return self.sim.positions(), self.sim.orientations()
+
+
+class Richardson(Ours):
+    """Local Richardson extrapolation of the paper's step: one step of h and two of h/2 from the same state,
+    combined as (4 y_{h/2} - y_h) / 3 (the step is symmetric, so its local error has odd powers of h only and
+    the combination is locally O(h^5): order 4), then projected back onto the joints (positions by
+    impulse-sized displacements, Newton with K re-assembled, then the exact velocity projection).
+    Three base steps and a projection a step; the projection runs from Python, so its time is an upper bound."""
+
+    def __init__(self, model, rate: int, tolerance: float | None = None) -> None:
+        super().__init__(model, rate, "base", tolerance or composition.default_tolerance(1.0 / rate, 4))
+        self.half = Simulator(model, 0.5 / rate, tolerance=self.sim.tolerance)
+
+    def step(self) -> None:
+        full, half = self.sim, self.half
+        half.state.copy_from(full.state)
+        half.step_count, half.time = 2 * full.step_count, full.time
+        half._update_frames()
+        try:
+            self.linear_iterations += full.step().linear_iterations
+            self.linear_iterations += sum(half.step().linear_iterations for _ in range(2))
+        except SimulationError as e:
+            raise StepFailed(str(e).split(";")[0]) from e
+        s, t = full.state, half.state
+        for name in ("x", "v", "w"):
+            a, b = getattr(s, name), getattr(t, name)
+            a.assign((4.0 * b.numpy() - a.numpy()) / 3.0)  # a new array before assign
+        q1, q2 = s.q.numpy().copy(), t.q.numpy().copy()
+        q2 *= np.sign(np.sum(q1 * q2, axis=1))[:, None]  # the same hemisphere
+        q = (4.0 * q2 - q1) / 3.0
+        s.q.assign(q / np.linalg.norm(q, axis=1)[:, None])
+        self.linear_iterations += self._project()
+        self.steps += 1
+
+    def _project(self) -> int:
+        sim, h = self.sim, self.sim.dt
+        s, solves = sim.state, 0
+        sim._update_frames()
+        for _ in range(sim.max_iterations):
+            sim.pred.copy_from(s)
+            sim._position_errors.launch()  # errors, and rhs = -P d / h
+            if float(sim.errors.numpy().max()) <= sim.tolerance:
+                break
+            v0, w0 = s.v.numpy().copy(), s.w.numpy().copy()  # on a CPU, numpy() is a view
+            for launch in sim.linear.solve_launches(sim.rhs, sim.impulse):
+                launch.launch()
+            sim._apply.launch()  # v += M^-1 J^T lambda: the displacement over h is the correction
+            dx, dw = h * (s.v.numpy() - v0), h * (s.w.numpy() - w0)
+            s.x.assign(s.x.numpy() + dx)
+            angle = np.linalg.norm(dw, axis=1)
+            axis = dw / np.maximum(angle, 1e-300)[:, None]
+            turn = np.concatenate([axis * np.sin(0.5 * angle)[:, None], np.cos(0.5 * angle)[:, None]], axis=1)
+            s.q.assign(quat_mul(turn, s.q.numpy()))
+            s.v.assign(v0)
+            s.w.assign(w0)
+            sim._update_frames()
+            solves += 1
+        else:
+            raise StepFailed(f"the projection did not reach {sim.tolerance:g}")
+        sim._velocity_errors.launch()
+        wp.capture_launch(sim._velocity_fix)
+        return solves + 1
+
+
+# ------------------------------------------------------------------------------------------ measuring
+def error_at(runner, rate: int, probe: Probe, ref: np.ndarray) -> tuple[float | None, str | None]:
+    try:
+        for _ in range(int(round(ERROR_TIME * rate))):
+            runner.step()
+    except StepFailed as e:
+        return None, str(e)
+    points = probe.points(*runner.poses())
+    if not np.all(np.isfinite(points)):
+        return None, "non-finite"
+    return float(np.linalg.norm(points - ref, axis=1).max()), None
+
+
+def measure(factory, rate: int, probe: Probe, ref: np.ndarray, repeats: int, **row) -> dict:
+    runner = factory()
+    err, failed = error_at(runner, rate, probe, ref)
+    times = time_steps(factory, rate, repeats, min_total=0.3) if failed is None else []
+    per_step = statistics.median(times) if times else None
+    row.update(rate=rate, h=1.0 / rate, error=err, failed=failed, time_per_step=per_step,
+               time_per_second=None if per_step is None else per_step * rate)  # fmt: skip
+    if isinstance(runner, Ours):
+        row["solves_per_step"] = runner.linear_iterations / max(runner.steps, 1)
+        row["tolerance"] = runner.sim.tolerance
+    ms = "failed" if per_step is None else f"{per_step * rate * 1e3:8.2f} ms/s"
+    err_s = failed if err is None else f"{err:.3g} m"
+    print(f"  {row.get('engine')} {row.get('variant')} 1/{rate}: {err_s}, {ms}", file=sys.stderr, flush=True)
+    return row
+
+
+def reference(builder, probe: Probe) -> tuple[np.ndarray, dict]:
+    if mujoco_available() is None:
+        from warpimpulse.mjcf import MujocoScene
+
+        mscene = MujocoScene.from_builder(builder, 1.0 / 3000)
+        pts = []
+        for rate in (3000, 6000):
+            runner = MujocoRunner(mscene, "RK4", rate)
+            for _ in range(int(round(ERROR_TIME * rate))):
+                runner.step()
+            pts.append(probe.points(*runner.poses()))
+        residual = float(np.linalg.norm(pts[0] - pts[1], axis=1).max())
+        return pts[0], {"reference": "MuJoCo RK4 h=1/3000", "residual_vs_half_step": residual}
+    runner = Ours(builder.finalize("cpu"), 960, "kahanli9")
+    err, failed = error_at(runner, 960, probe, np.zeros((len(probe.bodies), 3)))
+    if failed:
+        raise RuntimeError(f"the reference failed: {failed}")
+    return probe.points(*runner.poses()), {"reference": "warpimpulse order 6 (kahanli9) h=1/960"}
+
+
+def run_scene(name: str, repeats: int, quick: bool) -> dict:
+    builder = make_scene(name)
+    probe = Probe.from_builder(builder)
+    ref, info = reference(builder, probe)
+    print(f"{name}: {info}", file=sys.stderr, flush=True)
+    model = builder.finalize("cpu")
+    cut = (lambda rates: rates[: QUICK["rates"]]) if quick else (lambda rates: rates)
+    rows = []
+    for scheme, rates in OURS.items():
+        for rate in cut(rates):
+            factory = partial(Ours, model, rate, scheme)
+            rows.append(measure(factory, rate, probe, ref, repeats, engine="warpimpulse", variant=scheme,
+                                order=composition.SCHEMES[scheme].order))  # fmt: skip
+    for rate in cut(RICHARDSON_RATES):
+        rows.append(measure(partial(Richardson, model, rate), rate, probe, ref, repeats, engine="warpimpulse",
+                            variant="richardson", order=4))  # fmt: skip
+    for scheme, rate in [] if quick else TOLERANCE_STUDY.get(name, []):
+        for tol in TOLERANCES:
+            factory = partial(Ours, model, rate, scheme, tol)
+            rows.append(measure(factory, rate, probe, ref, repeats, engine="warpimpulse", variant=scheme,
+                                order=composition.SCHEMES[scheme].order, study="tolerance"))  # fmt: skip
+    if mujoco_available() is None:
+        from warpimpulse.mjcf import MujocoScene
+
+        mscene = MujocoScene.from_builder(builder, 1.0 / 60)
+        for integrator, rates in MUJOCO.items():
+            for rate in cut(rates):
+                factory = partial(MujocoRunner, mscene, integrator, rate)
+                rows.append(measure(factory, rate, probe, ref, repeats, engine="mujoco", variant=integrator))
+    return {"bodies": len(builder.bodies), **info, "runs": rows}
+
+
+# ------------------------------------------------------------------------------------------ tables
+def _cheapest(runs: list[dict], level: float, engine: str, study: bool = False) -> dict | None:
+    ok = [r for r in runs if r["engine"] == engine and r["error"] is not None and r["error"] <= level
+          and r["time_per_second"] is not None and ("study" in r) == study]  # fmt: skip
+    return min(ok, key=lambda r: r["time_per_second"], default=None)
+
+
+def _config(r: dict | None) -> str:
+    if r is None:
+        return "none reaches it"
+    what = r["variant"] if r["engine"] == "mujoco" else f"order {r['order']} {r['variant']}"
+    return f"{what} 1/{r['rate']} ({r['error']:.2g} m, {r['time_per_second'] * 1e3:.1f} ms)"
+
+
+def cheapest_table(results: dict) -> list[str]:
+    lines = ["| scene | error | ours: cheapest (error, time per simulated s) | MuJoCo: cheapest | ours vs MuJoCo |",
+             "|---|---:|---|---|---:|"]  # fmt: skip
+    for name, scene in results["scenes"].items():
+        for level in LEVELS:
+            ours, theirs = _cheapest(scene["runs"], level, "warpimpulse"), _cheapest(scene["runs"], level, "mujoco")
+            if ours is None and theirs is None:
+                continue
+            ratio = "—"
+            if ours is not None and theirs is not None:
+                x = theirs["time_per_second"] / ours["time_per_second"]
+                ratio = f"{x:.2f}x faster" if x >= 1.0 else f"{1.0 / x:.2f}x slower"
+            lines.append(f"| {name} | {level:g} m | {_config(ours)} | {_config(theirs)} | {ratio} |")
+    return lines
+
+
+def error_constants(results: dict) -> list[str]:
+    """C in error = C h^p, and the observed order between the two smallest h that are above round-off."""
+    lines = ["| scene | scheme | order | base steps | observed order | C (m s^-p) | C x base steps^p |",
+             "|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for name, scene in results["scenes"].items():
+        for variant in [*OURS, "richardson"]:
+            runs = sorted((r for r in scene["runs"] if r["variant"] == variant and "study" not in r
+                           and r["error"] is not None and r["error"] > 1e-9), key=lambda r: r["rate"])  # fmt: skip
+            if len(runs) < 2:
+                continue
+            a, b = runs[-2], runs[-1]
+            p_obs = math.log(a["error"] / b["error"]) / math.log(b["rate"] / a["rate"])
+            p = runs[0]["order"]
+            c = b["error"] * b["rate"] ** p
+            cost = 3 if variant == "richardson" else composition.SCHEMES[variant].cost
+            lines.append(f"| {name} | {variant} | {p} | {cost} | {p_obs:.2f} | {c:.3g} | {c * cost**p:.3g} |")
+    return lines
+
+
+def tolerance_table(results: dict) -> list[str]:
+    lines = ["| scene | scheme | h | tolerance | error | solves a step | ms per simulated s |",
+             "|---|---|---|---:|---:|---:|---:|"]
+    for name, scene in results["scenes"].items():
+        study = [r for r in scene["runs"] if r.get("study") == "tolerance"]
+        default = [r for r in scene["runs"] if "study" not in r and r["engine"] == "warpimpulse"]
+        for r in study + [d for d in default if any(d["variant"] == s["variant"] and d["rate"] == s["rate"]
+                                                    for s in study)]:  # fmt: skip
+            tol = f"{r['tolerance']:g}" + (" (rule)" if "study" not in r else "")
+            err = "failed" if r["error"] is None else f"{r['error']:.3g}"
+            t = "—" if r["time_per_second"] is None else f"{r['time_per_second'] * 1e3:.1f}"
+            lines.append(f"| {name} | {r['variant']} | 1/{r['rate']} | {tol} | {err} | "
+                         f"{r.get('solves_per_step', 0):.1f} | {t} |")  # fmt: skip
+    return lines
+
+
+def write_tables(results: dict) -> None:
+    table = cheapest_table(results)
+    readme = README.read_text()
+    begin, end = "<!-- orders:begin -->", "<!-- orders:end -->"
+    if begin in readme:
+        head, rest = readme.split(begin, 1)
+        note = "<!-- generated from benchmarks/results/orders.json by `python benchmarks/orders.py --from-json` -->"
+        readme = head + begin + "\n" + note + "\n" + "\n".join(table) + "\n" + end + rest.split(end, 1)[1]
+        README.write_text(readme)
+    meta = results["meta"]
+    refs = "; ".join(f"{n}: {s['reference']}" + (f" (vs h/2: {s['residual_vs_half_step']:.2g} m)"
+                     if "residual_vs_half_step" in s else "") for n, s in results["scenes"].items())  # fmt: skip
+    doc = [
+        "# Order in time: the paper's step, composed",
+        "",
+        "<!-- generated from benchmarks/results/orders.json by `python benchmarks/orders.py --from-json` -->",
+        f"Measured {meta['date']} on {meta['machine']} ({meta['seconds']:.0f} s). Error: the largest distance of a "
+        f"tracked point (centres of mass, leaf tips) from the reference at t = {ERROR_TIME:g} s. References: {refs}. "
+        "Time: median wall time per simulated second, CPU.",
+        "",
+        "## The cheapest configuration per error level",
+        "",
+        *table,
+        "",
+        "## Error constants (error = C h^p at the smallest h measured)",
+        "",
+        "C x (base steps)^p compares schemes at equal work: smaller is better.",
+        "",
+        *error_constants(results),
+        "",
+        "## The joint tolerance against the order",
+        "",
+        *tolerance_table(results),
+        "",
+    ]
+    DOC.parent.mkdir(exist_ok=True)
+    DOC.write_text("\n".join(doc))
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--scenes", nargs="+", default=list(SCENES))
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--quick", action="store_true", help="the double pendulum at the two largest steps only")
+    p.add_argument("--from-json", action="store_true", help="only regenerate the tables from the JSON")
+    p.add_argument("--out", type=Path, default=RESULTS)
+    args = p.parse_args(argv)
+    if not args.from_json:
+        quiet_warp()
+        start = time.perf_counter()
+        scenes = QUICK["scenes"] if args.quick else args.scenes
+        results = {"scenes": {name: run_scene(name, args.repeats, args.quick) for name in scenes}}
+        results["meta"] = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "seconds":
+                           time.perf_counter() - start, "machine": f"{platform.machine()} {platform.processor()}",
+                           "python": platform.python_version(), "warp": wp.__version__}  # fmt: skip
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=1))
+        if args.quick:
+            print("\n".join(cheapest_table(results) + [""] + error_constants(results)))
+            return
+    write_tables(json.loads(args.out.read_text()))
+    print(DOC.read_text())
+
+
+if __name__ == "__main__":
+    main()
