@@ -105,13 +105,13 @@ class Richardson(Ours):
         except SimulationError as e:
             raise StepFailed(str(e).split(";")[0]) from e
         s, t = full.state, half.state
-        for name in ("x", "v", "w"):
+        for name in ("body_x", "body_v", "body_w"):
             a, b = getattr(s, name), getattr(t, name)
             a.assign((4.0 * b.numpy() - a.numpy()) / 3.0)  # a new array before assign
-        q1, q2 = s.q.numpy().copy(), t.q.numpy().copy()
+        q1, q2 = s.body_q.numpy().copy(), t.body_q.numpy().copy()
         q2 *= np.sign(np.sum(q1 * q2, axis=1))[:, None]  # the same hemisphere
         q = (4.0 * q2 - q1) / 3.0
-        s.q.assign(q / np.linalg.norm(q, axis=1)[:, None])
+        s.body_q.assign(q / np.linalg.norm(q, axis=1)[:, None])
         self.linear_iterations += self._project()
         self.steps += 1
 
@@ -124,18 +124,18 @@ class Richardson(Ours):
             sim._position_errors.launch()  # errors, and rhs = -P d / h
             if float(sim.errors.numpy().max()) <= sim.tolerance:
                 break
-            v0, w0 = s.v.numpy().copy(), s.w.numpy().copy()  # on a CPU, numpy() is a view
+            v0, w0 = s.body_v.numpy().copy(), s.body_w.numpy().copy()  # on a CPU, numpy() is a view
             for launch in sim.linear.solve_launches(sim.rhs, sim.impulse):
                 launch.launch()
             sim._apply.launch()  # v += M^-1 J^T lambda: the displacement over h is the correction
-            dx, dw = h * (s.v.numpy() - v0), h * (s.w.numpy() - w0)
-            s.x.assign(s.x.numpy() + dx)
+            dx, dw = h * (s.body_v.numpy() - v0), h * (s.body_w.numpy() - w0)
+            s.body_x.assign(s.body_x.numpy() + dx)
             angle = np.linalg.norm(dw, axis=1)
             axis = dw / np.maximum(angle, 1e-300)[:, None]
             turn = np.concatenate([axis * np.sin(0.5 * angle)[:, None], np.cos(0.5 * angle)[:, None]], axis=1)
-            s.q.assign(quat_mul(turn, s.q.numpy()))
-            s.v.assign(v0)
-            s.w.assign(w0)
+            s.body_q.assign(quat_mul(turn, s.body_q.numpy()))
+            s.body_v.assign(v0)
+            s.body_w.assign(w0)
             sim._update_frames()
             solves += 1
         else:
@@ -276,8 +276,10 @@ def error_constants(results: dict) -> list[str]:
 
 
 def tolerance_table(results: dict) -> list[str]:
-    lines = ["| scene | scheme | h | tolerance | error | solves a step | ms per simulated s |",
-             "|---|---|---|---:|---:|---:|---:|"]
+    lines = [
+        "| scene | scheme | h | tolerance | error | solves a step | ms per simulated s |",
+        "|---|---|---|---:|---:|---:|---:|",
+    ]
     for name, scene in results["scenes"].items():
         study = [r for r in scene["runs"] if r.get("study") == "tolerance"]
         default = [r for r in scene["runs"] if "study" not in r and r["engine"] == "warpimpulse"]
