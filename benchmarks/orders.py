@@ -29,16 +29,9 @@ import numpy as np
 import warp as wp
 
 from warpimpulse import composition
-from warpimpulse.benchmark import (
-    ERROR_TIME,
-    MujocoRunner,
-    Probe,
-    StepFailed,
-    make_scene,
-    mujoco_available,
-    quiet_warp,
-    time_steps,
-)
+from warpimpulse.bench.harness import ERROR_TIME, Probe, make_scene, quiet_warp, time_steps
+from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
+from warpimpulse.bench.runner import StepFailed
 from warpimpulse.simulator import SimulationError, Simulator
 from warpimpulse.transforms import quat_mul
 
@@ -176,8 +169,6 @@ def measure(factory, rate: int, probe: Probe, ref: np.ndarray, repeats: int, **r
 
 def reference(builder, probe: Probe) -> tuple[np.ndarray, dict]:
     if mujoco_available() is None:
-        from warpimpulse.mjcf import MujocoScene
-
         mscene = MujocoScene.from_builder(builder, 1.0 / 3000)
         pts = []
         for rate in (3000, 6000):
@@ -216,8 +207,6 @@ def run_scene(name: str, repeats: int, quick: bool) -> dict:
             rows.append(measure(factory, rate, probe, ref, repeats, engine="warpimpulse", variant=scheme,
                                 order=composition.SCHEMES[scheme].order, study="tolerance"))  # fmt: skip
     if mujoco_available() is None:
-        from warpimpulse.mjcf import MujocoScene
-
         mscene = MujocoScene.from_builder(builder, 1.0 / 60)
         for integrator, rates in MUJOCO.items():
             for rate in cut(rates):

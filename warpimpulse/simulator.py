@@ -620,6 +620,7 @@ class Simulator:
         n = self.model.body_count
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
+        self._fallback = ""
         getattr(self.linear, "_warm", {}).clear()
         self._update_frames()
         self._check_finite(self.state, 0)
