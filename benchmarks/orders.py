@@ -54,6 +54,7 @@ MUJOCO = {"RK4": (10, 12, 15, 20, 30, 60, 120, 240, 480, 1000), "implicitfast": 
 TOLERANCE_STUDY = {"tree127": [("suzuki5", 60), ("suzuki5", 120), ("kahanli9", 30), ("kahanli9", 60)]}
 TOLERANCES = (1e-6, 1e-8, 1e-10, 1e-12)
 QUICK = {"scenes": ("double_pendulum",), "rates": 2}
+BAR = ("tree127", 1e-3, 6)  # scene, error level, rounds: ours against MuJoCo there, timed turn about
 
 
 # ------------------------------------------------------------------------------------------ runners
@@ -212,7 +213,32 @@ def run_scene(name: str, repeats: int, quick: bool) -> dict:
             for rate in cut(rates):
                 factory = partial(MujocoRunner, mscene, integrator, rate)
                 rows.append(measure(factory, rate, probe, ref, repeats, engine="mujoco", variant=integrator))
-    return {"bodies": len(builder.bodies), **info, "runs": rows}
+    out = {"bodies": len(builder.bodies), **info, "runs": rows}
+    if name == BAR[0] and not quick:
+        out["bar"] = head_to_head(rows, model, mscene if mujoco_available() is None else None, *BAR[1:])
+    return out
+
+
+def head_to_head(rows: list[dict], model, mscene, level: float, rounds: int) -> dict | None:
+    """Our cheapest configuration at `level` against MuJoCo's, timed in turns (`rounds` each), so that the
+    load of a shared machine falls on both alike; the sweep's single timings are taken minutes apart."""
+    ours, theirs = _cheapest(rows, level, "warpimpulse"), _cheapest(rows, level, "mujoco")
+    if ours is None or theirs is None or mscene is None:
+        return None
+    factories = {
+        "ours": (partial(Ours, model, ours["rate"], ours["variant"]), ours["rate"]),
+        "mujoco": (partial(MujocoRunner, mscene, theirs["variant"], theirs["rate"]), theirs["rate"]),
+    }
+    times: dict[str, list[float]] = {k: [] for k in factories}
+    for _ in range(rounds):
+        for key, (factory, rate) in factories.items():
+            times[key] += [t * rate for t in time_steps(factory, rate, 3, min_total=0.3)]
+    out = {"level": level, "rounds": rounds, "ours": ours, "mujoco": theirs}
+    for key, ts in times.items():
+        out[f"{key}_time_per_second"] = statistics.median(ts)
+        out[f"{key}_time_per_second_min"] = min(ts)
+    out["ratio"] = out["mujoco_time_per_second"] / out["ours_time_per_second"]
+    return out
 
 
 # ------------------------------------------------------------------------------------------ tables
@@ -282,8 +308,24 @@ def tolerance_table(results: dict) -> list[str]:
     return lines
 
 
+def bar_lines(results: dict) -> list[str]:
+    bar = next((s["bar"] for s in results["scenes"].values() if s.get("bar")), None)
+    if bar is None:
+        return []
+    ours, theirs, x = bar["ours"], bar["mujoco"], bar["ratio"]
+    verdict = f"{x:.2f}x faster" if x >= 1.0 else f"{1.0 / x:.2f}x slower"
+    return [
+        f"Head to head at {bar['level']:g} m on {BAR[0]}, timed in turns ({bar['rounds']} rounds): ours "
+        f"(order {ours['order']} {ours['variant']} 1/{ours['rate']}, {ours['error']:.2g} m) "
+        f"{bar['ours_time_per_second'] * 1e3:.1f} ms per simulated s (median; best "
+        f"{bar['ours_time_per_second_min'] * 1e3:.1f}), MuJoCo {theirs['variant']} 1/{theirs['rate']} "
+        f"({theirs['error']:.2g} m) {bar['mujoco_time_per_second'] * 1e3:.1f} ms (best "
+        f"{bar['mujoco_time_per_second_min'] * 1e3:.1f}): ours is {verdict}.",
+    ]
+
+
 def write_tables(results: dict) -> None:
-    table = cheapest_table(results)
+    table = cheapest_table(results) + [""] + bar_lines(results)
     readme = README.read_text()
     begin, end = "<!-- orders:begin -->", "<!-- orders:end -->"
     if begin in readme:
@@ -332,6 +374,9 @@ def write_tables(results: dict) -> None:
         "## The cheapest configuration per error level",
         "",
         *table,
+        "",
+        "Timings on a shared machine are noisy: the sweep times each configuration once (a median of repeats), "
+        "minutes apart from its peers; the head-to-head line times two configurations in turns.",
         "",
         "## Error constants (error = C h^p at the smallest h measured)",
         "",
