@@ -77,25 +77,22 @@ def diagonal_block(
     return pad_unused_rows(k, constraint_kind[i])
 
 
-@wp.kernel
-def assemble(
-    # Model:
+@wp.func
+def assemble_slot(
+    s: int,
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    # Pattern: the slots to fill
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
-    # Data in:
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
-    # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
-    s = wp.tid()
+    """Slot s of K: the sum over the (at most two) bodies its row and column constraints share."""
     i = slot_row[s]
     j = slot_col[s]
     sides = slot_sides[s]
@@ -115,6 +112,31 @@ def assemble(
     values_out[s] = k
 
 
+@wp.kernel
+def assemble(
+    # Model:
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    # Pattern: the slots to fill
+    slot_row: wp.array(dtype=int),
+    slot_col: wp.array(dtype=int),
+    slot_sides: wp.array(dtype=wp.vec4i),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out:
+    values_out: wp.array(dtype=mat33d),
+):
+    """Every slot of K (`assemble_slot`)."""
+    assemble_slot(
+        wp.tid(), constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
+        slot_sides, inv_inertia_world_in, jac_lin_in, jac_ang_in, values_out,
+    )  # fmt: skip
+
+
 # What a slot of the augmented matrix holds (`types.Slot`).
 SLOT_MASS = wp.constant(int(Slot.MASS))
 SLOT_INERTIA = wp.constant(int(Slot.INERTIA))
@@ -125,24 +147,20 @@ SLOT_JANG_T = wp.constant(int(Slot.JANG_T))
 SLOT_PAD = wp.constant(int(Slot.PAD))
 
 
-@wp.kernel
-def assemble_augmented(
-    # Model:
+@wp.func
+def augmented_slot(
+    s: int,
     constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    # Pattern:
     slot_code: wp.array(dtype=int),
     slot_ref: wp.array(dtype=int),
-    # Data in:
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
-    # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
-    """The blocks of [[M, J^T], [J, 0]] (Baraff 1996): a body's mass and world inertia, a constraint's
-    Jacobian on a body, zero elsewhere; the unused rows of a constraint of dimension < 3 get a -1 pivot."""
-    s = wp.tid()
+    """Slot s of [[M, J^T], [J, 0]] (Baraff 1996): a body's mass and world inertia, a constraint's Jacobian on
+    a body, zero elsewhere; the unused rows of a constraint of dimension < 3 get a -1 pivot."""
     code = slot_code[s]
     r = slot_ref[s]
     k = mat33d()
@@ -162,3 +180,25 @@ def assemble_augmented(
         for row in range(constraint_dim(constraint_kind[r]), 3):
             k[row, row] = f64(-1.0)
     values_out[s] = k
+
+
+@wp.kernel
+def assemble_augmented(
+    # Model:
+    constraint_kind: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    # Pattern:
+    slot_code: wp.array(dtype=int),
+    slot_ref: wp.array(dtype=int),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out:
+    values_out: wp.array(dtype=mat33d),
+):
+    """Every slot of the augmented matrix (`augmented_slot`)."""
+    augmented_slot(
+        wp.tid(), constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world_in, jac_lin_in,
+        jac_ang_in, values_out,
+    )  # fmt: skip

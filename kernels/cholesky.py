@@ -53,6 +53,46 @@ def lower_inverse3(l: mat33d) -> mat33d:
     return mat33d(a, z, z, b, d, z, c, e, f)
 
 
+@wp.func
+def factor_column(
+    j: int,
+    col_start: wp.array(dtype=int),
+    update_start: wp.array(dtype=int),
+    update_target: wp.array(dtype=int),
+    update_a: wp.array(dtype=int),
+    update_b: wp.array(dtype=int),
+    update_sign: wp.array(dtype=f64),
+    col_sign: wp.array(dtype=f64),
+    pivot_tolerance: f64,
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    singular: wp.array(dtype=int),
+):
+    """Column j, left-looking: L_tj -= L_ak s_k L_bk^T over its precomputed updates, then
+    L_jj = chol(s_j .), L_ij = L_ij L_jj^-T s_j.
+
+    `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
+    (a redundant or degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
+    """
+    for u in range(update_start[j], update_start[j + 1]):
+        values[update_target[u]] = values[update_target[u]] - update_sign[u] * values[update_a[u]] * wp.transpose(
+            values[update_b[u]]
+        )
+    d = col_start[j]
+    sign = col_sign[j]
+    a = sign * values[d]
+    scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
+    l, ok = cholesky3(a, pivot_tolerance * scale)
+    if not ok and singular[0] == 0:
+        singular[0] = j + 1
+    values[d] = l
+    li = lower_inverse3(l)
+    diag_inv[j] = li
+    lit = sign * wp.transpose(li)
+    for s in range(d + 1, col_start[j + 1]):
+        values[s] = values[s] * lit
+
+
 @wp.kernel
 def factor(
     first_group: int,
@@ -70,31 +110,32 @@ def factor(
     diag_inv: wp.array(dtype=mat33d),
     singular: wp.array(dtype=int),
 ):
-    """Left-looking: L_tj -= L_ak s_k L_bk^T over the precomputed updates, then L_jj = chol(s_j .),
-    L_ij = L_ij L_jj^-T s_j.
-
-    `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
-    (a redundant or degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
-    """
+    """The columns of one group in order (`factor_column`)."""
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
-        for u in range(update_start[j], update_start[j + 1]):
-            values[update_target[u]] = values[update_target[u]] - update_sign[u] * values[update_a[u]] * wp.transpose(
-                values[update_b[u]]
-            )
-        d = col_start[j]
-        sign = col_sign[j]
-        a = sign * values[d]
-        scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
-        l, ok = cholesky3(a, pivot_tolerance * scale)
-        if not ok and singular[0] == 0:
-            singular[0] = j + 1
-        values[d] = l
-        li = lower_inverse3(l)
-        diag_inv[j] = li
-        lit = sign * wp.transpose(li)
-        for s in range(d + 1, col_start[j + 1]):
-            values[s] = values[s] * lit
+        factor_column(
+            j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, pivot_tolerance,
+            values, diag_inv, singular,
+        )  # fmt: skip
+
+
+@wp.func
+def forward_row(
+    j: int,
+    perm: wp.array(dtype=int),
+    row_start: wp.array(dtype=int),
+    row_slot: wp.array(dtype=int),
+    row_col: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    rhs: wp.array(dtype=vec3d),
+    y: wp.array(dtype=vec3d),
+):
+    """Row j of L y = P b: y_j = L_jj^-1 (b_perm(j) - sum_k L_jk y_k)."""
+    s = rhs[perm[j]]
+    for k in range(row_start[j], row_start[j + 1]):
+        s -= values[row_slot[k]] * y[row_col[k]]
+    y[j] = diag_inv[j] * s
 
 
 @wp.kernel
@@ -110,13 +151,34 @@ def solve_forward(
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
 ):
-    """L y = P b, row by row: y_j = L_jj^-1 (b_perm(j) - sum_k L_jk y_k)."""
+    """L y = P b, the rows of one group in order (`forward_row`)."""
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
-        s = rhs[perm[j]]
-        for k in range(row_start[j], row_start[j + 1]):
-            s -= values[row_slot[k]] * y[row_col[k]]
-        y[j] = diag_inv[j] * s
+        forward_row(j, perm, row_start, row_slot, row_col, values, diag_inv, rhs, y)
+
+
+@wp.func
+def backward_column(
+    j: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    col_row: wp.array(dtype=int),
+    col_sign: wp.array(dtype=f64),
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    y: wp.array(dtype=vec3d),
+    x: wp.array(dtype=vec3d),
+):
+    """Column j of L^T z = S y: z_j = L_jj^-T (s_j y_j - sum_i L_ij^T z_i); x_perm(j) = z_j.
+
+    z overwrites y in place: every z_i it reads (i > j) is final, every y_j it has not yet overwritten.
+    """
+    s = col_sign[j] * y[j]
+    for k in range(col_start[j] + 1, col_start[j + 1]):
+        s -= wp.transpose(values[k]) * y[col_row[k]]
+    z = wp.transpose(diag_inv[j]) * s
+    y[j] = z
+    x[perm[j]] = z
 
 
 @wp.kernel
@@ -132,20 +194,11 @@ def solve_backward(
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
 ):
-    """L^T z = S y, columns in reverse order: z_j = L_jj^-T (s_j y_j - sum_i L_ij^T z_i); x_perm(j) = z_j.
-
-    z overwrites y in place: every z_i it reads (i > j) is final, every y_j it has not yet overwritten.
-    """
+    """L^T z = S y, the columns of one group in reverse order (`backward_column`)."""
     g = first_group + wp.tid()
     begin = group_start[g]
     for jj in range(group_start[g + 1] - begin):
-        j = group_start[g + 1] - 1 - jj
-        s = col_sign[j] * y[j]
-        for k in range(col_start[j] + 1, col_start[j + 1]):
-            s -= wp.transpose(values[k]) * y[col_row[k]]
-        z = wp.transpose(diag_inv[j]) * s
-        y[j] = z
-        x[perm[j]] = z
+        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, values, diag_inv, y, x)
 
 
 @wp.kernel

@@ -256,13 +256,32 @@ def constraint_velocity(
     return jv
 
 
+@wp.func
+def velocity_error(
+    i: int,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    errors_out: wp.array(dtype=f64),
+    rhs_out: wp.array(dtype=vec3d),
+):
+    """|J_i v|, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
+    jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in)
+    errors_out[i] = wp.length(jv)
+    rhs_out[i] = -jv
+
+
 ALL_KINDS = frozenset((POINT, LINE, PLANE, ROTATION, AXIS, ANGLE))
 
 
 @functools.cache
 def specialized(kinds: frozenset[int]) -> SimpleNamespace:
     """The constraint kernels compiled for the constraint kinds in `kinds` only: `frames`, `position_errors`,
-    `velocity_errors` and the sorted `kinds`.
+    `velocity_errors`, the per-constraint funcs they loop over (`frame`, `position_error`, for the fused step
+    of `kernels/step.py`), the sorted `kinds` and the `module` name.
 
     `frames` and `position_errors` dispatch on their constraint's kind to the @wp.func above, called with the
     kind as a compile-time constant (`wp.static`), so the compiler folds away the other kinds' branches, and
@@ -274,6 +293,60 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
     ks = tuple(sorted(int(k) for k in kinds))
     module = f"{__name__}.kinds_{'_'.join(map(str, ks))}"
     wp.set_module_options({"enable_backward": False}, module)
+
+    @wp.func(module=module)
+    def frame(
+        i: int,
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        body_x_in: wp.array(dtype=vec3d),
+        body_q_in: wp.array(dtype=quatd),
+        proj_out: wp.array(dtype=mat33d),
+        jac_lin_out: wp.array(dtype=mat33d),
+        jac_ang_out: wp.array(dtype=mat33d),
+    ):
+        """`constraint_frame` of constraint i, for its kind as a compile-time constant."""
+        kind = constraint_kind[i]
+        for k in range(wp.static(len(ks))):
+            if kind == wp.static(ks[k]):
+                constraint_frame(
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                    constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out,
+                )  # fmt: skip
+
+    @wp.func(module=module)
+    def position_error_of(
+        i: int,
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        inv_h: f64,
+        proj_in: wp.array(dtype=mat33d),
+        body_x_in: wp.array(dtype=vec3d),
+        body_q_in: wp.array(dtype=quatd),
+        errors_out: wp.array(dtype=f64),
+        rhs_out: wp.array(dtype=vec3d),
+    ):
+        """`position_error` of constraint i, for its kind as a compile-time constant."""
+        kind = constraint_kind[i]
+        for k in range(wp.static(len(ks))):
+            if kind == wp.static(ks[k]):
+                position_error(
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                    constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h,
+                    proj_in, body_x_in, body_q_in, errors_out, rhs_out,
+                )  # fmt: skip
 
     @wp.kernel(module=module)
     def frames(
@@ -293,14 +366,10 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         jac_lin_out: wp.array(dtype=mat33d),
         jac_ang_out: wp.array(dtype=mat33d),
     ):
-        i = wp.tid()
-        kind = constraint_kind[i]
-        for k in range(wp.static(len(ks))):
-            if kind == wp.static(ks[k]):
-                constraint_frame(
-                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                    constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out,
-                )  # fmt: skip
+        frame(
+            wp.tid(), constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+            constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out,
+        )  # fmt: skip
 
     @wp.kernel(module=module)
     def position_errors(
@@ -323,15 +392,11 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         errors_out: wp.array(dtype=f64),
         rhs_out: wp.array(dtype=vec3d),
     ):
-        i = wp.tid()
-        kind = constraint_kind[i]
-        for k in range(wp.static(len(ks))):
-            if kind == wp.static(ks[k]):
-                position_error(
-                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                    constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h,
-                    proj_in, body_x_in, body_q_in, errors_out, rhs_out,
-                )  # fmt: skip
+        position_error_of(
+            wp.tid(), constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+            constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h, proj_in,
+            body_x_in, body_q_in, errors_out, rhs_out,
+        )  # fmt: skip
 
     @wp.kernel(module=module)
     def velocity_errors(
@@ -348,9 +413,17 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         rhs_out: wp.array(dtype=vec3d),
     ):
         """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
-        i = wp.tid()
-        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in)
-        errors_out[i] = wp.length(jv)
-        rhs_out[i] = -jv
+        velocity_error(
+            wp.tid(), constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in, errors_out,
+            rhs_out,
+        )  # fmt: skip
 
-    return SimpleNamespace(kinds=ks, frames=frames, position_errors=position_errors, velocity_errors=velocity_errors)
+    return SimpleNamespace(
+        kinds=ks,
+        module=module,
+        frame=frame,
+        position_error=position_error_of,
+        frames=frames,
+        position_errors=position_errors,
+        velocity_errors=velocity_errors,
+    )

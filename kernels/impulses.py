@@ -12,6 +12,31 @@ mat33d = wp.mat33d
 f64 = wp.float64
 
 
+@wp.func
+def apply_body(
+    b: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_rows_start: wp.array(dtype=int),
+    body_rows: wp.array(dtype=int),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    impulse_in: wp.array(dtype=vec3d),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows."""
+    dv = vec3d()
+    dl = vec3d()
+    for k in range(body_rows_start[b], body_rows_start[b + 1]):
+        r = body_rows[k]
+        lam = impulse_in[r // 2]
+        dv += wp.transpose(jac_lin_in[r]) * lam
+        dl += wp.transpose(jac_ang_in[r]) * lam
+    body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
+    body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl
+
+
 @wp.kernel
 def apply_impulses(
     # Model:
@@ -27,14 +52,8 @@ def apply_impulses(
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over the Jacobian rows on this body."""
-    b = wp.tid()
-    dv = vec3d()
-    dl = vec3d()
-    for k in range(body_rows_start[b], body_rows_start[b + 1]):
-        r = body_rows[k]
-        lam = impulse_in[r // 2]
-        dv += wp.transpose(jac_lin_in[r]) * lam
-        dl += wp.transpose(jac_ang_in[r]) * lam
-    body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
-    body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl
+    """Every body's impulses (`apply_body`)."""
+    apply_body(
+        wp.tid(), body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+        impulse_in, body_v_out, body_w_out,
+    )  # fmt: skip

@@ -69,6 +69,67 @@ def correct_alone(
     )
 
 
+@wp.func
+def sweep_positions_once(
+    constraint_count: int,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    constraint_anchor0: wp.array(dtype=vec3d),
+    constraint_anchor1: wp.array(dtype=vec3d),
+    constraint_axis0: wp.array(dtype=vec3d),
+    constraint_axis1: wp.array(dtype=vec3d),
+    constraint_rest_rotation: wp.array(dtype=quatd),
+    constraint_rest_angle: wp.array(dtype=f64),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    tolerance: f64,
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_force_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    proj_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+) -> f64:
+    """One joint-correction sweep; returns the largest error met before its correction."""
+    worst = f64(0.0)
+    for i in range(constraint_count):
+        b0 = constraint_body0[i]
+        b1 = constraint_body1[i]
+        x0 = pose_x(b0, body_x_in)
+        q0 = pose_q(b0, body_q_in)
+        if b0 >= 0:
+            x0, q0, v0, w0 = predict_body(
+                body_x_in[b0], body_q_in[b0], body_v_out[b0], body_w_out[b0], body_inv_mass[b0], body_inertia[b0],
+                body_inv_inertia[b0], body_force_in[b0], body_torque_in[b0], gravity, h,
+            )  # fmt: skip
+        x1, q1, v1, w1 = predict_body(
+            body_x_in[b1], body_q_in[b1], body_v_out[b1], body_w_out[b1], body_inv_mass[b1], body_inertia[b1],
+            body_inv_inertia[b1], body_force_in[b1], body_torque_in[b1], gravity, h,
+        )  # fmt: skip
+        d = constraint_error(
+            constraint_kind[i], x0, q0, x1, q1,
+            constraint_anchor0[i], constraint_anchor1[i], constraint_axis0[i], constraint_axis1[i],
+            constraint_rest_rotation[i], constraint_rest_angle[i],
+        )  # fmt: skip
+        e = wp.length(d)
+        worst = wp.max(worst, e)
+        if e > tolerance:
+            rhs = -projected_error(constraint_kind[i], proj_in[i], d) / h
+            correct_alone(
+                i, rhs, constraint_kind, constraint_body0, constraint_body1,
+                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+            )  # fmt: skip
+    return worst
+
+
 @wp.kernel
 def sweep_positions(
     # Model:
@@ -103,35 +164,40 @@ def sweep_positions(
     sweep_error_out: wp.array(dtype=f64),
 ):
     """One joint-correction sweep; sweep_error_out[0] = the largest error met before its correction."""
+    sweep_error_out[0] = sweep_positions_once(
+        constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+        constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle,
+        body_inv_mass, body_inertia, body_inv_inertia, gravity, h, tolerance, body_x_in, body_q_in, body_force_in,
+        body_torque_in, inv_inertia_world_in, proj_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+    )  # fmt: skip
+
+
+@wp.func
+def sweep_velocities_once(
+    constraint_count: int,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    velocity_tolerance: f64,
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+) -> f64:
+    """One velocity-correction sweep; returns the largest |J_i v| met before its correction."""
     worst = f64(0.0)
     for i in range(constraint_count):
-        b0 = constraint_body0[i]
-        b1 = constraint_body1[i]
-        x0 = pose_x(b0, body_x_in)
-        q0 = pose_q(b0, body_q_in)
-        if b0 >= 0:
-            x0, q0, v0, w0 = predict_body(
-                body_x_in[b0], body_q_in[b0], body_v_out[b0], body_w_out[b0], body_inv_mass[b0], body_inertia[b0],
-                body_inv_inertia[b0], body_force_in[b0], body_torque_in[b0], gravity, h,
-            )  # fmt: skip
-        x1, q1, v1, w1 = predict_body(
-            body_x_in[b1], body_q_in[b1], body_v_out[b1], body_w_out[b1], body_inv_mass[b1], body_inertia[b1],
-            body_inv_inertia[b1], body_force_in[b1], body_torque_in[b1], gravity, h,
-        )  # fmt: skip
-        d = constraint_error(
-            constraint_kind[i], x0, q0, x1, q1,
-            constraint_anchor0[i], constraint_anchor1[i], constraint_axis0[i], constraint_axis1[i],
-            constraint_rest_rotation[i], constraint_rest_angle[i],
-        )  # fmt: skip
-        e = wp.length(d)
+        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_out, body_w_out)
+        e = wp.length(jv)
         worst = wp.max(worst, e)
-        if e > tolerance:
-            rhs = -projected_error(constraint_kind[i], proj_in[i], d) / h
+        if e > velocity_tolerance:
             correct_alone(
-                i, rhs, constraint_kind, constraint_body0, constraint_body1,
+                i, -jv, constraint_kind, constraint_body0, constraint_body1,
                 body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
             )  # fmt: skip
-    sweep_error_out[0] = worst
+    return worst
 
 
 @wp.kernel
@@ -153,14 +219,7 @@ def sweep_velocities(
     sweep_error_out: wp.array(dtype=f64),
 ):
     """One velocity-correction sweep; sweep_error_out[0] = the largest |J_i v| met before its correction."""
-    worst = f64(0.0)
-    for i in range(constraint_count):
-        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_out, body_w_out)
-        e = wp.length(jv)
-        worst = wp.max(worst, e)
-        if e > velocity_tolerance:
-            correct_alone(
-                i, -jv, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
-            )  # fmt: skip
-    sweep_error_out[0] = worst
+    sweep_error_out[0] = sweep_velocities_once(
+        constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, velocity_tolerance,
+        inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+    )  # fmt: skip

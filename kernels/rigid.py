@@ -84,6 +84,37 @@ def predict_body(
     return x1, q1, v1, wp.quat_rotate(q1, wb)
 
 
+@wp.func
+def predict_index(
+    b: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    body_force_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Body b's free motion over h from the state in, written to the state out (`predict_body`)."""
+    x, q, v, w = predict_body(
+        body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b],
+        body_inv_mass[b], body_inertia[b], body_inv_inertia[b],
+        body_force_in[b], body_torque_in[b], gravity, h,
+    )  # fmt: skip
+    body_x_out[b] = x
+    body_q_out[b] = q
+    body_v_out[b] = v
+    body_w_out[b] = w
+
+
 @wp.kernel
 def predict(
     # Model:
@@ -106,16 +137,22 @@ def predict(
     body_w_out: wp.array(dtype=vec3d),
 ):
     """Every body's free motion over h from the state in (section 3)."""
-    b = wp.tid()
-    x, q, v, w = predict_body(
-        body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b],
-        body_inv_mass[b], body_inertia[b], body_inv_inertia[b],
-        body_force_in[b], body_torque_in[b], gravity, h,
+    predict_index(
+        wp.tid(), body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
+        body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
-    body_x_out[b] = x
-    body_q_out[b] = q
-    body_v_out[b] = v
-    body_w_out[b] = w
+
+
+@wp.func
+def world_inverse_inertia_of(
+    b: int,
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_q_in: wp.array(dtype=quatd),
+    inv_inertia_world_out: wp.array(dtype=mat33d),
+):
+    """J~^-1 = R J^-1 R^T of body b at its current orientation (section 4.1); zero for static bodies."""
+    r = wp.quat_to_matrix(body_q_in[b])
+    inv_inertia_world_out[b] = r * body_inv_inertia[b] * wp.transpose(r)
 
 
 @wp.kernel
@@ -127,10 +164,22 @@ def world_inverse_inertia(
     # Data out:
     inv_inertia_world_out: wp.array(dtype=mat33d),
 ):
-    """J~^-1 = R J^-1 R^T at the current orientation (section 4.1); zero for static bodies."""
-    b = wp.tid()
-    r = wp.quat_to_matrix(body_q_in[b])
-    inv_inertia_world_out[b] = r * body_inv_inertia[b] * wp.transpose(r)
+    """J~^-1 of every body (`world_inverse_inertia_of`)."""
+    world_inverse_inertia_of(wp.tid(), body_inv_inertia, body_q_in, inv_inertia_world_out)
+
+
+@wp.func
+def body_summary(
+    b: int,
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+):
+    """(whether body b's state is finite, its |w| in rad/s)."""
+    w = body_w_in[b]
+    s = wp.length_sq(body_x_in[b]) + wp.length_sq(body_v_in[b]) + wp.length_sq(w) + wp.dot(body_q_in[b], body_q_in[b])
+    return wp.isfinite(s), wp.length(w)
 
 
 @wp.kernel
@@ -145,10 +194,8 @@ def summarize_state(
 ):
     """summary[0] += 1 for every body with a NaN or Inf in its state; summary[1] = the largest finite |w|.
     Two numbers to read back per step: the divergence check and the spin that sets the next step's substeps."""
-    b = wp.tid()
-    w = body_w_in[b]
-    s = wp.length_sq(body_x_in[b]) + wp.length_sq(body_v_in[b]) + wp.length_sq(w) + wp.dot(body_q_in[b], body_q_in[b])
-    if wp.isfinite(s):
-        wp.atomic_max(summary_out, 1, wp.length(w))
+    finite, spin = body_summary(wp.tid(), body_x_in, body_q_in, body_v_in, body_w_in)
+    if finite:
+        wp.atomic_max(summary_out, 1, spin)
     else:
         wp.atomic_add(summary_out, 0, f64(1.0))
