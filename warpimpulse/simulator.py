@@ -24,11 +24,12 @@ from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import rigid as rigid_kernels
+from .kernels import step as step_kernels
 from .launch import capture, record
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
 from .transforms import quat_to_matrix
-from .types import FORMULATIONS, SOLVERS
+from .types import FORMULATIONS, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 
 POLICIES = ("raise", "warn")
@@ -95,6 +96,7 @@ class Simulator:
         verbose: bool = False,
         order: int = 2,
         scheme: str | None = None,
+        schedule: str = "auto",
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -145,6 +147,8 @@ class Simulator:
             raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
         if not isinstance(solver, str) or solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
+        if not isinstance(schedule, str) or schedule not in SCHEDULES:
+            raise ValueError(f"unknown schedule {schedule!r}; expected one of {SCHEDULES}")
         if not isinstance(on_max_iterations, str) or on_max_iterations not in POLICIES:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
         if verbose:
@@ -195,6 +199,7 @@ class Simulator:
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
         self._save_start = self._capture(lambda: self._start.copy_from(self.state))
         self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
+        self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
         self._check_finite(self.state, 0)
 
@@ -292,12 +297,126 @@ class Simulator:
         self.control.body_force.assign(force)
         self.control.body_torque.assign(torque)
 
+    # ---------------------------------------------------------------- schedules
+    FUSED_BATCH = 256  # steps a fused launch may take: the status rows read back at once
+
+    def _pick_schedule(self, schedule: str, specialize: bool) -> tuple[str, str]:
+        """The schedule that runs ("fused" or "parallel") and, when it is not the one asked, why."""
+        cuda = self.model.device.is_cuda
+        if schedule == "parallel" or (schedule == "auto" and cuda):
+            return "parallel", ""
+        if self.solver_name == "cg":
+            return "parallel", "the CG solver runs its iterations from the host"
+        if len(self.scheme.stages) > 1:
+            return "parallel", f"order {self.order} composes base steps; the fused kernel takes whole steps of dt"
+        mechanisms = [name for name in ("spring", "drive", "limit") if getattr(self.model, f"{name}_count", 0)]
+        if mechanisms:  # force elements and limits are stages the fused kernel does not have yet
+            return "parallel", f"the scene has {', '.join(mechanisms)}s, not in the fused step yet"
+        kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
+        self._fused = step_kernels.fused(frozenset(int(k) for k in kinds))
+        self._status = wp.zeros(
+            (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
+        )
+        self._fused_by_h: dict[float, wp.Launch] = {}
+        return "fused", ""
+
+    def _fused_launch(self, h: float) -> wp.Launch:
+        """The fused kernel's launch for steps of h, recorded once per h (`steps` and `spin_in` are set per use)."""
+        if h not in self._fused_by_h:
+            p = self.pred
+            direct = self.linear is not None
+            kernel = self._fused.cholesky_steps if direct else self._fused.iterative_steps
+            sources = (self.model, self.frames, self.control, self)
+            if direct:
+                sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
+            self._fused_by_h[h] = record(
+                kernel, 1, self.model.device, sources, data_out=self.state,
+                h=h, steps=1, max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0),
+                spin_in=0.0, pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, v0=self._v0,
+                w0=self._w0, status_out=self._status,
+            )  # fmt: skip
+        return self._fused_by_h[h]
+
+    def _steps_alike(self, limit: int) -> int:
+        """How many of the next steps (at most `limit`) share this step's active model forces."""
+        until = self.model.host.force_until
+        if not len(until):
+            return limit
+        times = (self.step_count + np.arange(limit)) * self.dt
+        active = times[:, None] < until[None, :]
+        differ = np.flatnonzero((active != active[0]).any(axis=1))
+        return int(differ[0]) if len(differ) else limit
+
+    def _fused_steps(self, n: int) -> list[StepStats]:
+        """n steps by the fused schedule, as few launches as the forces allow; a step it hands back (a spin
+        split, a failed correction) is taken by the parallel schedule, which splits, halves or reports it."""
+        out: list[StepStats] = []
+        columns = step_kernels
+        while len(out) < n:
+            self._update_forces()
+            batch = self._steps_alike(min(n - len(out), self.FUSED_BATCH))
+            launch = self._fused_launch(self.dt)
+            launch.set_param_by_name("steps", batch)
+            launch.set_param_by_name("spin_in", self._spin)
+            launch.launch()
+            for row in self._status.numpy()[:batch]:  # the one read-back of the batch
+                code = int(row[columns.STATUS_CODE])
+                self._spin = float(row[columns.STATUS_SPIN])
+                if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
+                    out.append(self._step_parallel())
+                    break
+                if code == columns.SINGULAR:
+                    self.linear.check()
+                stats = StepStats(
+                    int(row[columns.STATUS_JOINT_ITERATIONS]), int(row[columns.STATUS_VELOCITY_ITERATIONS]),
+                    float(row[columns.STATUS_JOINT_ERROR]), float(row[columns.STATUS_VELOCITY_ERROR]), True,
+                    int(row[columns.STATUS_LINEAR_ITERATIONS]), 1,
+                )  # fmt: skip
+                if code == columns.VELOCITY:
+                    self._velocity_failed(stats.max_velocity_error)
+                    stats.converged = False
+                out.append(stats)
+                self.step_count += 1
+                self.time = self.step_count * self.dt
+                if code != columns.OK:
+                    break
+        return out
+
+    def _velocity_failed(self, error: float) -> None:
+        """A velocity correction that left more than the tolerance, under the iteration-limit policy."""
+        if not math.isfinite(error):
+            self._max_error("velocity")
+        self._may_iterate(self.max_iterations, error, "velocity", error, True)
+
     # ---------------------------------------------------------------- the step
-    def step(self) -> StepStats:
-        """Advance by dt, as 2**k substeps when a body spins faster than max_rotation / dt. A (sub)step whose
-        joint correction diverges or runs out of iterations is redone as two half steps, down to
-        dt / 2**max_substep_depth, before the failure is reported. At order 4 or 6 a (sub)step is a whole
-        composed step: the spin split and the halving apply to it, never to one of its stages."""
+    def step(self, n: int = 1) -> StepStats:
+        """Advance n steps of dt; each is taken as 2**k substeps when a body spins faster than
+        max_rotation / dt. A (sub)step whose joint correction diverges or runs out of iterations is redone as
+        two half steps, down to dt / 2**max_substep_depth, before the failure is reported. At order 4 or 6 a
+        (sub)step is a whole composed step: the spin split and the halving apply to it, never to one of its
+        stages.
+
+        The fused schedule takes the n steps in one launch where nothing needs the host between them. For
+        n > 1 the stats are combined: iterations and substeps summed, the largest joint error, the last
+        velocity error."""
+        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+            raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        stats = self._steps(n)
+        return stats[0] if n == 1 else _combined(stats)
+
+    def _steps(self, n: int) -> list[StepStats]:
+        if self.schedule != "fused":
+            return [self._step_parallel() for _ in range(n)]
+        out: list[StepStats] = []
+        while len(out) < n:
+            if self._fallback:  # a step that records why it was not composed: the parallel schedule's bookkeeping
+                out.append(self._step_parallel())
+            else:
+                out += self._fused_steps(n - len(out))
+        return out
+
+    def _step_parallel(self) -> StepStats:
+        """One step by the parallel schedule: stage launches and graph replays, the host deciding between them."""
         self._update_forces()
         stages, fallback = self.scheme.stages, self._fallback
         if fallback:  # a non-reversible event in this step: composing it would not raise the order
@@ -510,6 +629,8 @@ class Simulator:
     def simulate(self, duration: float, callback=None) -> list[StepStats]:
         """Run whole steps covering `duration` seconds; `callback(sim, stats)` after each."""
         steps = int(round(duration / self.dt))
+        if callback is None:
+            return self._steps(steps) if steps else []
         stats = []
         for _ in range(steps):
             s = self.step()

@@ -46,15 +46,20 @@ def _float(values, device) -> wp.array:
     return wp.array(np.ascontiguousarray(values, dtype=np.float64), dtype=wp.float64, device=device)
 
 
-def _assemble_launch(model: Model, frames: Frames, row, col, sides, values) -> wp.Launch:
-    """K = J M^-1 J^T into the slots (row constraint, col constraint) listed."""
-    d = model.device
-    slots = SimpleNamespace(
-        slot_row=_int(row, d),
-        slot_col=_int(col, d),
-        slot_sides=wp.array(np.asarray(sides, np.int32).reshape(-1, 4), dtype=wp.vec4i, device=d),
+def _slots(row, col, sides, device) -> SimpleNamespace:
+    """The slots of K to assemble: (row constraint, col constraint) and the sides of the bodies they share."""
+    return SimpleNamespace(
+        slot_row=_int(row, device),
+        slot_col=_int(col, device),
+        slot_sides=wp.array(np.asarray(sides, np.int32).reshape(-1, 4), dtype=wp.vec4i, device=device),
     )
-    return record(assemble_kernels.assemble, len(row), d, (model, frames, slots), values_out=values)
+
+
+def _assemble_launch(model: Model, frames: Frames, slots: SimpleNamespace, values) -> wp.Launch:
+    """K = J M^-1 J^T into the slots listed."""
+    return record(
+        assemble_kernels.assemble, len(slots.slot_row), model.device, (model, frames, slots), values_out=values
+    )
 
 
 class CholeskySolver:
@@ -95,8 +100,25 @@ class CholeskySolver:
                 values_out=self.values,
             )
         else:
-            self._assemble = _assemble_launch(model, frames, pat.slot_row, pat.slot_col, pat.slot_sides, self.values)
+            slots = _slots(pat.slot_row, pat.slot_col, pat.slot_sides, d)
+            self._assemble = _assemble_launch(model, frames, slots, self.values)
         self.work = wp.zeros(n, dtype=wp.vec3d, device=d)
+        # What the fused step (`kernels/step.py`) reads besides the pattern: the slots to assemble (K's, or the
+        # augmented matrix's codes) and the augmented vectors.
+        none = _int([], d)
+        if self._augmented:
+            slots = _slots([], [], np.zeros((0, 4)), d)
+            slots.slot_code, slots.slot_ref = self.device_pattern.slot_code, self.device_pattern.slot_ref
+            slots.aug_rhs, slots.aug_x = self._rhs, self._x
+        else:
+            slots.slot_code, slots.slot_ref = none, none
+            slots.aug_rhs = slots.aug_x = wp.zeros(0, dtype=wp.vec3d, device=d)
+        self.fused_args = SimpleNamespace(
+            augmented=int(self._augmented),
+            offset=getattr(self, "_offset", 0),
+            pivot_tolerance=pivot_tolerance,
+            **vars(slots),
+        )
         sources = (self.device_pattern, self)
         self._factor = [
             record(cholesky_kernels.factor, count, d, sources, first_group=first, pivot_tolerance=pivot_tolerance)
@@ -180,7 +202,7 @@ class CGSolver:
         d = model.device
         csr = model.topology.csr()
         self.values = wp.zeros(len(csr.col), dtype=wp.mat33d, device=d)
-        self._assemble = _assemble_launch(model, frames, csr.row, csr.col, csr.sides, self.values)
+        self._assemble = _assemble_launch(model, frames, _slots(csr.row, csr.col, csr.sides, d), self.values)
         self.precond = wp.zeros(n, dtype=wp.mat33d, device=d)
         self.diag_slot = _int(csr.diag, d)
         self.row_start = _int(csr.start, d)

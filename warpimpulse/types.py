@@ -80,3 +80,9 @@ and the next step's joint correction, and a tree's factor is linear in its joint
 FORMULATIONS = ("constraint", "body")
 """The matrix the Cholesky solver factors: K = J M^-1 J^T ("constraint") or the augmented body-joint matrix
 ("body"); see `topology.Pattern`."""
+
+SCHEDULES = ("auto", "fused", "parallel")
+"""`Simulator(schedule=...)`: how a step's stages are launched. "fused" runs whole steps (many a launch) on one
+thread, the stages' funcs in serial loops (`kernels/step.py`); "parallel" launches each stage over its bodies,
+constraints or columns, replayed as captured graphs, the host deciding between them. "auto" is fused on a CPU
+(where a launch is one thread anyway) and parallel on a GPU."""

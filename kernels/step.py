@@ -1,0 +1,621 @@
+"""The fused schedule: whole steps as one launch on one thread (docs/architecture.md, "Two schedules").
+
+A Warp CPU launch runs on one thread anyway, so on a CPU the step's many launches (and the host's reading of
+errors between them) buy nothing: here the same per-element stage funcs the parallel kernels call
+(`rigid.predict_index`, the constraint funcs of `constraints.specialized`, `assemble.assemble_slot`,
+`cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps of
+`iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
+apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
+summary) is decided on the device, for up to `steps` steps a launch.
+
+Each step writes one status row (`STATUS_*` columns). A step the fused schedule does not finish itself stops the
+launch with a code, and the host takes that step by the parallel schedule, which splits, halves, raises or
+warns exactly as it always has:
+- SPLIT: a body spins so fast that the step must be split (nothing was changed);
+- RETRY: the joint correction failed (iteration limit, divergence, NaN/Inf, or a body turned further than
+  max_rotation): the velocities of t0 are restored and nothing else was changed;
+- SINGULAR / VELOCITY: the step was taken, but the factor lost a pivot or the velocity correction left more
+  than the tolerance: the host raises or warns as the parallel schedule does.
+"""
+
+import functools
+from types import SimpleNamespace
+
+import warp as wp
+
+from .assemble import assemble_slot, augmented_slot
+from .cholesky import backward_column, factor_column, forward_row
+from .constraints import specialized, velocity_error
+from .impulses import apply_body
+from .iterative import sweep_positions_once, sweep_velocities_once
+from .rigid import body_summary, predict_index, world_inverse_inertia_of
+
+wp.set_module_options({"enable_backward": False})
+
+vec3d = wp.vec3d
+quatd = wp.quatd
+mat33d = wp.mat33d
+f64 = wp.float64
+
+# Status row columns.
+STATUS_CODE = wp.constant(0)
+STATUS_JOINT_ITERATIONS = wp.constant(1)
+STATUS_VELOCITY_ITERATIONS = wp.constant(2)
+STATUS_JOINT_ERROR = wp.constant(3)
+STATUS_VELOCITY_ERROR = wp.constant(4)
+STATUS_LINEAR_ITERATIONS = wp.constant(5)
+STATUS_SPIN = wp.constant(6)  # rad/s: the largest |w| of the step's last prediction (of t0 when not taken)
+STATUS_WIDTH = 7
+# Status codes.
+OK = wp.constant(0)
+SPLIT = wp.constant(1)
+RETRY = wp.constant(2)
+SINGULAR = wp.constant(3)
+VELOCITY = wp.constant(4)
+
+
+@wp.func
+def turns_too_far(spin: f64, h: f64, max_rotation: f64) -> bool:
+    """Whether a body spinning at `spin` turns further than max_rotation in a step of h (0: never split)."""
+    return max_rotation > f64(0.0) and spin * wp.abs(h) > max_rotation
+
+
+@wp.func
+def predict_all(
+    body_count: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    body_force: wp.array(dtype=vec3d),
+    body_torque: wp.array(dtype=vec3d),
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    pred_v: wp.array(dtype=vec3d),
+    pred_w: wp.array(dtype=vec3d),
+):
+    for b in range(body_count):
+        predict_index(
+            b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
+            body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+        )  # fmt: skip
+
+
+@wp.func
+def apply_all(
+    body_count: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_rows_start: wp.array(dtype=int),
+    body_rows: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    impulse: wp.array(dtype=vec3d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    for b in range(body_count):
+        apply_body(
+            b, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_v,
+            body_w,
+        )  # fmt: skip
+
+
+@wp.func
+def velocity_errors_all(
+    constraint_count: int,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    errors: wp.array(dtype=f64),
+    rhs: wp.array(dtype=vec3d),
+) -> f64:
+    """|J_i v| and -J_i v of every constraint; returns the largest (NaN if any is)."""
+    worst = f64(0.0)
+    for i in range(constraint_count):
+        velocity_error(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs)
+        worst = max_or_nan(worst, errors[i])
+    return worst
+
+
+@wp.func
+def max_or_nan(a: f64, b: f64) -> f64:
+    """max(a, b), NaN when either is NaN (so a non-finite error is never taken for a converged one)."""
+    if not wp.isfinite(b) or not wp.isfinite(a):
+        return a + b
+    return wp.max(a, b)
+
+
+@wp.func
+def cholesky_solve(
+    augmented: int,
+    offset: int,
+    constraint_count: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    col_row: wp.array(dtype=int),
+    col_sign: wp.array(dtype=f64),
+    row_start: wp.array(dtype=int),
+    row_slot: wp.array(dtype=int),
+    row_col: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    diag_inv: wp.array(dtype=mat33d),
+    work: wp.array(dtype=vec3d),
+    aug_rhs: wp.array(dtype=vec3d),
+    aug_x: wp.array(dtype=vec3d),
+    rhs: wp.array(dtype=vec3d),
+    impulse: wp.array(dtype=vec3d),
+):
+    """K impulse = rhs with the stored factor: rows forward, columns backward (`CholeskySolver.solve`). The
+    augmented matrix takes [0; -rhs] and gives the impulses in its constraint part."""
+    n = col_start.shape[0] - 1
+    if augmented != 0:
+        for i in range(constraint_count):
+            aug_rhs[offset + i] = f64(-1.0) * rhs[i]
+        for j in range(n):
+            forward_row(j, perm, row_start, row_slot, row_col, values, diag_inv, aug_rhs, work)
+        for jj in range(n):
+            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, diag_inv, work, aug_x)
+        for i in range(constraint_count):
+            impulse[i] = f64(1.0) * aug_x[offset + i]
+    else:
+        for j in range(n):
+            forward_row(j, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+        for jj in range(n):
+            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, diag_inv, work, impulse)
+
+
+@functools.cache
+def fused(kinds: frozenset[int]) -> SimpleNamespace:
+    """The fused step kernels for a set of constraint kinds (`constraints.specialized(kinds)`'s stage funcs):
+    `cholesky_steps` (the direct solver, either formulation) and `iterative_steps` (the paper's sweeps)."""
+    ck = specialized(kinds)
+    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}"
+    wp.set_module_options({"enable_backward": False}, module)
+    frame = ck.frame
+    position_error = ck.position_error
+
+    @wp.func(module=module)
+    def position_errors_all(
+        constraint_count: int,
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        inv_h: f64,
+        proj: wp.array(dtype=mat33d),
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        errors: wp.array(dtype=f64),
+        rhs: wp.array(dtype=vec3d),
+    ) -> f64:
+        """The joint errors of the prediction and -P d / h; returns the largest (NaN if any is)."""
+        worst = f64(0.0)
+        for i in range(constraint_count):
+            position_error(
+                i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h, proj,
+                pred_x, pred_q, errors, rhs,
+            )  # fmt: skip
+            worst = max_or_nan(worst, errors[i])
+        return worst
+
+    @wp.func(module=module)
+    def frames_all(
+        body_count: int,
+        constraint_count: int,
+        body_inv_inertia: wp.array(dtype=mat33d),
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        body_x: wp.array(dtype=vec3d),
+        body_q: wp.array(dtype=quatd),
+        inv_inertia_world: wp.array(dtype=mat33d),
+        proj: wp.array(dtype=mat33d),
+        jac_lin: wp.array(dtype=mat33d),
+        jac_ang: wp.array(dtype=mat33d),
+    ):
+        """World inverse inertias, P_i and J_ib at the current state."""
+        for b in range(body_count):
+            world_inverse_inertia_of(b, body_inv_inertia, body_q, inv_inertia_world)
+        for i in range(constraint_count):
+            frame(
+                i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                constraint_axis0, constraint_axis1, body_x, body_q, proj, jac_lin, jac_ang,
+            )  # fmt: skip
+
+    @wp.func(module=module)
+    def summary_all(
+        body_count: int,
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        pred_v: wp.array(dtype=vec3d),
+        pred_w: wp.array(dtype=vec3d),
+    ):
+        """(bodies with a NaN or Inf, the largest finite |w|) of the prediction (`rigid.summarize_state`)."""
+        bad = wp.int32(0)
+        spin = f64(0.0)
+        for b in range(body_count):
+            finite, w = body_summary(b, pred_x, pred_q, pred_v, pred_w)
+            if finite:
+                spin = wp.max(spin, w)
+            else:
+                bad += 1
+        return bad, spin
+
+    @wp.func(module=module)
+    def accept(
+        body_count: int,
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        pred_v: wp.array(dtype=vec3d),
+        pred_w: wp.array(dtype=vec3d),
+        body_x: wp.array(dtype=vec3d),
+        body_q: wp.array(dtype=quatd),
+        body_v: wp.array(dtype=vec3d),
+        body_w: wp.array(dtype=vec3d),
+    ):
+        for b in range(body_count):
+            body_x[b] = pred_x[b]
+            body_q[b] = pred_q[b]
+            body_v[b] = pred_v[b]
+            body_w[b] = pred_w[b]
+
+    @wp.kernel(module=module)
+    def cholesky_steps(
+        # Model:
+        body_count: int,
+        constraint_count: int,
+        body_inv_mass: wp.array(dtype=f64),
+        body_inertia: wp.array(dtype=mat33d),
+        body_inv_inertia: wp.array(dtype=mat33d),
+        gravity: vec3d,
+        body_rows_start: wp.array(dtype=int),
+        body_rows: wp.array(dtype=int),
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        # Pattern (`CholeskySolver`):
+        augmented: int,
+        offset: int,
+        pivot_tolerance: f64,
+        perm: wp.array(dtype=int),
+        col_start: wp.array(dtype=int),
+        col_row: wp.array(dtype=int),
+        col_sign: wp.array(dtype=f64),
+        update_start: wp.array(dtype=int),
+        update_target: wp.array(dtype=int),
+        update_a: wp.array(dtype=int),
+        update_b: wp.array(dtype=int),
+        update_sign: wp.array(dtype=f64),
+        row_start: wp.array(dtype=int),
+        row_slot: wp.array(dtype=int),
+        row_col: wp.array(dtype=int),
+        slot_row: wp.array(dtype=int),
+        slot_col: wp.array(dtype=int),
+        slot_sides: wp.array(dtype=wp.vec4i),
+        slot_code: wp.array(dtype=int),
+        slot_ref: wp.array(dtype=int),
+        # Settings:
+        h: f64,
+        steps: int,
+        tolerance: f64,
+        velocity_tolerance: f64,
+        max_iterations: int,
+        max_rotation: f64,
+        final: int,
+        spin_in: f64,
+        body_force_in: wp.array(dtype=vec3d),
+        body_torque_in: wp.array(dtype=vec3d),
+        # Scratch: the prediction, the velocities of t0, errors, right-hand sides, impulses, the factor
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        pred_v: wp.array(dtype=vec3d),
+        pred_w: wp.array(dtype=vec3d),
+        v0: wp.array(dtype=vec3d),
+        w0: wp.array(dtype=vec3d),
+        errors: wp.array(dtype=f64),
+        rhs: wp.array(dtype=vec3d),
+        impulse: wp.array(dtype=vec3d),
+        values: wp.array(dtype=mat33d),
+        diag_inv: wp.array(dtype=mat33d),
+        work: wp.array(dtype=vec3d),
+        aug_rhs: wp.array(dtype=vec3d),
+        aug_x: wp.array(dtype=vec3d),
+        singular: wp.array(dtype=int),
+        # Frames at t0, then at each new state:
+        inv_inertia_world: wp.array(dtype=mat33d),
+        proj: wp.array(dtype=mat33d),
+        jac_lin: wp.array(dtype=mat33d),
+        jac_ang: wp.array(dtype=mat33d),
+        # Data out: the state, advanced in place, and a status row a step
+        body_x_out: wp.array(dtype=vec3d),
+        body_q_out: wp.array(dtype=quatd),
+        body_v_out: wp.array(dtype=vec3d),
+        body_w_out: wp.array(dtype=vec3d),
+        status_out: wp.array2d(dtype=f64),
+    ):
+        """Up to `steps` steps of h with the direct solver (`Simulator` with the Cholesky solver, step by step
+        the same operations as its parallel schedule)."""
+        spin = spin_in
+        inv_h = f64(1.0) / h
+        for k in range(steps):
+            status_out[k, STATUS_SPIN] = spin
+            if turns_too_far(spin, h, max_rotation):
+                status_out[k, STATUS_CODE] = f64(SPLIT)
+                return
+            for b in range(body_count):
+                v0[b] = body_v_out[b]
+                w0[b] = body_w_out[b]
+            predict_all(
+                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
+                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+            )  # fmt: skip
+            err = position_errors_all(
+                constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+            )  # fmt: skip
+            iterations = wp.int32(0)
+            best = err
+            ok = bool(False)
+            while wp.isfinite(err):
+                best = wp.min(best, err)
+                if err <= tolerance:
+                    ok = True
+                    break
+                if iterations >= max_iterations or (iterations >= 3 and err > f64(1.0e3) * best):
+                    break
+                cholesky_solve(
+                    augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
+                    row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                )  # fmt: skip
+                apply_all(
+                    body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                    impulse, body_v_out, body_w_out,
+                )  # fmt: skip
+                predict_all(
+                    body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
+                    body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+                )  # fmt: skip
+                err = position_errors_all(
+                    constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                    constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                    constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+                )  # fmt: skip
+                iterations += 1
+            new_spin = spin
+            if ok:
+                bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                if bad > 0 or (final == 0 and turns_too_far(new_spin, h, max_rotation)):
+                    ok = bool(False)
+            status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
+            status_out[k, STATUS_JOINT_ERROR] = err
+            if not ok:
+                for b in range(body_count):
+                    body_v_out[b] = v0[b]
+                    body_w_out[b] = w0[b]
+                status_out[k, STATUS_CODE] = f64(RETRY)
+                return
+            spin = new_spin
+            accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+            frames_all(
+                body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
+                constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
+                inv_inertia_world, proj, jac_lin, jac_ang,
+            )  # fmt: skip
+            for s in range(slot_code.shape[0]):
+                augmented_slot(
+                    s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
+                    values,
+                )  # fmt: skip
+            for s in range(slot_row.shape[0]):
+                assemble_slot(
+                    s, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
+                    slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                )  # fmt: skip
+            for j in range(col_start.shape[0] - 1):
+                factor_column(
+                    j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
+                    pivot_tolerance, values, diag_inv, singular,
+                )  # fmt: skip
+            verr = velocity_errors_all(
+                constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
+                errors, rhs,
+            )  # fmt: skip
+            velocity_iterations = wp.int32(0)
+            if not (verr <= velocity_tolerance):
+                cholesky_solve(
+                    augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
+                    row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                )  # fmt: skip
+                apply_all(
+                    body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                    impulse, body_v_out, body_w_out,
+                )  # fmt: skip
+                verr = velocity_errors_all(
+                    constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
+                    errors, rhs,
+                )  # fmt: skip
+                velocity_iterations = 1
+            status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(velocity_iterations)
+            status_out[k, STATUS_VELOCITY_ERROR] = verr
+            status_out[k, STATUS_LINEAR_ITERATIONS] = f64(iterations + velocity_iterations)
+            status_out[k, STATUS_SPIN] = spin
+            code = wp.int32(OK)
+            if singular[0] != 0:
+                code = SINGULAR
+            elif not (verr <= velocity_tolerance):
+                code = VELOCITY
+            status_out[k, STATUS_CODE] = f64(code)
+            if code != OK:
+                return
+
+    @wp.kernel(module=module)
+    def iterative_steps(
+        # Model:
+        body_count: int,
+        constraint_count: int,
+        body_inv_mass: wp.array(dtype=f64),
+        body_inertia: wp.array(dtype=mat33d),
+        body_inv_inertia: wp.array(dtype=mat33d),
+        gravity: vec3d,
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        # Settings:
+        h: f64,
+        steps: int,
+        tolerance: f64,
+        velocity_tolerance: f64,
+        max_iterations: int,
+        max_rotation: f64,
+        final: int,
+        spin_in: f64,
+        body_force_in: wp.array(dtype=vec3d),
+        body_torque_in: wp.array(dtype=vec3d),
+        # Scratch:
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        pred_v: wp.array(dtype=vec3d),
+        pred_w: wp.array(dtype=vec3d),
+        v0: wp.array(dtype=vec3d),
+        w0: wp.array(dtype=vec3d),
+        errors: wp.array(dtype=f64),
+        rhs: wp.array(dtype=vec3d),
+        # Frames:
+        inv_inertia_world: wp.array(dtype=mat33d),
+        proj: wp.array(dtype=mat33d),
+        jac_lin: wp.array(dtype=mat33d),
+        jac_ang: wp.array(dtype=mat33d),
+        # Data out:
+        body_x_out: wp.array(dtype=vec3d),
+        body_q_out: wp.array(dtype=quatd),
+        body_v_out: wp.array(dtype=vec3d),
+        body_w_out: wp.array(dtype=vec3d),
+        status_out: wp.array2d(dtype=f64),
+    ):
+        """Up to `steps` steps of h with the paper's iterative baseline: joint sweeps until one meets every
+        constraint within tolerance, the prediction, then velocity sweeps (as `Simulator` without a system)."""
+        spin = spin_in
+        inv_h = f64(1.0) / h
+        for k in range(steps):
+            status_out[k, STATUS_SPIN] = spin
+            if turns_too_far(spin, h, max_rotation):
+                status_out[k, STATUS_CODE] = f64(SPLIT)
+                return
+            for b in range(body_count):
+                v0[b] = body_v_out[b]
+                w0[b] = body_w_out[b]
+            sweeps = wp.int32(0)
+            best = f64(0.0)
+            ok = bool(False)
+            while True:
+                err = sweep_positions_once(
+                    constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                    constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                    constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, tolerance,
+                    body_x_out, body_q_out, body_force_in, body_torque_in, inv_inertia_world, proj, jac_lin,
+                    jac_ang, body_v_out, body_w_out,
+                )  # fmt: skip
+                if not wp.isfinite(err):
+                    break
+                if sweeps == 0:
+                    best = err
+                best = wp.min(best, err)
+                if err <= tolerance:
+                    ok = True
+                    break
+                if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
+                    break
+                sweeps += 1
+            predict_all(
+                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
+                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+            )  # fmt: skip
+            err = position_errors_all(
+                constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+            )  # fmt: skip
+            new_spin = spin
+            if ok:
+                bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                if not (err <= tolerance) or bad > 0:
+                    ok = bool(False)
+                elif final == 0 and turns_too_far(new_spin, h, max_rotation):
+                    ok = bool(False)
+            status_out[k, STATUS_JOINT_ITERATIONS] = f64(sweeps)
+            status_out[k, STATUS_JOINT_ERROR] = err
+            if not ok:
+                for b in range(body_count):
+                    body_v_out[b] = v0[b]
+                    body_w_out[b] = w0[b]
+                status_out[k, STATUS_CODE] = f64(RETRY)
+                return
+            spin = new_spin
+            accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+            frames_all(
+                body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
+                constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
+                inv_inertia_world, proj, jac_lin, jac_ang,
+            )  # fmt: skip
+            vsweeps = wp.int32(0)
+            vbest = f64(0.0)
+            code = wp.int32(OK)
+            while True:
+                verr = sweep_velocities_once(
+                    constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                    velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
+                )  # fmt: skip
+                if vsweeps == 0:
+                    vbest = verr
+                vbest = wp.min(vbest, verr)
+                if verr <= velocity_tolerance:
+                    break
+                if not wp.isfinite(verr) or vsweeps >= max_iterations or (vsweeps >= 3 and verr > f64(1.0e3) * vbest):
+                    code = VELOCITY
+                    break
+                vsweeps += 1
+            verr = velocity_errors_all(
+                constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
+                errors, rhs,
+            )  # fmt: skip
+            status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(vsweeps)
+            status_out[k, STATUS_VELOCITY_ERROR] = verr
+            status_out[k, STATUS_LINEAR_ITERATIONS] = f64(0.0)
+            status_out[k, STATUS_SPIN] = spin
+            status_out[k, STATUS_CODE] = f64(code)
+            if code != OK:
+                return
+
+    return SimpleNamespace(kinds=ck.kinds, cholesky_steps=cholesky_steps, iterative_steps=iterative_steps)
