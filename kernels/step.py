@@ -381,7 +381,7 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             )  # fmt: skip
             iterations = wp.int32(0)
             best = err
-            ok = bool(False)
+            ok = wp.bool(False)
             while wp.isfinite(err):
                 best = wp.min(best, err)
                 if err <= tolerance:
@@ -411,7 +411,7 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             if ok:
                 bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
                 if bad > 0 or (final == 0 and turns_too_far(new_spin, h, max_rotation)):
-                    ok = bool(False)
+                    ok = wp.bool(False)
             status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
             status_out[k, STATUS_JOINT_ERROR] = err
             if not ok:
@@ -538,7 +538,7 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                 w0[b] = body_w_out[b]
             sweeps = wp.int32(0)
             best = f64(0.0)
-            ok = bool(False)
+            ok = wp.bool(False)
             while True:
                 err = sweep_positions_once(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
@@ -571,9 +571,9 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             if ok:
                 bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
                 if not (err <= tolerance) or bad > 0:
-                    ok = bool(False)
+                    ok = wp.bool(False)
                 elif final == 0 and turns_too_far(new_spin, h, max_rotation):
-                    ok = bool(False)
+                    ok = wp.bool(False)
             status_out[k, STATUS_JOINT_ITERATIONS] = f64(sweeps)
             status_out[k, STATUS_JOINT_ERROR] = err
             if not ok:

@@ -1,0 +1,195 @@
+"""The two schedules of a step (`Simulator(schedule=...)`, kernels/step.py): the fused one (whole steps, many a
+launch, the stage funcs in serial loops) and the parallel one (a launch per stage, the host deciding) run the same
+operations in the same order on a CPU, so they agree bit for bit: states, stats and failure messages. The fused
+one takes a batch of steps in one launch and hands the host only the steps it must split, halve or report."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from warpimpulse.kernels import step as step_kernels
+
+import warpimpulse as wi
+from warpimpulse import scenes
+from warpimpulse.bench import stress
+
+
+def _spinning_pendulum(omega: float) -> wi.SceneBuilder:
+    builder = wi.SceneBuilder()
+    body, _ = stress.capsule(builder, np.zeros(3), [0.0, 0.0, -1.0], 1.0, "rod")
+    builder.bodies[body].angular_velocity[:] = (0.0, 0.0, omega)
+    builder.add_joint_ball(None, body, np.zeros(3), name="hang")
+    return builder
+
+
+def _free_bodies() -> wi.SceneBuilder:
+    builder = wi.SceneBuilder()
+    for i in range(3):
+        builder.add_body(1.0 + i, np.diag([0.1, 0.2, 0.3]), [i, 0.0, 1.0], angular_velocity=[0.0, 1.0, 3.0 * i])
+    return builder
+
+
+MIXED = ["ball", "prismatic", "universal", "fixed", "cylindrical", "planar", "revolute"]
+# (scene, dt, steps, Simulator options): every solver the fused schedule has, both formulations, every
+# constraint kind, model forces that end within the run, fast spins (split steps), failing steps (halved).
+CASES = {
+    "double_pendulum": (scenes.double_pendulum, 1 / 120, 120, {}),
+    "chain10": (lambda: scenes.chain(10), 1 / 60, 60, {}),
+    "tree31_torque_ends": (lambda: scenes.binary_tree(31), 1 / 30, 45, {}),
+    "star31_body_matrix": (lambda: scenes.star(31), 1 / 60, 30, {"formulation": "body"}),
+    "mixed_kinds": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 60, {}),
+    "mixed_kinds_unspecialized": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 20, {"specialize": False}),
+    "tree15_iterative": (lambda: scenes.binary_tree(15), 1 / 30, 40, {"solver": "iterative", "tolerance": 1e-8}),
+    "free_bodies": (_free_bodies, 1 / 60, 30, {}),
+    "spin_split": (lambda: _spinning_pendulum(100.0), 1 / 60, 20, {}),
+    "spin_split_iterative": (lambda: _spinning_pendulum(100.0), 1 / 60, 10, {"solver": "iterative"}),
+    "chain50_halved": (lambda: scenes.chain(50), 1 / 30, 60, {}),
+}
+
+
+def _run(case: str, schedule: str, batched: bool):
+    make, dt, steps, options = CASES[case]
+    sim = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
+    stats = sim.simulate(steps * dt) if batched else [sim.step() for _ in range(steps)]
+    state = [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"]
+    return sim, stats, state
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_fused_and_parallel_agree_bit_for_bit(case):
+    fused, fused_stats, fused_state = _run(case, "fused", batched=True)
+    parallel, parallel_stats, parallel_state = _run(case, "parallel", batched=False)
+    assert fused.schedule == "fused" and parallel.schedule == "parallel"
+    assert fused_stats == parallel_stats
+    for a, b in zip(fused_state, parallel_state):
+        np.testing.assert_array_equal(a, b)
+    assert fused.step_count == parallel.step_count and fused.time == parallel.time
+
+
+def test_the_cases_reach_the_host_paths():
+    """The cases above do exercise the hand-overs: splits, halvings, force changes within a batch."""
+    assert max(s.substeps for s in _run("spin_split", "fused", True)[1]) == 4
+    assert max(s.substeps for s in _run("chain50_halved", "fused", True)[1]) > 1
+
+
+def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
+    counts = {"launches": 0, "parallel_steps": 0}
+    launch_for, step_parallel = sim._fused_launch, sim._step_parallel
+
+    class Counted:
+        def __init__(self, launch):
+            self.launch_ = launch
+
+        def set_param_by_name(self, name, value):
+            self.launch_.set_param_by_name(name, value)
+
+        def launch(self):
+            counts["launches"] += 1
+            self.launch_.launch()
+
+    def parallel():
+        counts["parallel_steps"] += 1
+        return step_parallel()
+
+    monkeypatch.setattr(sim, "_fused_launch", lambda h: Counted(launch_for(h)))
+    monkeypatch.setattr(sim, "_step_parallel", parallel)
+    return counts
+
+
+def test_a_batch_of_steps_is_one_launch(monkeypatch):
+    """tree31's start torque ends at t = 1 s: 90 steps of 1/60 are two launches (before and after), no step
+    goes to the host; a spin that needs splitting goes to the parallel schedule."""
+    sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 60)
+    counts = _count_launches(sim, monkeypatch)
+    stats = sim.step(90)
+    assert counts == {"launches": 2, "parallel_steps": 0}
+    assert sim.step_count == 90 and stats.substeps == 90 and stats.converged
+
+    sim = wi.Simulator(_spinning_pendulum(100.0).finalize(), 1 / 60)
+    counts = _count_launches(sim, monkeypatch)
+    sim.step(3)
+    assert counts["parallel_steps"] >= 1
+
+
+def test_step_n_is_n_steps():
+    a = wi.Simulator(scenes.chain(5).finalize(), 1 / 60)
+    b = wi.Simulator(scenes.chain(5).finalize(), 1 / 60)
+    combined = a.step(25)
+    single = [b.step() for _ in range(25)]
+    np.testing.assert_array_equal(a.positions(), b.positions())
+    assert combined.joint_iterations == sum(s.joint_iterations for s in single)
+    assert combined.max_joint_error == max(s.max_joint_error for s in single)
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(ValueError, match="n must be"):
+            a.step(bad)
+
+
+def test_schedule_choice():
+    model = scenes.chain(3).finalize()
+    assert wi.Simulator(model, 1 / 60).schedule == "fused"  # auto, on a CPU
+    assert wi.Simulator(model, 1 / 60, schedule="parallel").schedule == "parallel"
+    cg = wi.Simulator(model, 1 / 60, solver="cg", schedule="fused")
+    assert cg.schedule == "parallel" and "CG" in cg.schedule_note
+    with pytest.raises(ValueError, match="unknown schedule 'gpu'"):
+        wi.Simulator(model, 1 / 60, schedule="gpu")
+
+
+def _failure(schedule: str, make, **options) -> str:
+    sim = wi.Simulator(make(), schedule=schedule, **options)
+    with pytest.raises((wi.SimulationError, RuntimeError)) as info:
+        sim.simulate(1.0)
+    return str(info.value)
+
+
+def _nan_at_step_4(schedule: str) -> str:
+    sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 60, schedule=schedule)
+    sim.step(3)
+    v = sim.state.body_v.numpy()
+    v[5, 0] = np.nan
+    sim.state.body_v.assign(v)
+    with pytest.raises(wi.SimulationError) as info:
+        sim.step(10)
+    return str(info.value)
+
+
+def test_failures_found_by_the_fused_kernel_name_step_joints_and_bodies():
+    """The fused kernel stops at a failing step and the host reports it exactly as the parallel schedule does."""
+    nan = _nan_at_step_4("fused")
+    assert nan == _nan_at_step_4("parallel")
+    assert nan.startswith("step 4: ") and "NaN or Inf" in nan
+
+    def tree(**options):
+        return lambda schedule: _failure(
+            schedule, lambda: scenes.binary_tree(31).finalize(), dt=1 / 10, max_substep_depth=0, **options
+        )
+
+    limit = tree(max_iterations=1)
+    assert limit("fused") == limit("parallel")
+    assert limit("fused").startswith("step 1 ") and "worst joints: 'j" in limit("fused")
+
+
+@pytest.mark.parametrize("solver", ["cholesky", "iterative"])
+def test_warn_policy_agrees(solver):
+    def run(schedule):
+        sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1,
+                           on_max_iterations="warn", max_substep_depth=0, schedule=schedule)  # fmt: skip
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            stats = sim.simulate(0.3)
+        return stats, [str(w.message) for w in caught], sim.positions()
+
+    fused, parallel = run("fused"), run("parallel")
+    assert fused[0] == parallel[0] and fused[1] == parallel[1]
+    np.testing.assert_array_equal(fused[2], parallel[2])
+    assert not fused[0][0].converged
+
+
+def test_status_columns_are_distinct():
+    columns = [
+        step_kernels.STATUS_CODE, step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS,
+        step_kernels.STATUS_JOINT_ERROR, step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
+        step_kernels.STATUS_SPIN,
+    ]  # fmt: skip
+    assert sorted(int(c) for c in columns) == list(range(step_kernels.STATUS_WIDTH))
