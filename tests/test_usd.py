@@ -141,8 +141,8 @@ def simulate(scene: usd.UsdScene, out: str, frames: int, **writer_args) -> tuple
         class Tap:  # records what the writer was given
             dt = DT
 
-            def step(self):
-                sim.step()
+            def step(self, n=1):
+                sim.step(n)
 
             def positions(self):
                 xs.append(sim.positions())
@@ -489,7 +489,7 @@ def test_progress_bar(capsys):
     class Still:
         dt = 0.1
 
-        def step(self):
+        def step(self, n=1):
             pass
 
         def positions(self):
@@ -524,8 +524,8 @@ def test_record_writes_duration_times_fps_plus_one_frames(tmp_path):
             self.x = np.array([body.position for body in b.bodies])
             self.q = np.array([body.orientation for body in b.bodies])
 
-        def step(self):
-            self.steps += 1
+        def step(self, n=1):
+            self.steps += n
 
         def positions(self):
             return self.x
@@ -826,11 +826,11 @@ def test_cli_ctrl_c_keeps_a_valid_file_with_the_frames_done(tmp_path, monkeypatc
 
     real_step, calls = simulator.Simulator.step, []
 
-    def step(self):
+    def step(self, n=1):
         calls.append(1)
-        if len(calls) == 5:  # the step to frame 5 (one step a frame)
+        if len(calls) == 5:  # the steps to frame 5 (one call a frame)
             raise KeyboardInterrupt
-        return real_step(self)
+        return real_step(self, n)
 
     monkeypatch.setattr(simulator.Simulator, "step", step)
     out = tmp_path / "stopped.usdc"

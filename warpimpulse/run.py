@@ -75,11 +75,11 @@ def record_frames(
 ) -> int:
     """Step `sim` and write frames 0 .. round(duration * fps) inclusive (frame f holds t = f / fps).
 
-    `sim` needs `step()`, `positions()` and `orientations()` (and `dt` unless given). A progress bar is
-    drawn on stderr when it is a terminal (or `progress=True`). Returns the number of frames written;
-    call it inside `with writer:` so that an error or Ctrl-C still leaves a valid file. A non-finite state
-    raises FloatingPointError naming the frame. `on_frame(f)` runs after frame f is written (the energy
-    watch of `energy.EnergyWatch.follow`).
+    `sim` needs `step(n)` (n steps: one fused launch a frame), `positions()` and `orientations()` (and `dt`
+    unless given). A progress bar is drawn on stderr when it is a terminal (or `progress=True`). Returns the
+    number of frames written; call it inside `with writer:` so that an error or Ctrl-C still leaves a valid
+    file. A non-finite state raises FloatingPointError naming the frame. `on_frame(f)` runs after frame f is
+    written (the energy watch of `energy.EnergyWatch.follow`).
     """
     dt = float(dt if dt is not None else sim.dt)
     steps = frame_steps(dt, writer.fps)
@@ -88,8 +88,7 @@ def record_frames(
     start = time.perf_counter()
     for f in range(frames + 1):
         if f > 0:
-            for _ in range(steps):
-                sim.step()
+            sim.step(steps)
         x, q = sim.positions(), sim.orientations()
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
             raise FloatingPointError(f"the simulation diverged (non-finite state) before frame {f}")
