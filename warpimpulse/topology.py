@@ -9,7 +9,6 @@ of bodies and constraints keeps such scenes linear. Joints that close loops (sec
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,162 +128,220 @@ class Topology:
         return self._csr
 
 
-def _bodies(graph: Graph, c: int) -> tuple[int, int]:
-    return int(graph.constraint_body0[c]), int(graph.constraint_body1[c])
+def _ranges(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For groups of `counts` items: each item's group and its index within the group."""
+    counts = np.asarray(counts, dtype=np.int64)
+    group = np.repeat(np.arange(len(counts)), counts)
+    starts = np.cumsum(counts) - counts
+    return group, np.arange(len(group)) - starts[group]
 
 
-def _dynamic(graph: Graph, b: int) -> bool:
-    return b != WORLD and not graph.body_static[b]
+def _unique(values: np.ndarray) -> np.ndarray:
+    """The sorted distinct values (by a sort: numpy 2's hashing `np.unique` is several times slower here)."""
+    values = np.sort(values)
+    return values[np.concatenate([[True], values[1:] != values[:-1]])] if len(values) else values
 
 
-def shared_sides(graph: Graph, i: int, j: int) -> list[int]:
-    """(side in i, side in j) for each dynamic body that constraints i and j share, flattened, -1 padded."""
-    out: list[int] = []
-    bi, bj = _bodies(graph, i), _bodies(graph, j)
-    for si in (0, 1):
-        if _dynamic(graph, bi[si]):
-            for sj in (0, 1):
-                if bj[sj] == bi[si]:
-                    out += [si, sj]
-    return (out + [-1, -1, -1, -1])[:4]
+def _member(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
+    """Whether each value is in the sorted array `sorted_set`."""
+    at = np.minimum(np.searchsorted(sorted_set, values), max(len(sorted_set) - 1, 0))
+    return sorted_set[at] == values if len(sorted_set) else np.zeros(len(values), dtype=bool)
+
+
+def _first_occurrences(values: np.ndarray) -> np.ndarray:
+    """Indices of the first occurrence of each value, in the order they occur."""
+    _, first = np.unique(values, return_index=True)
+    return np.sort(first)
+
+
+def _dynamic(graph: Graph, bodies: np.ndarray) -> np.ndarray:
+    """Whether each body index is a dynamic body (not WORLD, not static)."""
+    bodies = np.asarray(bodies)
+    if graph.body_count == 0:
+        return np.zeros(bodies.shape, dtype=bool)
+    return (bodies != WORLD) & ~graph.body_static[np.where(bodies == WORLD, 0, bodies)]
+
+
+def shared_sides(graph: Graph, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """(side in i, side in j) of each dynamic body that constraints i and j share, flattened and -1 padded:
+    (len(i), 4), the matches in the order (0, 0), (0, 1), (1, 0), (1, 1)."""
+    b0, b1 = graph.constraint_body0, graph.constraint_body1
+    bi, bj = (b0[i], b1[i]), (b0[j], b1[j])
+    pairs = [(si, sj) for si in (0, 1) for sj in (0, 1)]
+    match = np.stack([_dynamic(graph, bi[si]) & (bj[sj] == bi[si]) for si, sj in pairs], axis=1)
+    out = np.full((len(match), 4), -1, dtype=np.int32)
+    rank = np.cumsum(match, axis=1) - 1  # the place of each match among the slot's matches
+    for k, (si, sj) in enumerate(pairs):
+        put = match[:, k] & (rank[:, k] < 2)
+        out[put, 2 * rank[put, k]] = si
+        out[put, 2 * rank[put, k] + 1] = sj
+    return out
 
 
 def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
-    """Depth of every body from the world (or from a root per floating island), and the loop joints."""
-    n = graph.body_count
-    adjacency: list[list[tuple[int, int]]] = [[] for _ in range(n)]
-    grounded: list[tuple[int, int]] = []
-    for ji, (parent, child) in enumerate(zip(graph.joint_parent.tolist(), graph.joint_child.tolist())):
-        if parent == WORLD or graph.body_static[parent]:
-            grounded.append((child, ji))
-        else:
-            adjacency[parent].append((child, ji))
-            adjacency[child].append((parent, ji))
-    for b in np.flatnonzero(graph.body_static).tolist():
-        grounded.append((b, -1))
+    """Depth of every body from the world (or from a root per floating island), and the loop joints.
+
+    A breadth-first search a level at a time: a level's frontier, in discovery order, expands to its neighbours
+    in joint order, and a body found twice keeps its first finder, which is the order of a queue: the same
+    tree, depths and loop joints as a body-at-a-time search."""
+    n, parent, child = graph.body_count, graph.joint_parent, graph.joint_child
     depth = np.full(n, -1, dtype=np.int64)
-    tree_joints: set[int] = set()
-    queue: deque[int] = deque()
-    for b, ji in grounded:
+    tree = np.zeros(graph.joint_count, dtype=bool)
+    if n == 0:
+        return depth, np.flatnonzero(~tree).tolist()
+    grounded = ~_dynamic(graph, parent)
+    free = np.flatnonzero(~grounded)
+    u = np.concatenate([parent[free], child[free]])
+    order = np.lexsort((np.concatenate([free, free]), u))
+    other = np.concatenate([child[free], parent[free]])[order]
+    via = np.concatenate([free, free])[order]
+    start = np.searchsorted(u[order], np.arange(n + 1))
+
+    def grow(frontier: np.ndarray, level: int) -> None:
+        while len(frontier):
+            counts = start[frontier + 1] - start[frontier]
+            group, offset = _ranges(counts)
+            edges = start[frontier][group] + offset
+            found, joints = other[edges], via[edges]
+            new = depth[found] < 0
+            found, joints = found[new], joints[new]
+            first = _first_occurrences(found)
+            frontier, level = found[first], level + 1
+            depth[frontier] = level
+            tree[joints[first]] = True
+
+    roots = np.concatenate([child[grounded], np.flatnonzero(graph.body_static)])
+    joints = np.concatenate([np.flatnonzero(grounded), np.full(int(graph.body_static.sum()), -1)])
+    first = _first_occurrences(roots)
+    depth[roots[first]] = 0
+    tree[joints[first][joints[first] >= 0]] = True
+    grow(roots[first], 0)
+    # Floating islands, rooted at their first body; a body without joints is an island of its own.
+    alone = (depth < 0) & (start[1:] == start[:-1])
+    depth[alone] = 0
+    for b in np.flatnonzero(depth < 0).tolist():
         if depth[b] < 0:
             depth[b] = 0
-            queue.append(b)
-            tree_joints.add(ji)
+            grow(np.array([b]), 0)
+    return depth, np.flatnonzero(~tree).tolist()
 
-    def grow() -> None:
-        while queue:
-            b = queue.popleft()
-            for other, ji in adjacency[b]:
-                if depth[other] < 0:
-                    depth[other] = depth[b] + 1
-                    tree_joints.add(ji)
-                    queue.append(other)
 
-    grow()
-    for b in range(n):  # floating islands: root at their first body
-        if depth[b] < 0:
-            depth[b] = 0
-            queue.append(b)
-            grow()
-    loops = [ji for ji in range(graph.joint_count) if ji not in tree_joints]
-    return depth, loops
+def _constraint_levels(graph: Graph, depth: np.ndarray) -> np.ndarray:
+    """The depth of each constraint's deeper body (-1 for the world)."""
+    b0, b1 = graph.constraint_body0, graph.constraint_body1
+    d0 = np.where(b0 != WORLD, depth[np.maximum(b0, 0)] if len(depth) else -1, -1)
+    d1 = np.where(b1 != WORLD, depth[np.maximum(b1, 0)] if len(depth) else -1, -1)
+    return np.maximum(d0, d1)
 
 
 def elimination_order(graph: Graph, depth: np.ndarray, loop_joints: list[int]) -> np.ndarray:
     """Constraints deepest first; loop-closing joints last; a joint's constraints stay together."""
-    loops = set(loop_joints)
-    keys = []
-    for c in range(graph.constraint_count):
-        level = max(depth[b] if b != WORLD else -1 for b in _bodies(graph, c))
-        keys.append((int(graph.constraint_joint[c]) in loops, -level, c))
-    return np.array([k[2] for k in sorted(keys)], dtype=np.int64)
+    loop = np.isin(graph.constraint_joint, np.asarray(loop_joints, dtype=np.int64))
+    level = _constraint_levels(graph, depth)
+    return np.lexsort((np.arange(graph.constraint_count), -level, loop)).astype(np.int64)
 
 
-def _constraints_on_bodies(graph: Graph) -> list[list[int]]:
-    on_body: list[list[int]] = [[] for _ in range(graph.body_count)]
-    for c in range(graph.constraint_count):
-        for b in _bodies(graph, c):
-            if _dynamic(graph, b):
-                on_body[b].append(c)
-    return on_body
+def _body_constraints(graph: Graph) -> tuple[np.ndarray, np.ndarray]:
+    """(body, constraint) for every constraint side on a dynamic body, by body, each body's in constraint order."""
+    body = np.stack([graph.constraint_body0, graph.constraint_body1], axis=1).reshape(-1)
+    constraint = np.repeat(np.arange(graph.constraint_count), 2)
+    keep = _dynamic(graph, body)
+    body, constraint = body[keep], constraint[keep]
+    order = np.argsort(body, kind="stable")
+    return body[order], constraint[order]
 
 
-def _coupling(graph: Graph) -> list[set[int]]:
-    """Constraints sharing a dynamic body with each constraint (itself excluded)."""
-    adj: list[set[int]] = [set() for _ in range(graph.constraint_count)]
-    for cs in _constraints_on_bodies(graph):
-        for c in cs:
-            adj[c].update(cs)
-    for c, s in enumerate(adj):
-        s.discard(c)
-    return adj
+def _coupling(graph: Graph) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i, j), i != j, of constraints that share a dynamic body, both ways round (repeats possible)."""
+    body, constraint = _body_constraints(graph)
+    counts = np.bincount(body, minlength=graph.body_count) if len(body) else np.zeros(0, np.int64)
+    starts = np.cumsum(counts) - counts
+    # Every ordered pair within each body's group.
+    first_group, first_offset = _ranges(counts[body])
+    i = constraint[np.repeat(np.arange(len(body)), counts[body])]
+    j = constraint[starts[body][first_group] + first_offset]
+    keep = i != j
+    return i[keep], j[keep]
 
 
 def constraint_cost(graph: Graph) -> float:
     """About the block updates of factoring K: the d constraints on one body are all coupled, and eliminating
     them costs about d^3 / 6 updates."""
-    return sum(len(cs) ** 3 for cs in _constraints_on_bodies(graph)) / 6.0 + graph.constraint_count
+    body, _ = _body_constraints(graph)
+    d = np.bincount(body, minlength=graph.body_count).astype(np.float64)
+    return float(np.sum(d**3)) / 6.0 + graph.constraint_count
 
 
-def _structure(perm: np.ndarray, adj: list[set[int]], unknowns: int) -> dict:
-    """Symbolic block Cholesky of the pattern `adj` (unknown -> neighbouring unknowns) in the order `perm`."""
+def _fill(n: int, key: np.ndarray) -> np.ndarray:
+    """The nonzero blocks below the diagonal of the factor of a symmetric pattern, in elimination positions,
+    as sorted keys j * n + r (column j, row r > j).
+
+    Column j's rows r are its matrix entries plus, from every column c whose first row (its parent in the
+    elimination tree) is j, c's other rows. Added a round at a time from the columns whose rows changed, until
+    none do: every round adds only entries of the true factor (a column's later neighbours form a clique), and
+    the end is a pattern in which the order is a perfect elimination, so it is the factor's. A tree ordered
+    deepest first has no fill: one round checks it."""
+    active = _unique(key // n)
+    while len(active):
+        col, row = key // n, key % n
+        head = np.searchsorted(key, np.arange(n + 1) * n)  # each column's first entry
+        parent = np.where(head[1:] > head[:-1], row[np.minimum(head[:-1], len(key) - 1)], -1)
+        take = _member(col, active) & (row != parent[col])
+        candidates = _unique(parent[col[take]] * n + row[take])
+        new = candidates[~_member(candidates, key)]
+        key = _unique(np.concatenate([key, new]))
+        active = _unique(new // n)
+    return key
+
+
+def _structure(perm: np.ndarray, pair_u: np.ndarray, pair_v: np.ndarray, unknowns: int) -> dict:
+    """Symbolic block Cholesky of the pattern of pairs (u, v) of coupled unknowns, in the order `perm`."""
     n = len(perm)
     pos = np.full(unknowns, -1, dtype=np.int64)
     pos[perm] = np.arange(n)
-    # Column structures of L in elimination positions, by the elimination tree.
-    struct: list[list[int]] = []
-    children: list[list[int]] = [[] for _ in range(n)]
+    pj, pr = pos[pair_u], pos[pair_v]
+    keep = (pj >= 0) & (pr > pj)
+    lower = _fill(n, _unique(pj[keep] * n + pr[keep]))
+    # Slots: every column's diagonal first, then its rows in order; a slot is found by its key.
+    slot_key = np.sort(np.concatenate([lower, np.arange(n, dtype=np.int64) * (n + 1)]))
+    slot_col_pos, col_row = slot_key // n, slot_key % n
+    col_start = np.searchsorted(slot_col_pos, np.arange(n + 1)).astype(np.int64)
+    below = np.flatnonzero(col_row != slot_col_pos)  # off-diagonal slots, by column then row
+    k_of, r_of = slot_col_pos[below], col_row[below]
     parent = np.full(n, -1, dtype=np.int64)
-    for j in range(n):
-        rows = {int(pos[c]) for c in adj[perm[j]] if pos[c] > j}
-        for ch in children[j]:
-            rows.update(r for r in struct[ch] if r > j)
-        srt = sorted(rows)
-        struct.append(srt)
-        if srt:
-            parent[j] = srt[0]
-            children[srt[0]].append(j)
-    height = np.zeros(n, dtype=np.int64)
-    for j in range(n):
-        if parent[j] >= 0:
-            height[parent[j]] = max(height[parent[j]], height[j] + 1)
-
-    col_start = np.zeros(n + 1, dtype=np.int64)
-    col_row: list[int] = []
-    slot_of: dict[tuple[int, int], int] = {}
-    for j in range(n):
-        for r in [j, *struct[j]]:
-            slot_of[(r, j)] = len(col_row)
-            col_row.append(r)
-        col_start[j + 1] = len(col_row)
-
-    updates: list[list[tuple[int, int, int, int]]] = [[] for _ in range(n)]
-    row_entries: list[list[tuple[int, int]]] = [[] for _ in range(n)]
-    for k in range(n):
-        s = struct[k]
-        for a, j in enumerate(s):
-            b_slot = slot_of[(j, k)]
-            row_entries[j].append((b_slot, k))
-            for i in s[a:]:
-                updates[j].append((slot_of[(i, j)], slot_of[(i, k)], b_slot, k))
-    flat = np.array([u for col in updates for u in col], dtype=np.int64).reshape(-1, 4)
-    rflat = np.array([e for row in row_entries for e in row], dtype=np.int64).reshape(-1, 2)
-    col_row_arr = np.array(col_row, dtype=np.int64)
+    has = col_start[1:] - col_start[:-1] > 1
+    parent[has] = col_row[col_start[:-1][has] + 1]
+    height = [0] * n
+    for j, p in enumerate(parent.tolist()):
+        if p >= 0 and height[j] + 1 > height[p]:
+            height[p] = height[j] + 1
+    # Updates of column k: for its rows j <= i, L_ij -= L_ik L_jk^T, grouped by the target's column j, then k,
+    # then i (the order the factor applies them).
+    size = np.diff(col_start) - 1
+    a_group, a_offset = _ranges(size)  # (column k, place a of row j in it)
+    b_group, b_extra = _ranges(size[a_group] - a_offset)  # (that pair, place b >= a of row i)
+    k = a_group[b_group]
+    a_slot = col_start[k] + 1 + a_offset[b_group]
+    b_slot = a_slot + b_extra
+    j, i = col_row[a_slot], col_row[b_slot]
+    target = np.searchsorted(slot_key, j * n + i)
+    order = np.lexsort((b_extra, k, j))
+    row_order = np.lexsort((k_of, r_of))
     return dict(
         perm=perm,
         col_start=col_start,
-        col_row=col_row_arr,
-        slot_row=perm[col_row_arr],
-        slot_col=perm[np.repeat(np.arange(n), np.diff(col_start))],
-        update_start=np.cumsum([0] + [len(u) for u in updates]),
-        update_target=flat[:, 0],
-        update_a=flat[:, 1],
-        update_b=flat[:, 2],
-        update_column=flat[:, 3],
-        row_start=np.cumsum([0] + [len(r) for r in row_entries]),
-        row_slot=rflat[:, 0],
-        row_col=rflat[:, 1],
-        height=height,
+        col_row=col_row,
+        slot_row=perm[col_row],
+        slot_col=perm[slot_col_pos],
+        update_start=np.concatenate([[0], np.cumsum(np.bincount(j, minlength=n))]).astype(np.int64),
+        update_target=target[order],
+        update_a=b_slot[order],
+        update_b=a_slot[order],
+        update_column=k[order],
+        row_start=np.concatenate([[0], np.cumsum(np.bincount(r_of, minlength=n))]).astype(np.int64),
+        row_slot=below[row_order],
+        row_col=k_of[row_order],
+        height=np.array(height, dtype=np.int64),
     )
 
 
@@ -300,9 +357,9 @@ def constraint_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], 
     """K = J M^-1 J^T with constraints deepest first: a perfect elimination order for trees."""
     if perm is None:
         perm = elimination_order(graph, depth, loop_joints)
-    st = _structure(perm, _coupling(graph), graph.constraint_count)
-    sides = [shared_sides(graph, int(i), int(j)) for i, j in zip(st["slot_row"], st["slot_col"])]
-    return _pattern("constraint", st, np.ones(len(perm)), slot_sides=np.array(sides, np.int32).reshape(-1, 4))
+    st = _structure(perm, *_coupling(graph), graph.constraint_count)
+    sides = shared_sides(graph, st["slot_row"], st["slot_col"])
+    return _pattern("constraint", st, np.ones(len(perm)), slot_sides=sides)
 
 
 def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
@@ -311,50 +368,58 @@ def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=N
     blocks of one body and one joint."""
     nb, nc = graph.body_count, graph.constraint_count
     if perm is None:
-        loops = set(loop_joints)
-        keys = []
-        for b in range(nb):
-            if _dynamic(graph, b):
-                keys += [(False, -2 * depth[b], 0, b, 0), (False, -2 * depth[b], 0, b, 1)]
-        for c in range(nc):
-            level = max(depth[b] for b in _bodies(graph, c) if _dynamic(graph, b))
-            keys.append((int(graph.constraint_joint[c]) in loops, 1 - 2 * level, 1, c, 0))
-        perm = np.array([2 * nb + k[3] if k[2] else k[3] + k[4] * nb for k in sorted(keys)], dtype=np.int64)
-    adj: list[set[int]] = [set() for _ in range(2 * nb + nc)]
-    for b, constraints in enumerate(_constraints_on_bodies(graph)):
-        for c in constraints:
-            for u in (b, nb + b):
-                adj[u].add(2 * nb + c)
-                adj[2 * nb + c].add(u)
-    st = _structure(perm, adj, 2 * nb + nc)
-    side_of = {(c, b): 2 * c + side for c in range(nc) for side, b in enumerate(_bodies(graph, c))}
-    code = np.full(len(st["slot_row"]), Slot.ZERO, dtype=np.int64)
+        # Sort keys (loop joint, level, constraint after body, index, part) as in the docstring.
+        bodies = np.flatnonzero(_dynamic(graph, np.arange(nb)))
+        b0, b1 = graph.constraint_body0, graph.constraint_body1
+        d0 = np.where(_dynamic(graph, b0), depth[np.maximum(b0, 0)] if nb else -1, -1)
+        d1 = np.where(_dynamic(graph, b1), depth[np.maximum(b1, 0)] if nb else -1, -1)
+        loop = np.isin(graph.constraint_joint, np.asarray(loop_joints, dtype=np.int64))
+        keys = np.concatenate(
+            [
+                np.stack([np.zeros(2 * len(bodies)), np.repeat(-2 * depth[bodies], 2), np.zeros(2 * len(bodies)),
+                          np.repeat(bodies, 2), np.tile([0, 1], len(bodies))], axis=1),
+                np.stack([loop, 1 - 2 * np.maximum(d0, d1), np.ones(nc), np.arange(nc), np.zeros(nc)], axis=1),
+            ]
+        ).astype(np.int64)  # fmt: skip
+        keys = keys[np.lexsort(keys.T[::-1])]
+        perm = np.where(keys[:, 2] == 1, 2 * nb + keys[:, 3], keys[:, 3] + keys[:, 4] * nb).astype(np.int64)
+    body, constraint = _body_constraints(graph)
+    u = np.concatenate([body, nb + body, 2 * nb + constraint, 2 * nb + constraint])
+    v = np.concatenate([2 * nb + constraint, 2 * nb + constraint, body, nb + body])
+    st = _structure(perm, u, v, 2 * nb + nc)
+    r, c = st["slot_row"], st["slot_col"]
+    code = np.full(len(r), Slot.ZERO, dtype=np.int64)
     ref = np.zeros(len(code), dtype=np.int64)
-    for s, (r, c) in enumerate(zip(st["slot_row"].tolist(), st["slot_col"].tolist())):
-        if r == c:
-            kind = min(r // nb, 2) if nb else 2
-            code[s] = (Slot.MASS, Slot.INERTIA, Slot.PAD)[kind]
-            ref[s] = r - kind * nb
-        elif (r >= 2 * nb) != (c >= 2 * nb):  # a constraint and a body part: J, or J^T above the diagonal
-            con, part, transposed = (r - 2 * nb, c, False) if r >= 2 * nb else (c - 2 * nb, r, True)
-            row = side_of.get((con, part % nb))
-            if row is not None:
-                code[s] = ((Slot.JLIN, Slot.JANG), (Slot.JLIN_T, Slot.JANG_T))[transposed][part >= nb]
-                ref[s] = row
+    diag = r == c
+    kind = np.minimum(r // nb, 2) if nb else np.full(len(r), 2)
+    code[diag] = np.array([Slot.MASS, Slot.INERTIA, Slot.PAD])[kind[diag]]
+    ref[diag] = (r - kind * nb)[diag]
+    # A constraint and a body part: J below the diagonal, J^T above, when the constraint has a side on the body.
+    mixed = ~diag & ((r >= 2 * nb) != (c >= 2 * nb))
+    transposed = c >= 2 * nb
+    con = np.where(transposed, c, r) - 2 * nb
+    part = np.where(transposed, r, c)
+    con_safe = np.clip(con, 0, max(nc - 1, 0))
+    b = part % nb if nb else part
+    side1 = mixed & (graph.constraint_body1[con_safe] == b) if nc else mixed
+    side0 = mixed & (graph.constraint_body0[con_safe] == b) & ~side1 if nc else mixed
+    on = side0 | side1
+    angular = part >= nb
+    codes = np.array([[Slot.JLIN, Slot.JANG], [Slot.JLIN_T, Slot.JANG_T]])
+    code[on] = codes[transposed[on].astype(int), angular[on].astype(int)]
+    ref[on] = 2 * con[on] + side1[on]
     sign = np.where(perm >= 2 * nb, -1.0, 1.0)
     return _pattern("body", st, sign, slot_code=code, slot_ref=ref)
 
 
 def block_csr(graph: Graph) -> BlockCSR:
-    adj = _coupling(graph)
-    n = len(adj)
-    cols = [sorted(adj[i] | {i}) for i in range(n)]
-    start = np.cumsum([0] + [len(c) for c in cols])
-    col = np.array([c for cs in cols for c in cs], dtype=np.int64)
-    row = np.repeat(np.arange(n), np.diff(start))
-    sides = np.array([shared_sides(graph, int(i), int(j)) for i, j in zip(row, col)], dtype=np.int32)
-    diag = np.array([start[i] + cols[i].index(i) for i in range(n)], dtype=np.int64)
-    return BlockCSR(start, col, row, sides.reshape(-1, 4), diag)
+    n = graph.constraint_count
+    i, j = _coupling(graph)
+    key = _unique(np.concatenate([i * n + j, np.arange(n, dtype=np.int64) * (n + 1)]))
+    row, col = key // n, key % n
+    start = np.searchsorted(row, np.arange(n + 1)).astype(np.int64)
+    diag = np.searchsorted(key, np.arange(n, dtype=np.int64) * (n + 1)).astype(np.int64)
+    return BlockCSR(start, col, row, shared_sides(graph, row, col), diag)
 
 
 def analyze(graph: Graph, level_order: bool = False) -> Topology:
