@@ -176,7 +176,8 @@ def cholesky_solve(
 @functools.cache
 def fused(kinds: frozenset[int]) -> SimpleNamespace:
     """The fused step kernels for a set of constraint kinds (`constraints.specialized(kinds)`'s stage funcs):
-    `cholesky_steps` (the direct solver, either formulation) and `iterative_steps` (the paper's sweeps)."""
+    `cholesky_steps` (the direct solver, either formulation) and `iterative_steps` (the paper's sweeps), and the
+    kind-dependent serial stages they call (`benchmarks/step_breakdown.py` times each)."""
     ck = specialized(kinds)
     module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}"
     wp.set_module_options({"enable_backward": False}, module)
@@ -618,4 +619,12 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             if code != OK:
                 return
 
-    return SimpleNamespace(kinds=ck.kinds, cholesky_steps=cholesky_steps, iterative_steps=iterative_steps)
+    return SimpleNamespace(
+        kinds=ck.kinds,
+        module=module,
+        cholesky_steps=cholesky_steps,
+        iterative_steps=iterative_steps,
+        position_errors_all=position_errors_all,
+        frames_all=frames_all,
+        summary_all=summary_all,
+    )

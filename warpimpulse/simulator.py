@@ -317,7 +317,9 @@ class Simulator:
         self._status = wp.zeros(
             (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
         )
+        self._status_view = None if cuda else self._status.numpy()  # a CPU array's memory, read without a copy
         self._fused_by_h: dict[float, wp.Launch] = {}
+        self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
 
     def _fused_launch(self, h: float) -> wp.Launch:
@@ -338,14 +340,19 @@ class Simulator:
         return self._fused_by_h[h]
 
     def _steps_alike(self, limit: int) -> int:
-        """How many of the next steps (at most `limit`) share this step's active model forces."""
+        """How many of the next steps (at most `limit`) share this step's active model forces (`_update_forces`
+        decides by the same comparison); the answer holds until that step, so it is kept."""
         until = self.model.host.force_until
         if not len(until):
             return limit
-        times = (self.step_count + np.arange(limit)) * self.dt
-        active = times[:, None] < until[None, :]
-        differ = np.flatnonzero((active != active[0]).any(axis=1))
-        return int(differ[0]) if len(differ) else limit
+        start, count = self._alike
+        if not start <= self.step_count < start + count:
+            times = (self.step_count + np.arange(self.FUSED_BATCH)) * self.dt
+            active = times[:, None] < until[None, :]
+            differ = np.flatnonzero((active != active[0]).any(axis=1))
+            self._alike = (self.step_count, int(differ[0]) if len(differ) else self.FUSED_BATCH)
+            start, count = self._alike
+        return min(limit, start + count - self.step_count)
 
     def _fused_steps(self, n: int) -> list[StepStats]:
         """n steps by the fused schedule, as few launches as the forces allow; a step it hands back (a spin
@@ -359,7 +366,8 @@ class Simulator:
             launch.set_param_by_name("steps", batch)
             launch.set_param_by_name("spin_in", self._spin)
             launch.launch()
-            for row in self._status.numpy()[:batch]:  # the one read-back of the batch
+            status = self._status.numpy() if self._status_view is None else self._status_view
+            for row in status[:batch]:  # the one read-back of the batch
                 code = int(row[columns.STATUS_CODE])
                 self._spin = float(row[columns.STATUS_SPIN])
                 if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept

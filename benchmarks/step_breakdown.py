@@ -1,0 +1,354 @@
+"""Where a step's time goes, and the step beside MuJoCo's (issue: one launch a step).
+
+For each scene: the time of a step by the fused schedule (whole steps, many a launch: `sim.step(n)`; and one
+`sim.step()` a call), by the parallel schedule, and of MuJoCo's Euler and RK4 steps on the same scene and step
+(`mj_step(nstep=n)` and one `mj_step` a call), medians of interleaved rounds. Then the fused step by stage:
+each serial stage of kernels/step.py (predict every body, joint errors, solve, apply, frames, assemble, factor,
+velocity errors, the NaN/spin summary) launched alone `REPEATS` times, times the number of times a step runs it
+(from the run's StepStats); "other" is the measured step minus their sum. Big trees give the cost per body-step
+and the set-up time (builder, finalize, Simulator).
+
+    python benchmarks/step_breakdown.py [--quick] [--json benchmarks/results/step_breakdown.json] [--readme README.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import re
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import warp as wp
+from warpimpulse.kernels import step as step_kernels
+
+import warpimpulse as wi
+from warpimpulse import scenes
+from warpimpulse.bench.harness import metadata
+from warpimpulse.launch import record
+
+ROOT = Path(__file__).resolve().parent.parent
+REPEATS = 200  # stage calls a launch
+ROUNDS = 7
+SCENES = {  # name: (builder, dt, tolerance)
+    "tree127": (lambda: scenes.binary_tree(127), 1 / 60, 1e-6),
+    "double_pendulum": (scenes.double_pendulum, 1 / 120, 1e-6),
+    "chain10": (lambda: scenes.chain(10), 1 / 60, 1e-6),
+    "chain50": (lambda: scenes.chain(50), 1 / 60, 1e-6),
+}
+BIG = (2047, 65535)  # binary trees for the cost per body-step and set-up
+
+vec3d, quatd, mat33d, f64 = wp.vec3d, wp.quatd, wp.mat33d, wp.float64
+
+
+def _stage_kernels(ns):
+    """One kernel a stage, running it `repeats` times, with the fused kernel's parameter names."""
+    module = f"step_breakdown_{ns.module.rsplit('.', 1)[-1]}"
+    position_errors_all, frames_all, summary_all = ns.position_errors_all, ns.frames_all, ns.summary_all
+
+    @wp.kernel(module=module)
+    def predict(repeats: int, body_count: int, body_inv_mass: wp.array(dtype=f64), body_inertia: wp.array(dtype=mat33d),
+                body_inv_inertia: wp.array(dtype=mat33d), gravity: vec3d, h: f64, body_x_out: wp.array(dtype=vec3d),
+                body_q_out: wp.array(dtype=quatd), body_v_out: wp.array(dtype=vec3d), body_w_out: wp.array(dtype=vec3d),
+                body_force_in: wp.array(dtype=vec3d), body_torque_in: wp.array(dtype=vec3d),
+                pred_x: wp.array(dtype=vec3d), pred_q: wp.array(dtype=quatd), pred_v: wp.array(dtype=vec3d),
+                pred_w: wp.array(dtype=vec3d)):  # fmt: skip
+        for _ in range(repeats):
+            step_kernels.predict_all(
+                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
+                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+            )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def joint_errors(repeats: int, constraint_count: int, constraint_kind: wp.array(dtype=int),
+                     constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int),
+                     constraint_anchor0: wp.array(dtype=vec3d), constraint_anchor1: wp.array(dtype=vec3d),
+                     constraint_axis0: wp.array(dtype=vec3d), constraint_axis1: wp.array(dtype=vec3d),
+                     constraint_rest_rotation: wp.array(dtype=quatd), constraint_rest_angle: wp.array(dtype=f64),
+                     h: f64, proj: wp.array(dtype=mat33d), pred_x: wp.array(dtype=vec3d),
+                     pred_q: wp.array(dtype=quatd), errors: wp.array(dtype=f64),
+                     rhs: wp.array(dtype=vec3d)):  # fmt: skip
+        for _ in range(repeats):
+            position_errors_all(
+                constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                constraint_rest_angle, f64(1.0) / h, proj, pred_x, pred_q, errors, rhs,
+            )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def solve(repeats: int, augmented: int, offset: int, constraint_count: int, perm: wp.array(dtype=int),
+              col_start: wp.array(dtype=int), col_row: wp.array(dtype=int), col_sign: wp.array(dtype=f64),
+              row_start: wp.array(dtype=int), row_slot: wp.array(dtype=int), row_col: wp.array(dtype=int),
+              values: wp.array(dtype=mat33d), diag_inv: wp.array(dtype=mat33d), work: wp.array(dtype=vec3d),
+              aug_rhs: wp.array(dtype=vec3d), aug_x: wp.array(dtype=vec3d), rhs: wp.array(dtype=vec3d),
+              impulse: wp.array(dtype=vec3d)):  # fmt: skip
+        for _ in range(repeats):
+            step_kernels.cholesky_solve(
+                augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
+                row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+            )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def apply(repeats: int, body_count: int, body_inv_mass: wp.array(dtype=f64),
+              body_rows_start: wp.array(dtype=int), body_rows: wp.array(dtype=int),
+              inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
+              jac_ang: wp.array(dtype=mat33d), impulse: wp.array(dtype=vec3d), pred_v: wp.array(dtype=vec3d),
+              pred_w: wp.array(dtype=vec3d)):  # fmt: skip
+        for _ in range(repeats):  # into the scratch prediction: the state stays as it was
+            step_kernels.apply_all(
+                body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                impulse, pred_v, pred_w,
+            )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def frames(repeats: int, body_count: int, constraint_count: int, body_inv_inertia: wp.array(dtype=mat33d),
+               constraint_kind: wp.array(dtype=int), constraint_body0: wp.array(dtype=int),
+               constraint_body1: wp.array(dtype=int), constraint_anchor0: wp.array(dtype=vec3d),
+               constraint_anchor1: wp.array(dtype=vec3d), constraint_axis0: wp.array(dtype=vec3d),
+               constraint_axis1: wp.array(dtype=vec3d), body_x_out: wp.array(dtype=vec3d),
+               body_q_out: wp.array(dtype=quatd), inv_inertia_world: wp.array(dtype=mat33d),
+               proj: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
+               jac_ang: wp.array(dtype=mat33d)):  # fmt: skip
+        for _ in range(repeats):
+            frames_all(
+                body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
+                constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
+                inv_inertia_world, proj, jac_lin, jac_ang,
+            )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def assemble_factor(repeats: int, factor: int, constraint_kind: wp.array(dtype=int),
+                        constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int),
+                        body_inv_mass: wp.array(dtype=f64), slot_row: wp.array(dtype=int),
+                        slot_col: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
+                        slot_code: wp.array(dtype=int), slot_ref: wp.array(dtype=int),
+                        inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
+                        jac_ang: wp.array(dtype=mat33d), pivot_tolerance: f64, col_start: wp.array(dtype=int),
+                        update_start: wp.array(dtype=int), update_target: wp.array(dtype=int),
+                        update_a: wp.array(dtype=int), update_b: wp.array(dtype=int),
+                        update_sign: wp.array(dtype=f64), col_sign: wp.array(dtype=f64),
+                        values: wp.array(dtype=mat33d), diag_inv: wp.array(dtype=mat33d),
+                        singular: wp.array(dtype=int)):  # fmt: skip
+        for _ in range(repeats):
+            for s in range(slot_code.shape[0]):
+                step_kernels.augmented_slot(
+                    s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
+                    values,
+                )  # fmt: skip
+            for s in range(slot_row.shape[0]):
+                step_kernels.assemble_slot(
+                    s, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
+                    slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                )  # fmt: skip
+            if factor != 0:
+                for j in range(col_start.shape[0] - 1):
+                    step_kernels.factor_column(
+                        j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
+                        pivot_tolerance, values, diag_inv, singular,
+                    )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def velocity_errors(repeats: int, constraint_count: int, constraint_body0: wp.array(dtype=int),
+                        constraint_body1: wp.array(dtype=int), jac_lin: wp.array(dtype=mat33d),
+                        jac_ang: wp.array(dtype=mat33d), body_v_out: wp.array(dtype=vec3d),
+                        body_w_out: wp.array(dtype=vec3d), errors: wp.array(dtype=f64),
+                        rhs: wp.array(dtype=vec3d)):  # fmt: skip
+        for _ in range(repeats):
+            step_kernels.velocity_errors_all(
+                constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
+                errors, rhs,
+            )  # fmt: skip
+
+    @wp.kernel(module=module)
+    def summary(repeats: int, body_count: int, pred_x: wp.array(dtype=vec3d), pred_q: wp.array(dtype=quatd),
+                pred_v: wp.array(dtype=vec3d), pred_w: wp.array(dtype=vec3d), errors: wp.array(dtype=f64)):  # fmt: skip
+        for _ in range(repeats):
+            bad, spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+            errors[0] = spin + f64(bad)
+
+    return dict(predict=predict, joint_errors=joint_errors, solve=solve, apply=apply, frames=frames,
+                assemble_factor=assemble_factor, velocity_errors=velocity_errors, summary=summary)  # fmt: skip
+
+
+def _median_time(fn, rounds: int = ROUNDS) -> float:
+    times = []
+    for _ in range(rounds):
+        gc.collect()
+        gc.disable()
+        try:
+            start = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - start)
+        finally:
+            gc.enable()
+    return statistics.median(times)
+
+
+def breakdown(sim: wi.Simulator, stats: list) -> dict:
+    """Seconds a step spends in each serial stage of the fused schedule (stage time x calls a step)."""
+    kernels = _stage_kernels(sim._fused)
+    p = sim.pred
+    sources = (sim.linear.fused_args, sim.model, sim.frames, sim.control, sim, sim.linear.device_pattern, sim.linear)
+    common = dict(pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, h=sim.dt)
+
+    def per_call(name: str, **values) -> float:
+        launch = record(kernels[name], 1, sim.model.device, sources, data_out=sim.state, repeats=REPEATS,
+                        **common, **values)  # fmt: skip
+        launch.launch()  # compile and warm
+        return _median_time(launch.launch) / REPEATS
+
+    it = statistics.mean(s.joint_iterations for s in stats)
+    vel = statistics.mean(s.velocity_iterations for s in stats)
+    wp.copy(p.body_x, sim.state.body_x)
+    wp.copy(p.body_q, sim.state.body_q)
+    assemble = per_call("assemble_factor", factor=0)
+    stage = {
+        "predict": (per_call("predict"), 1 + it),
+        "joint_errors": (per_call("joint_errors"), 1 + it),
+        "solve": (per_call("solve"), it + vel),
+        "apply": (per_call("apply"), it + vel),
+        "frames": (per_call("frames"), 1.0),
+        "assemble": (assemble, 1.0),
+        "factor": (per_call("assemble_factor", factor=1) - assemble, 1.0),
+        "velocity_errors": (per_call("velocity_errors"), 1 + vel),
+        "summary": (per_call("summary"), 1.0),
+    }
+    return {name: {"per_call_us": t * 1e6, "calls_per_step": calls, "per_step_us": t * calls * 1e6}
+            for name, (t, calls) in stage.items()}  # fmt: skip
+
+
+def _mujoco(builder, dt: float, integrator: str, steps: int) -> dict | None:
+    try:
+        import mujoco
+
+        from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene
+    except ImportError:
+        return None
+    from warpimpulse.bench.runner import StepFailed
+
+    rate = int(round(1.0 / dt))
+    runner = MujocoRunner(MujocoScene.from_builder(builder, dt, integrator), integrator, rate)
+    for _ in range(int(1.1 * rate)):  # past the start forces
+        runner.step()
+    batched = _median_time(lambda: mujoco.mj_step(runner.model, runner.data, steps)) / steps
+
+    def loop():
+        for _ in range(steps):
+            mujoco.mj_step(runner.model, runner.data)
+
+    one = _median_time(loop) / steps
+    out = {"batched_us": batched * 1e6, "per_call_us": one * 1e6}
+    try:
+        runner.check()
+    except StepFailed as e:  # timed all the same, and marked
+        out["diverged"] = str(e)
+    return out
+
+
+def scene_point(name: str, steps: int) -> dict:
+    make, dt, tolerance = SCENES[name]
+    out: dict = {"scene": name, "dt": dt, "tolerance": tolerance}
+    sims = {s: wi.Simulator(make().finalize("cpu"), dt, tolerance=tolerance, schedule=s) for s in ("fused", "parallel")}
+    rate = int(round(1.0 / dt))
+    for sim in sims.values():
+        sim.step(int(1.1 * rate))  # past the start forces, kernels compiled
+    fused, parallel = sims["fused"], sims["parallel"]
+    stats: list = []
+    out["fused_batched_us"] = _median_time(lambda: stats.extend(fused._steps(steps))) / steps * 1e6
+
+    def one_a_call():
+        for _ in range(steps):
+            fused.step()
+
+    out["fused_per_call_us"] = _median_time(one_a_call) / steps * 1e6
+
+    def parallel_steps():
+        for _ in range(steps):
+            parallel.step()
+
+    out["parallel_us"] = _median_time(parallel_steps) / steps * 1e6
+    out["joint_iterations"] = statistics.mean(s.joint_iterations for s in stats)
+    out["stages"] = breakdown(fused, stats)
+    out["stages_sum_us"] = sum(s["per_step_us"] for s in out["stages"].values())
+    for integrator in ("Euler", "RK4"):
+        out[f"mujoco_{integrator}"] = _mujoco(make(), dt, integrator, steps)
+    return out
+
+
+def big_point(bodies: int, steps: int) -> dict:
+    t0 = time.perf_counter()
+    builder = scenes.binary_tree(bodies)
+    t1 = time.perf_counter()
+    model = builder.finalize("cpu")
+    t2 = time.perf_counter()
+    sim = wi.Simulator(model, 1 / 60)
+    t3 = time.perf_counter()
+    sim.step(2)
+    per_step = _median_time(lambda: sim.step(steps), rounds=3) / steps
+    return {"bodies": bodies, "build_s": t1 - t0, "finalize_s": t2 - t1, "simulator_s": t3 - t2,
+            "per_step_ms": per_step * 1e3, "per_body_step_us": per_step / bodies * 1e6}  # fmt: skip
+
+
+def table(result: dict) -> str:
+    """The README's block: per-step times beside MuJoCo, and the fused step by stage."""
+    rows = ["| scene | fused, n steps a launch | fused, a step a call | parallel | MuJoCo Euler | MuJoCo RK4 |",
+            "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for p in result["scenes"]:
+        mj = [p.get(f"mujoco_{i}") for i in ("Euler", "RK4")]
+        cells = [f"{m['batched_us']:.1f} / {m['per_call_us']:.1f}{' (diverged)' * ('diverged' in m)}" if m else "-"
+                 for m in mj]  # fmt: skip
+        rows.append(f"| {p['scene']} (h = 1/{round(1 / p['dt'])}) | {p['fused_batched_us']:.1f} | "
+                    f"{p['fused_per_call_us']:.1f} | {p['parallel_us']:.1f} | {cells[0]} | {cells[1]} |")  # fmt: skip
+    lines = ["µs a step, medians (MuJoCo: `mj_step(nstep=n)` / one `mj_step` a call).", "", *rows, ""]
+    stages = list(result["scenes"][0]["stages"])
+    lines += ["The fused step by stage (µs a step: one call's time x calls a step):", "",
+              "| scene | " + " | ".join(stages) + " | other |", "|---|" + "---:|" * (len(stages) + 1)]  # fmt: skip
+    for p in result["scenes"]:
+        other = p["fused_batched_us"] - p["stages_sum_us"]
+        cells = [f"{p['stages'][s]['per_step_us']:.1f}" for s in stages]
+        lines.append(f"| {p['scene']} | " + " | ".join(cells) + f" | {other:.1f} |")
+    if result["big"]:
+        lines += ["", "| tree bodies | build | finalize | Simulator | µs a body-step |", "|---:|---:|---:|---:|---:|"]
+        for b in result["big"]:
+            lines.append(f"| {b['bodies']:,} | {b['build_s']:.1f} s | {b['finalize_s']:.1f} s | "
+                         f"{b['simulator_s']:.1f} s | {b['per_body_step_us']:.3f} |")  # fmt: skip
+    meta = result["meta"]
+    lines += ["", f"{meta['machine']}; {meta['versions']}; {meta['date']}; `python benchmarks/step_breakdown.py`."]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer steps, no 65,535-body tree")
+    parser.add_argument("--json", default=str(ROOT / "benchmarks/results/step_breakdown.json"))
+    parser.add_argument("--readme", default=None, help="rewrite README.md's step-time block from the results")
+    parser.add_argument("--from-json", action="store_true", help="only regenerate the README block")
+    args = parser.parse_args(argv)
+    if args.from_json:
+        result = json.loads(Path(args.json).read_text())
+    else:
+        wp.config.quiet = True
+        steps = 30 if args.quick else 120
+        result = {"meta": metadata(sys.argv[1:]), "scenes": [], "big": []}
+        for name in SCENES:
+            result["scenes"].append(scene_point(name, steps))
+            print(json.dumps(result["scenes"][-1]), file=sys.stderr)
+        for bodies in BIG[:1] if args.quick else BIG:
+            result["big"].append(big_point(bodies, 5 if bodies > 10000 else 40))
+            print(json.dumps(result["big"][-1]), file=sys.stderr)
+        Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+    text = table(result)
+    print(text)
+    if args.readme:
+        readme = Path(args.readme)
+        block = f"<!-- step-time:begin -->\n{text}\n<!-- step-time:end -->"
+        readme.write_text(re.sub(r"<!-- step-time:begin -->.*<!-- step-time:end -->", block, readme.read_text(),
+                                 flags=re.S))  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
