@@ -6,7 +6,8 @@ For each scene: the time of a step by the fused schedule (whole steps, many a la
 each serial stage of kernels/step.py (predict every body, joint errors, solve, apply, frames, assemble, factor,
 velocity errors, the NaN/spin summary) launched alone `REPEATS` times, times the number of times a step runs it
 (from the run's StepStats); "other" is the measured step minus their sum. Big trees give the cost per body-step
-and the set-up time (builder, finalize, Simulator).
+and the set-up time (builder, finalize, Simulator). Step times are CPU time of this process
+(`time.process_time`): on a shared machine, time spent descheduled is not the engine's.
 
     python benchmarks/step_breakdown.py [--quick] [--json benchmarks/results/step_breakdown.json] [--readme README.md]
 """
@@ -17,11 +18,13 @@ import argparse
 import gc
 import json
 import re
+import resource
 import statistics
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import warp as wp
 from warpimpulse.kernels import step as step_kernels
 
@@ -40,6 +43,7 @@ SCENES = {  # name: (builder, dt, tolerance)
     "chain50": (lambda: scenes.chain(50), 1 / 60, 1e-6),
 }
 BIG = (2047, 65535)  # binary trees for the cost per body-step and set-up
+ANALYSIS = (65535, 1048575)  # binary trees for the symbolic analysis alone
 
 vec3d, quatd, mat33d, f64 = wp.vec3d, wp.quatd, wp.mat33d, wp.float64
 
@@ -179,9 +183,9 @@ def _median_time(fn, rounds: int = ROUNDS) -> float:
         gc.collect()
         gc.disable()
         try:
-            start = time.perf_counter()
+            start = time.process_time()
             fn()
-            times.append(time.perf_counter() - start)
+            times.append(time.process_time() - start)
         finally:
             gc.enable()
     return statistics.median(times)
@@ -220,76 +224,135 @@ def breakdown(sim: wi.Simulator, stats: list) -> dict:
             for name, (t, calls) in stage.items()}  # fmt: skip
 
 
-def _mujoco(builder, dt: float, integrator: str, steps: int) -> dict | None:
-    try:
+class _Ours:
+    """Our simulator, restored to a snapshot before each timed block (not timed)."""
+
+    def __init__(self, make, dt: float, tolerance: float, schedule: str, batched: bool) -> None:
+        self.sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=tolerance, schedule=schedule)
+        self.batched = batched
+        self.stats: list = []
+        self.sim.step(int(round(1.1 / dt)))  # past the start forces, kernels compiled
+        self.snapshot = [a() for a in (self.sim.positions, self.sim.orientations, self.sim.linear_velocities,
+                                       self.sim.angular_velocities)]  # fmt: skip
+        self.clock = (self.sim.time, self.sim.step_count)
+
+    def restore(self) -> None:
+        self.sim.set_state(*self.snapshot)
+        self.sim.time, self.sim.step_count = self.clock
+
+    def run(self, steps: int) -> None:
+        if self.batched:
+            self.stats = self.sim._steps(steps)
+        else:
+            self.stats = [self.sim.step() for _ in range(steps)]
+
+
+class _MuJoCo:
+    def __init__(self, make, dt: float, integrator: str, batched: bool) -> None:
         import mujoco
 
         from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene
-    except ImportError:
-        return None
-    from warpimpulse.bench.runner import StepFailed
 
-    rate = int(round(1.0 / dt))
-    runner = MujocoRunner(MujocoScene.from_builder(builder, dt, integrator), integrator, rate)
-    for _ in range(int(1.1 * rate)):  # past the start forces
-        runner.step()
-    batched = _median_time(lambda: mujoco.mj_step(runner.model, runner.data, steps)) / steps
+        self.mj, self.batched = mujoco, batched
+        self.runner = MujocoRunner(MujocoScene.from_builder(make(), dt, integrator), integrator, int(round(1 / dt)))
+        for _ in range(int(round(1.1 / dt))):  # past the start forces
+            self.runner.step()
+        d = self.runner.data
+        self.snapshot = (d.time, d.qpos.copy(), d.qvel.copy(), d.qacc_warmstart.copy())
 
-    def loop():
-        for _ in range(steps):
-            mujoco.mj_step(runner.model, runner.data)
+    def restore(self) -> None:
+        d = self.runner.data
+        d.time, d.qpos[:], d.qvel[:], d.qacc_warmstart[:] = self.snapshot
 
-    one = _median_time(loop) / steps
-    out = {"batched_us": batched * 1e6, "per_call_us": one * 1e6}
-    try:
-        runner.check()
-    except StepFailed as e:  # timed all the same, and marked
-        out["diverged"] = str(e)
-    return out
+    def run(self, steps: int) -> None:
+        m, d = self.runner.model, self.runner.data
+        if self.batched:
+            self.mj.mj_step(m, d, steps)
+        else:
+            for _ in range(steps):
+                self.mj.mj_step(m, d)
+
+    def diverged(self) -> bool:
+        return bool(self.runner.scene.diverged(self.runner.data))
 
 
 def scene_point(name: str, steps: int) -> dict:
+    """Every engine from the same state (the scene at 1.1 s), `steps` steps a block, blocks interleaved."""
     make, dt, tolerance = SCENES[name]
-    out: dict = {"scene": name, "dt": dt, "tolerance": tolerance}
-    sims = {s: wi.Simulator(make().finalize("cpu"), dt, tolerance=tolerance, schedule=s) for s in ("fused", "parallel")}
-    rate = int(round(1.0 / dt))
-    for sim in sims.values():
-        sim.step(int(1.1 * rate))  # past the start forces, kernels compiled
-    fused, parallel = sims["fused"], sims["parallel"]
-    stats: list = []
-    out["fused_batched_us"] = _median_time(lambda: stats.extend(fused._steps(steps))) / steps * 1e6
-
-    def one_a_call():
-        for _ in range(steps):
-            fused.step()
-
-    out["fused_per_call_us"] = _median_time(one_a_call) / steps * 1e6
-
-    def parallel_steps():
-        for _ in range(steps):
-            parallel.step()
-
-    out["parallel_us"] = _median_time(parallel_steps) / steps * 1e6
-    out["joint_iterations"] = statistics.mean(s.joint_iterations for s in stats)
-    out["stages"] = breakdown(fused, stats)
+    engines = {
+        "fused_batched": _Ours(make, dt, tolerance, "fused", True),
+        "fused_per_call": _Ours(make, dt, tolerance, "fused", False),
+        "parallel": _Ours(make, dt, tolerance, "parallel", False),
+    }
+    try:
+        for integrator in ("Euler", "RK4"):
+            for batched in (True, False):
+                engines[f"mujoco_{integrator}_{'batched' if batched else 'per_call'}"] = _MuJoCo(
+                    make, dt, integrator, batched
+                )
+    except ImportError:
+        pass
+    times: dict = {key: [] for key in engines}
+    for _ in range(ROUNDS):
+        for key, engine in engines.items():
+            engine.restore()
+            times[key].append(_median_time(lambda engine=engine: engine.run(steps), rounds=1) / steps * 1e6)
+    out: dict = {"scene": name, "dt": dt, "tolerance": tolerance, "steps": steps}
+    out.update({f"{key}_us": statistics.median(t) for key, t in times.items()})
+    out["mujoco_diverged"] = sorted(k for k, e in engines.items() if isinstance(e, _MuJoCo) and e.diverged())
+    fused = engines["fused_batched"]
+    out["joint_iterations"] = statistics.mean(s.joint_iterations for s in fused.stats)
+    fused.restore()
+    out["stages"] = breakdown(fused.sim, fused.stats)
     out["stages_sum_us"] = sum(s["per_step_us"] for s in out["stages"].values())
-    for integrator in ("Euler", "RK4"):
-        out[f"mujoco_{integrator}"] = _mujoco(make(), dt, integrator, steps)
     return out
 
 
+def specialization(name: str, steps: int) -> dict:
+    """The fused step compiled for the scene's constraint kinds only, and for all six (`wp.static` dispatch
+    inside the fused loop), in interleaved rounds."""
+    make, dt, tolerance = SCENES[name]
+    sims = {
+        flag: wi.Simulator(make().finalize("cpu"), dt, tolerance=tolerance, specialize=flag) for flag in (True, False)
+    }
+    for sim in sims.values():
+        sim.step(int(1.1 / dt))
+    times: dict = {True: [], False: []}
+    for _ in range(ROUNDS):
+        for flag, sim in sims.items():
+            times[flag].append(_median_time(lambda sim=sim: sim._steps(steps), rounds=1) / steps * 1e6)
+    return {"scene": name, "kinds": list(sims[True]._fused.kinds), "specialized_us": statistics.median(times[True]),
+            "all_kinds_us": statistics.median(times[False])}  # fmt: skip
+
+
 def big_point(bodies: int, steps: int) -> dict:
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     builder = scenes.binary_tree(bodies)
-    t1 = time.perf_counter()
+    t1 = time.process_time()
     model = builder.finalize("cpu")
-    t2 = time.perf_counter()
+    t2 = time.process_time()
     sim = wi.Simulator(model, 1 / 60)
-    t3 = time.perf_counter()
+    t3 = time.process_time()
     sim.step(2)
     per_step = _median_time(lambda: sim.step(steps), rounds=3) / steps
     return {"bodies": bodies, "build_s": t1 - t0, "finalize_s": t2 - t1, "simulator_s": t3 - t2,
             "per_step_ms": per_step * 1e3, "per_body_step_us": per_step / bodies * 1e6}  # fmt: skip
+
+
+def analysis_point(bodies: int) -> dict:
+    """The symbolic analysis alone (topology.analyze and the factor pattern) of a binary tree given as arrays,
+    its CPU time and the process's peak memory (run last: the peak is the whole run's)."""
+    from warpimpulse import topology
+
+    parent = np.concatenate([[-1], (np.arange(1, bodies) - 1) // 2])
+    graph = topology.Graph(body_static=np.zeros(bodies, bool), constraint_body0=parent,
+                           constraint_body1=np.arange(bodies), constraint_joint=np.arange(bodies),
+                           joint_parent=parent, joint_child=np.arange(bodies))  # fmt: skip
+    t0 = time.process_time()
+    pattern = topology.analyze(graph).pattern("auto")
+    seconds = time.process_time() - t0
+    return {"bodies": bodies, "analysis_s": seconds, "formulation": pattern.formulation,
+            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6}  # fmt: skip
 
 
 def table(result: dict) -> str:
@@ -297,12 +360,16 @@ def table(result: dict) -> str:
     rows = ["| scene | fused, n steps a launch | fused, a step a call | parallel | MuJoCo Euler | MuJoCo RK4 |",
             "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     for p in result["scenes"]:
-        mj = [p.get(f"mujoco_{i}") for i in ("Euler", "RK4")]
-        cells = [f"{m['batched_us']:.1f} / {m['per_call_us']:.1f}{' (diverged)' * ('diverged' in m)}" if m else "-"
-                 for m in mj]  # fmt: skip
+        cells = []
+        for integrator in ("Euler", "RK4"):
+            key = f"mujoco_{integrator}"
+            mark = " (diverged)" if any(k.startswith(key) for k in p["mujoco_diverged"]) else ""
+            cells.append(f"{p[key + '_batched_us']:.1f} / {p[key + '_per_call_us']:.1f}{mark}"
+                         if key + "_batched_us" in p else "-")  # fmt: skip
         rows.append(f"| {p['scene']} (h = 1/{round(1 / p['dt'])}) | {p['fused_batched_us']:.1f} | "
                     f"{p['fused_per_call_us']:.1f} | {p['parallel_us']:.1f} | {cells[0]} | {cells[1]} |")  # fmt: skip
-    lines = ["µs a step, medians (MuJoCo: `mj_step(nstep=n)` / one `mj_step` a call).", "", *rows, ""]
+    lines = ["µs a step (CPU time), medians of interleaved blocks of n steps from the same state (the scene at",
+             "1.1 s); MuJoCo: `mj_step(nstep=n)` / one `mj_step` a call.", "", *rows, ""]  # fmt: skip
     stages = list(result["scenes"][0]["stages"])
     lines += ["The fused step by stage (µs a step: one call's time x calls a step):", "",
               "| scene | " + " | ".join(stages) + " | other |", "|---|" + "---:|" * (len(stages) + 1)]  # fmt: skip
@@ -315,6 +382,15 @@ def table(result: dict) -> str:
         for b in result["big"]:
             lines.append(f"| {b['bodies']:,} | {b['build_s']:.1f} s | {b['finalize_s']:.1f} s | "
                          f"{b['simulator_s']:.1f} s | {b['per_body_step_us']:.3f} |")  # fmt: skip
+    if result.get("analysis"):
+        lines += ["", "| tree bodies | symbolic analysis (arrays in) | peak memory of the run |", "|---:|---:|---:|"]
+        for a in result["analysis"]:
+            lines.append(f"| {a['bodies']:,} | {a['analysis_s']:.1f} s | {a['peak_rss_gb']:.2f} GB |")
+    if result.get("specialization"):
+        lines += ["", "| fused step, compiled for | " + " | ".join(p["scene"] for p in result["specialization"]) + " |",
+                  "|---|" + "---:|" * len(result["specialization"])]  # fmt: skip
+        for key, label in (("specialized_us", "the scene's kinds"), ("all_kinds_us", "all six kinds")):
+            lines.append(f"| {label} | " + " | ".join(f"{p[key]:.1f} µs" for p in result["specialization"]) + " |")
     meta = result["meta"]
     lines += ["", f"{meta['machine']}; {meta['versions']}; {meta['date']}; `python benchmarks/step_breakdown.py`."]
     return "\n".join(lines)
@@ -331,14 +407,18 @@ def main(argv: list[str] | None = None) -> int:
         result = json.loads(Path(args.json).read_text())
     else:
         wp.config.quiet = True
-        steps = 30 if args.quick else 120
+        steps = 30 if args.quick else 60
         result = {"meta": metadata(sys.argv[1:]), "scenes": [], "big": []}
         for name in SCENES:
             result["scenes"].append(scene_point(name, steps))
             print(json.dumps(result["scenes"][-1]), file=sys.stderr)
+        result["specialization"] = [specialization(name, steps) for name in ("tree127", "chain10")]
+        print(json.dumps(result["specialization"]), file=sys.stderr)
         for bodies in BIG[:1] if args.quick else BIG:
             result["big"].append(big_point(bodies, 5 if bodies > 10000 else 40))
             print(json.dumps(result["big"][-1]), file=sys.stderr)
+        result["analysis"] = [analysis_point(n) for n in ANALYSIS]
+        print(json.dumps(result["analysis"]), file=sys.stderr)
         Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
     text = table(result)
     print(text)

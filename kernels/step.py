@@ -6,7 +6,9 @@ errors between them) buy nothing: here the same per-element stage funcs the para
 `cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps of
 `iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
 apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
-summary) is decided on the device, for up to `steps` steps a launch.
+summary) is decided on the device, for up to `batch_in[0]` steps a launch: the batch and the starting spin are
+read from arrays, so the launch is fixed and replays as a captured graph (a 71-argument launch costs ~15 us to
+pack on a CPU; a replay ~1 us).
 
 Each step writes one status row (`STATUS_*` columns). A step the fused schedule does not finish itself stops the
 launch with a code, and the host takes that step by the parallel schedule, which splits, halves, raises or
@@ -322,13 +324,13 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         slot_ref: wp.array(dtype=int),
         # Settings:
         h: f64,
-        steps: int,
+        batch_in: wp.array(dtype=int),
         tolerance: f64,
         velocity_tolerance: f64,
         max_iterations: int,
         max_rotation: f64,
         final: int,
-        spin_in: f64,
+        spin_in: wp.array(dtype=f64),
         body_force_in: wp.array(dtype=vec3d),
         body_torque_in: wp.array(dtype=vec3d),
         # Scratch: the prediction, the velocities of t0, errors, right-hand sides, impulses, the factor
@@ -359,11 +361,11 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         body_w_out: wp.array(dtype=vec3d),
         status_out: wp.array2d(dtype=f64),
     ):
-        """Up to `steps` steps of h with the direct solver (`Simulator` with the Cholesky solver, step by step
-        the same operations as its parallel schedule)."""
-        spin = spin_in
+        """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0] (rad/s), with the direct solver
+        (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule)."""
+        spin = spin_in[0]
         inv_h = f64(1.0) / h
-        for k in range(steps):
+        for k in range(batch_in[0]):
             status_out[k, STATUS_SPIN] = spin
             if turns_too_far(spin, h, max_rotation):
                 status_out[k, STATUS_CODE] = f64(SPLIT)
@@ -495,13 +497,13 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         constraint_rest_angle: wp.array(dtype=f64),
         # Settings:
         h: f64,
-        steps: int,
+        batch_in: wp.array(dtype=int),
         tolerance: f64,
         velocity_tolerance: f64,
         max_iterations: int,
         max_rotation: f64,
         final: int,
-        spin_in: f64,
+        spin_in: wp.array(dtype=f64),
         body_force_in: wp.array(dtype=vec3d),
         body_torque_in: wp.array(dtype=vec3d),
         # Scratch:
@@ -525,11 +527,12 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         body_w_out: wp.array(dtype=vec3d),
         status_out: wp.array2d(dtype=f64),
     ):
-        """Up to `steps` steps of h with the paper's iterative baseline: joint sweeps until one meets every
-        constraint within tolerance, the prediction, then velocity sweeps (as `Simulator` without a system)."""
-        spin = spin_in
+        """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0], with the paper's iterative
+        baseline: joint sweeps until one meets every constraint within tolerance, the prediction, then velocity
+        sweeps (as `Simulator` without a system)."""
+        spin = spin_in[0]
         inv_h = f64(1.0) / h
-        for k in range(steps):
+        for k in range(batch_in[0]):
             status_out[k, STATUS_SPIN] = spin
             if turns_too_far(spin, h, max_rotation):
                 status_out[k, STATUS_CODE] = f64(SPLIT)

@@ -75,25 +75,26 @@ def test_the_cases_reach_the_host_paths():
 
 
 def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
+    """Count the fused launches (graph replays) and the steps handed to the parallel schedule."""
     counts = {"launches": 0, "parallel_steps": 0}
-    launch_for, step_parallel = sim._fused_launch, sim._step_parallel
+    fused_graphs, replay, step_parallel = set(), wi.simulator.wp.capture_launch, sim._step_parallel
+    launch_for = sim._fused_launch
 
-    class Counted:
-        def __init__(self, launch):
-            self.launch_ = launch
+    def fused_launch(h):
+        graph = launch_for(h)
+        fused_graphs.add(id(graph))
+        return graph
 
-        def set_param_by_name(self, name, value):
-            self.launch_.set_param_by_name(name, value)
-
-        def launch(self):
-            counts["launches"] += 1
-            self.launch_.launch()
+    def capture_launch(graph, *args, **kwargs):
+        counts["launches"] += id(graph) in fused_graphs
+        return replay(graph, *args, **kwargs)
 
     def parallel():
         counts["parallel_steps"] += 1
         return step_parallel()
 
-    monkeypatch.setattr(sim, "_fused_launch", lambda h: Counted(launch_for(h)))
+    monkeypatch.setattr(sim, "_fused_launch", fused_launch)
+    monkeypatch.setattr(wi.simulator.wp, "capture_launch", capture_launch)
     monkeypatch.setattr(sim, "_step_parallel", parallel)
     return counts
 

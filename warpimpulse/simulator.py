@@ -317,13 +317,17 @@ class Simulator:
         self._status = wp.zeros(
             (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
         )
-        self._status_view = None if cuda else self._status.numpy()  # a CPU array's memory, read without a copy
-        self._fused_by_h: dict[float, wp.Launch] = {}
+        # The batch size and the starting spin of a launch, written by the host before each replay.
+        self._batch = wp.zeros(1, dtype=wp.int32, device=self.model.device)
+        self._spin_in = wp.zeros(1, dtype=wp.float64, device=self.model.device)
+        # CPU arrays' memory, read and written without a copy
+        self._views = None if cuda else (self._status.numpy(), self._batch.numpy(), self._spin_in.numpy())
+        self._fused_by_h: dict[float, wp.Graph] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
 
-    def _fused_launch(self, h: float) -> wp.Launch:
-        """The fused kernel's launch for steps of h, recorded once per h (`steps` and `spin_in` are set per use)."""
+    def _fused_launch(self, h: float) -> wp.Graph:
+        """The fused kernel's launch for steps of h, recorded and captured once per h."""
         if h not in self._fused_by_h:
             p = self.pred
             direct = self.linear is not None
@@ -331,12 +335,13 @@ class Simulator:
             sources = (self.model, self.frames, self.control, self)
             if direct:
                 sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
-            self._fused_by_h[h] = record(
+            launch = record(
                 kernel, 1, self.model.device, sources, data_out=self.state,
-                h=h, steps=1, max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0),
-                spin_in=0.0, pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, v0=self._v0,
-                w0=self._w0, status_out=self._status,
+                h=h, batch_in=self._batch, max_rotation=self.max_rotation or 0.0,
+                final=int(self.max_substep_depth == 0), spin_in=self._spin_in, pred_x=p.body_x, pred_q=p.body_q,
+                pred_v=p.body_v, pred_w=p.body_w, v0=self._v0, w0=self._w0, status_out=self._status,
             )  # fmt: skip
+            self._fused_by_h[h] = self._capture(launch)
         return self._fused_by_h[h]
 
     def _steps_alike(self, limit: int) -> int:
@@ -362,11 +367,16 @@ class Simulator:
         while len(out) < n:
             self._update_forces()
             batch = self._steps_alike(min(n - len(out), self.FUSED_BATCH))
-            launch = self._fused_launch(self.dt)
-            launch.set_param_by_name("steps", batch)
-            launch.set_param_by_name("spin_in", self._spin)
-            launch.launch()
-            status = self._status.numpy() if self._status_view is None else self._status_view
+            graph = self._fused_launch(self.dt)
+            if self._views is None:
+                self._batch.fill_(batch)
+                self._spin_in.fill_(self._spin)
+                wp.capture_launch(graph)
+                status = self._status.numpy()
+            else:
+                status, batch_view, spin_view = self._views
+                batch_view[0], spin_view[0] = batch, self._spin
+                wp.capture_launch(graph)
             for row in status[:batch]:  # the one read-back of the batch
                 code = int(row[columns.STATUS_CODE])
                 self._spin = float(row[columns.STATUS_SPIN])
