@@ -17,13 +17,30 @@ def rotation_rate(q: quatd, w_body: vec3d) -> quatd:
 
 
 @wp.func
-def angular_acceleration(q: quatd, w_body: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d) -> vec3d:
+def inertia_times(m: mat33d, v: vec3d, diagonal: bool) -> vec3d:
+    """m v, with only the diagonal's products when m is diagonal (the same value: the others are zeros)."""
+    if diagonal:
+        return vec3d(m[0, 0] * v[0], m[1, 1] * v[1], m[2, 2] * v[2])
+    return m * v
+
+
+@wp.func
+def is_diagonal(m: mat33d) -> bool:
+    z = f64(0.0)
+    return m[0, 1] == z and m[0, 2] == z and m[1, 0] == z and m[1, 2] == z and m[2, 0] == z and m[2, 1] == z
+
+
+@wp.func
+def angular_acceleration(
+    q: quatd, w_body: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, diagonal: bool
+) -> vec3d:
     """Equation 4 in body space, with the gyroscopic term; the world torque is held constant over the step.
-    A zero torque is not rotated into the body frame: the result is the same to the bit, a third cheaper."""
-    gyro = wp.cross(w_body, inertia * w_body)
+    A zero torque is not rotated into the body frame, and a diagonal inertia (a body built on its principal
+    axes) is applied by its diagonal: the result is the same, for much less work."""
+    gyro = wp.cross(w_body, inertia_times(inertia, w_body, diagonal))
     if torque[0] == f64(0.0) and torque[1] == f64(0.0) and torque[2] == f64(0.0):
-        return inv_inertia * (-gyro)
-    return inv_inertia * (wp.quat_rotate_inv(q, torque) - gyro)
+        return inertia_times(inv_inertia, -gyro, diagonal)
+    return inertia_times(inv_inertia, wp.quat_rotate_inv(q, torque) - gyro, diagonal)
 
 
 MAX_SUBSTEP_ROTATION = wp.constant(wp.float64(0.25))  # rad per RK4 substep of the rotation
@@ -31,23 +48,23 @@ MAX_SUBSTEPS = wp.constant(64)
 
 
 @wp.func
-def rk4_rotation(q: quatd, wb: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, h: f64):
-    """One classic RK4 step of equations 3 and 4 for (q, body-space w)."""
+def rk4_rotation(q: quatd, wb: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, h: f64, diagonal: bool):
+    """One classic RK4 step of equations 3 and 4 for (q, body-space w); `diagonal`: the inertia is."""
     half = f64(0.5) * h
     k1q = rotation_rate(q, wb)
-    k1w = angular_acceleration(q, wb, inertia, inv_inertia, torque)
+    k1w = angular_acceleration(q, wb, inertia, inv_inertia, torque, diagonal)
     q2 = q + k1q * half
     w2 = wb + k1w * half
     k2q = rotation_rate(q2, w2)
-    k2w = angular_acceleration(q2, w2, inertia, inv_inertia, torque)
+    k2w = angular_acceleration(q2, w2, inertia, inv_inertia, torque, diagonal)
     q3 = q + k2q * half
     w3 = wb + k2w * half
     k3q = rotation_rate(q3, w3)
-    k3w = angular_acceleration(q3, w3, inertia, inv_inertia, torque)
+    k3w = angular_acceleration(q3, w3, inertia, inv_inertia, torque, diagonal)
     q4 = q + k3q * h
     w4 = wb + k3w * h
     k4q = rotation_rate(q4, w4)
-    k4w = angular_acceleration(q4, w4, inertia, inv_inertia, torque)
+    k4w = angular_acceleration(q4, w4, inertia, inv_inertia, torque, diagonal)
     sixth = h / f64(6.0)
     q1 = wp.normalize(q + (k1q + k2q * f64(2.0) + k3q * f64(2.0) + k4q) * sixth)
     return q1, wb + (k1w + k2w * f64(2.0) + k3w * f64(2.0) + k4w) * sixth
@@ -82,8 +99,9 @@ def predict_body(
     n = wp.max(n, 1)
     hs = h / f64(n)
     q1 = q
+    diagonal = is_diagonal(inertia)
     for _ in range(n):
-        q1, wb = rk4_rotation(q1, wb, inertia, inv_inertia, torque, hs)
+        q1, wb = rk4_rotation(q1, wb, inertia, inv_inertia, torque, hs, diagonal)
     return x1, q1, v1, wp.quat_rotate(q1, wb)
 
 
