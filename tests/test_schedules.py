@@ -210,3 +210,19 @@ def test_the_readme_step_time_block_is_the_committed_json():
     text = (root / "README.md").read_text()
     block = text[text.index("<!-- step-time:begin -->") + 24 : text.index("<!-- step-time:end -->")]
     assert block.strip() == breakdown.table(result).strip()
+
+
+def test_order_and_fall_back_under_the_fused_schedule():
+    """Compositions (order 4, 6) run on the parallel schedule; a step recorded with fall_back() is taken there
+    too, with its reason, and the fused schedule goes on after it."""
+    model = scenes.chain(5).finalize()
+    composed = wi.Simulator(model, 1 / 60, order=4)
+    assert composed.schedule == "parallel" and "order 4" in composed.schedule_note
+    fused, parallel = (wi.Simulator(model, 1 / 60, schedule=s) for s in ("fused", "parallel"))
+    results = []
+    for sim in (fused, parallel):
+        sim.step(3)
+        sim.fall_back("an impact")
+        results.append([sim.step(), *sim.simulate(5 / 60)])
+    assert results[0] == results[1] and results[0][0].fallback == "an impact"
+    np.testing.assert_array_equal(fused.positions(), parallel.positions())
