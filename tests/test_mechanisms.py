@@ -295,3 +295,19 @@ def test_checkpoint_and_reset_keep_the_motors(tmp_path):
     np.testing.assert_array_equal(resumed, ahead)
     sim.reset()
     assert sim.drive_target.numpy()[motor] == 0.5 and not sim.drive_integral.numpy().any()
+
+
+def test_limits_refuse_composed_orders_and_springs_take_them():
+    """A limit's impact and a saturating stiff motor are not reversible: a composition of order 4 would run
+    them backwards in its negative substeps, so it is refused naming why; springs are smooth and compose."""
+    b, _, joint = rod_on_hinge()
+    b.add_joint_limit(joint, -0.3, 0.3)
+    with pytest.raises(ValueError, match="not reversible"):
+        wi.Simulator(b.finalize(), dt=0.01, order=4)
+    m, k = 2.0, 50.0
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    body = b.add_body(m, (0.1, 0.1, 0.1), (1.0, 0.0, 0.0), linear_velocity=(0.3, 0.0, 0.0))
+    b.add_spring(None, body, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), k)
+    sim = wi.Simulator(b.finalize(), dt=0.05, order=4)
+    t, x = run(sim, 200, lambda s: s.positions()[0, 0] - 1.0)
+    np.testing.assert_allclose(np.diff(crossings(t, x)), 2.0 * math.pi * math.sqrt(m / k), rtol=1e-4)

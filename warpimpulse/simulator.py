@@ -315,7 +315,8 @@ class Simulator:
             self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate, integrate,
                                       correct_limits, correct_limit_velocities)  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
-         self._integrate_drives, self._correct_limits, self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
+         self._integrate_drives, self._correct_limits,
+         self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
 
     def _coupled_prediction(self, h: float) -> Launches:
         """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""
