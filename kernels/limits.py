@@ -206,9 +206,8 @@ def limit_matrix(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     limit_coupling_in: wp.array(dtype=vec3d),
     limit_response_in: wp.array(dtype=vec3d),
-    # Data out: S, row-major (rows k, l), and its diagonal
+    # Data out: S, row-major (rows k, l)
     limit_matrix_out: wp.array(dtype=f64),
-    limit_mobility_out: wp.array(dtype=f64),
 ):
     """The rows' own system with the joints holding: S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l, the rate change of
     row k per unit impulse of row l. A diagonal is kept at least 1e-9 of its free value g M^-1 g^T (a row the
@@ -238,7 +237,6 @@ def limit_matrix(
             held -= wp.dot(limit_coupling_in[k * nc + i], limit_response_in[l * nc + i])
     if k == l:
         held = wp.max(held, f64(1.0e-9) * free)
-        limit_mobility_out[k] = held
     limit_matrix_out[k * nl + l] = held
 
 

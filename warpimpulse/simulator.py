@@ -217,9 +217,9 @@ class Simulator:
         self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
         nl = model.limit_count
         self.limit_impulse = wp.zeros(nl, dtype=wp.float64, device=d)  # accumulated over the step, push only
-        (self.limit_value, self.limit_rate, self.limit_error, self.limit_mobility, self.limit_velocity_impulse,
-         self.limit_rhs, self.limit_delta, self.limit_low, self.limit_high, self.limit_goal, self.limit_before,
-         self.limit_scratch) = (wp.zeros(nl, dtype=wp.float64, device=d) for _ in range(12))  # fmt: skip
+        (self.limit_value, self.limit_rate, self.limit_error, self.limit_velocity_impulse, self.limit_rhs,
+         self.limit_delta, self.limit_low, self.limit_high, self.limit_goal, self.limit_before,
+         self.limit_scratch) = (wp.zeros(nl, dtype=wp.float64, device=d) for _ in range(11))  # fmt: skip
         self.limit_mask = wp.zeros(nl, dtype=wp.int32, device=d)
         self.limit_matrix = wp.zeros(nl * nl, dtype=wp.float64, device=d)  # the rows' system S
         self.limit_work = wp.zeros(nl * nl, dtype=wp.float64, device=d)
