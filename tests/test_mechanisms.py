@@ -311,3 +311,22 @@ def test_limits_refuse_composed_orders_and_springs_take_them():
     sim = wi.Simulator(b.finalize(), dt=0.05, order=4)
     t, x = run(sim, 200, lambda s: s.positions()[0, 0] - 1.0)
     np.testing.assert_allclose(np.diff(crossings(t, x)), 2.0 * math.pi * math.sqrt(m / k), rtol=1e-4)
+
+
+def test_energy_counts_the_springs_and_is_conserved():
+    """Two bodies on a spring, one hinged to the world with a joint spring, no gravity: kinetic energy turns
+    into elastic energy and back, and the sum stays put (the sum without the springs' share would swing)."""
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    a = b.add_body(1.0, (0.02, 0.02, 0.02), (0.0, 0.0, 0.0), linear_velocity=(0.0, 0.3, 0.0))
+    c = b.add_body(2.0, (0.03, 0.05, 0.04), (1.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.4))
+    b.add_spring(a, c, (0.0, 0.0, 0.0), (1.0, 0.1, 0.0), stiffness=40.0, rest_length=0.8)
+    hinge = b.add_joint_revolute(None, c, (1.5, 0.0, 0.0), (0.0, 0.0, 1.0))
+    b.add_joint_spring(hinge, stiffness=3.0, rest=0.1)
+    sim = wi.Simulator(b.finalize("cpu"), 1 / 600, tolerance=1e-10)
+    energies, elastic = [], []
+    for _ in range(600):
+        sim.step()
+        energies.append(sim.energy())
+        elastic.append(sim.potential_energy())
+    assert np.ptp(elastic) > 0.1 * max(elastic)  # energy really moves between the two forms
+    assert np.ptp(energies) < 1e-4 * max(energies)

@@ -29,8 +29,8 @@ from .kernels import rigid as rigid_kernels
 from .launch import Launches, capture, record
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
-from .transforms import quat_to_matrix
-from .types import FORMULATIONS, SOLVERS
+from .transforms import quat_rotate, quat_to_matrix
+from .types import DRIVE_MODES, FORMULATIONS, SOLVERS
 from .verbosity import verbose as show_warp_messages
 
 POLICIES = ("raise", "warn")
@@ -858,7 +858,29 @@ class Simulator:
         iw = np.einsum("nij,njk,nlk->nil", r, self.model.host.body_inertia, r)
         return float(0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
 
+    def potential_energy(self) -> float:
+        """Gravity's potential energy plus the elastic energy of the springs and joint springs, J (zero for
+        gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
+        and store none."""
+        h = self.model.host
+        x = self.positions()
+        energy = -float(np.sum(h.body_mass * (x @ h.gravity)))
+        if len(h.spring_params):
+            q = self.orientations()
+            ends = []
+            for body, anchor in ((h.spring_body0, h.spring_anchor0), (h.spring_body1, h.spring_anchor1)):
+                world = body < 0  # an anchor on the world is a world point
+                pose_q = np.where(world[:, None], [0.0, 0.0, 0.0, 1.0], q[body])
+                pose_x = np.where(world[:, None], 0.0, x[body])
+                ends.append(pose_x + quat_rotate(pose_q, anchor))
+            stretch = np.linalg.norm(ends[1] - ends[0], axis=1) - h.spring_params[:, 2]
+            energy += float(np.sum(0.5 * h.spring_params[:, 0] * stretch**2))
+        for d in np.flatnonzero(~h.drive_motor & (h.drive_mode == DRIVE_MODES.index("position"))):
+            offset = self.joint_coordinates(int(h.drive_joint[d]))[0] - h.drive_target[d]
+            energy += 0.5 * float(h.drive_gains[d, 0]) * offset**2
+        return energy
+
     def energy(self) -> float:
-        """Kinetic plus gravitational potential energy, J."""
-        potential = -np.sum(self.model.host.body_mass * (self.positions() @ self.model.host.gravity))
-        return self.kinetic_energy() + float(potential)
+        """Kinetic plus potential energy (`potential_energy`), J: conserved by a scene without loads, motors,
+        dampers or limits."""
+        return self.kinetic_energy() + self.potential_energy()
