@@ -130,7 +130,8 @@ def _stage_kernels(ns):
                         slot_col: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
                         slot_code: wp.array(dtype=int), slot_ref: wp.array(dtype=int),
                         inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
-                        jac_ang: wp.array(dtype=mat33d), pivot_tolerance: f64, col_start: wp.array(dtype=int),
+                        jac_ang: wp.array(dtype=mat33d), pivot_tolerance: f64, loop_tolerance: f64,
+                        col_loop: wp.array(dtype=int), col_start: wp.array(dtype=int),
                         update_start: wp.array(dtype=int), update_target: wp.array(dtype=int),
                         update_a: wp.array(dtype=int), update_b: wp.array(dtype=int),
                         update_sign: wp.array(dtype=f64), col_sign: wp.array(dtype=f64),
@@ -151,7 +152,7 @@ def _stage_kernels(ns):
                 for j in range(col_start.shape[0] - 1):
                     step_kernels.factor_column(
                         j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
-                        pivot_tolerance, values, diag_inv, singular,
+                        col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
                     )  # fmt: skip
 
     @wp.kernel(module=module)

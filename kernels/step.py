@@ -305,10 +305,12 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         augmented: int,
         offset: int,
         pivot_tolerance: f64,
+        loop_tolerance: f64,
         perm: wp.array(dtype=int),
         col_start: wp.array(dtype=int),
         col_row: wp.array(dtype=int),
         col_sign: wp.array(dtype=f64),
+        col_loop: wp.array(dtype=int),
         update_start: wp.array(dtype=int),
         update_target: wp.array(dtype=int),
         update_a: wp.array(dtype=int),
@@ -440,10 +442,11 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                     s, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
                     slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
                 )  # fmt: skip
+            singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
             for j in range(col_start.shape[0] - 1):
                 factor_column(
-                    j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
-                    pivot_tolerance, values, diag_inv, singular,
+                    j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
+                    pivot_tolerance, loop_tolerance, values, diag_inv, singular,
                 )  # fmt: skip
             verr = velocity_errors_all(
                 constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,

@@ -31,6 +31,18 @@ def _free_bodies() -> wi.SceneBuilder:
     return builder
 
 
+def _welded_hinge() -> wi.SceneBuilder:
+    """A hinge and a fixed joint on the same pair, hung from the world: the loop joint's redundant rows are
+    regularised in the factor (kernels/cholesky.py, `factor_column`)."""
+    b = wi.SceneBuilder()
+    base = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 0.0), name="base")
+    arm = b.add_body(2.0, (0.1, 0.2, 0.3), (1.0, 0.0, 0.0), name="arm")
+    b.add_joint_ball(None, base, (-0.5, 0.0, 0.0), name="pivot")
+    b.add_joint_fixed(base, arm, (0.5, 0.0, 0.0), name="weld")
+    b.add_joint_revolute(base, arm, (0.5, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
+    return b
+
+
 MIXED = ["ball", "prismatic", "universal", "fixed", "cylindrical", "planar", "revolute"]
 # (scene, dt, steps, Simulator options): every solver the fused schedule has, both formulations, every
 # constraint kind, model forces that end within the run, fast spins (split steps), failing steps (halved).
@@ -45,6 +57,7 @@ CASES = {
     "free_bodies": (_free_bodies, 1 / 60, 30, {}),
     "spin_split": (lambda: _spinning_pendulum(100.0), 1 / 60, 20, {}),
     "spin_split_iterative": (lambda: _spinning_pendulum(100.0), 1 / 60, 10, {"solver": "iterative"}),
+    "loop_redundant_rows": (_welded_hinge, 1 / 60, 60, {}),
     "chain50_halved": (lambda: scenes.chain(50), 1 / 30, 60, {}),
 }
 
@@ -66,6 +79,7 @@ def test_fused_and_parallel_agree_bit_for_bit(case):
     for a, b in zip(fused_state, parallel_state):
         np.testing.assert_array_equal(a, b)
     assert fused.step_count == parallel.step_count and fused.time == parallel.time
+    assert fused.redundant_rows == parallel.redundant_rows
 
 
 def test_the_cases_reach_the_host_paths():

@@ -27,6 +27,7 @@ class Graph:
     constraint_joint: np.ndarray  # (constraints,) int: the joint a constraint belongs to
     joint_parent: np.ndarray  # (joints,) int
     joint_child: np.ndarray  # (joints,) int
+    joint_loop: np.ndarray | None = None  # (joints,) bool: close loops with these where there is a choice
 
     @property
     def body_count(self) -> int:
@@ -108,13 +109,17 @@ class Topology:
 
     def pattern(self, formulation: str = "auto") -> Pattern:
         """The factor pattern of `formulation`, built once. "auto" takes K while every body has few
-        constraints (then K is as sparse as it gets, and smaller), else the one with fewer block updates."""
+        constraints (then K is as sparse as it gets, and smaller), else the one with fewer block updates. With
+        loop-closing joints "auto" takes K: their redundant rows are judged against K's assembled diagonal
+        (`kernels/cholesky.py`), which the augmented matrix does not have (its constraint diagonal is 0)."""
+        if formulation == "auto" and self.loop_joints:
+            formulation = "constraint"
         if formulation == "auto":
             cost = constraint_cost(self.graph)
             small = cost <= 8.0 * (self.graph.body_count + self.graph.constraint_count)
             formulation = "constraint" if small or self.pattern("body").updates >= cost else "body"
         if formulation not in self._patterns:
-            build = constraint_pattern if formulation == "constraint" else body_pattern
+            build = {"constraint": constraint_pattern, "body": body_pattern, "split": split_pattern}[formulation]
             pattern = build(self.graph, self.depth, self.loop_joints)
             if self.level_order:
                 order = np.argsort(pattern.height, kind="stable")
@@ -179,12 +184,15 @@ def shared_sides(graph: Graph, i: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 
 def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
-    """Depth of every body from the world (or from a root per floating island), and the loop joints.
+    """Depth of every body from the world (or from a root per floating island), and the loop joints: those
+    the breadth-first spanning tree does not use. Joints marked `joint_loop` (USD's excludeFromArticulation)
+    join the tree only where no other joint reaches a body, so they close the loops when the scene says so.
 
-    A breadth-first search a level at a time: a level's frontier, in discovery order, expands to its neighbours
-    in joint order, and a body found twice keeps its first finder, which is the order of a queue: the same
-    tree, depths and loop joints as a body-at-a-time search."""
+    A breadth-first search a round at a time: a round's frontier, in queue order, expands to its neighbours in
+    joint order, and a body found twice keeps its first finder, which is the order of a queue: the same tree,
+    depths and loop joints as a body-at-a-time search."""
     n, parent, child = graph.body_count, graph.joint_parent, graph.joint_child
+    hinted = np.zeros(graph.joint_count, bool) if graph.joint_loop is None else np.asarray(graph.joint_loop, bool)
     depth = np.full(n, -1, dtype=np.int64)
     tree = np.zeros(graph.joint_count, dtype=bool)
     if n == 0:
@@ -197,32 +205,44 @@ def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
     via = np.concatenate([free, free])[order]
     start = np.searchsorted(u[order], np.arange(n + 1))
 
-    def grow(frontier: np.ndarray, level: int) -> None:
+    def grow(frontier: np.ndarray, allow_hinted: bool) -> None:
         while len(frontier):
             counts = start[frontier + 1] - start[frontier]
             group, offset = _ranges(counts)
             edges = start[frontier][group] + offset
-            found, joints = other[edges], via[edges]
+            found, joints, finder = other[edges], via[edges], frontier[group]
             new = depth[found] < 0
-            found, joints = found[new], joints[new]
+            if not allow_hinted:
+                new &= ~hinted[joints]
+            found, joints, finder = found[new], joints[new], finder[new]
             first = _first_occurrences(found)
-            frontier, level = found[first], level + 1
-            depth[frontier] = level
+            frontier = found[first]
+            depth[frontier] = depth[finder[first]] + 1
             tree[joints[first]] = True
 
-    roots = np.concatenate([child[grounded], np.flatnonzero(graph.body_static)])
-    joints = np.concatenate([np.flatnonzero(grounded), np.full(int(graph.body_static.sum()), -1)])
-    first = _first_occurrences(roots)
-    depth[roots[first]] = 0
-    tree[joints[first][joints[first] >= 0]] = True
-    grow(roots[first], 0)
+    static = np.flatnonzero(graph.body_static)
+    roots = np.concatenate([child[grounded], static])
+    joints = np.concatenate([np.flatnonzero(grounded), np.full(len(static), -1)])
+    for allow_hinted in (False, True):
+        eligible = depth[roots] < 0
+        if not allow_hinted:
+            by_joint = joints >= 0
+            eligible[by_joint] &= ~hinted[joints[by_joint]]
+        take = np.flatnonzero(eligible)[_first_occurrences(roots[eligible])]
+        depth[roots[take]] = 0
+        tree[joints[take][joints[take] >= 0]] = True
+        frontier = roots[take]
+        if allow_hinted:  # grow on from everything reached, now through the marked joints too
+            reached = np.flatnonzero(depth >= 0)
+            frontier = np.concatenate([frontier, reached[np.argsort(depth[reached], kind="stable")]])
+        grow(frontier, allow_hinted)
     # Floating islands, rooted at their first body; a body without joints is an island of its own.
     alone = (depth < 0) & (start[1:] == start[:-1])
     depth[alone] = 0
     for b in np.flatnonzero(depth < 0).tolist():
         if depth[b] < 0:
             depth[b] = 0
-            grow(np.array([b]), 0)
+            grow(np.array([b]), True)
     return depth, np.flatnonzero(~tree).tolist()
 
 
@@ -360,6 +380,20 @@ def constraint_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], 
     st = _structure(perm, *_coupling(graph), graph.constraint_count)
     sides = shared_sides(graph, st["slot_row"], st["slot_col"])
     return _pattern("constraint", st, np.ones(len(perm)), slot_sides=sides)
+
+
+def split_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
+    """K without the blocks that couple a loop joint's constraints to the tree's: the tree's system and the
+    loop joints' system of the method paper's section 4.6, factored apart (no fill between them) and solved
+    side by side from the same prediction in each iteration of the common loop, until both hold."""
+    if perm is None:
+        perm = elimination_order(graph, depth, loop_joints)
+    loops = np.isin(graph.constraint_joint, np.asarray(loop_joints, dtype=np.int64))
+    i, j = _coupling(graph)
+    same = loops[i] == loops[j]
+    st = _structure(perm, i[same], j[same], graph.constraint_count)
+    sides = shared_sides(graph, st["slot_row"], st["slot_col"])
+    return _pattern("split", st, np.ones(len(perm)), slot_sides=sides)
 
 
 def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
