@@ -14,7 +14,7 @@ import numpy as np
 
 from .joints import JOINT_TYPES
 from .model import Model
-from .shapes import Shape
+from .shapes import SHAPE_CODES, Colliders, Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
 from .types import WORLD, ConstraintKind, Quat, Vec3
 
@@ -37,6 +37,18 @@ class Body:
     angular_velocity: np.ndarray  # world frame
     shape: Shape | None = None
     static: bool = False
+    friction: float = 0.5
+    restitution: float = 0.0
+
+
+@dataclass
+class Ground:
+    """A collision plane {x : normal . x = height}, solid on the side opposite the normal."""
+
+    normal: np.ndarray
+    height: float
+    friction: float
+    restitution: float
 
 
 @dataclass
@@ -95,6 +107,16 @@ def _scalar(value, what: str) -> float:
         raise SceneError(f"{what} must be a number, got {value!r}") from None
 
 
+def _material(friction, restitution, what: str) -> tuple[float, float]:
+    """A checked (friction >= 0, restitution in [0, 1]) pair."""
+    friction, restitution = _scalar(friction, f"{what}: friction"), _scalar(restitution, f"{what}: restitution")
+    if not (math.isfinite(friction) and friction >= 0.0):
+        raise SceneError(f"{what}: friction must be a finite number >= 0, got {friction}")
+    if not 0.0 <= restitution <= 1.0:
+        raise SceneError(f"{what}: restitution must be in [0, 1], got {restitution}")
+    return friction, restitution
+
+
 def _axis(value, what: str) -> np.ndarray:
     arr = _vec(value, what)
     norm = float(np.linalg.norm(arr))
@@ -112,6 +134,8 @@ class SceneBuilder:
         self.joints: list[Joint] = []
         self.constraints: list[Constraint] = []
         self.forces: list[Force] = []
+        self.grounds: list[Ground] = []
+        self.collision_filters: set[tuple[int, int]] = set()
         self._body_names: dict[str, int] = {}
 
     # ---------------------------------------------------------------- bodies
@@ -125,6 +149,8 @@ class SceneBuilder:
         angular_velocity: Vec3 | float = 0.0,
         name: str | None = None,
         shape: Shape | None = None,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
         """Add a dynamic body and return its index.
 
@@ -138,7 +164,10 @@ class SceneBuilder:
             linear_velocity: of the centre of mass, world frame (m/s); a scalar fills all three.
             angular_velocity: world frame (rad/s); a scalar fills all three.
             name: unique; defaults to "body<index>". Errors and outputs name the body by it.
-            shape: for display and mass only (bodies do not collide yet).
+            shape: for display, and for collision unless `shape.collide` is False; centred on the centre of mass.
+            friction: Coulomb's coefficient (>= 0) of the body's surface; a contact takes the geometric mean of
+                its two bodies' coefficients.
+            restitution: Newton's coefficient in [0, 1]; a contact takes the larger of its two bodies'.
         """
         name = name or f"body{len(self.bodies)}"
         what = f"body {name!r}"
@@ -147,20 +176,53 @@ class SceneBuilder:
             raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
         return self._append_body(
             name, mass, self._inertia(inertia, what), position, orientation,
-            linear_velocity, angular_velocity, shape, static=False,
+            linear_velocity, angular_velocity, shape, False, friction, restitution,
         )  # fmt: skip
 
     def add_static_body(
-        self, position, orientation=(0.0, 0.0, 0.0, 1.0), name: str | None = None, shape: Shape | None = None
+        self,
+        position,
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        name: str | None = None,
+        shape: Shape | None = None,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
-        """Add a body that never moves (infinite mass); joints may attach to it like to the world."""
+        """Add a body that never moves (infinite mass); joints may attach to it like to the world, and bodies
+        collide with its shape (a wall, a slope)."""
         name = name or f"body{len(self.bodies)}"
-        return self._append_body(name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True)
+        return self._append_body(
+            name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True, friction, restitution
+        )
 
-    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
+    def add_ground(
+        self, height: float = 0.0, normal: Vec3 = (0.0, 0.0, 1.0), friction: float = 0.5, restitution: float = 0.0
+    ) -> int:
+        """A collision plane {x : normal . x = height} (m), solid on the side opposite `normal` (world frame, any
+        length but zero). Returns its index. Several planes may be added (a floor and a slope)."""
+        what = f"ground {len(self.grounds)}"
+        normal = _axis(normal, f"{what} normal")
+        height = _scalar(height, f"{what} height")
+        if not math.isfinite(height):
+            raise SceneError(f"{what}: height must be finite, got {height}")
+        friction, restitution = _material(friction, restitution, what)
+        self.grounds.append(Ground(normal, height, friction, restitution))
+        return len(self.grounds) - 1
+
+    def filter_collision(self, a: BodyRef, b: BodyRef) -> None:
+        """Bodies a and b never collide with each other (jointed bodies never do anyway)."""
+        i, j = self._body_index(a, "filter_collision"), self._body_index(b, "filter_collision")
+        if WORLD in (i, j) or i == j:
+            raise SceneError(f"filter_collision: needs two different bodies, got {a!r} and {b!r}")
+        self.collision_filters.add((min(i, j), max(i, j)))
+
+    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static, friction, restitution):
         what = f"body {name!r}"
         if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
+        if shape is not None and shape.collide and shape.zero_size():
+            raise SceneError(f"{what}: collision shape {shape.kind} has zero size ({shape})")
+        friction, restitution = _material(friction, restitution, what)
         q = _vec(orientation, f"{what} orientation", 4)
         norm = float(np.linalg.norm(q))
         if norm < 1e-9:
@@ -178,6 +240,8 @@ class SceneBuilder:
                 angular_velocity=_vec(w, f"{what} angular_velocity"),
                 shape=shape,
                 static=static,
+                friction=friction,
+                restitution=restitution,
             )
         )
         self._body_names[name] = len(self.bodies) - 1
@@ -389,6 +453,29 @@ class SceneBuilder:
             force_force=np.array([f.force for f in forces]).reshape(-1, 3),
             force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
             force_until=np.array([f.until for f in forces]),
+            colliders=self._colliders(),
+        )
+
+    def _colliders(self) -> Colliders | None:
+        """The collision geometry, or None for a scene where nothing collides (then the step has no contact
+        stage at all)."""
+        colliding = [b.shape is not None and b.shape.collide for b in self.bodies]
+        if not any(colliding) or (not self.grounds and sum(colliding) < 2):
+            return None
+        pairs = {(min(j.parent, j.child), max(j.parent, j.child)) for j in self.joints if j.parent != WORLD}
+        pairs |= self.collision_filters
+        planes = self.grounds
+        return Colliders(
+            shape_kind=np.array([SHAPE_CODES[b.shape.kind] if c else -1 for b, c in zip(self.bodies, colliding)]),
+            shape_size=np.array([b.shape.collision_size() if c else (0, 0, 0) for b, c in zip(self.bodies, colliding)]),
+            bound=np.array([b.shape.bounding_radius() if c else 0.0 for b, c in zip(self.bodies, colliding)]),
+            friction=np.array([b.friction for b in self.bodies]),
+            restitution=np.array([b.restitution for b in self.bodies]),
+            plane_normal=np.array([g.normal for g in planes]).reshape(-1, 3),
+            plane_offset=np.array([g.height for g in planes]),
+            plane_friction=np.array([g.friction for g in planes]),
+            plane_restitution=np.array([g.restitution for g in planes]),
+            filter_pairs=np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2),
         )
 
     def _check_arrays(self) -> None:

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from .shapes import Colliders
 from .topology import Graph, Topology, analyze
 from .types import ConstraintKind
 from .verbosity import device as warp_device
@@ -84,6 +85,7 @@ class Model:
         force_force: np.ndarray,
         force_torque: np.ndarray,
         force_until: np.ndarray,
+        colliders: Colliders | None = None,
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
         gravity: (3,) m/s^2, world.
@@ -94,8 +96,10 @@ class Model:
         joint_*: name, catalogue type, parent and child body, and the first of its constraints (a joint's
             constraints are consecutive; (k + 1,) with the end last).
         force_*: constant world forces (N) and torques (N m) on bodies, active while t < until (s).
+        colliders: the collision shapes, planes and filters; None where nothing collides.
         """
         self.device = warp_device(device)  # the first call initialises Warp quietly
+        self.colliders = colliders
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)
         inertia = np.asarray(body_inertia, dtype=np.float64).reshape(-1, 3, 3)

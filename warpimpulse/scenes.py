@@ -22,7 +22,7 @@ def _capsule_body(builder: SceneBuilder, top, direction, length, name, color) ->
     """A capsule of total `length` hanging from `top` along `direction`. Returns (body, bottom point)."""
     radius = length / 20.0
     span = length - 2.0 * radius  # distance between the cap centres, where joints sit
-    shape = Shape("capsule", radius=radius, length=span, color=color)
+    shape = Shape("capsule", radius=radius, length=span, color=color, collide=False)
     mass, inertia = shape.mass_properties(DENSITY)
     centre = top + direction * (0.5 * span)
     q = quat_between([0.0, 0.0, 1.0], direction)
@@ -93,7 +93,7 @@ def double_pendulum(length: float = 1.0, mass: float = 1.0, angles=(math.pi / 2,
     """Two uniform rods (capsules) on hinges about y; `angles` from the downward vertical."""
     builder = SceneBuilder()
     radius = 0.02 * length
-    shape = Shape("capsule", radius=radius, length=length - 2.0 * radius, color=(0.8, 0.3, 0.3))
+    shape = Shape("capsule", radius=radius, length=length - 2.0 * radius, color=(0.8, 0.3, 0.3), collide=False)
     inertia = shape.inertia(mass)
     y_axis = np.array([0.0, 1.0, 0.0])
     top, parent = np.zeros(3), None

@@ -18,6 +18,7 @@ import numpy as np
 import warp as wp
 
 from . import coordinates
+from .contacts import ContactStage, Contacts
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
@@ -45,6 +46,9 @@ class StepStats:
     converged: bool = True
     linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
     substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
+    contacts: int = 0  # contact points detected (in the last substep)
+    max_penetration: float = 0.0  # m, the deepest contact after the position correction
+    contact_sweeps: int = 0  # Gauss-Seidel sweeps over the contacts, both phases, summed over the step
 
 
 def _combined(parts: list[StepStats]) -> StepStats:
@@ -57,6 +61,9 @@ def _combined(parts: list[StepStats]) -> StepStats:
         all(p.converged for p in parts),
         sum(p.linear_iterations for p in parts),
         sum(p.substeps for p in parts),
+        parts[-1].contacts,
+        max(p.max_penetration for p in parts),
+        sum(p.contact_sweeps for p in parts),
     )
 
 
@@ -80,6 +87,9 @@ class Simulator:
         max_rotation: float | None = 0.5,
         specialize: bool = True,
         verbose: bool = False,
+        contact_solver: str = "pgs",
+        contact_margin: float = 0.005,
+        broad_phase: str = "bvh",
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -107,6 +117,11 @@ class Simulator:
             of kinds, compiled once and cached on disk); False shares one module for all six kinds.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
             off by default (`warpimpulse.verbosity`).
+        contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
+            found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
+        contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
+            only if the corrections close them).
+        broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
         """
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
@@ -173,6 +188,12 @@ class Simulator:
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
+        self.contact_stage = None
+        if model.colliders is not None:
+            self.contact_stage = ContactStage(
+                model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
+                contact_margin, contact_solver, broad_phase,
+            )  # fmt: skip
         self._update_frames()
         self._check_finite(self.state, 0)
 
@@ -279,7 +300,10 @@ class Simulator:
         self._use_step_size(h)
         wp.capture_launch(self._save_velocities)
         final = depth >= self.max_substep_depth
-        joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        if self.contact_stage is None:
+            joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        else:
+            joint_it, joint_err, linear_iterations, ok = self._correct_with_contacts(h, final)
         if ok:
             self._report_nonfinite(self.pred, self.step_count + 1)  # measured with the last prediction
             if not final and self._turns(h) > 1.0:
@@ -317,8 +341,11 @@ class Simulator:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
             # ill-conditioned K) is reported under the same policy as an iteration limit.
             self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
-        converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
-        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1)
+        stats = StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1)
+        if self.contact_stage is not None:
+            self._contact_velocities(h, stats)
+        stats.converged = stats.max_joint_error <= self.tolerance and stats.max_velocity_error <= self.velocity_tolerance
+        return stats
 
     def _spin_depth(self) -> int:
         """k such that 2**k substeps turn the fastest body of the state at most max_rotation each
@@ -357,6 +384,84 @@ class Simulator:
                 self._apply.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1
+
+    def _joint_iteration(self) -> int:
+        """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns
+        the linear solves it took."""
+        if self.linear is None:
+            self._sweep_positions.launch()
+            wp.capture_launch(self._evaluate)
+            return 0
+        if self._direct:
+            wp.capture_launch(self._iterate)
+            return 1
+        solves = self.linear.solve(self.rhs, self.impulse, None)
+        self._apply.launch()
+        wp.capture_launch(self._evaluate)
+        return solves
+
+    def _correct_with_contacts(self, h: float, final: bool) -> tuple[int, float, int, bool]:
+        """`_correct_joints` with the contacts in the same loop (method paper's way; docs/contacts.md): detect on
+        the first prediction; then, until every joint and every contact holds to the tolerance, correct the
+        joints (one direct solve: the joints as one block), predict, and close the contacts' predicted gaps
+        with push-only impulses at t0 (Gauss-Seidel around that block), and predict again. The error returned
+        is the larger of the joints' and the deepest penetration."""
+        cs = self.contact_stage
+        wp.capture_launch(self._evaluate)
+        cs.detect(h)
+        self._contact_sweeps = 0
+        iterations, linear_iterations, best = 0, 0, math.inf
+        joints = self.model.constraint_count > 0
+        while True:
+            joint_err = self._max_error("joint") if joints else 0.0
+            self._penetration = cs.measure(h)
+            err = max(joint_err, self._penetration)
+            best = min(best, err)
+            if err <= self.tolerance:
+                return iterations, joint_err, linear_iterations, True
+            if not self._may_iterate(iterations, err, "joint", best, final):
+                return iterations, joint_err, linear_iterations, final
+            if joint_err > self.tolerance:
+                linear_iterations += self._joint_iteration()
+                cs.measure(h)
+            self._contact_sweeps += cs.solve_positions(h)
+            wp.capture_launch(self._evaluate)
+            iterations += 1
+
+    def _contact_velocities(self, h: float, stats: StepStats) -> None:
+        """Restitution and friction at t0+h, alternated with the joints' velocity correction until both hold."""
+        cs = self.contact_stage
+        sweeps = cs.solve_velocities(h)
+        if self.model.constraint_count:
+            self._velocity_errors.launch()
+            err = self._max_error("velocity")
+            for _ in range(self.max_iterations):
+                if err <= self.velocity_tolerance:
+                    break
+                if self.linear is None:
+                    self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+                elif self._direct:
+                    wp.capture_launch(self._velocity_fix)
+                else:
+                    self.linear.solve(self.rhs, self.impulse, "velocity")
+                    self._apply.launch()
+                stats.velocity_iterations += 1
+                sweeps += cs.solve_velocities(h)
+                self._velocity_errors.launch()
+                err = self._max_error("velocity")
+            stats.max_velocity_error = err
+        stats.contacts = cs.count
+        stats.max_penetration = self._penetration
+        stats.contact_sweeps = self._contact_sweeps + sweeps
+
+    def contacts(self) -> Contacts:
+        """The contacts of the last step at the current state (`contacts.Contacts`: bodies, points, normals,
+        depths, normal and friction impulses), numpy; empty for a scene without colliders."""
+        if self.contact_stage is None:
+            e = np.zeros(0)
+            return Contacts(e.astype(np.int32), e.astype(np.int32), np.zeros((0, 3)), np.zeros((0, 3)), e, e,
+                            np.zeros((0, 3)))  # fmt: skip
+        return self.contact_stage.contacts()
 
     def _sweep(self, launch: wp.Launch, tolerance: float, what: str, final: bool) -> tuple[int, float]:
         sweeps, best = 0, math.inf
