@@ -440,8 +440,9 @@ def friction_step(
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ) -> vec2d:
-    """The tangential impulse that stops `slip` (a relative velocity), clamped to the cone's disc of radius
-    `limit`; applied, and the new total returned."""
+    """The total tangential impulse of a contact: the one that stops `slip` (a relative velocity) if it lies in
+    the cone's disc of radius `limit` (stick), else `limit` against the slip (slide). The change is applied and
+    the new total returned."""
     t1 = collide.any_perpendicular(n)
     t2 = wp.cross(n, t1)
     k11 = response(t1, t1, ra, rb, ima, imb, ia, ib)
@@ -453,9 +454,11 @@ def friction_step(
     new = old
     if det > f64(0.0):
         new = old + vec2d(-(k22 * s1 - k12 * s2) / det, -(k11 * s2 - k12 * s1) / det)
-    size = wp.length(new)
-    if size > limit:
-        new = new * (limit / size)
+    if wp.length(new) > limit:  # outside the cone: slide, against the slip, at mu times the normal impulse
+        s = wp.length(vec2d(s1, s2))
+        new = vec2d()
+        if s > f64(0.0):
+            new = vec2d(s1, s2) * (-limit / s)
     d = new - old
     p = t1 * d[0] + t2 * d[1]
     apply_impulse(b, p, rb, imb, ib, body_v, body_w)
@@ -479,6 +482,7 @@ def measure(
     contact_anchor_a: wp.array(dtype=vec3d),
     contact_anchor_b: wp.array(dtype=vec3d),
     contact_normal: wp.array(dtype=vec3d),
+    contact_impulse: wp.array(dtype=vec3d),
     # Data out:
     contact_gap_out: wp.array(dtype=f64),
     contact_arm_a_out: wp.array(dtype=vec3d),
@@ -501,7 +505,10 @@ def measure(
     pb = to_world(b, contact_anchor_b[k], pred_x, pred_q)
     g = wp.dot(n, pb - pa)
     contact_gap_out[k] = g
-    wp.atomic_max(contact_error_out, 0, -g)
+    error = -g  # a penetration
+    if contact_impulse[k][0] > f64(0.0):
+        error = wp.abs(g)  # or a push where the bodies do not touch
+    wp.atomic_max(contact_error_out, 0, error)
     ra = vec3d()
     rb = vec3d()
     mean = vec3d()
@@ -587,7 +594,7 @@ def solve_velocities(
     sweeps: int,
     tolerance: f64,
     bounce_speed: f64,
-    contact_tolerance: f64,
+    inv_h: f64,
     # Data in:
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
@@ -609,9 +616,9 @@ def solve_velocities(
     contact_velocity_impulse_out: wp.array(dtype=vec3d),
     contact_error_out: wp.array(dtype=f64),
 ):
-    """The velocity phase at t0+h (module docstring) on the touching contacts: those that pushed in the position
-    phase or whose gap is within `contact_tolerance`. Sweeps until no impulse changes a velocity by more than
-    `tolerance` (m/s). contact_error[2] = the sweeps taken."""
+    """The velocity phase at t0+h (module docstring). A contact apart by g > 0 may approach at up to g / h (it
+    closes in the next step, not further). Sweeps until no impulse changes a velocity by more than `tolerance`
+    (m/s). contact_error[2] = the sweeps taken."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     for k in range(count):
         a = contact_body[k][0]
@@ -633,34 +640,34 @@ def solve_velocities(
         taken += 1
         change = f64(0.0)
         for k in range(count):
-            if contact_impulse[k][0] > f64(0.0) or contact_gap_out[k] <= contact_tolerance:
-                a = contact_body[k][0]
-                b = contact_body[k][1]
-                n = contact_normal[k]
-                ra = contact_arm_a_out[k]
-                rb = contact_arm_b_out[k]
-                ima = body_inv_mass_of(a, body_inv_mass)
-                imb = body_inv_mass_of(b, body_inv_mass)
-                ia = inverse_inertia(a, inv_inertia_world_in)
-                ib = inverse_inertia(b, inv_inertia_world_in)
-                lam = contact_velocity_impulse_out[k]
-                target = f64(0.0)
-                if contact_impact[k] > bounce_speed:
-                    target = contact_material[k][1] * contact_impact[k]
-                u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
-                kn = response(n, n, ra, rb, ima, imb, ia, ib)
-                ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, f64(0.0))
-                dn = ln - lam[0]
-                change = wp.max(change, wp.abs(dn) * kn)
-                apply_impulse(b, n * dn, rb, imb, ib, body_v_out, body_w_out)
-                apply_impulse(a, -n * dn, ra, ima, ia, body_v_out, body_w_out)
-                u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
-                slip = u - n * wp.dot(n, u)
-                old = vec2d(lam[1], lam[2])
-                lt = friction_step(slip, n, contact_material[k][0] * ln, old, a, b, ra, rb, ima, imb, ia, ib,
-                                   body_v_out, body_w_out)  # fmt: skip
-                change = wp.max(change, wp.length(lt - old) * (ima + imb))
-                contact_velocity_impulse_out[k] = vec3d(ln, lt[0], lt[1])
+            a = contact_body[k][0]
+            b = contact_body[k][1]
+            n = contact_normal[k]
+            ra = contact_arm_a_out[k]
+            rb = contact_arm_b_out[k]
+            ima = body_inv_mass_of(a, body_inv_mass)
+            imb = body_inv_mass_of(b, body_inv_mass)
+            ia = inverse_inertia(a, inv_inertia_world_in)
+            ib = inverse_inertia(b, inv_inertia_world_in)
+            lam = contact_velocity_impulse_out[k]
+            # Apart by g > 0: may close it over the next step, not more (a speculative contact).
+            target = -wp.max(contact_gap_out[k], f64(0.0)) * inv_h
+            if contact_impact[k] > bounce_speed:
+                target = contact_material[k][1] * contact_impact[k]
+            u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
+            kn = response(n, n, ra, rb, ima, imb, ia, ib)
+            ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, f64(0.0))
+            dn = ln - lam[0]
+            change = wp.max(change, wp.abs(dn) * kn)
+            apply_impulse(b, n * dn, rb, imb, ib, body_v_out, body_w_out)
+            apply_impulse(a, -n * dn, ra, ima, ia, body_v_out, body_w_out)
+            u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
+            slip = u - n * wp.dot(n, u)
+            old = vec2d(lam[1], lam[2])
+            lt = friction_step(slip, n, contact_material[k][0] * ln, old, a, b, ra, rb, ima, imb, ia, ib,
+                               body_v_out, body_w_out)  # fmt: skip
+            change = wp.max(change, wp.length(lt - old) * (ima + imb))
+            contact_velocity_impulse_out[k] = vec3d(ln, lt[0], lt[1])
         if change <= tolerance:
             break
     contact_error_out[2] = f64(taken)

@@ -115,6 +115,7 @@ class ContactStage:
 
     # ---------------------------------------------------------------- arrays and launches
     def _allocate(self, pairs: int, contacts: int) -> None:
+        """Arrays for this many pairs and contacts."""
         d = self.model.device
         z = wp.zeros
         self.data = SimpleNamespace(
@@ -161,7 +162,7 @@ class ContactStage:
                                        tolerance=0.1 * self.tolerance),  # fmt: skip
                 velocities=self._record(kernels.solve_velocities, 1, sweeps=self.max_sweeps,
                                         tolerance=0.1 * self.velocity_tolerance, bounce_speed=bounce,
-                                        contact_tolerance=self.tolerance),  # fmt: skip
+                                        inv_h=1.0 / h),  # fmt: skip
             )
         return self._launches_by_h[h]
 
@@ -188,7 +189,8 @@ class ContactStage:
             self._allocate(max(pairs, len(self.data.pair_body)) * 2, max(count, len(self.data.contact_body)) * 2)
 
     def measure(self, h: float) -> float:
-        """The deepest penetration of the current prediction (m; 0 when none)."""
+        """The largest contact error of the current prediction (m; 0 when none): a penetration, or the gap of a
+        contact that pushes."""
         if not self.count:
             return 0.0
         self.data.contact_error.zero_()
