@@ -482,7 +482,6 @@ def measure(
     contact_anchor_a: wp.array(dtype=vec3d),
     contact_anchor_b: wp.array(dtype=vec3d),
     contact_normal: wp.array(dtype=vec3d),
-    contact_impulse: wp.array(dtype=vec3d),
     # Data out:
     contact_gap_out: wp.array(dtype=f64),
     contact_arm_a_out: wp.array(dtype=vec3d),
@@ -505,10 +504,7 @@ def measure(
     pb = to_world(b, contact_anchor_b[k], pred_x, pred_q)
     g = wp.dot(n, pb - pa)
     contact_gap_out[k] = g
-    error = -g  # a penetration
-    if contact_impulse[k][0] > f64(0.0):
-        error = wp.abs(g)  # or a push where the bodies do not touch
-    wp.atomic_max(contact_error_out, 0, error)
+    wp.atomic_max(contact_error_out, 0, -g)
     ra = vec3d()
     rb = vec3d()
     mean = vec3d()

@@ -189,8 +189,7 @@ class ContactStage:
             self._allocate(max(pairs, len(self.data.pair_body)) * 2, max(count, len(self.data.contact_body)) * 2)
 
     def measure(self, h: float) -> float:
-        """The largest contact error of the current prediction (m; 0 when none): a penetration, or the gap of a
-        contact that pushes."""
+        """The deepest penetration of the current prediction (m; 0 when none)."""
         if not self.count:
             return 0.0
         self.data.contact_error.zero_()

@@ -107,6 +107,48 @@ def double_pendulum(length: float = 1.0, mass: float = 1.0, angles=(math.pi / 2,
     return builder
 
 
+def box_stack(boxes: int = 10, size: float = 0.2, density: float = 500.0) -> SceneBuilder:
+    """`boxes` cubes of edge `size` (m) stacked on the ground, touching, at rest."""
+    builder = SceneBuilder()
+    shape = Shape("box", size=(size, size, size), color=(0.7, 0.5, 0.3))
+    mass, inertia = shape.mass_properties(density)
+    for i in range(boxes):
+        builder.add_body(mass, inertia, (0.0, 0.0, size * (i + 0.5)), shape=shape, name=f"box{i}")
+    builder.add_ground()
+    return builder
+
+
+def pile(bodies: int = 1000, seed: int = 0) -> SceneBuilder:
+    """`bodies` spheres and capsules (radius 5 cm; alternating) dropped from a loose grid into a box 1.6 m wide
+    (a ground and four static walls), with small random tilts and offsets."""
+    rng = np.random.default_rng(seed)
+    builder = SceneBuilder()
+    width, wall = 1.6, 0.1
+    side = Shape("box", size=(width + 2 * wall, wall, 1.5), color=(0.6, 0.6, 0.6))
+    end = Shape("box", size=(wall, width, 1.5), color=(0.6, 0.6, 0.6))
+    half = 0.5 * (width + wall)
+    for i, (pos, shape) in enumerate(
+        [((0, half, 0.75), side), ((0, -half, 0.75), side), ((half, 0, 0.75), end), ((-half, 0, 0.75), end)]
+    ):
+        builder.add_static_body(pos, name=f"wall{i}", shape=shape)
+    builder.add_ground()
+    sphere = Shape("sphere", radius=0.05, color=(0.2, 0.5, 0.8))
+    capsule = Shape("capsule", radius=0.05, length=0.1, color=(0.8, 0.3, 0.2))
+    per_row = 12
+    spacing = width / per_row
+    for i in range(bodies):
+        shape = sphere if i % 2 == 0 else capsule
+        mass, inertia = shape.mass_properties(DENSITY)
+        layer, cell = divmod(i, per_row * per_row)
+        row, col = divmod(cell, per_row)
+        x = -0.5 * width + spacing * (col + 0.5) + rng.uniform(-0.01, 0.01)
+        y = -0.5 * width + spacing * (row + 0.5) + rng.uniform(-0.01, 0.01)
+        z = 0.1 + 0.22 * layer
+        q = quat_from_axis_angle(rng.normal(size=3), rng.uniform(0.0, math.pi))
+        builder.add_body(mass, inertia, (x, y, z), q, name=f"{shape.kind}{i}", shape=shape)
+    return builder
+
+
 SCENES = {
     "tree31": lambda: binary_tree(31),
     "tree63": lambda: binary_tree(63),
@@ -116,4 +158,6 @@ SCENES = {
     "chain": lambda: chain(10),
     "chain50": lambda: chain(50),
     "double_pendulum": double_pendulum,
+    "box_stack": box_stack,
+    "pile": pile,
 }

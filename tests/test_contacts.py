@@ -1,0 +1,165 @@
+"""Contacts against analytic results: bounce heights, a box on a slope (stick and slide), rolling without
+slipping, a resting stack, no tunnelling, and the errors for bad collision input."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+from warpimpulse import scenes
+from warpimpulse.transforms import quat_from_axis_angle
+
+G = 9.81
+
+
+def _ball(height: float, restitution: float) -> wi.Simulator:
+    b = wi.SceneBuilder()
+    s = wi.Shape("sphere", radius=0.1)
+    m, inertia = s.mass_properties(1000.0)
+    b.add_body(m, inertia, (0.0, 0.0, height), shape=s, restitution=restitution, name="ball")
+    b.add_ground(restitution=restitution)
+    return wi.Simulator(b.finalize(), dt=1.0 / 240.0)
+
+
+def test_bounce_returns_e_squared_of_the_height():
+    e = 0.8
+    sim = _ball(1.1, e)
+    apex, v_prev = [1.0], 0.0
+    for _ in range(int(3.0 * 240)):
+        sim.step()
+        z, v = sim.positions()[0, 2] - 0.1, sim.linear_velocities()[0, 2]
+        if v_prev > 0.0 >= v:
+            apex.append(z)
+        v_prev = v
+    assert len(apex) >= 4
+    ratios = np.array(apex[1:4]) / np.array(apex[0:3])
+    np.testing.assert_allclose(ratios, e * e, rtol=0.01)
+
+
+def _on_slope(theta: float, mu: float, shape: wi.Shape, dt: float = 1.0 / 60.0) -> wi.Simulator:
+    """A body resting on a plane through the origin tilted by theta about y (it slides towards -x)."""
+    b = wi.SceneBuilder()
+    n = np.array([-math.sin(theta), 0.0, math.cos(theta)])
+    m, inertia = shape.mass_properties(500.0)
+    lift = shape.size[2] / 2 if shape.kind == "box" else shape.radius
+    b.add_body(m, inertia, n * lift, quat_from_axis_angle([0, 1, 0], -theta), shape=shape, friction=mu, name="b")
+    b.add_ground(normal=n, friction=mu)
+    return wi.Simulator(b.finalize(), dt=dt)
+
+
+def _travel(sim: wi.Simulator, seconds: float) -> float:
+    x0 = sim.positions()[0]
+    sim.simulate(seconds)
+    return float(np.linalg.norm(sim.positions()[0] - x0))
+
+
+def test_box_sticks_on_a_slope_below_the_friction_angle():
+    theta, mu = math.radians(20.0), 0.5
+    assert math.tan(theta) < mu
+    sim = _on_slope(theta, mu, wi.Shape("box", size=(0.2, 0.2, 0.2)))
+    assert _travel(sim, 5.0) <= 1e-3
+
+
+def test_box_slides_with_coulomb_deceleration():
+    theta, mu, t = math.radians(20.0), 0.2, 2.0
+    sim = _on_slope(theta, mu, wi.Shape("box", size=(0.2, 0.2, 0.2)))
+    a = 2.0 * _travel(sim, t) / t**2
+    assert a == pytest.approx(G * (math.sin(theta) - mu * math.cos(theta)), rel=0.01)
+
+
+def test_sphere_rolls_without_slipping_at_five_sevenths_g_sin_theta():
+    theta, t = math.radians(20.0), 2.0
+    sim = _on_slope(theta, 0.8, wi.Shape("sphere", radius=0.1))
+    a = 2.0 * _travel(sim, t) / t**2
+    assert a == pytest.approx(5.0 / 7.0 * G * math.sin(theta), rel=0.01)
+    # Rolling: the contact point does not slip (v = w x r).
+    v, w = sim.linear_velocities()[0], sim.angular_velocities()[0]
+    n = np.array([-math.sin(theta), 0.0, math.cos(theta)])
+    assert np.linalg.norm(v + np.cross(w, -0.1 * n)) < 1e-3 * np.linalg.norm(v)
+
+
+def _stack(boxes: int) -> wi.Simulator:
+    return wi.Simulator(scenes.box_stack(boxes).finalize(), dt=1.0 / 60.0)
+
+
+def _rests(sim: wi.Simulator, seconds: float) -> None:
+    x0, e0 = sim.positions(), sim.energy()
+    for _ in range(int(round(seconds / sim.dt))):
+        stats = sim.step()
+        assert stats.max_penetration <= sim.tolerance
+    assert np.abs(sim.positions() - x0).max() <= 1e-3
+    assert sim.energy() - e0 <= 1e-6 * abs(e0)  # no energy gained (round-off of the potential aside)
+
+
+def test_short_stack_rests():
+    _rests(_stack(4), 1.0)
+
+
+@pytest.mark.slow
+def test_stack_of_ten_rests_ten_seconds():
+    _rests(_stack(10), 10.0)
+
+
+def test_fast_small_sphere_does_not_tunnel_through_a_thin_box():
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    b.add_static_body((0.0, 0.0, 0.0), name="plate", shape=wi.Shape("box", size=(1.0, 1.0, 0.01)))
+    s = wi.Shape("sphere", radius=0.01)
+    m, inertia = s.mass_properties(1000.0)
+    b.add_body(m, inertia, (0.0, 0.0, 0.2), linear_velocity=(0.0, 0.0, -50.0), shape=s, name="bullet")
+    sim = wi.Simulator(b.finalize(), dt=1.0 / 60.0)  # 0.83 m a step, the plate 1 cm thick
+    sim.simulate(0.5)
+    assert sim.positions()[1, 2] >= 0.005 + 0.01 - 1e-5
+    assert sim.linear_velocities()[1, 2] >= -1e-6
+
+
+def test_contacts_report_the_resting_load():
+    sim = _stack(2)
+    sim.simulate(0.5)
+    c = sim.contacts()
+    ground = c.body_a == -1
+    assert ground.sum() == 4 and (~ground).sum() == 4
+    np.testing.assert_allclose(c.normal[ground], [[0.0, 0.0, 1.0]] * 4, atol=1e-9)
+    assert np.all(np.abs(c.depth) <= sim.tolerance)
+    m = sim.model.host.body_mass
+    # Over a step the ground carries both boxes' weight, the lower box's top the upper one's.
+    assert c.normal_impulse[ground].sum() == pytest.approx(G * m.sum() * sim.dt, rel=1e-3)
+    assert c.normal_impulse[~ground].sum() == pytest.approx(G * m[1] * sim.dt, rel=1e-3)
+
+
+def test_jointed_bodies_do_not_collide_and_scenes_without_colliders_have_no_contact_stage():
+    b = wi.SceneBuilder()
+    box = wi.Shape("box", size=(0.2, 0.2, 0.2))
+    m, inertia = box.mass_properties(500.0)
+    b0 = b.add_body(m, inertia, (0, 0, 1), shape=box, name="a")
+    b1 = b.add_body(m, inertia, (0.1, 0, 1), shape=box, name="b")  # overlapping, welded
+    b.add_joint_fixed(b0, b1, (0.05, 0, 1))
+    assert b.finalize().colliders.filter_pairs.tolist() == [[0, 1]]
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    sim.simulate(0.1)
+    assert len(sim.contacts()) == 0
+    assert wi.Simulator(scenes.binary_tree(7).finalize(), dt=0.01).contact_stage is None
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"shape": wi.Shape("sphere", radius=0.0)}, "body 'bad': collision shape sphere has zero size"),
+        ({"shape": wi.Shape("box", size=(0.1, 0.0, 0.1))}, "body 'bad': collision shape box has zero size"),
+        ({"friction": -0.1}, "body 'bad': friction must be a finite number >= 0"),
+        ({"restitution": 1.5}, r"body 'bad': restitution must be in \[0, 1\]"),
+    ],
+)
+def test_bad_collision_input_names_the_body(kwargs, message):
+    b = wi.SceneBuilder()
+    with pytest.raises(wi.SceneError, match=message):
+        b.add_body(1.0, [0.1, 0.1, 0.1], (0, 0, 0), name="bad", **kwargs)
+
+
+def test_bad_ground_is_refused():
+    with pytest.raises(wi.SceneError, match=r"ground 0: restitution must be in \[0, 1\]"):
+        wi.SceneBuilder().add_ground(restitution=-0.2)
+    with pytest.raises(wi.SceneError, match="ground 0 normal is a zero vector"):
+        wi.SceneBuilder().add_ground(normal=(0, 0, 0))
