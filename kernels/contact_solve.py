@@ -440,25 +440,24 @@ def friction_step(
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ) -> vec2d:
-    """The total tangential impulse of a contact: the one that stops `slip` (a relative velocity) if it lies in
-    the cone's disc of radius `limit` (stick), else `limit` against the slip (slide). The change is applied and
-    the new total returned."""
+    """The contact's total tangential impulse after one projected step against `slip` (a relative velocity):
+    the step uses the largest eigenvalue of the contact's tangential mass matrix, so it never overshoots, and
+    the total is projected onto the cone's disc of radius `limit`. A contact sticks where the disc holds the
+    impulse that stops the slip; else it slides at `limit`, and at convergence against the slip (the projection
+    keeps the direction). The change is applied and the new total returned."""
     t1 = collide.any_perpendicular(n)
     t2 = wp.cross(n, t1)
     k11 = response(t1, t1, ra, rb, ima, imb, ia, ib)
     k12 = response(t1, t2, ra, rb, ima, imb, ia, ib)
     k22 = response(t2, t2, ra, rb, ima, imb, ia, ib)
-    s1 = wp.dot(t1, slip)
-    s2 = wp.dot(t2, slip)
-    det = k11 * k22 - k12 * k12
+    half = f64(0.5) * (k11 - k22)
+    k = f64(0.5) * (k11 + k22) + wp.sqrt(half * half + k12 * k12)
     new = old
-    if det > f64(0.0):
-        new = old + vec2d(-(k22 * s1 - k12 * s2) / det, -(k11 * s2 - k12 * s1) / det)
-    if wp.length(new) > limit:  # outside the cone: slide, against the slip, at mu times the normal impulse
-        s = wp.length(vec2d(s1, s2))
-        new = vec2d()
-        if s > f64(0.0):
-            new = vec2d(s1, s2) * (-limit / s)
+    if k > f64(0.0):
+        new = old - vec2d(wp.dot(t1, slip), wp.dot(t2, slip)) / k
+    size = wp.length(new)
+    if size > limit:
+        new = new * (limit / size)
     d = new - old
     p = t1 * d[0] + t2 * d[1]
     apply_impulse(b, p, rb, imb, ib, body_v, body_w)
@@ -548,10 +547,13 @@ def solve_positions(
     no impulse changes a gap or a slip by more than `tolerance` (m). contact_error[1] = the sweeps taken."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     taken = int(0)
-    for _ in range(sweeps):
+    for sweep in range(sweeps):
         taken += 1
         change = f64(0.0)
-        for k in range(count):
+        for i in range(count):
+            k = i
+            if sweep % 2 == 1:
+                k = count - 1 - i  # symmetric Gauss-Seidel: a stack's support travels both ways
             a = contact_body[k][0]
             b = contact_body[k][1]
             n = contact_normal[k]
@@ -632,10 +634,13 @@ def solve_velocities(
         contact_arm_b_out[k] = rb
         contact_velocity_impulse_out[k] = vec3d()
     taken = int(0)
-    for _ in range(sweeps):
+    for sweep in range(sweeps):
         taken += 1
         change = f64(0.0)
-        for k in range(count):
+        for i in range(count):
+            k = i
+            if sweep % 2 == 1:
+                k = count - 1 - i  # symmetric Gauss-Seidel: a stack's support travels both ways
             a = contact_body[k][0]
             b = contact_body[k][1]
             n = contact_normal[k]
