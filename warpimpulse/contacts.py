@@ -71,7 +71,7 @@ class ContactStage:
         margin: float = 0.005,
         solver: str = "pgs",
         broad_phase: str = "bvh",
-        max_sweeps: int = 200,
+        max_sweeps: int = 30,
     ) -> None:
         if solver not in CONTACT_SOLVERS:
             raise ValueError(f"unknown contact solver {solver!r}; expected one of {CONTACT_SOLVERS}")

@@ -90,6 +90,7 @@ class Simulator:
         contact_solver: str = "pgs",
         contact_margin: float = 0.005,
         broad_phase: str = "bvh",
+        contact_sweeps: int = 30,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -122,6 +123,9 @@ class Simulator:
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
             only if the corrections close them).
         broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
+        contact_sweeps: Gauss-Seidel sweeps over the contacts at most per solve ("pgs"), between two
+            predictions in the position phase (the loop goes on until the contacts hold) and in all for the
+            velocity phase.
         """
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
@@ -192,7 +196,7 @@ class Simulator:
         if model.colliders is not None:
             self.contact_stage = ContactStage(
                 model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
-                contact_margin, contact_solver, broad_phase,
+                contact_margin, contact_solver, broad_phase, contact_sweeps,
             )  # fmt: skip
         self._update_frames()
         self._check_finite(self.state, 0)
