@@ -160,7 +160,7 @@ class ContactStage:
                 measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
                 positions=self._record(kernels.solve_positions, 1, h=h, sweeps=self.sweeps,
                                        tolerance=0.1 * self.tolerance),  # fmt: skip
-                velocities=self._record(kernels.solve_velocities, 1, sweeps=self.max_sweeps,
+                velocities=self._record(kernels.solve_velocities, 1, sweeps=8 * self.max_sweeps,
                                         tolerance=0.1 * self.velocity_tolerance, bounce_speed=bounce,
                                         inv_h=1.0 / h),  # fmt: skip
             )

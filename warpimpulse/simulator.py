@@ -123,9 +123,9 @@ class Simulator:
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
             only if the corrections close them).
         broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
-        contact_sweeps: Gauss-Seidel sweeps over the contacts at most per solve ("pgs"), between two
-            predictions in the position phase (the loop goes on until the contacts hold) and in all for the
-            velocity phase.
+        contact_sweeps: Gauss-Seidel sweeps over the contacts at most per position solve ("pgs"), between two
+            predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
+            impulses settle to a tenth of `velocity_tolerance`, at most 8 times as many.
         """
         if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
