@@ -173,9 +173,7 @@ def capsule_sphere(c: vec3d, axis: vec3d, r: f64, half: f64, cb: vec3d, rb: f64,
 
 
 @wp.func
-def capsule_capsule(
-    ca: vec3d, axa: vec3d, ra: f64, ha: f64, cb: vec3d, axb: vec3d, rb: f64, hb: f64, margin: f64
-):
+def capsule_capsule(ca: vec3d, axa: vec3d, ra: f64, ha: f64, cb: vec3d, axb: vec3d, rb: f64, hb: f64, margin: f64):
     """The closest points of the two axes; nearly parallel axes give two points, at the ends of the overlap, so
     capsules lying side by side do not roll about their contact."""
     a0 = ca - axa * ha
@@ -328,9 +326,7 @@ def clip(poly: mat83d, count: int, normal: vec3d, offset: f64):
 
 
 @wp.func
-def face_contact(
-    cr: vec3d, rr: mat33d, hr: vec3d, face: int, n: vec3d, ci: vec3d, ri: mat33d, hi: vec3d, margin: f64
-):
+def face_contact(cr: vec3d, rr: mat33d, hr: vec3d, face: int, n: vec3d, ci: vec3d, ri: mat33d, hi: vec3d, margin: f64):
     """The reference box (cr, rr, hr) whose face `face` has outward normal n, the incident box (ci, ri, hi):
     the incident face clipped to the reference face's sides. Returns the points on the incident box and their
     gaps below the reference face, at most four (the extremes along the face's two directions)."""

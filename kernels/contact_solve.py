@@ -221,7 +221,9 @@ def emit(
             contact_normal[k] = n
             contact_depth[k] = g
             contact_material[k] = wp.vec2d(friction, restitution)
-            vn = wp.dot(n, point_velocity(b, pb, pred_x, pred_v, pred_w) - point_velocity(a, pa, pred_x, pred_v, pred_w))
+            vn = wp.dot(
+                n, point_velocity(b, pb, pred_x, pred_v, pred_w) - point_velocity(a, pa, pred_x, pred_v, pred_w)
+            )
             impact = f64(0.0)
             if vn < f64(0.0) and g < f64(0.0):
                 impact = wp.sqrt(wp.max(vn * vn - f64(2.0) * an * g, f64(0.0)))

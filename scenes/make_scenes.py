@@ -78,6 +78,8 @@ SCENES = {
     "star127": lambda: scenes.star(127),
     "chain": lambda: scenes.chain(10),
     "mechanism": mechanism,
+    "box_stack": lambda: scenes.box_stack(10),
+    "pile": lambda: scenes.pile(1000),
 }
 # Step sizes recorded in the files, where the default 1/fps is too coarse: the chain falling from the
 # horizontal whips its last links and diverges at t = 6.9 s with h = 1/30 (runs to 10 s with h = 1/120).

@@ -163,3 +163,58 @@ def test_bad_ground_is_refused():
         wi.SceneBuilder().add_ground(restitution=-0.2)
     with pytest.raises(wi.SceneError, match="ground 0 normal is a zero vector"):
         wi.SceneBuilder().add_ground(normal=(0, 0, 0))
+
+
+def test_usd_round_trip_keeps_colliders_materials_grounds_and_filters(tmp_path):
+    from pxr import Usd, UsdPhysics
+
+    from warpimpulse import usd
+
+    b = scenes.box_stack(3)
+    b.bodies[1].friction, b.bodies[2].restitution = 0.25, 0.5
+    b.add_ground(height=-1.0, normal=(0.0, 0.1, 1.0), friction=0.7)
+    b.filter_collision(0, 2)
+    path = tmp_path / "stack.usda"
+    usd.save_scene(b, path)
+    stage = Usd.Stage.Open(str(path))
+    colliders = sorted(str(p.GetPath()) for p in stage.Traverse() if p.HasAPI(UsdPhysics.CollisionAPI))
+    assert colliders == ["/World/Ground0", "/World/Ground1", "/World/box0/geom", "/World/box1/geom", "/World/box2/geom"]
+    back = usd.load_stage(path).builder
+    assert [body.shape.size for body in back.bodies] == [(0.2, 0.2, 0.2)] * 3
+    assert [round(body.friction, 6) for body in back.bodies] == [0.5, 0.25, 0.5]
+    assert [body.restitution for body in back.bodies] == [0.0, 0.0, 0.5]
+    assert back.collision_filters == {(0, 2)}
+    assert len(back.grounds) == 2
+    np.testing.assert_allclose(
+        back.grounds[1].normal, np.array([0.0, 0.1, 1.0]) / np.linalg.norm([0, 0.1, 1]), atol=1e-6
+    )
+    assert back.grounds[1].height == pytest.approx(-1.0, abs=1e-6)
+    assert back.grounds[1].friction == pytest.approx(0.7, rel=1e-6)
+    # The model's colliders survive a recording without the builder (usd.scene.builder_from_model).
+    from warpimpulse.usd.scene import builder_from_model
+
+    again = builder_from_model(b.finalize())
+    assert again.finalize().colliders.filter_pairs.tolist() == [[0, 2]]
+    assert len(again.grounds) == 2 and again.bodies[2].restitution == 0.5
+
+
+def test_usd_bad_material_names_the_prim(tmp_path):
+    from warpimpulse import usd
+
+    path = tmp_path / "ball.usda"
+    b = _ball_builder()
+    usd.save_scene(b, path)
+    text = path.read_text().replace("physics:restitution = 0.5", "physics:restitution = 1.5")
+    path.write_text(text)
+    with pytest.raises(
+        wi.SceneError, match=r"/World/PhysicsMaterials/material0: physics:restitution must be in \[0, 1\]"
+    ):
+        usd.load_stage(path)
+
+
+def _ball_builder() -> wi.SceneBuilder:
+    b = wi.SceneBuilder()
+    s = wi.Shape("sphere", radius=0.1)
+    m, inertia = s.mass_properties(1000.0)
+    b.add_body(m, inertia, (0, 0, 1), shape=s, restitution=0.5, name="ball")
+    return b

@@ -107,7 +107,7 @@ def _scalar(value, what: str) -> float:
         raise SceneError(f"{what} must be a number, got {value!r}") from None
 
 
-def _material(friction, restitution, what: str) -> tuple[float, float]:
+def checked_material(friction, restitution, what: str) -> tuple[float, float]:
     """A checked (friction >= 0, restitution in [0, 1]) pair."""
     friction, restitution = _scalar(friction, f"{what}: friction"), _scalar(restitution, f"{what}: restitution")
     if not (math.isfinite(friction) and friction >= 0.0):
@@ -205,7 +205,7 @@ class SceneBuilder:
         height = _scalar(height, f"{what} height")
         if not math.isfinite(height):
             raise SceneError(f"{what}: height must be finite, got {height}")
-        friction, restitution = _material(friction, restitution, what)
+        friction, restitution = checked_material(friction, restitution, what)
         self.grounds.append(Ground(normal, height, friction, restitution))
         return len(self.grounds) - 1
 
@@ -222,7 +222,7 @@ class SceneBuilder:
             raise SceneError(f"{what}: a body of that name already exists")
         if shape is not None and shape.collide and shape.zero_size():
             raise SceneError(f"{what}: collision shape {shape.kind} has zero size ({shape})")
-        friction, restitution = _material(friction, restitution, what)
+        friction, restitution = checked_material(friction, restitution, what)
         q = _vec(orientation, f"{what} orientation", 4)
         norm = float(np.linalg.norm(q))
         if norm < 1e-9:

@@ -96,8 +96,9 @@ class ContactStage:
             body_restitution=_array(c.restitution, wp.float64, d),
             plane_normal=_array(c.plane_normal, wp.vec3d, d),
             plane_offset=_array(c.plane_offset, wp.float64, d),
-            plane_material=_array(np.stack([c.plane_friction, c.plane_restitution], axis=1).reshape(-1, 2),
-                                  wp.vec2d, d),  # fmt: skip
+            plane_material=_array(
+                np.stack([c.plane_friction, c.plane_restitution], axis=1).reshape(-1, 2), wp.vec2d, d
+            ),  # fmt: skip
             filter_keys=_array((c.filter_pairs[:, 0] * n + c.filter_pairs[:, 1]).astype(np.int64), wp.int64, d),
             margin=float(margin),
             lowers=wp.zeros(len(colliders), dtype=wp.vec3, device=d),
@@ -158,11 +159,17 @@ class ContactStage:
                 narrow=self._record(kernels.narrow_phase, len(data.pair_body)),
                 planes=self._record(kernels.plane_phase, (ncol, self.plane_count)),
                 measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
-                positions=self._record(kernels.solve_positions, 1, h=h, sweeps=self.sweeps,
-                                       tolerance=0.1 * self.tolerance),  # fmt: skip
-                velocities=self._record(kernels.solve_velocities, 1, sweeps=8 * self.max_sweeps,
-                                        tolerance=0.1 * self.velocity_tolerance, bounce_speed=bounce,
-                                        inv_h=1.0 / h),  # fmt: skip
+                positions=self._record(
+                    kernels.solve_positions, 1, h=h, sweeps=self.sweeps, tolerance=0.1 * self.tolerance
+                ),  # fmt: skip
+                velocities=self._record(
+                    kernels.solve_velocities,
+                    1,
+                    sweeps=8 * self.max_sweeps,
+                    tolerance=0.1 * self.velocity_tolerance,
+                    bounce_speed=bounce,
+                    inv_h=1.0 / h,
+                ),  # fmt: skip
             )
         return self._launches_by_h[h]
 

@@ -18,7 +18,7 @@ import numpy as np
 import warp as wp
 
 from . import coordinates
-from .contacts import ContactStage, Contacts
+from .contacts import Contacts, ContactStage
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
@@ -348,7 +348,9 @@ class Simulator:
         stats = StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1)
         if self.contact_stage is not None:
             self._contact_velocities(h, stats)
-        stats.converged = stats.max_joint_error <= self.tolerance and stats.max_velocity_error <= self.velocity_tolerance
+        stats.converged = (
+            stats.max_joint_error <= self.tolerance and stats.max_velocity_error <= self.velocity_tolerance
+        )
         return stats
 
     def _spin_depth(self) -> int:
