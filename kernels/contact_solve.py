@@ -426,9 +426,36 @@ def relative_velocity(
 
 
 @wp.func
+def contact_masses(
+    a: int,
+    b: int,
+    n: vec3d,
+    ra: vec3d,
+    rb: vec3d,
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+) -> wp.vec2d:
+    """(n . K n, the largest eigenvalue of K on the tangent plane): the relative point velocity from a unit
+    impulse along the normal, and the most from a unit tangential one (K: the contact's mass matrix). Fixed
+    while a solve sweeps, so computed once per solve."""
+    ima = body_inv_mass_of(a, body_inv_mass)
+    imb = body_inv_mass_of(b, body_inv_mass)
+    ia = inverse_inertia(a, inv_inertia_world)
+    ib = inverse_inertia(b, inv_inertia_world)
+    t1 = collide.any_perpendicular(n)
+    t2 = wp.cross(n, t1)
+    k11 = response(t1, t1, ra, rb, ima, imb, ia, ib)
+    k12 = response(t1, t2, ra, rb, ima, imb, ia, ib)
+    k22 = response(t2, t2, ra, rb, ima, imb, ia, ib)
+    half = f64(0.5) * (k11 - k22)
+    return wp.vec2d(response(n, n, ra, rb, ima, imb, ia, ib), f64(0.5) * (k11 + k22) + wp.sqrt(half * half + k12 * k12))
+
+
+@wp.func
 def friction_step(
     slip: vec3d,
     n: vec3d,
+    kt: f64,
     limit: f64,
     old: vec2d,
     a: int,
@@ -443,20 +470,15 @@ def friction_step(
     body_w: wp.array(dtype=vec3d),
 ) -> vec2d:
     """The contact's total tangential impulse after one projected step against `slip` (a relative velocity):
-    the step uses the largest eigenvalue of the contact's tangential mass matrix, so it never overshoots, and
-    the total is projected onto the cone's disc of radius `limit`. A contact sticks where the disc holds the
-    impulse that stops the slip; else it slides at `limit`, and at convergence against the slip (the projection
-    keeps the direction). The change is applied and the new total returned."""
+    the step uses kt, the largest eigenvalue of the contact's tangential mass matrix, so it never overshoots,
+    and the total is projected onto the cone's disc of radius `limit`. A contact sticks where the disc holds
+    the impulse that stops the slip; else it slides at `limit`, and at convergence against the slip (the
+    projection keeps the direction). The change is applied and the new total returned."""
     t1 = collide.any_perpendicular(n)
     t2 = wp.cross(n, t1)
-    k11 = response(t1, t1, ra, rb, ima, imb, ia, ib)
-    k12 = response(t1, t2, ra, rb, ima, imb, ia, ib)
-    k22 = response(t2, t2, ra, rb, ima, imb, ia, ib)
-    half = f64(0.5) * (k11 - k22)
-    k = f64(0.5) * (k11 + k22) + wp.sqrt(half * half + k12 * k12)
     new = old
-    if k > f64(0.0):
-        new = old - vec2d(wp.dot(t1, slip), wp.dot(t2, slip)) / k
+    if kt > f64(0.0):
+        new = old - vec2d(wp.dot(t1, slip), wp.dot(t2, slip)) / kt
     size = wp.length(new)
     if size > limit:
         new = new * (limit / size)
@@ -471,7 +493,9 @@ def friction_step(
 def measure(
     # Model:
     inv_h: f64,
+    body_inv_mass: wp.array(dtype=f64),
     # Data in: the state at t0 (velocities as corrected so far) and the prediction
+    inv_inertia_world_in: wp.array(dtype=mat33d),
     body_x_in: wp.array(dtype=vec3d),
     body_v_in: wp.array(dtype=vec3d),
     body_w_in: wp.array(dtype=vec3d),
@@ -489,6 +513,7 @@ def measure(
     contact_arm_b_out: wp.array(dtype=vec3d),
     contact_slip_out: wp.array(dtype=vec3d),
     contact_u0_out: wp.array(dtype=vec3d),
+    contact_mass_out: wp.array(dtype=wp.vec2d),
     contact_error_out: wp.array(dtype=f64),
 ):
     """On the current prediction: each contact's gap, its lever arms, its slip over the step (the relative
@@ -519,6 +544,7 @@ def measure(
     contact_arm_b_out[k] = rb
     contact_slip_out[k] = mean - n * wp.dot(n, mean)
     contact_u0_out[k] = relative_velocity(a, b, ra, rb, body_v_in, body_w_in)
+    contact_mass_out[k] = contact_masses(a, b, n, ra, rb, body_inv_mass, inv_inertia_world_in)
 
 
 @wp.kernel
@@ -539,6 +565,7 @@ def solve_positions(
     contact_arm_b: wp.array(dtype=vec3d),
     contact_slip: wp.array(dtype=vec3d),
     contact_u0: wp.array(dtype=vec3d),
+    contact_mass: wp.array(dtype=wp.vec2d),
     # Data out (updated in place): the velocities at t0 and the impulses of this step's position phase
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -568,7 +595,7 @@ def solve_positions(
             lam = contact_impulse_out[k]
             du = relative_velocity(a, b, ra, rb, body_v_out, body_w_out) - contact_u0[k]
             gap = contact_gap[k] + h * wp.dot(n, du)
-            kn = response(n, n, ra, rb, ima, imb, ia, ib)
+            kn = contact_mass[k][0]
             ln = wp.max(lam[0] - gap / (h * kn), f64(0.0))
             dn = ln - lam[0]
             change = wp.max(change, wp.abs(dn) * h * kn)
@@ -578,8 +605,8 @@ def solve_positions(
             slip = contact_slip[k] + du
             slip = slip - n * wp.dot(n, slip)
             old = vec2d(lam[1], lam[2])
-            lt = friction_step(slip, n, contact_material[k][0] * ln, old, a, b, ra, rb, ima, imb, ia, ib,
-                               body_v_out, body_w_out)  # fmt: skip
+            lt = friction_step(slip, n, contact_mass[k][1], contact_material[k][0] * ln, old, a, b, ra, rb, ima, imb,
+                               ia, ib, body_v_out, body_w_out)  # fmt: skip
             change = wp.max(change, wp.length(lt - old) * (ima + imb) * h)
             contact_impulse_out[k] = vec3d(ln, lt[0], lt[1])
         if change <= tolerance:
@@ -614,6 +641,7 @@ def solve_velocities(
     contact_arm_a_out: wp.array(dtype=vec3d),
     contact_arm_b_out: wp.array(dtype=vec3d),
     contact_velocity_impulse_out: wp.array(dtype=vec3d),
+    contact_mass_out: wp.array(dtype=wp.vec2d),
     contact_error_out: wp.array(dtype=f64),
 ):
     """The velocity phase at t0+h (module docstring). A contact apart by g > 0 may approach at up to g / h (it
@@ -635,6 +663,7 @@ def solve_velocities(
         contact_arm_a_out[k] = ra
         contact_arm_b_out[k] = rb
         contact_velocity_impulse_out[k] = vec3d()
+        contact_mass_out[k] = contact_masses(a, b, contact_normal[k], ra, rb, body_inv_mass, inv_inertia_world_in)
     taken = int(0)
     for sweep in range(sweeps):
         taken += 1
@@ -658,7 +687,7 @@ def solve_velocities(
             if contact_impact[k] > bounce_speed:
                 target = contact_material[k][1] * contact_impact[k]
             u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
-            kn = response(n, n, ra, rb, ima, imb, ia, ib)
+            kn = contact_mass_out[k][0]
             ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, f64(0.0))
             dn = ln - lam[0]
             change = wp.max(change, wp.abs(dn) * kn)
@@ -667,8 +696,8 @@ def solve_velocities(
             u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
             slip = u - n * wp.dot(n, u)
             old = vec2d(lam[1], lam[2])
-            lt = friction_step(slip, n, contact_material[k][0] * ln, old, a, b, ra, rb, ima, imb, ia, ib,
-                               body_v_out, body_w_out)  # fmt: skip
+            lt = friction_step(slip, n, contact_mass_out[k][1], contact_material[k][0] * ln, old, a, b, ra, rb, ima,
+                               imb, ia, ib, body_v_out, body_w_out)  # fmt: skip
             change = wp.max(change, wp.length(lt - old) * (ima + imb))
             contact_velocity_impulse_out[k] = vec3d(ln, lt[0], lt[1])
         if change <= tolerance:

@@ -135,6 +135,7 @@ class ContactStage:
             contact_arm_b=z(contacts, dtype=wp.vec3d, device=d),
             contact_slip=z(contacts, dtype=wp.vec3d, device=d),
             contact_u0=z(contacts, dtype=wp.vec3d, device=d),
+            contact_mass=z(contacts, dtype=wp.vec2d, device=d),
             contact_impulse=z(contacts, dtype=wp.vec3d, device=d),
             contact_velocity_impulse=z(contacts, dtype=wp.vec3d, device=d),
             contact_error=z(3, dtype=wp.float64, device=d),

@@ -92,6 +92,8 @@ def to_spec(
     spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
     if len(builder.bodies) > 1000:  # the default arena is too small for thousands of bodies
         spec.memory = max(64, len(builder.bodies) // 16) << 20
+    if contacts:  # and for the constraints of thousands of contacts (a 1,000-body pile needs over 64 MB)
+        spec.memory = max(spec.memory, len(builder.bodies) // 2 << 20)
 
     # Depth-first with an explicit stack: a chain of thousands of links nests thousands of bodies deep.
     stack = [(spec.worldbody, WORLD, b) for b in reversed(children.get(WORLD, []))]
