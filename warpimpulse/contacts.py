@@ -14,7 +14,6 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from .kernels import collide as collide_kernels  # noqa: F401  (compiled with contact_solve)
 from .kernels import contact_solve as kernels
 from .launch import record
 from .model import Model, State

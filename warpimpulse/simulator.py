@@ -193,6 +193,7 @@ class Simulator:
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self.contact_stage = None
+        self._penetration, self._contact_sweeps = 0.0, 0  # of the (sub)step's position phase
         if model.colliders is not None:
             self.contact_stage = ContactStage(
                 model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
