@@ -622,6 +622,7 @@ def solve_velocities(
     tolerance: f64,
     bounce_speed: f64,
     inv_h: f64,
+    first: int,
     # Data in:
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
@@ -645,8 +646,10 @@ def solve_velocities(
     contact_error_out: wp.array(dtype=f64),
 ):
     """The velocity phase at t0+h (module docstring). A contact apart by g > 0 may approach at up to g / h (it
-    closes in the next step, not further). Sweeps until no impulse changes a velocity by more than `tolerance`
-    (m/s). contact_error[2] = the sweeps taken."""
+    closes in the next step, not further). The `first` solve of a step starts from the position phase's
+    impulses (applied here; the sweeps take back what is too much), later ones (alternating with the joints)
+    from where the last stopped. Sweeps until no impulse changes a velocity by more than `tolerance` (m/s).
+    contact_error[2] = the sweeps taken."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     for k in range(count):
         a = contact_body[k][0]
@@ -662,8 +665,18 @@ def solve_velocities(
             rb = pb - body_x_in[b]
         contact_arm_a_out[k] = ra
         contact_arm_b_out[k] = rb
-        contact_velocity_impulse_out[k] = vec3d()
         contact_mass_out[k] = contact_masses(a, b, contact_normal[k], ra, rb, body_inv_mass, inv_inertia_world_in)
+        if first != 0:
+            # Start from the position phase's impulses: a resting contact takes the same in both phases.
+            lam = contact_impulse[k]
+            contact_velocity_impulse_out[k] = lam
+            n = contact_normal[k]
+            t1 = collide.any_perpendicular(n)
+            p = n * lam[0] + t1 * lam[1] + wp.cross(n, t1) * lam[2]
+            ib = inverse_inertia(b, inv_inertia_world_in)
+            ia = inverse_inertia(a, inv_inertia_world_in)
+            apply_impulse(b, p, rb, body_inv_mass_of(b, body_inv_mass), ib, body_v_out, body_w_out)
+            apply_impulse(a, -p, ra, body_inv_mass_of(a, body_inv_mass), ia, body_v_out, body_w_out)
     taken = int(0)
     for sweep in range(sweeps):
         taken += 1

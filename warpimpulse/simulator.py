@@ -453,7 +453,7 @@ class Simulator:
                     self.linear.solve(self.rhs, self.impulse, "velocity")
                     self._apply.launch()
                 stats.velocity_iterations += 1
-                sweeps += cs.solve_velocities(h)
+                sweeps += cs.solve_velocities(h, first=False)
                 self._velocity_errors.launch()
                 err = self._max_error("velocity")
             stats.max_velocity_error = err
