@@ -7,9 +7,10 @@ of the contact stage to scenes without colliders.
 1. The pile (`scenes.pile`: spheres and capsules dropped into a box) in one run on both engines: median time
    per step, the deepest penetration at the states of the last second, the kinetic energy at the end (at
    rest: 0) and the total energy lost. MuJoCo gets the same bodies, shapes, friction and ground
-   (`bench.peers.mujoco.to_spec(contacts=True)`), its default Newton solver and the implicitfast integrator,
-   at our step and at a quarter and a sixteenth of it (its soft contacts penetrate less at smaller steps;
-   `ms_per_our_step` is its time for the same simulated time). warpimpulse runs at `--tolerance` (m).
+   (`bench.peers.mujoco.to_spec(contacts=True)`) and the implicitfast integrator, with its CG and PGS solvers
+   (its default Newton solver took 14-33 s a step once the pile had landed, 7,500 constraint rows, on the
+   shared 2-core machine).
+   warpimpulse runs at `--tolerance` (m).
 2. The stages of our step at the pile's final state, medians of repeated runs: broad phase (swept boxes, BVH
    rebuild, pair query) against testing all pairs, narrow phase (pairs and planes), and the rest of the step
    (the contact and joint solves, predictions, velocity phase).
@@ -94,12 +95,13 @@ def run_ours(
     }, sim
 
 
-def run_mujoco(builder, dt: float, duration: float) -> dict:
+def run_mujoco(builder, dt: float, duration: float, solver: str) -> dict:
     import mujoco
 
     from warpimpulse.bench.peers.mujoco import MujocoScene
 
     scene = MujocoScene.from_builder(builder, dt, integrator="implicitfast", contacts=True)
+    scene.model.opt.solver = getattr(mujoco.mjtSolver, f"mjSOL_{solver.upper()}")
     scene.set_energy(True)
     data = scene.make_data()
     mujoco.mj_forward(scene.model, data)
@@ -120,7 +122,7 @@ def run_mujoco(builder, dt: float, duration: float) -> dict:
         "kinetic_end_J": float(data.energy[1]),
         "energy_change_J": scene.energy(data) - e0,
         "contacts_end": int(data.ncon),
-        "solver": "Newton (default)",
+        "solver": solver,
         "integrator": "implicitfast",
     }
 
@@ -185,6 +187,11 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds of the pile")
     parser.add_argument("--dt", type=float, default=1.0 / 60.0)
     parser.add_argument("--tolerance", type=float, default=1e-4, help="our contact (and joint) tolerance, m")
+    parser.add_argument(
+        "--mujoco-solvers",
+        default="CG,PGS",
+        help="MuJoCo's solvers to run (its default Newton took 14-33 s a step on the landed 1,000-body pile)",
+    )
     parser.add_argument("--baseline", help="another checkout of the project to time tree127 in (its main)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
@@ -198,11 +205,10 @@ def main() -> None:
     ours["tolerance_m"] = args.tolerance
     print("  warpimpulse", json.dumps(ours), flush=True)
     result["pile"] = {"bodies": args.bodies, "duration_s": args.duration, "warpimpulse": ours}
-    for split in (1, 4, 16):  # MuJoCo's soft contacts penetrate less at smaller steps
-        theirs = run_mujoco(scenes.pile(args.bodies), args.dt / split, args.duration)
-        theirs["ms_per_our_step"] = theirs["ms_per_step"] * split
-        print(f"  mujoco dt/{split:<3}", json.dumps(theirs), flush=True)
-        result["pile"][f"mujoco_dt/{split}"] = theirs
+    for solver in args.mujoco_solvers.split(","):
+        theirs = run_mujoco(scenes.pile(args.bodies), args.dt, args.duration, solver)
+        print(f"  mujoco {solver:<6}", json.dumps(theirs), flush=True)
+        result["pile"][f"mujoco_{solver}"] = theirs
 
     result["stages"] = stages(sim)
     result["stages"]["step_ms"] = ours["ms_per_step"]
