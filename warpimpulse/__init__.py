@@ -7,10 +7,11 @@ and out) and `wi.run` (the frame loop) are imported on first use, so that `impor
 import importlib
 
 from .builder import SceneBuilder, SceneError
+from .files import WriteError
 from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import Shape
-from .simulator import SimulationError, Simulator, StepStats
+from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
 from .types import WORLD, ConstraintKind, Quat, Vec3
 from .verbosity import quiet_by_default
@@ -21,6 +22,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "JOINT_TYPES",
+    "CheckpointError",
     "ConstraintKind",
     "Model",
     "SceneBuilder",
@@ -33,6 +35,7 @@ __all__ = [
     "Quat",
     "Vec3",
     "WORLD",
+    "WriteError",
     "__version__",
     "run",
     "scenes",

@@ -14,10 +14,10 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from . import checks
 from .shapes import Colliders
 from .topology import Graph, Topology, analyze
 from .types import ConstraintKind
-from .verbosity import device as warp_device
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -98,7 +98,7 @@ class Model:
         force_*: constant world forces (N) and torques (N m) on bodies, active while t < until (s).
         colliders: the collision shapes, planes and filters; None where nothing collides.
         """
-        self.device = warp_device(device)  # the first call initialises Warp quietly
+        self.device = checks.device(device)  # the first call initialises Warp quietly
         self.colliders = colliders
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)

@@ -9,16 +9,18 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
-import os
 import warnings
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-from . import coordinates
+from . import checks, coordinates, diagnose
 from .contacts import Contacts, ContactStage
+from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
@@ -31,6 +33,13 @@ from .types import FORMULATIONS, SOLVERS
 from .verbosity import verbose as show_warp_messages
 
 POLICIES = ("raise", "warn")
+
+
+STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be loaded into this simulator; the message names the file and the reason."""
 
 
 class SimulationError(RuntimeError):
@@ -127,36 +136,31 @@ class Simulator:
             predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
             impulses settle to a tenth of `velocity_tolerance`, at most 8 times as many.
         """
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        if not (math.isfinite(tolerance) and tolerance > 0.0):
-            raise ValueError(f"tolerance must be positive, got {tolerance!r}")
+        if not isinstance(model, Model):
+            raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
+        dt = checks.positive(dt, "dt", " (seconds)")
+        tolerance = checks.positive(tolerance, "tolerance", " (m or rad)")
         velocity_tolerance = tolerance if velocity_tolerance is None else velocity_tolerance
-        if not (math.isfinite(velocity_tolerance) and velocity_tolerance > 0.0):
-            raise ValueError(f"velocity_tolerance must be positive, got {velocity_tolerance!r}")
-        if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
-            raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
-        if not (
-            isinstance(max_substep_depth, int) and not isinstance(max_substep_depth, bool) and max_substep_depth >= 0
-        ):
-            raise ValueError(f"max_substep_depth must be an integer >= 0, got {max_substep_depth!r}")
-        if max_rotation is not None and not (math.isfinite(max_rotation) and max_rotation > 0.0):
-            raise ValueError(f"max_rotation must be a positive angle in radians or None, got {max_rotation!r}")
-        if formulation not in ("auto", *FORMULATIONS):
+        velocity_tolerance = checks.positive(velocity_tolerance, "velocity_tolerance", " (m/s or rad/s)")
+        max_iterations = checks.integer(max_iterations, "max_iterations", 1)
+        max_substep_depth = checks.integer(max_substep_depth, "max_substep_depth", 0)
+        if max_rotation is not None:
+            max_rotation = checks.positive(max_rotation, "max_rotation", " (rad), or None")
+        if not isinstance(formulation, str) or formulation not in ("auto", *FORMULATIONS):
             raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
-        if solver not in SOLVERS:
+        if not isinstance(solver, str) or solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
-        if on_max_iterations not in POLICIES:
+        if not isinstance(on_max_iterations, str) or on_max_iterations not in POLICIES:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
         if verbose:
             show_warp_messages()
         self.model = model
-        self.dt = float(dt)
-        self.tolerance = float(tolerance)
-        self.velocity_tolerance = float(velocity_tolerance)
+        self.dt = dt
+        self.tolerance = tolerance
+        self.velocity_tolerance = velocity_tolerance
         self.max_iterations = max_iterations
         self.on_max_iterations = on_max_iterations
-        self.max_substep_depth = int(max_substep_depth)
+        self.max_substep_depth = max_substep_depth
         self.max_rotation = max_rotation
         self.solver_name = "cholesky" if solver == "auto" else solver
         self.time = 0.0
@@ -190,6 +194,7 @@ class Simulator:
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
+        self._fingerprint = diagnose.fingerprint(model)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self.contact_stage = None
@@ -267,12 +272,20 @@ class Simulator:
 
     @staticmethod
     def _checked(values, shape, what) -> np.ndarray:
-        arr = np.asarray(values, dtype=np.float64)
+        arr = checks.numbers(values, what)
         if arr.shape != shape:
             raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{what} contains NaN or Inf")
+        if np.abs(arr).max(initial=0.0) > checks.LARGEST:
+            raise ValueError(f"{what} holds values too large for double precision (> {checks.LARGEST:g})")
         return arr
+
+    def forces_active(self) -> bool:
+        """Whether an external force or torque acts in the coming step (the model's, before its `until`, or
+        one set with `set_external_forces`): energy is conserved only while none does."""
+        return bool(np.any(self.time < self.model.host.force_until) or np.any(self._user_force)
+                    or np.any(self._user_torque))  # fmt: skip
 
     def _update_forces(self) -> None:
         """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
@@ -506,10 +519,13 @@ class Simulator:
         bad = [j for j in np.argsort(joints)[::-1][:5] if joints[j] > 0]
         worst = ", ".join(f"{self.model.joint_name[j]!r} ({joints[j]:.3g})" for j in bad)
         tolerance = self.tolerance if what == "joint" else self.velocity_tolerance
+        hint = (
+            diagnose.mass_ratio_note(self.model)
+            or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
+        )
         failure = (
             f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the step halved "
-            f"{self.max_substep_depth} times already; a smaller dt, a looser tolerance or smaller mass ratios "
-            "between jointed bodies may help)"
+            f"{self.max_substep_depth} times already; {hint})"
             if diverging
             else f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         )
@@ -532,15 +548,24 @@ class Simulator:
         if not count:
             self._spin = float(spin)
             return
+        # The device sums each body's squared components: a NaN, an Inf, or a value whose square overflows
+        # (|x| > ~1e154, finite yet beyond arithmetic) counts. Recount the same way here to name those bodies.
         arrays = [
             a.numpy().reshape(self.model.body_count, -1)
             for a in (state.body_x, state.body_q, state.body_v, state.body_w)
         ]
-        bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
-        names = [self.model.body_name[b] for b in np.flatnonzero(bad)[:10]]
+        with np.errstate(over="ignore", invalid="ignore"):
+            sums = sum(np.sum(a * a, axis=1) for a in arrays)
+        bad = np.flatnonzero(~np.isfinite(sums))
+        if not bad.size:  # a sum at the edge of overflow rounded the other way: the largest is the culprit
+            bad = np.array([int(np.argmax(sums))])
+        names = ", ".join(repr(self.model.body_name[b]) for b in bad[:10])
+        if all(np.isfinite(a[bad]).all() for a in arrays):
+            kind = f"values up to {max(np.abs(a[bad]).max() for a in arrays):.3g}, too large to square"
+        else:
+            kind = "NaN or Inf"
         raise SimulationError(
-            f"step {step}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
-            + ", ".join(repr(n) for n in names)
+            f"step {step}: the simulation diverged ({kind}) in {bad.size} bod{'y' if bad.size == 1 else 'ies'}: {names}"
         )
 
     def simulate(self, duration: float, callback=None) -> list[StepStats]:
@@ -556,34 +581,86 @@ class Simulator:
 
     # ---------------------------------------------------------------- checkpoints
     def save_checkpoint(self, path) -> None:
-        """Write the full state to an .npz file (atomically); `load_checkpoint` continues bit-identically."""
-        data = {name: getattr(self.state, f"body_{name}").numpy() for name in ("x", "q", "v", "w")}
+        """Write the full state to an .npz file; `load_checkpoint` continues bit-identically.
+
+        The file also holds the scene's fingerprint (`diagnose.fingerprint`), so that a checkpoint is never
+        loaded into another scene of the same body count. Written as the output files are
+        (`files.write_atomically`): a failed write raises WriteError and leaves the previous checkpoint."""
+        data = {name: getattr(self.state, f"body_{name}").numpy() for name in STATE}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
                     user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count)  # fmt: skip
+        data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, **data)
-        os.replace(tmp, path)
+        write_atomically(path, lambda tmp: np.savez(tmp, **data), ".npz")
 
     def load_checkpoint(self, path) -> None:
-        with np.load(path) as data:
-            if int(data["bodies"]) != self.model.body_count or float(data["dt"]) != self.dt:
-                raise ValueError(
-                    f"{path}: checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} does not match "
-                    f"this simulator ({self.model.body_count} bodies, dt={self.dt})"
-                )
-            for name in ("x", "q", "v", "w"):
-                getattr(self.state, f"body_{name}").assign(data[name])
-            self.time, self.step_count = float(data["time"]), int(data["step_count"])
-            self._user_force, self._user_torque = data["user_force"], data["user_torque"]
-            for key in data.files:
+        """Continue from a checkpoint of this scene. Everything in the file is read and checked before any of
+        it is assigned: a refused or unreadable checkpoint raises CheckpointError (a ValueError naming the
+        file) and leaves the simulator as it was."""
+        path = Path(path)
+        data = self._read_checkpoint(path)
+        for name in STATE:
+            getattr(self.state, f"body_{name}").assign(data[name])
+        self.time, self.step_count = float(data["time"]), int(data["step_count"])
+        self._user_force, self._user_torque = data["user_force"], data["user_torque"]
+        warm = getattr(self.linear, "_warm", None)  # CG warm starts; another solver's are not used
+        if warm is not None:
+            warm.clear()
+            for key in data:
                 if key.startswith("warm_"):
-                    self.linear._warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
+                    warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
         self._active_forces = None
         self._update_frames()
         self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
+
+    def _read_checkpoint(self, path: Path) -> dict[str, np.ndarray]:
+        """Every array of the checkpoint at `path`, checked against this simulator."""
+
+        def refuse(why: str) -> CheckpointError:
+            return CheckpointError(f"{path}: {why}")
+
+        try:
+            npz = np.load(path, allow_pickle=False)
+            if not isinstance(npz, np.lib.npyio.NpzFile):  # a lone .npy array
+                raise ValueError(path)
+            with npz:
+                data = {key: npz[key] for key in npz.files}
+        except FileNotFoundError:
+            raise refuse("no such checkpoint file") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as err:  # ValueError: pickled data
+            why = err.strerror if isinstance(err, OSError) and err.strerror else "truncated, corrupt or another format"
+            raise refuse(f"not a readable warpimpulse checkpoint ({why})") from None
+        n, nc = self.model.body_count, self.model.constraint_count
+        shapes = {"x": (n, 3), "q": (n, 4), "v": (n, 3), "w": (n, 3), "user_force": (n, 3), "user_torque": (n, 3),
+                  "time": (), "step_count": (), "dt": (), "bodies": ()}  # fmt: skip
+        missing = [key for key in (*shapes, *(f"scene_{k}" for k in self._fingerprint)) if key not in data]
+        if missing:
+            raise refuse(f"not a warpimpulse checkpoint of this version: it has no {', '.join(missing)}")
+        for key, shape in shapes.items():  # scalars first: the body count and dt make the clearest message
+            if data[key].dtype.kind not in "iuf" or (shape == () and data[key].shape != ()):
+                raise refuse(f"'{key}' is not {'a number' if shape == () else 'an array of numbers'}")
+        if int(data["bodies"]) != n or float(data["dt"]) != self.dt:
+            raise refuse(
+                f"checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} does not match this "
+                f"simulator ({n} bodies, dt={self.dt})"
+            )
+        for key, digest in self._fingerprint.items():
+            if str(data[f"scene_{key}"]) != digest:
+                raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+        for key, shape in shapes.items():
+            if data[key].shape != shape:
+                raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
+            if not np.all(np.isfinite(data[key])):
+                raise refuse(f"'{key}' contains NaN or Inf")
+        if data["step_count"].dtype.kind == "f" or int(data["step_count"]) < 0 or float(data["time"]) < 0.0:
+            raise refuse(f"step count {data['step_count']} at time {data['time']} is not a place in a run")
+        if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
+            raise refuse("an orientation is not a unit quaternion")
+        for key in data:
+            if key.startswith("warm_") and (data[key].shape != (nc, 3) or not np.all(np.isfinite(data[key]))):
+                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3)")
+        return data
 
     # ---------------------------------------------------------------- the state
     def reset(self) -> None:
@@ -691,13 +768,15 @@ class Simulator:
         self._position_errors.launch()
         return self.joint_errors_from(self.errors.numpy())
 
-    def energy(self) -> float:
-        """Kinetic plus gravitational potential energy."""
+    def kinetic_energy(self) -> float:
+        """Translational plus rotational kinetic energy, J."""
         m = self.model.host.body_mass
-        v, w, x = self.linear_velocities(), self.angular_velocities(), self.positions()
+        v, w = self.linear_velocities(), self.angular_velocities()
         r = quat_to_matrix(self.orientations())
-        inertia = self.model.host.body_inertia
-        iw = np.einsum("nij,njk,nlk->nil", r, inertia, r)
-        kinetic = 0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w)
-        potential = -np.sum(m * (x @ self.model.host.gravity))
-        return float(kinetic + potential)
+        iw = np.einsum("nij,njk,nlk->nil", r, self.model.host.body_inertia, r)
+        return float(0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
+
+    def energy(self) -> float:
+        """Kinetic plus gravitational potential energy, J."""
+        potential = -np.sum(self.model.host.body_mass * (self.positions() @ self.model.host.gravity))
+        return self.kinetic_energy() + float(potential)
