@@ -218,3 +218,27 @@ def _ball_builder() -> wi.SceneBuilder:
     m, inertia = s.mass_properties(1000.0)
     b.add_body(m, inertia, (0, 0, 1), shape=s, restitution=0.5, name="ball")
     return b
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"contact_solver": "lcp"}, "unknown contact_solver 'lcp'"),
+        ({"broad_phase": "grid"}, "unknown broad_phase 'grid'"),
+        ({"contact_margin": -1.0}, "contact_margin must be positive"),
+        ({"contact_sweeps": 0}, "contact_sweeps must be an integer >= 1"),
+    ],
+)
+def test_bad_contact_options_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        wi.Simulator(scenes.box_stack(1).finalize(), dt=0.01, **kwargs)
+
+
+def test_all_pairs_broad_phase_finds_the_same_contacts_as_the_bvh():
+    found = []
+    for broad in ("bvh", "all_pairs"):
+        sim = wi.Simulator(scenes.pile(60, seed=3).finalize(), dt=1.0 / 60.0, tolerance=1e-4, broad_phase=broad)
+        sim.simulate(1.0)
+        c = sim.contacts()
+        found.append(sorted(zip(c.body_a.tolist(), c.body_b.tolist())))
+    assert found[0] == found[1] and len(found[0]) > 60

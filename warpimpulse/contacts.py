@@ -72,10 +72,6 @@ class ContactStage:
         broad_phase: str = "bvh",
         max_sweeps: int = 30,
     ) -> None:
-        if solver not in CONTACT_SOLVERS:
-            raise ValueError(f"unknown contact solver {solver!r}; expected one of {CONTACT_SOLVERS}")
-        if broad_phase not in BROAD_PHASES:
-            raise ValueError(f"unknown broad phase {broad_phase!r}; expected one of {BROAD_PHASES}")
         c, d = model.colliders, model.device
         self.model, self.frames, self.control, self.state, self.pred = model, frames, control, state, pred
         self.tolerance, self.velocity_tolerance = tolerance, velocity_tolerance

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from . import checks, coordinates, diagnose
-from .contacts import Contacts, ContactStage
+from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
@@ -144,6 +144,12 @@ class Simulator:
         velocity_tolerance = checks.positive(velocity_tolerance, "velocity_tolerance", " (m/s or rad/s)")
         max_iterations = checks.integer(max_iterations, "max_iterations", 1)
         max_substep_depth = checks.integer(max_substep_depth, "max_substep_depth", 0)
+        contact_margin = checks.positive(contact_margin, "contact_margin", " (m)")
+        contact_sweeps = checks.integer(contact_sweeps, "contact_sweeps", 1)
+        if contact_solver not in CONTACT_SOLVERS:
+            raise ValueError(f"unknown contact_solver {contact_solver!r}; expected one of {CONTACT_SOLVERS}")
+        if broad_phase not in BROAD_PHASES:
+            raise ValueError(f"unknown broad_phase {broad_phase!r}; expected one of {BROAD_PHASES}")
         if max_rotation is not None:
             max_rotation = checks.positive(max_rotation, "max_rotation", " (rad), or None")
         if not isinstance(formulation, str) or formulation not in ("auto", *FORMULATIONS):
