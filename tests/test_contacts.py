@@ -242,3 +242,25 @@ def test_all_pairs_broad_phase_finds_the_same_contacts_as_the_bvh():
         c = sim.contacts()
         found.append(sorted(zip(c.body_a.tolist(), c.body_b.tolist())))
     assert found[0] == found[1] and len(found[0]) > 60
+
+
+def test_a_cart_driven_through_its_wheels_rolls_without_slipping():
+    """Joints and contacts in one loop: a box on four hinged cylinder wheels, a torque on each wheel; friction
+    at the ground turns it into forward motion."""
+    b = wi.SceneBuilder()
+    box = wi.Shape("box", size=(0.6, 0.3, 0.1))
+    chassis = b.add_body(*box.mass_properties(500.0), (0.0, 0.0, 0.15), shape=box, name="chassis")
+    wheel = wi.Shape("cylinder", radius=0.1, length=0.05)
+    for i, (x, y) in enumerate([(0.25, 0.2), (0.25, -0.2), (-0.25, 0.2), (-0.25, -0.2)]):
+        w = b.add_body(*wheel.mass_properties(500.0), (x, y, 0.1), quat_from_axis_angle([1, 0, 0], -math.pi / 2),
+                       shape=wheel, friction=1.0, name=f"wheel{i}")  # fmt: skip
+        b.add_joint_revolute(chassis, w, (x, y, 0.1), (0.0, 1.0, 0.0), name=f"axle{i}")
+        b.add_force(w, torque=(0.0, 0.5, 0.0))
+    b.add_ground(friction=1.0)
+    sim = wi.Simulator(b.finalize(), dt=1.0 / 60.0)
+    for stats in sim.simulate(1.0):
+        assert stats.max_joint_error <= sim.tolerance and stats.max_penetration <= sim.tolerance
+    v, w = sim.linear_velocities(), sim.angular_velocities()
+    assert sim.positions()[0, 0] > 0.5 and v[0, 0] > 1.0
+    np.testing.assert_allclose(w[1:, 1] * 0.1, v[1:, 0], rtol=1e-2)  # v = w r at every wheel
+    assert abs(sim.positions()[0, 1]) < 1e-4  # straight
