@@ -264,3 +264,15 @@ def test_a_cart_driven_through_its_wheels_rolls_without_slipping():
     assert sim.positions()[0, 0] > 0.5 and v[0, 0] > 1.0
     np.testing.assert_allclose(w[1:, 1] * 0.1, v[1:, 0], rtol=1e-2)  # v = w r at every wheel
     assert abs(sim.positions()[0, 1]) < 1e-4  # straight
+
+
+def test_composed_steps_fall_back_to_order_two_near_contacts():
+    b = _ball_builder()  # a ball 1 m up, falling onto the ground
+    b.add_ground()
+    sim = wi.Simulator(b.finalize(), dt=1.0 / 60.0, order=4)
+    stats = sim.simulate(1.0)
+    high = [s for s, k in zip(stats, range(len(stats))) if k < 10]  # 0.9 m above the ground: no contact ahead
+    assert all(s.order == 4 and s.fallback == "" for s in high)
+    near = [s for s in stats if s.contacts]
+    assert near and all(s.order == 2 and s.fallback == "contacts" for s in near)
+    assert sim.positions()[0, 2] >= 0.1 - sim.tolerance  # resting on the ground

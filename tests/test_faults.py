@@ -98,7 +98,8 @@ def test_finalize_names_a_body_changed_after_add(field, value, match):
 
 SIMULATOR_MISTAKES = [
     ({"tolerance": "1e-6"}, r"tolerance must be numeric, got the string '1e-6'"),
-    ({"tolerance": None}, r"tolerance must be a number, got None"),
+    ({"order": 4.0}, r"order must be an integer"),  # (tolerance=None is the order's default tolerance)
+    ({"order": 3}, r"order must be one of"),
     ({"velocity_tolerance": -1.0}, r"velocity_tolerance must be positive"),
     ({"dt": True}, r"dt must be numeric, got the boolean True"),
     ({"dt": "0.01"}, r"dt must be numeric"),

@@ -46,7 +46,10 @@ def _add_simulate(sub) -> None:
     p.add_argument("--fps", type=_positive(float), default=30.0, help="frames per second written (default 30)")
     p.add_argument("--dt", type=_positive(float),
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
-    p.add_argument("--tolerance", type=_positive(float), default=1e-6, help="joint tolerance, m or rad (default 1e-6)")
+    p.add_argument("--tolerance", type=_positive(float),
+                   help="joint tolerance, m or rad (default 1e-6; tighter at --order 4, 6)")  # fmt: skip
+    p.add_argument("--order", type=int, choices=(2, 4, 6), default=2,
+                   help="order in time: 2 is the paper's step, 4 and 6 compose it (default 2)")  # fmt: skip
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
     p.add_argument("--solver", choices=SOLVERS, default="auto", help="auto = cholesky (see types.SOLVERS)")
     p.add_argument("--max-iterations", type=_positive(int), default=100)
@@ -124,6 +127,7 @@ def _simulate(args) -> int:
         max_iterations=args.max_iterations,
         on_max_iterations=args.on_max_iterations,
         max_rotation=None if args.whole_steps else args.max_rotation,
+        order=args.order,
     )
     start = time.perf_counter()
     writer = usd.AnimationWriter(

@@ -60,6 +60,8 @@ def settings(sim: Any) -> dict[str, Any]:
         "solver": sim.solver_name,
         "max_iterations": sim.max_iterations,
         "max_rotation": sim.max_rotation or 0.0,  # 0: whole steps
+        "order": sim.order,  # in time: 2 the paper's step, 4 and 6 its compositions
+        "composition": sim.scheme.name,
     }
 
 

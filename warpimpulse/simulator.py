@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from . import checks, coordinates, diagnose
+from . import checks, composition, coordinates, diagnose
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
 from .kernels import constraints as constraint_kernels
@@ -58,6 +58,8 @@ class StepStats:
     converged: bool = True
     linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
     substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
+    order: int = 2  # the order in time the step was taken at (Simulator's `order`, unless it fell back)
+    fallback: str = ""  # why a step asked at order 4 or 6 was taken at order 2 (a non-reversible event)
     contacts: int = 0  # contact points detected (in the last substep)
     max_penetration: float = 0.0  # m, the deepest contact after the position correction
     contact_sweeps: int = 0  # Gauss-Seidel sweeps over the contacts, both phases, summed over the step
@@ -73,6 +75,8 @@ def _combined(parts: list[StepStats]) -> StepStats:
         all(p.converged for p in parts),
         sum(p.linear_iterations for p in parts),
         sum(p.substeps for p in parts),
+        min(p.order for p in parts),
+        next((p.fallback for p in parts if p.fallback), ""),
         parts[-1].contacts,
         max(p.max_penetration for p in parts),
         sum(p.contact_sweeps for p in parts),
@@ -89,7 +93,7 @@ class Simulator:
         self,
         model: Model,
         dt: float,
-        tolerance: float = 1e-6,
+        tolerance: float | None = None,
         velocity_tolerance: float | None = None,
         solver: str = "auto",
         max_iterations: int = 100,
@@ -99,6 +103,8 @@ class Simulator:
         max_rotation: float | None = 0.5,
         specialize: bool = True,
         verbose: bool = False,
+        order: int = 2,
+        scheme: str | None = None,
         contact_solver: str = "pgs",
         contact_margin: float = 0.005,
         broad_phase: str = "bvh",
@@ -130,6 +136,11 @@ class Simulator:
             of kinds, compiled once and cached on disk); False shares one module for all six kinds.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
             off by default (`warpimpulse.verbosity`).
+        order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
+            running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
+            steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
+            1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
+        scheme: the composition for `order` by name (`composition.SCHEMES`); None takes the measured best.
         contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
             found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
@@ -142,6 +153,9 @@ class Simulator:
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
         dt = checks.positive(dt, "dt", " (seconds)")
+        self.order = checks.integer(order, "order", 2)
+        self.scheme = composition.scheme(self.order, scheme)
+        tolerance = composition.default_tolerance(dt, self.order) if tolerance is None else tolerance
         tolerance = checks.positive(tolerance, "tolerance", " (m or rad)")
         velocity_tolerance = tolerance if velocity_tolerance is None else velocity_tolerance
         velocity_tolerance = checks.positive(velocity_tolerance, "velocity_tolerance", " (m/s or rad/s)")
@@ -206,6 +220,9 @@ class Simulator:
         self._fingerprint = diagnose.fingerprint(model)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
+        self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
+        self._save_start = self._capture(lambda: self._start.copy_from(self.state))
+        self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
         self.contact_stage = None
         self._penetration, self._contact_sweeps = 0.0, 0  # of the (sub)step's position phase
         if model.colliders is not None:
@@ -314,19 +331,71 @@ class Simulator:
     def step(self) -> StepStats:
         """Advance by dt, as 2**k substeps when a body spins faster than max_rotation / dt. A (sub)step whose
         joint correction diverges or runs out of iterations is redone as two half steps, down to
-        dt / 2**max_substep_depth, before the failure is reported."""
+        dt / 2**max_substep_depth, before the failure is reported. At order 4 or 6 a (sub)step is a whole
+        composed step: the spin split and the halving apply to it, never to one of its stages."""
         self._update_forces()
-        depth = self._spin_depth()
-        stats = _combined([self._advance(self.dt / 2**depth, depth) for _ in range(2**depth)])
+        stages, fallback = self.scheme.stages, self._fallback
+        if fallback:  # a non-reversible event in this step: composing it would not raise the order
+            stages, self._fallback = (1.0,), ""
+        elif len(stages) > 1 and self._contacts_ahead(stages):
+            stages, fallback = (1.0,), "contacts"
+        depth = self._spin_depth(max(abs(g) for g in stages))
+        stats = _combined([self._advance(self.dt / 2**depth, depth, stages) for _ in range(2**depth)])
+        stats.order = self.order if len(stages) == len(self.scheme.stages) else 2
+        stats.fallback = fallback
         self._use_step_size(self.dt)
         self.step_count += 1
         self.time = self.step_count * self.dt
         return stats
 
-    def _advance(self, h: float, depth: int) -> StepStats:
-        self._use_step_size(h)
-        wp.capture_launch(self._save_velocities)
+    def _contacts_ahead(self, stages: tuple[float, ...]) -> bool:
+        """Whether a composed step could meet a contact: any collider within the contact margin of another (or
+        of a ground) along its free motion from t0 to the furthest the stages reach forward. Contacts, impacts
+        and friction are not reversible, so such a step is taken at order 2 (`StepStats.fallback`)."""
+        if self.contact_stage is None:
+            return False
+        reach = self.dt * max(1.0, *np.cumsum(stages))
+        self._use_step_size(reach)
+        wp.capture_launch(self._evaluate)
+        return self.contact_stage.detect(reach) > 0
+
+    def fall_back(self, reason: str) -> None:
+        """Take the next step at order 2, recording `reason` in its StepStats. For whatever makes a step
+        non-reversible (contacts, impacts, friction, a state edited within the step): a symmetric composition
+        only raises the order of a symmetric step, and its backward substeps would run such an event
+        backwards."""
+        self._fallback = str(reason) or "unspecified"
+
+    def _advance(self, h: float, depth: int, stages: tuple[float, ...]) -> StepStats:
+        """One step of h composed of base steps of g h for g in `stages`; on a failed stage, the whole step is
+        undone and redone as two halves."""
         final = depth >= self.max_substep_depth
+        whole = len(stages) == 1
+        wp.capture_launch(self._save_velocities if whole else self._save_start)
+        parts = []
+        for g in stages:
+            part, ok = self._base_step(g * h, final)
+            parts.append(part)
+            if not ok:
+                if whole:  # undo this attempt's impulses: the frames of t0 still hold
+                    wp.copy(self.state.body_v, self._v0)
+                    wp.copy(self.state.body_w, self._w0)
+                else:  # back to the start of the composed step, and its frames
+                    self.state.copy_from(self._start)
+                    self._update_frames()
+                halves = _combined([self._advance(0.5 * h, depth + 1, stages) for _ in range(2)])
+                halves.joint_iterations += sum(p.joint_iterations for p in parts)  # the failed attempt's work
+                halves.velocity_iterations += sum(p.velocity_iterations for p in parts)
+                halves.linear_iterations += sum(p.linear_iterations for p in parts)
+                return halves
+        stats = _combined(parts)
+        stats.substeps = 1
+        return stats
+
+    def _base_step(self, h: float, final: bool) -> tuple[StepStats, bool]:
+        """The paper's step of h (h < 0 runs it backwards): its stats, and False when it failed and a smaller
+        step may still succeed (not `final`; the state then holds this attempt's impulses)."""
+        self._use_step_size(h)
         if self.contact_stage is None:
             joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
         else:
@@ -336,12 +405,7 @@ class Simulator:
             if not final and self._turns(h) > 1.0:
                 ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
-            wp.copy(self.state.body_v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
-            wp.copy(self.state.body_w, self._w0)
-            halves = _combined([self._advance(0.5 * h, depth + 1) for _ in range(2)])
-            halves.joint_iterations += joint_it  # the failed attempt's work counts too
-            halves.linear_iterations += linear_iterations
-            return halves
+            return StepStats(joint_it, 0, joint_err, math.inf, False, linear_iterations, 1), False
         wp.capture_launch(self._accept_graph)
         if self.linear is not None:
             self.linear.check()
@@ -376,18 +440,18 @@ class Simulator:
             and stats.max_velocity_error <= self.velocity_tolerance
             and stats.max_penetration <= self.tolerance
         )
-        return stats
+        return stats, True
 
-    def _spin_depth(self) -> int:
-        """k such that 2**k substeps turn the fastest body of the state at most max_rotation each
-        (k <= max_substep_depth)."""
-        turns = self._turns(self.dt)
+    def _spin_depth(self, reach: float) -> int:
+        """k such that 2**k substeps turn the fastest body of the state at most max_rotation in each base
+        step, the longest of which is `reach` substeps long (k <= max_substep_depth)."""
+        turns = self._turns(reach * self.dt)
         return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
 
     def _turns(self, h: float) -> float:
-        """How many times max_rotation the fastest body of the last prediction turns in a step of h (0 when
-        steps are never split)."""
-        return 0.0 if self.max_rotation is None else self._spin * h / self.max_rotation
+        """How many times max_rotation the fastest body of the last prediction turns in a step of h (either
+        way; 0 when steps are never split)."""
+        return 0.0 if self.max_rotation is None else self._spin * abs(h) / self.max_rotation
 
     def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
         """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
@@ -609,7 +673,8 @@ class Simulator:
         (`files.write_atomically`): a failed write raises WriteError and leaves the previous checkpoint."""
         data = {name: getattr(self.state, f"body_{name}").numpy() for name in STATE}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
-                    user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count)  # fmt: skip
+                    user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count,
+                    stages=np.array(self.scheme.stages), fallback=self._fallback)  # fmt: skip
         data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
@@ -625,6 +690,7 @@ class Simulator:
             getattr(self.state, f"body_{name}").assign(data[name])
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
         self._user_force, self._user_torque = data["user_force"], data["user_torque"]
+        self._fallback = str(data["fallback"]) if "fallback" in data else ""
         warm = getattr(self.linear, "_warm", None)  # CG warm starts; another solver's are not used
         if warm is not None:
             warm.clear()
@@ -669,6 +735,14 @@ class Simulator:
         for key, digest in self._fingerprint.items():
             if str(data[f"scene_{key}"]) != digest:
                 raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+        if "stages" in data and (data["stages"].dtype.kind != "f" or data["stages"].ndim != 1):
+            raise refuse("'stages' is not a list of numbers")
+        stages = tuple(float(g) for g in data["stages"]) if "stages" in data else (1.0,)
+        if stages != self.scheme.stages:
+            raise refuse(
+                f"checkpoint taken with the composition {stages} of the base step; this simulator composes "
+                f"{self.scheme.stages} (order {self.order}): resuming would not continue the run"
+            )
         for key, shape in shapes.items():
             if data[key].shape != shape:
                 raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
@@ -692,6 +766,7 @@ class Simulator:
         n = self.model.body_count
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
+        self._fallback = ""
         getattr(self.linear, "_warm", {}).clear()
         self._update_frames()
         self._check_finite(self.state, 0)
