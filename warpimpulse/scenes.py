@@ -168,13 +168,14 @@ CAR_WHEEL_SPEED = 5.0  # rad/s, the wheel servos' initial target
 CAR_STEERING = 0.3  # rad, the steering servos' initial target (to the left)
 
 
-def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) -> SceneBuilder:
+def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, ground: bool = False) -> SceneBuilder:
     """The paper's car (section 5): a chassis; per wheel a strut on a slider with a spring-damper along z (the
     suspension, its spring preloaded so that the built pose is the rest pose), a front knuckle on a steering
     hinge about z (front wheels), and the wheel on a hinge about y driven by a velocity servo. The two
     steering hinges carry position servos with one target: the steering servo. The servos are stiff motors
     (`SceneBuilder.add_motor`): a PID torque on the light knuckle would need a gain too low to steer.
-    Until contacts exist the chassis is fixed to the world ("hold"), so the wheels spin and steer in the air.
+    Without `ground` the chassis is fixed to the world ("hold"), so the wheels spin and steer in the air; with
+    it the car is free and stands on its wheels on a ground (friction 1) that touches them, and drives.
 
     Motors, in add order: wheels front-left, front-right, rear-left, rear-right, then steering left, right.
     """
@@ -182,7 +183,8 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) ->
     z_axis, y_axis = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
     chassis = _solid(builder, Shape("box", size=(2.4, 1.2, 0.3), color=(0.7, 0.1, 0.1)), 300.0, (0.0, 0.0, 0.8),
                      (0.0, 0.0, 0.0, 1.0), "chassis")  # fmt: skip
-    builder.add_joint_fixed(None, chassis, (0.0, 0.0, 0.8), name="hold")
+    if not ground:
+        builder.add_joint_fixed(None, chassis, (0.0, 0.0, 0.8), name="hold")
     k, c, strut_mass = 2.0e4, 400.0, 15.0
     wheel_shape = Shape("cylinder", radius=0.3, length=0.2, color=(0.15, 0.15, 0.15))
     upright = quat_between([0.0, 0.0, 1.0], y_axis)  # the cylinder's axis along y
@@ -201,6 +203,8 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) ->
             steering_hinges.append(builder.add_joint_revolute(strut, carrier, hub, z_axis, name=f"{name}_steering"))
             hung += 2.0
         wheel = _solid(builder, wheel_shape, 350.0, hub, upright, f"{name}_wheel")
+        builder.bodies[wheel].friction = 1.0
+        builder.filter_collision(chassis, wheel)  # the wheel turns in the wheel arch
         hung += builder.bodies[wheel].mass
         wheels.append(builder.add_joint_revolute(carrier, wheel, hub, y_axis, name=f"{name}_axle"))
         builder.add_joint_spring(slider, k, damping=c, rest=hung * g / k)
@@ -208,6 +212,8 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) ->
         builder.add_motor(joint, "velocity", target=wheel_speed, max_force=300.0, stiff=True)
     for joint in steering_hinges:
         builder.add_motor(joint, "position", target=steering, max_force=50.0, stiff=True)
+    if ground:
+        builder.add_ground(height=0.35 - wheel_shape.radius, friction=1.0)
     return builder
 
 
@@ -229,7 +235,9 @@ def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
     """The paper's walking machine (section 5): per leg one servo motor (a stiff velocity motor on the crank's
     hinge), two hinges (crank to leg, body to sleeve) and one slider (the leg through the sleeve): one closed
     loop per leg, a crank-driven slotted lever whose foot traces a closed curve each crank turn. Four legs,
-    cranks half a turn apart on each side. Until contacts exist the body is fixed to the world ("hold")."""
+    cranks half a turn apart on each side. Until it can walk on a ground the body is fixed to the world
+    ("hold"): on one, its feet pushed 2-3 cm into the ground within a step and the alternation of joints and
+    contacts diverged (docs/contacts.md)."""
     builder = SceneBuilder()
     axis = np.array([0.0, -1.0, 0.0])  # angles grow from +x towards +z
     height = 1.0
@@ -248,6 +256,7 @@ def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
         builder.add_joint_revolute(body, sleeve, s, axis, name=f"leg{i}_hip")
         builder.add_joint_prismatic(sleeve, leg, s, u, name=f"leg{i}_slider")
         builder.add_motor(servo, "velocity", target=crank_speed, max_force=500.0, stiff=True)
+        builder.filter_collision(body, leg)  # the leg slides through the sleeve, past the body
     return builder
 
 

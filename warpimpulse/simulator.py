@@ -609,20 +609,24 @@ class Simulator:
             return 1
         solves = self.linear.solve(self.rhs, self.impulse, None)
         self._apply.launch()
+        self._correct_limits.launch()
         wp.capture_launch(self._evaluate)
         return solves
 
     def _correct_with_contacts(self, h: float, final: bool) -> tuple[int, float, int, bool]:
-        """`_correct_joints` with the contacts in the same loop (method paper's way; docs/contacts.md): detect on
-        the first prediction; then, until every joint and every contact holds to the tolerance, correct the
+        """`_correct_joints` with the contacts in the same loop (method paper's way; docs/contacts.md): correct the
+        joints first and detect on that prediction (it holds the motion motors and loops impose, which the free
+        prediction does not); then, until every joint and every contact holds to the tolerance, correct the
         joints (one direct solve: the joints as one block), predict, and close the contacts' predicted gaps
         with push-only impulses at t0 (Gauss-Seidel around that block), and predict again. The error returned
         is the larger of the joints' and the deepest penetration."""
         cs = self.contact_stage
-        wp.capture_launch(self._evaluate)
+        joint_it, _, linear_iterations, ok = self._correct_joints(final)  # the joints' (and motors') motion first
+        if not ok:
+            return joint_it, math.inf, linear_iterations, False
         cs.detect(h)
         self._contact_sweeps = 0
-        iterations, linear_iterations, best = 0, 0, math.inf
+        iterations, best = joint_it, math.inf
         joints = self.model.constraint_count > 0
         while True:
             joint_err = self._max_error("joint") if joints else 0.0
@@ -652,7 +656,14 @@ class Simulator:
             err = self._max_error("velocity")
             rounds = 0
             while err > self.velocity_tolerance and rounds <= VELOCITY_ALTERNATIONS:
-                self._fix_joint_velocities()
+                if self.linear is None:
+                    self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+                else:
+                    self._fix_velocities()
+                    if self.model.limit_count:  # the limits and stiff motors, as in the joint-only step
+                        self._correct_limit_velocities.launch()
+                        self._velocity_errors.launch()
+                        self._fix_velocities()
                 stats.velocity_iterations += 1
                 rounds += 1
                 if rounds <= VELOCITY_ALTERNATIONS:
@@ -665,16 +676,6 @@ class Simulator:
         stats.contacts = cs.count
         stats.max_penetration = self._penetration
         stats.contact_sweeps = self._contact_sweeps + sweeps
-
-    def _fix_joint_velocities(self) -> None:
-        """One velocity correction of the joints (K lambda = -J v, applied), from the errors just measured."""
-        if self.linear is None:
-            self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
-        elif self._direct:
-            wp.capture_launch(self._velocity_fix)
-        else:
-            self.linear.solve(self.rhs, self.impulse, "velocity")
-            self._apply.launch()
 
     def contacts(self) -> Contacts:
         """The contacts of the last step at the current state (`contacts.Contacts`: bodies, points, normals,
