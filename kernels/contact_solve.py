@@ -198,7 +198,6 @@ def emit(
     contact_anchor_a: wp.array(dtype=vec3d),
     contact_anchor_b: wp.array(dtype=vec3d),
     contact_normal: wp.array(dtype=vec3d),
-    contact_depth: wp.array(dtype=f64),
     contact_material: wp.array(dtype=wp.vec2d),
     contact_impact: wp.array(dtype=f64),
 ):
@@ -219,7 +218,6 @@ def emit(
             contact_anchor_a[k] = to_local(a, pa, pred_x, pred_q)
             contact_anchor_b[k] = to_local(b, pb, pred_x, pred_q)
             contact_normal[k] = n
-            contact_depth[k] = g
             contact_material[k] = wp.vec2d(friction, restitution)
             vn = wp.dot(
                 n, point_velocity(b, pb, pred_x, pred_v, pred_w) - point_velocity(a, pa, pred_x, pred_v, pred_w)
@@ -269,7 +267,6 @@ def narrow_phase(
     contact_anchor_a_out: wp.array(dtype=vec3d),
     contact_anchor_b_out: wp.array(dtype=vec3d),
     contact_normal_out: wp.array(dtype=vec3d),
-    contact_depth_out: wp.array(dtype=f64),
     contact_material_out: wp.array(dtype=wp.vec2d),
     contact_impact_out: wp.array(dtype=f64),
 ):
@@ -316,7 +313,7 @@ def narrow_phase(
     restitution = wp.max(body_restitution[a], body_restitution[b])
     emit(a, b, count, n, points, gaps, friction, restitution, body_inv_mass, gravity, body_force_in,
          pred_x, pred_q, pred_v, pred_w, contact_count_out, contact_body_out, contact_anchor_a_out,
-         contact_anchor_b_out, contact_normal_out, contact_depth_out, contact_material_out,
+         contact_anchor_b_out, contact_normal_out, contact_material_out,
          contact_impact_out)  # fmt: skip
 
 
@@ -346,7 +343,6 @@ def plane_phase(
     contact_anchor_a_out: wp.array(dtype=vec3d),
     contact_anchor_b_out: wp.array(dtype=vec3d),
     contact_normal_out: wp.array(dtype=vec3d),
-    contact_depth_out: wp.array(dtype=f64),
     contact_material_out: wp.array(dtype=wp.vec2d),
     contact_impact_out: wp.array(dtype=f64),
 ):
@@ -378,7 +374,7 @@ def plane_phase(
     restitution = wp.max(body_restitution[b], mat[1])
     emit(-1, b, count, n, points, gaps, friction, restitution, body_inv_mass, gravity, body_force_in,
          pred_x, pred_q, pred_v, pred_w, contact_count_out, contact_body_out, contact_anchor_a_out,
-         contact_anchor_b_out, contact_normal_out, contact_depth_out, contact_material_out,
+         contact_anchor_b_out, contact_normal_out, contact_material_out,
          contact_impact_out)  # fmt: skip
 
 

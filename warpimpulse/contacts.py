@@ -122,7 +122,6 @@ class ContactStage:
             contact_anchor_a=z(contacts, dtype=wp.vec3d, device=d),
             contact_anchor_b=z(contacts, dtype=wp.vec3d, device=d),
             contact_normal=z(contacts, dtype=wp.vec3d, device=d),
-            contact_depth=z(contacts, dtype=wp.float64, device=d),
             contact_material=z(contacts, dtype=wp.vec2d, device=d),
             contact_impact=z(contacts, dtype=wp.float64, device=d),
             contact_gap=z(contacts, dtype=wp.float64, device=d),
