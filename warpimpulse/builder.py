@@ -6,6 +6,7 @@ Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -113,6 +114,49 @@ class SceneBuilder:
         self.constraints: list[Constraint] = []
         self.forces: list[Force] = []
         self._body_names: dict[str, int] = {}
+        self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
+
+    def replicate(self, count: int) -> SceneBuilder:
+        """A builder of `count` independent copies of this scene, "world0/..." to "world{count-1}/...", finalized
+        to one Model that the simulator steps as batched worlds (every launch covers all of them; each world
+        converges, and fails, on its own). Per-world masses, loads and states are set on the Simulator
+        afterwards, without rebuilding. The copies are laid out world-major; the result takes no additions."""
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise SceneError(f"replicate: count must be an integer >= 1, got {count!r}")
+        if self.world_count > 1:
+            raise SceneError("replicate: this builder is already replicated; replicate the original scene")
+        if not self.bodies:
+            raise SceneError("replicate: the scene has no bodies")
+        out = SceneBuilder(self.gravity)
+        nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
+        prefix = count > 1
+
+        def body(b: int, w: int) -> int:
+            return b if b == WORLD else b + w * nb
+
+        for w in range(int(count)):
+            bodies, joints, cons, forces = copy.deepcopy((self.bodies, self.joints, self.constraints, self.forces))
+            for b in bodies:
+                b.name = f"world{w}/{b.name}" if prefix else b.name
+                out._body_names[b.name] = len(out.bodies)
+                out.bodies.append(b)
+            for j in joints:
+                j.name = f"world{w}/{j.name}" if prefix else j.name
+                j.parent, j.child = body(j.parent, w), body(j.child, w)
+                j.constraints = [c + w * nc for c in j.constraints]
+                out.joints.append(j)
+            for c in cons:
+                c.body0, c.body1, c.joint = body(c.body0, w), body(c.body1, w), c.joint + w * nj
+                out.constraints.append(c)
+            for f in forces:
+                f.body = body(f.body, w)
+                out.forces.append(f)
+        out.world_count = int(count)
+        return out
+
+    def _open(self, what: str) -> None:
+        if self.world_count > 1:
+            raise SceneError(f"{what}: a replicated scene takes no additions; add to the scene before replicate()")
 
     # ---------------------------------------------------------------- bodies
     def add_body(
@@ -159,6 +203,7 @@ class SceneBuilder:
 
     def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
         what = f"body {name!r}"
+        self._open(what)
         if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
         q = _vec(orientation, f"{what} orientation", 4)
@@ -282,6 +327,7 @@ class SceneBuilder:
         """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this."""
         name = name or f"joint{len(self.joints)}"
         what = f"joint {name!r}"
+        self._open(what)
         p = self._body_index(parent, f"{what} parent")
         c = self._body_index(child, f"{what} child")
         if c == WORLD:
@@ -337,6 +383,7 @@ class SceneBuilder:
     # ---------------------------------------------------------------- forces
     def add_force(self, body, force=0.0, torque=0.0, until: float = math.inf) -> int:
         """A constant world-frame force and torque on `body`, applied while the simulated time < `until`."""
+        self._open("force")
         b = self._body_index(body, "force")
         if b == WORLD or self.bodies[b].static:
             raise SceneError(f"force: body {body!r} is not dynamic")
@@ -389,6 +436,7 @@ class SceneBuilder:
             force_force=np.array([f.force for f in forces]).reshape(-1, 3),
             force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
             force_until=np.array([f.until for f in forces]),
+            world_count=self.world_count,
         )
 
     def _check_arrays(self) -> None:

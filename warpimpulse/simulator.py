@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,29 +21,17 @@ from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import rigid as rigid_kernels
+from .kernels import worlds as world_kernels
 from .launch import capture, record
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
+from .steps import SimulationError, StepStats
 from .transforms import quat_to_matrix
 from .types import FORMULATIONS, SOLVERS
 from .verbosity import verbose as show_warp_messages
+from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
-
-
-class SimulationError(RuntimeError):
-    """The simulation cannot go on: divergence (NaN/Inf) or joints that did not converge."""
-
-
-@dataclass
-class StepStats:
-    joint_iterations: int  # linear solves (or sweeps) of the joint correction
-    velocity_iterations: int
-    max_joint_error: float  # after the joint correction, in m or rad
-    max_velocity_error: float  # after the velocity correction, in m/s or rad/s
-    converged: bool = True
-    linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
-    substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
 
 
 def _combined(parts: list[StepStats]) -> StepStats:
@@ -140,6 +127,7 @@ class Simulator:
         self.max_substep_depth = int(max_substep_depth)
         self.max_rotation = max_rotation
         self.solver_name = "cholesky" if solver == "auto" else solver
+        self.specialized = specialize
         self.time = 0.0
         self.step_count = 0
 
@@ -167,6 +155,16 @@ class Simulator:
         elif self.solver_name == "cg":
             self.linear = CGSolver(model, self.frames)
         self._counts = (model.body_count, nc)
+        self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
+        if model.world_count > 1:
+            if self.solver_name != "cholesky" or nc == 0:
+                raise ValueError(
+                    f"batched worlds ({model.world_count}) are stepped with the cholesky solver and need joints; "
+                    f"got solver {solver!r} and {nc} constraints"
+                )
+            self.world_summary = wp.zeros((model.world_count, 2), dtype=wp.float64, device=d)
+            self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
+            self.batch = Batch(self)
         self._launches_by_h: dict[float, tuple] = {}
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
@@ -194,6 +192,12 @@ class Simulator:
         self._apply = self._record(impulse_kernels.apply_impulses, nb, data_out=s)
         self._sweep_velocities = self._record(iterative_kernels.sweep_velocities, 1, s, s, constraint_count=nc)
         self._check_states = {id(st): self._record(rigid_kernels.summarize_state, nb, st) for st in (s, self.pred)}
+        # Batched worlds: per-world summaries, and right-hand sides masked to the worlds still iterating.
+        self._world_checks = {}
+        self._mask = []
+        if self.batch is not None:
+            self._world_checks = {id(st): self._record(world_kernels.summarize_worlds, nb, st) for st in (s, self.pred)}
+            self._mask = [self._record(world_kernels.mask_worlds, nc, rhs=self.rhs)]
         prepare = self.linear.prepare_launches if self.linear is not None else []
         frames = [self._inertia, self._frames, *prepare]
         self._frames_graph = self._capture(*frames)
@@ -203,7 +207,7 @@ class Simulator:
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
             solve = self.linear.solve_launches(self.rhs, self.impulse)
-            self._velocity_fix = self._capture(*solve, self._apply, self._velocity_errors)
+            self._velocity_fix = self._capture(*self._mask, *solve, self._apply, self._velocity_errors)
         self._use_step_size(self.dt)
 
     def _use_step_size(self, h: float) -> None:
@@ -215,10 +219,12 @@ class Simulator:
             sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
             # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
             measure = [errors, self.summary.zero_, self._check_states[id(p)]]
+            if self.batch is not None:
+                measure += [self.world_summary.zero_, self._world_checks[id(p)]]
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iterate = self._capture(*solve, self._apply, predict, *measure)
+                iterate = self._capture(*self._mask, *solve, self._apply, predict, *measure)
             self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate)
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate,
          self._iterate) = self._launches_by_h[h]  # fmt: skip
@@ -230,14 +236,87 @@ class Simulator:
             self.linear.check()
 
     # ---------------------------------------------------------------- forces
-    def set_external_forces(self, force=None, torque=None) -> None:
-        """World forces (at the centres of mass) and torques, (N, 3) each, held until set again."""
-        n = self.model.body_count
+    def set_external_forces(self, force=None, torque=None, world: int | None = None) -> None:
+        """World forces (N, at the centres of mass) and torques (N m), (n, 3) each, held until set again; with
+        batched worlds (W, n, 3) for all of them, or (n, 3) for one `world`."""
         if force is not None:
-            self._user_force = self._checked(force, (n, 3), "force")
+            rows, values = self._world_values(force, "force", world)
+            self._user_force = self._user_force.copy()
+            self._user_force[rows] = values
         if torque is not None:
-            self._user_torque = self._checked(torque, (n, 3), "torque")
+            rows, values = self._world_values(torque, "torque", world)
+            self._user_torque = self._user_torque.copy()
+            self._user_torque[rows] = values
         self._active_forces = None
+
+    def _world_values(self, values, what: str, world: int | None, shape=(3,)) -> tuple[slice, np.ndarray]:
+        """The body rows of `world` (all when None) and `values` checked for them, flattened to (rows, *shape):
+        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds."""
+        m = self.model
+        if world is None:
+            lead = (m.body_count,) if m.world_count == 1 else (m.world_count, m.world_body_count)
+            return slice(None), self._checked(values, (*lead, *shape), what).reshape(-1, *shape)
+        return self._world_rows(world), self._checked(values, (m.world_body_count, *shape), what)
+
+    def _world_rows(self, world: int) -> slice:
+        """The body rows of `world`, checked."""
+        m = self.model
+        if isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer)):
+            raise ValueError(f"a world index is expected, got {world!r}")
+        if not 0 <= int(world) < m.world_count:
+            raise ValueError(f"world {world} does not exist ({m.world_count} worlds)")
+        return slice(int(world) * m.world_body_count, (int(world) + 1) * m.world_body_count)
+
+    def _per_world(self, values: np.ndarray, world: int | None) -> np.ndarray:
+        """Per-body values as the accessors give them: (n, ...) for one `world` or a one-world model, else
+        with a leading world dimension (W, n, ...)."""
+        m = self.model
+        if world is not None:
+            return values[self._world_rows(world)]
+        return values if m.world_count == 1 else values.reshape(m.world_count, m.world_body_count, *values.shape[1:])
+
+    @property
+    def stopped(self) -> dict[int, str]:
+        """Batched worlds that have stopped, by index, with why (the others go on); empty for one world."""
+        return self.batch.stopped if self.batch is not None else {}
+
+    @property
+    def world_stats(self) -> WorldStats | None:
+        """Each batched world's figures of the last step (None for one world)."""
+        return self.batch.stats if self.batch is not None else None
+
+    def set_masses(self, mass=None, inertia=None, world: int | None = None) -> None:
+        """Change bodies' masses (kg) and inertias (kg m^2, body frame about the centre of mass: (3, 3) tensors
+        or 3 principal moments) without rebuilding: (n,) and (n, 3, 3) or (n, 3), with a leading world
+        dimension for all batched worlds, or for one `world`. Static bodies keep theirs (values there are
+        ignored). The factorization is refreshed at once."""
+        m = self.model
+        masses, inertias = m.host.body_mass.copy(), m.host.body_inertia.copy()
+        if mass is not None:
+            rows, values = self._world_values(mass, "mass", world, shape=())
+            masses[rows] = values
+        if inertia is not None:
+            arr = np.asarray(inertia, dtype=np.float64)
+            if arr.shape[-1:] == (3,) and arr.shape[-2:] != (3, 3):
+                arr = arr[..., :, None] * np.eye(3)  # principal moments
+            rows, values = self._world_values(arr, "inertia", world, shape=(3, 3))
+            inertias[rows] = values
+        dynamic = ~m.host.body_static
+        bad = dynamic & ~(masses > 0.0)
+        if not bad.any():
+            sym = np.abs(inertias - inertias.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 * np.abs(inertias).max()
+            bad = dynamic & ~sym
+            bad[dynamic] |= np.linalg.eigvalsh(0.5 * (inertias[dynamic] + inertias[dynamic].transpose(0, 2, 1)))[
+                :, 0] <= 0.0  # fmt: skip
+        if bad.any():
+            b = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"body {m.body_name[b]!r}: mass {masses[b]} and inertia {inertias[b].tolist()} must be "
+                             "positive (definite, symmetric)")  # fmt: skip
+        masses[~dynamic], inertias[~dynamic] = 0.0, 0.0
+        m.set_masses(masses, inertias)
+        if self.batch is not None:
+            self.batch.forget(range(m.world_count) if world is None else [world])
+        self._update_frames()
 
     @staticmethod
     def _checked(values, shape, what) -> np.ndarray:
@@ -266,7 +345,13 @@ class Simulator:
     def step(self) -> StepStats:
         """Advance by dt, as 2**k substeps when a body spins faster than max_rotation / dt. A (sub)step whose
         joint correction diverges or runs out of iterations is redone as two half steps, down to
-        dt / 2**max_substep_depth, before the failure is reported."""
+        dt / 2**max_substep_depth, before the failure is reported.
+
+        Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
+        step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
+        each world's figures of the step, and the StepStats returned the largest over the worlds."""
+        if self.batch is not None:
+            return self.batch.step()
         self._update_forces()
         depth = self._spin_depth()
         stats = _combined([self._advance(self.dt / 2**depth, depth) for _ in range(2**depth)])
@@ -323,7 +408,11 @@ class Simulator:
     def _spin_depth(self) -> int:
         """k such that 2**k substeps turn the fastest body of the state at most max_rotation each
         (k <= max_substep_depth)."""
-        turns = self._turns(self.dt)
+        return self._depth_of(self._spin)
+
+    def _depth_of(self, spin: float) -> int:
+        """The substep depth of a step that starts spinning at `spin` (rad/s)."""
+        turns = 0.0 if self.max_rotation is None else spin * self.dt / self.max_rotation
         return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
 
     def _turns(self, h: float) -> float:
@@ -414,6 +503,8 @@ class Simulator:
         self.summary.zero_()
         self._check_states[id(state)].launch()
         self._report_nonfinite(state, step)
+        if self.batch is not None:
+            self.batch.measure(state)
 
     def _report_nonfinite(self, state: State, step: int) -> None:
         count, spin = self.summary.numpy()
@@ -479,6 +570,8 @@ class Simulator:
         and velocities, no user loads (`set_external_forces`), no warm start."""
         self.state.copy_from(self.model.state())
         self.time, self.step_count = 0.0, 0
+        if self.batch is not None:
+            self.batch.reset()
         n = self.model.body_count
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
@@ -492,6 +585,7 @@ class Simulator:
         orientations: np.ndarray | None = None,
         linear_velocities: np.ndarray | None = None,
         angular_velocities: np.ndarray | None = None,
+        world: int | None = None,
     ) -> None:
         """Overwrite part of the state; what is not given stays. The Jacobians and the factorization are
         recomputed at once, so the next step starts from the new state (writing `sim.state` arrays directly
@@ -502,44 +596,50 @@ class Simulator:
             orientations: (n, 4) quaternions (x, y, z, w), body to world; normalised (a zero one is refused).
             linear_velocities: (n, 3) centre-of-mass velocities, world frame (m/s).
             angular_velocities: (n, 3) angular velocities, world frame (rad/s).
+            world: with batched worlds, the one world these are for; None gives every world's, each array with
+                a leading world dimension (W, n, ...).
 
         All values are checked before any is written. The joints are not projected: a state that breaks them
         is corrected by the next steps' impulses.
         """
-        n = self.model.body_count
         new = {}
         given = {"positions": positions, "orientations": orientations, "linear_velocities": linear_velocities,
                  "angular_velocities": angular_velocities}  # fmt: skip
         for (what, values), field in zip(given.items(), ("body_x", "body_q", "body_v", "body_w")):
             if values is not None:
-                new[field] = self._checked(values, (n, 4 if field == "body_q" else 3), what)
+                new[field] = self._world_values(values, what, world, (4 if field == "body_q" else 3,))
         if "body_q" in new:
-            norms = np.linalg.norm(new["body_q"], axis=1)
+            rows, q = new["body_q"]
+            norms = np.linalg.norm(q, axis=1)
             if np.any(norms < 1e-9):
-                body = self.model.body_name[int(np.argmin(norms))]
+                body = self.model.body_name[rows][int(np.argmin(norms))]
                 raise ValueError(f"orientations: the quaternion of body {body!r} is zero")
-            new["body_q"] = new["body_q"] / norms[:, None]
-        for field, values in new.items():
-            getattr(self.state, field).assign(values)
+            new["body_q"] = rows, q / norms[:, None]
+        for field, (rows, values) in new.items():
+            full = getattr(self.state, field).numpy().copy()
+            full[rows] = values
+            getattr(self.state, field).assign(full)
         self._update_frames()
         self._check_finite(self.state, self.step_count)
 
     # ---------------------------------------------------------------- numpy accessors
-    def positions(self) -> np.ndarray:
+    # With batched worlds each takes `world=` for one world's (n, ...) rows and gives all of them as (W, n, ...)
+    # without it.
+    def positions(self, world: int | None = None) -> np.ndarray:
         """(n, 3) centres of mass, world frame (m)."""
-        return self.state.body_x.numpy().copy()
+        return self._per_world(self.state.body_x.numpy().copy(), world)
 
-    def orientations(self) -> np.ndarray:
+    def orientations(self, world: int | None = None) -> np.ndarray:
         """(n, 4) quaternions (x, y, z, w), body to world (USD's Gf.Quat constructors take w first)."""
-        return self.state.body_q.numpy().copy()
+        return self._per_world(self.state.body_q.numpy().copy(), world)
 
-    def linear_velocities(self) -> np.ndarray:
+    def linear_velocities(self, world: int | None = None) -> np.ndarray:
         """(n, 3) centre-of-mass velocities, world frame (m/s)."""
-        return self.state.body_v.numpy().copy()
+        return self._per_world(self.state.body_v.numpy().copy(), world)
 
-    def angular_velocities(self) -> np.ndarray:
+    def angular_velocities(self, world: int | None = None) -> np.ndarray:
         """(n, 3) angular velocities, world frame (rad/s)."""
-        return self.state.body_w.numpy().copy()
+        return self._per_world(self.state.body_w.numpy().copy(), world)
 
     def _joint_index(self, joint: int | str) -> int:
         names = self.model.joint_name
@@ -554,7 +654,8 @@ class Simulator:
         return int(joint)
 
     def _state_arrays(self) -> tuple[np.ndarray, ...]:
-        return self.positions(), self.orientations(), self.linear_velocities(), self.angular_velocities()
+        """Every body's position, orientation, linear and angular velocity, flat over the worlds."""
+        return tuple(getattr(self.state, f"body_{k}").numpy().copy() for k in ("x", "q", "v", "w"))
 
     def joint_coordinates(self, joint: int | str) -> np.ndarray:
         """The joint's coordinates, zero at the build pose: a revolute's angle (rad, right-handed about its
@@ -579,13 +680,16 @@ class Simulator:
         self._position_errors.launch()
         return self.joint_errors_from(self.errors.numpy())
 
-    def energy(self) -> float:
-        """Kinetic plus gravitational potential energy."""
+    def energy(self, world: int | None = None) -> float | np.ndarray:
+        """Kinetic plus gravitational potential energy (J); with batched worlds, (W,) for all of them or one
+        `world`'s."""
         m = self.model.host.body_mass
-        v, w, x = self.linear_velocities(), self.angular_velocities(), self.positions()
-        r = quat_to_matrix(self.orientations())
+        x, q, v, w = self._state_arrays()
+        r = quat_to_matrix(q)
         inertia = self.model.host.body_inertia
         iw = np.einsum("nij,njk,nlk->nil", r, inertia, r)
-        kinetic = 0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w)
-        potential = -np.sum(m * (x @ self.model.host.gravity))
-        return float(kinetic + potential)
+        kinetic = 0.5 * m * np.sum(v * v, axis=1) + 0.5 * np.einsum("ni,nij,nj->n", w, iw, w)
+        per_world = (kinetic - m * (x @ self.model.host.gravity)).reshape(self.model.world_count, -1).sum(axis=1)
+        if world is not None:
+            return float(per_world[self._world_rows(world).start // self.model.world_body_count])
+        return float(per_world[0]) if self.model.world_count == 1 else per_world
