@@ -229,6 +229,14 @@ class Simulator:
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate,
          self._iterate) = self._launches_by_h[h]  # fmt: skip
 
+    def prepare_substeps(self) -> None:
+        """Record the launches of every substep size a step may take (dt / 2**k, k <= max_substep_depth) now,
+        instead of on first use: recording captures graphs, and a capture on a CPU takes in every launch of the
+        process, so threads that step simulators at once (`threads.py`) must find nothing left to capture."""
+        for k in range(self.max_substep_depth + 1):
+            self._use_step_size(self.dt / 2**k)
+        self._use_step_size(self.dt)
+
     def _update_frames(self) -> None:
         """P_i, J_ib and K at the current state; factor K for the coming solves."""
         wp.capture_launch(self._frames_graph)

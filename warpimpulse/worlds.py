@@ -108,20 +108,31 @@ class Batch:
         """One step of dt for every world that has not stopped (see the module docstring); returns the
         StepStats over all worlds (the most iterations, the largest errors) and leaves per-world ones in
         `stats`."""
+        self.step_batched()
+        return self.finish()
+
+    def step_batched(self) -> None:
+        """The batched part of a step: every world that can, together. It captures nothing, so threads may run
+        it for disjoint batches at once once their step sizes are recorded (`Simulator.prepare_substeps`)."""
         sim = self.sim
         sim._update_forces()
         self._t0.copy_from(sim.state)
         self._spin0 = self.spin.copy()  # a world stepped alone starts from its spin of the start
-        live = np.array([w not in self.stopped for w in range(self.count)])
+        self._live = live = np.array([w not in self.stopped for w in range(self.count)])
         if not live.any():
             raise SimulationError(f"every one of the {self.count} worlds has stopped: {self.stopped[0]}")
         depths = np.array([sim._depth_of(s) for s in self.spin])
         depth = int(np.bincount(depths[live]).argmax())
-        batch = live & (depths == depth)
-        stats = WorldStats.zeros(self.count)
+        self._batch = batch = live & (depths == depth)
+        self._stats = WorldStats.zeros(self.count)
         for _ in range(2**depth):
-            self._advance(sim.dt / 2**depth, depth, batch, stats)
+            self._advance(sim.dt / 2**depth, depth, batch, self._stats)
         sim._use_step_size(sim.dt)
+
+    def finish(self):
+        """The rest of the step: the worlds not finished in the batch, each alone (this may build a one-world
+        simulator, so a thread must not run it while others step); then the time and the stats."""
+        sim, batch, live, stats = self.sim, self._batch, self._live, self._stats
         alone = live & ~batch
         if (~batch).any():
             self._restore(sim.state, ~batch)  # frozen: the alone ones start there, the stopped ones stay
