@@ -166,3 +166,28 @@ def test_per_world_values_change_one_world_only():
     assert np.array_equal(sim.model.host.body_mass[BODIES:], before[BODIES:])
     sim.reset()
     assert np.all(sim.linear_velocities() == 0.0) and sim.stopped == {}
+
+
+def test_threads_give_the_batched_run_and_stop_worlds_alone():
+    """Shares of two worlds and of one (3 worlds on 2 threads): the same run as one batched Simulator, bit for
+    bit; a failure in either kind of share stops that world only, by its index in the whole model."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    mass, force, spin = worlds_setup()
+    force[1, 6] = force[2, 6] = (0.0, 0.0, 1e13)  # world 1 in the two-world share, world 2 alone in its share
+    with pytest.warns(RuntimeWarning, match="the world stops"):
+        ref, _ = batched(5, mass, force, spin, max_iterations=10)
+    with ThreadedSimulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, threads=2,
+                           max_iterations=10) as sim:  # fmt: skip
+        assert [p.model.world_count for p in sim.parts] == [2, 1]
+        sim.set_masses(mass=mass)
+        sim.set_external_forces(force=force)
+        sim.set_state(angular_velocities=spin)
+        with pytest.warns(RuntimeWarning, match="world 2: step 1"):
+            for _ in range(5):
+                sim.step()
+        assert sorted(sim.stopped) == [1, 2] and sim.stopped[1].startswith("world 1: ")
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)
+        assert np.array_equal(sim.positions(2), ref.positions(2))
+        assert sim.energy().shape == (WORLDS,) and sim.step_count == 5

@@ -41,6 +41,7 @@ class ThreadedSimulator:
         for part in self.parts:
             part.prepare_substeps()
         self.dt = self.parts[0].dt
+        self._starts_of_step = [part.model.state() if part.batch is None else None for part in self.parts]
         self._stopped: dict[int, str] = {}  # worlds of one-world shares that stopped
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="warpimpulse")
 
@@ -72,9 +73,12 @@ class ThreadedSimulator:
             part.step_count += 1
             part.time = part.step_count * part.dt
             return StepStats(0, 0, 0.0, 0.0, False)
+        start = self._starts_of_step[index]
+        start.copy_from(part.state)
         try:
             return part.step()
         except SimulationError as exc:
+            part.state.copy_from(start)  # a stopped world stays at its last good state, as in a batch
             self._stopped[int(self.starts[index])] = f"world {self.starts[index]}: {exc}"
             part.step_count += 1
             part.time = part.step_count * part.dt
