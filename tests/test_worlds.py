@@ -53,12 +53,13 @@ def batched(steps: int, mass, force, spin, **settings) -> tuple[Simulator, list]
     return sim, stats
 
 
-def test_batched_run_matches_each_world_alone_bit_for_bit():
+@pytest.mark.parametrize("formulation", ["constraint", "body"])
+def test_batched_run_matches_each_world_alone_bit_for_bit(formulation):
     mass, force, spin = worlds_setup()
-    sim, stats = batched(30, mass, force, spin)
+    sim, stats = batched(30, mass, force, spin, formulation=formulation)
     assert sim.positions().shape == (WORLDS, BODIES, 3)
     for w in range(WORLDS):
-        one, one_stats = alone(w, 30, mass, force, spin)
+        one, one_stats = alone(w, 30, mass, force, spin, formulation=formulation)
         for a, b in zip(state_of(one), state_of(sim, w)):
             assert np.array_equal(a, b), f"world {w} differs from its run alone"
         assert [s.joint_iterations for s in one_stats] == [int(s.joint_iterations[w]) for s in stats]
@@ -128,6 +129,16 @@ def test_replicate_layout_and_names():
         model.host.constraint_body1[single.constraint_count : 2 * single.constraint_count],
         single.host.constraint_body1 + BODIES,
     )
+    nb, nc, n = BODIES, single.constraint_count, WORLDS * BODIES
+
+    def shifted(u, w):  # an unknown of the augmented matrix alone -> in world w: linear, angular, constraint parts
+        return np.where(u < nb, u + w * nb, np.where(u < 2 * nb, u - nb + n + w * nb, u - 2 * nb + 2 * n + w * nc))
+
+    # Each world's columns together, in the order they have alone.
+    alone, batch = single.topology.pattern("constraint").perm, model.topology.pattern("constraint").perm
+    assert np.array_equal(batch, np.concatenate([alone + w * nc for w in range(WORLDS)]))
+    alone, batch = single.topology.pattern("body").perm, model.topology.pattern("body").perm
+    assert np.array_equal(batch, np.concatenate([shifted(alone, w) for w in range(WORLDS)]))
     part = model.worlds(1, 3)
     assert part.world_count == 2 and part.body_name[0] == "world1/b0"
     assert np.array_equal(part.host.joint_parent, model.host.joint_parent[: 2 * BODIES])

@@ -136,16 +136,6 @@ class Model:
         self.body_count = len(self.body_name)
         self.joint_count = len(self.joint_name)
         self.constraint_count = len(h.constraint_kind)
-        self.graph = Graph(
-            body_static=h.body_static,
-            constraint_body0=h.constraint_body0,
-            constraint_body1=h.constraint_body1,
-            constraint_joint=self.constraint_joint,
-            joint_parent=h.joint_parent,
-            joint_child=h.joint_child,
-        )
-        self.topology: Topology = analyze(self.graph, level_order=d.is_cuda)
-        self.kinds = sorted({ConstraintKind(int(k)) for k in h.constraint_kind})
         self.world_count = int(world_count)
         counts = {"bodies": self.body_count, "constraints": self.constraint_count, "joints": self.joint_count,
                   "forces": len(h.force_body)}  # fmt: skip
@@ -155,9 +145,20 @@ class Model:
         self.world_body_count = self.body_count // self.world_count
         self.world_constraint_count = self.constraint_count // self.world_count
         self.world_joint_count = self.joint_count // self.world_count
-        self.body_world = np.arange(self.body_count) // self.world_body_count
         self.constraint_world = _array(np.arange(self.constraint_count) // max(self.world_constraint_count, 1),
                                        wp.int32, d)  # fmt: skip
+
+        self.graph = Graph(
+            body_static=h.body_static,
+            constraint_body0=h.constraint_body0,
+            constraint_body1=h.constraint_body1,
+            constraint_joint=self.constraint_joint,
+            joint_parent=h.joint_parent,
+            joint_child=h.joint_child,
+            world_count=self.world_count,
+        )
+        self.topology: Topology = analyze(self.graph, level_order=d.is_cuda)
+        self.kinds = sorted({ConstraintKind(int(k)) for k in h.constraint_kind})
 
         self.gravity = wp.vec3d(*h.gravity)
         self.body_inv_mass = wp.zeros(self.body_count, dtype=wp.float64, device=d)
