@@ -64,6 +64,10 @@ def test_batched_run_matches_each_world_alone_bit_for_bit(formulation):
             assert np.array_equal(a, b), f"world {w} differs from its run alone"
         assert [s.joint_iterations for s in one_stats] == [int(s.joint_iterations[w]) for s in stats]
         assert one.energy() == sim.energy(w) == sim.energy()[w]
+        assert np.array_equal(one.joint_errors(), sim.joint_errors(w))
+        assert np.array_equal(one.joint_errors(), sim.joint_errors()[w])
+        assert np.array_equal(one.joint_coordinates("j3"), sim.joint_coordinates("j3", world=w))
+        assert np.array_equal(one.joint_velocities(5), sim.joint_velocities(f"world{w}/j5"))
     # The worlds differ from each other (the per-world values took effect).
     assert not np.array_equal(sim.positions(0), sim.positions(1))
 

@@ -649,44 +649,59 @@ class Simulator:
         """(n, 3) angular velocities, world frame (rad/s)."""
         return self._per_world(self.state.body_w.numpy().copy(), world)
 
-    def _joint_index(self, joint: int | str) -> int:
+    def _joint_index(self, joint: int | str, world: int | None = None) -> int:
+        """The model's index of `joint` (index or name); with `world`, of that world's joint of this index or
+        of this name in the scene ("j3" for "world2/j3")."""
         names = self.model.joint_name
+        first = 0
+        if world is not None:
+            first = self._world_rows(world).start // self.model.world_body_count * self.model.world_joint_count
+            names = names[first : first + self.model.world_joint_count]
+            if self.model.world_count > 1:
+                names = [n.partition("/")[2] for n in names]
         if isinstance(joint, str):
             if joint not in names:
                 raise ValueError(f"no joint named {joint!r}")
-            return names.index(joint)
+            return first + names.index(joint)
         if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
             raise ValueError(f"a joint index or name is expected, got {joint!r}")
         if not 0 <= int(joint) < len(names):
             raise ValueError(f"joint index {joint} does not exist ({len(names)} joints)")
-        return int(joint)
+        return first + int(joint)
 
     def _state_arrays(self) -> tuple[np.ndarray, ...]:
         """Every body's position, orientation, linear and angular velocity, flat over the worlds."""
         return tuple(getattr(self.state, f"body_{k}").numpy().copy() for k in ("x", "q", "v", "w"))
 
-    def joint_coordinates(self, joint: int | str) -> np.ndarray:
+    def joint_coordinates(self, joint: int | str, world: int | None = None) -> np.ndarray:
         """The joint's coordinates, zero at the build pose: a revolute's angle (rad, right-handed about its
         axis), a prismatic's offset (m), cylindrical [offset, angle], universal [angle about the parent axis,
         angle about the child axis], planar [x, y, angle] in the plane, a ball's relative rotation as a
-        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`)."""
-        return coordinates.coordinates(self.model, self._joint_index(joint), *self._state_arrays())
+        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`). With
+        batched worlds, `world` picks the world and `joint` is then its index or name in the scene."""
+        return coordinates.coordinates(self.model, self._joint_index(joint, world), *self._state_arrays())
 
-    def joint_velocities(self, joint: int | str) -> np.ndarray:
+    def joint_velocities(self, joint: int | str, world: int | None = None) -> np.ndarray:
         """The rates of `joint_coordinates` (rad/s, m/s); a ball joint's relative angular velocity (rad/s) in
         its parent's frame."""
-        return coordinates.velocities(self.model, self._joint_index(joint), *self._state_arrays())
+        return coordinates.velocities(self.model, self._joint_index(joint, world), *self._state_arrays())
 
     def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
         out = np.zeros(self.model.joint_count)
         np.maximum.at(out, self.model.constraint_joint, constraint_errors)
         return out
 
-    def joint_errors(self) -> np.ndarray:
-        """The position error of every joint at the current state (max over its constraints, m or rad)."""
+    def joint_errors(self, world: int | None = None) -> np.ndarray:
+        """The position error of every joint at the current state (max over its constraints, m or rad); with
+        batched worlds (W, joints) or one `world`'s."""
         self.pred.copy_from(self.state)
         self._position_errors.launch()
-        return self.joint_errors_from(self.errors.numpy())
+        errors = self.joint_errors_from(self.errors.numpy())
+        m = self.model
+        if world is not None:
+            w = self._world_rows(world).start // m.world_body_count
+            return errors[w * m.world_joint_count : (w + 1) * m.world_joint_count]
+        return errors if m.world_count == 1 else errors.reshape(m.world_count, -1)
 
     def energy(self, world: int | None = None) -> float | np.ndarray:
         """Kinetic plus gravitational potential energy (J); with batched worlds, (W,) for all of them or one
