@@ -206,3 +206,11 @@ def test_threads_give_the_batched_run_and_stop_worlds_alone():
             assert np.array_equal(a, b)
         assert np.array_equal(sim.positions(2), ref.positions(2))
         assert sim.energy().shape == (WORLDS,) and sim.step_count == 5
+
+
+def test_a_batched_run_records_every_world(tmp_path):
+    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(2).finalize(), 1.0 / 30.0)
+    rec = wi.usd.record(sim, tmp_path / "worlds.usda", duration=0.1, fps=30)
+    anim = wi.usd.read_animation(rec.path)
+    assert anim.positions.shape == (4, 2 * BODIES, 3)
+    assert np.allclose(anim.positions[-1], sim.positions().reshape(-1, 3))
