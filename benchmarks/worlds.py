@@ -12,13 +12,16 @@
 3. A hard world: one world spinning fast takes its steps alone, as substeps; the others' joint iterations are
    counted against a run without it (they should be equal).
 Variants are timed in turn, round after round, so load on the machine hits them alike; figures are medians
-over the rounds. The machine's load average is recorded with the results: on a shared machine the thread
-speed-ups say little when the load is above the core count.
+over the rounds. The machine's load average is recorded with the results, and a control: the speed-up the
+same thread counts give a workload that certainly runs in parallel (hashlib's SHA-256 of a large buffer,
+which releases the GIL). On a shared or throttled machine the control falls short of the thread count too,
+and the simulator's speed-ups should be read against it.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import platform
@@ -44,6 +47,27 @@ def timed(step, steps: int) -> tuple[float, float]:
     for _ in range(steps):
         step()
     return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def control(rounds: int, cores: list[int]) -> dict:
+    """Speed-up of SHA-256 over a 16 MB buffer per thread (GIL released) on 1, 2, ... threads: what the
+    machine allows now."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    data = os.urandom(16 * 2**20)
+
+    def work(_=None) -> None:
+        hashlib.sha256(data).digest()
+
+    walls: dict[int, list[float]] = {n: [] for n in cores}
+    for _ in range(rounds):
+        for n in cores:
+            with ThreadPoolExecutor(n) as pool:
+                start = time.perf_counter()
+                list(pool.map(work, range(4 * n)))  # n times the work on n threads
+                walls[n].append((time.perf_counter() - start) / n)
+    base = statistics.median(walls[cores[0]])
+    return {str(n): base / statistics.median(walls[n]) for n in cores}
 
 
 def batched_vs_separate(worlds: int, bodies: int, rounds: int) -> dict:
@@ -155,6 +179,7 @@ def main() -> None:
         },  # fmt: skip
         "batched": batched_vs_separate(args.worlds, args.bodies, args.rounds),
         "threads": [threads_scaling(n, args.bodies, args.rounds, cores) for n in sorted({2, 16, args.worlds})],
+        "control_speedup": control(args.rounds, cores),
         "hard_world": hard_world(8, args.bodies),
     }
     results["machine"]["load_average_after"] = os.getloadavg()
@@ -167,6 +192,8 @@ def main() -> None:
         line = ", ".join(f"{n} threads {v['speedup']:.2f}x (cpu/wall {v['cpu_over_wall']:.2f})"
                          for n, v in t["by_threads"].items())  # fmt: skip
         print(f"{t['worlds']} worlds: {line}")
+    print("control (SHA-256, GIL released): " + ", ".join(f"{n} threads {v:.2f}x"
+                                                          for n, v in results["control_speedup"].items()))  # fmt: skip
     h = results["hard_world"]
     print(f"hard world: taken alone in {h['hard_world_steps_alone']} of {h['steps']} steps; the others' iterations "
           f"unchanged: {h['others_iterations_equal']}")  # fmt: skip
