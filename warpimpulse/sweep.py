@@ -7,6 +7,11 @@ Points that share the first are run together, a chunk at a time, as the worlds o
 (`SceneBuilder.replicate`): each world's run is, bit for bit, that point's run alone, so the table does not
 depend on how the points were chunked or where they ran, except for the run times.
 
+Columns: the point's parameters; outcome ("ok", "stopped", "error") and error; steps taken; joint iterations
+summed over the steps; the largest joint error after a step (m or rad); energy drift, the relative change of
+kinetic plus potential energy from start to end (loads and the scenes' start torque do work, so it measures
+the method only where nothing else does); run time, the chunk's wall time over its points (s).
+
 Every finished point is appended at once to `points.jsonl` in the output folder; a sweep started again with
 the same folder reads it and computes only the points missing. A point whose simulation fails is recorded with
 its error (outcome "stopped"), one whose chunk could not run at all with that error (outcome "error"), and the
