@@ -72,8 +72,6 @@ class Batch:
     # ---------------------------------------------------------------- per-world reductions
     def world_max(self) -> np.ndarray:
         """Each world's largest constraint error just measured (NaN where any is NaN)."""
-        if not self.sim.model.constraint_count:
-            return np.zeros(self.count)
         return self.sim.errors.numpy().reshape(self.count, -1).max(axis=1)
 
     def measure(self, state: State) -> np.ndarray:
