@@ -233,3 +233,5 @@ def test_threads_with_split_steps_give_the_batched_run():
             sim.step()
         for a, b in zip(state_of(ref), state_of(sim)):
             assert np.array_equal(a, b)
+        assert np.array_equal(sim.world_stats.substeps, ref_stats[-1].substeps)
+        assert np.array_equal(sim.world_stats.joint_iterations, ref_stats[-1].joint_iterations)

@@ -21,6 +21,7 @@ import numpy as np
 
 from .model import Model
 from .simulator import SimulationError, Simulator, StepStats
+from .worlds import WorldStats
 
 
 class ThreadedSimulator:
@@ -41,6 +42,7 @@ class ThreadedSimulator:
         for part in self.parts:
             part.prepare_substeps()
         self.dt = self.parts[0].dt
+        self._last: list[StepStats] | None = None
         self._starts_of_step = [part.model.state() if part.batch is None else None for part in self.parts]
         self._stopped: dict[int, str] = {}  # worlds of one-world shares that stopped
         self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="warpimpulse")
@@ -91,6 +93,7 @@ class ThreadedSimulator:
         for w in sorted(set(self._stopped) - known):
             warnings.warn(f"{self._stopped[w]}; the world stops, the others go on", RuntimeWarning, stacklevel=2)
         stats = [part.batch.finish() if part.batch is not None else r for part, r in zip(self.parts, results)]
+        self._last = stats
         if len(self.stopped) == self.model.world_count:
             raise SimulationError(f"every one of the {self.model.world_count} worlds has stopped")
         return StepStats(
@@ -101,6 +104,21 @@ class ThreadedSimulator:
 
     def simulate(self, duration: float) -> list[StepStats]:
         return [self.step() for _ in range(int(round(duration / self.dt)))]
+
+    @property
+    def world_stats(self) -> WorldStats | None:
+        """Each world's figures of the last step, over all shares (None before the first step)."""
+        if self._last is None:
+            return None
+        each = []
+        for part, last in zip(self.parts, self._last):
+            if part.batch is not None:
+                each.append(part.world_stats)
+            else:
+                one = WorldStats.zeros(1)
+                one.set(0, last)
+                each.append(one)
+        return WorldStats(*(np.concatenate([getattr(e, f) for e in each]) for f in WorldStats.__dataclass_fields__))
 
     @property
     def stopped(self) -> dict[int, str]:
