@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint stress bench clean
+.PHONY: run test lint stress soak bench clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -23,6 +23,10 @@ lint: $(STAMP)
 stress: $(STAMP)
 	$(VENV)/bin/warpimpulse stress
 
+# Long runs with a checkpoint and resume every 10,000 steps: joint drift, energy drift, memory (flat or exit 1).
+soak: $(STAMP)
+	$(PY) benchmarks/soak.py --json benchmarks/results/soak.json
+
 # The paper's tables, run time against error and scaling (apart, so each can be re-run alone), then the
 # plots, RESULTS.md and README.md's results block from the three JSON files (only this step edits README.md).
 RESULTS := benchmarks/results
@@ -33,6 +37,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/worlds.py
 	$(PY) benchmarks/run_vs_error.py --json $(RESULTS)/run_vs_error.json > /dev/null
 	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
+	$(PY) benchmarks/orders.py > /dev/null  # orders in time: orders.json, docs/time-order.md, README's orders block
 	$(PY) -m warpimpulse.bench.report --from-json $(RESULTS)/paper_tables.json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
 		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme README.md
 

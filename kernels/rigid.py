@@ -75,7 +75,7 @@ def predict_body(
     x1 = x + v * h + a * (f64(0.5) * h * h)
     v1 = v + a * h
     wb = wp.quat_rotate_inv(q, w)
-    n = wp.min(int(wp.ceil(wp.length(w) * h / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)
+    n = wp.min(int(wp.ceil(wp.length(w) * wp.abs(h) / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)  # h < 0 runs backwards
     n = wp.max(n, 1)
     hs = h / f64(n)
     q1 = q

@@ -7,8 +7,11 @@ kernel and a wrong check would have to be wrong in the same way to hide a bug.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import warp as wp
+from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
 from warpimpulse.types import ConstraintKind
@@ -143,3 +146,63 @@ def momenta(builder, x, q, v, w, about=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.
 
 def sim_state(sim):
     return sim.positions(), sim.orientations(), sim.linear_velocities(), sim.angular_velocities()
+
+
+class DoublePendulumReference:
+    """Two uniform rods on parallel hinges in reduced coordinates (Lagrange's equations; the derivation is in
+    test_double_pendulum.py), integrated by scipy's DOP853: shares no code with the engine."""
+
+    def __init__(self, builder) -> None:
+        b0, b1 = builder.bodies
+        h0, h1 = builder.joints
+        np.testing.assert_allclose(h0.axis, [0, 1, 0])
+        np.testing.assert_allclose(h1.axis, [0, 1, 0])
+        self.pivot = h0.anchor
+        self.m1, self.m2 = b0.mass, b1.mass
+        self.l1 = float(np.linalg.norm(h1.anchor - h0.anchor))
+        self.c1 = float(np.linalg.norm(b0.position - h0.anchor))
+        self.c2 = float(np.linalg.norm(b1.position - h1.anchor))
+        self.i1, self.i2 = (self._hinge_moment(b) for b in (b0, b1))
+        self.g = -float(builder.gravity[2])
+        assert np.allclose(builder.gravity[:2], 0.0)
+
+    @staticmethod
+    def _hinge_moment(body) -> float:
+        r = Rotation.from_quat(body.orientation).as_matrix()
+        return float((r @ body.inertia @ r.T)[1, 1])
+
+    def rhs(self, t, y):
+        t1, t2, w1, w2 = y
+        m1, m2, l1, c1, c2, g = self.m1, self.m2, self.l1, self.c1, self.c2, self.g
+        c, s = math.cos(t1 - t2), math.sin(t1 - t2)
+        m12 = m2 * l1 * c2 * c
+        mass = np.array([[m1 * c1 * c1 + self.i1 + m2 * l1 * l1, m12], [m12, m2 * c2 * c2 + self.i2]])
+        force = np.array(
+            [
+                -m2 * l1 * c2 * s * w2 * w2 - (m1 * c1 + m2 * l1) * g * math.sin(t1),
+                m2 * l1 * c2 * s * w1 * w1 - m2 * c2 * g * math.sin(t2),
+            ]
+        )
+        a1, a2 = np.linalg.solve(mass, force)
+        return [w1, w2, a1, a2]
+
+    def energy(self, y) -> np.ndarray:
+        t1, t2, w1, w2 = y
+        m1, m2, l1, c1, c2, g = self.m1, self.m2, self.l1, self.c1, self.c2, self.g
+        kinetic = 0.5 * (m1 * c1 * c1 + self.i1 + m2 * l1 * l1) * w1**2 + 0.5 * (m2 * c2 * c2 + self.i2) * w2**2
+        kinetic += m2 * l1 * c2 * np.cos(t1 - t2) * w1 * w2
+        potential = -g * ((m1 * c1 + m2 * l1) * np.cos(t1) + m2 * c2 * np.cos(t2))
+        return kinetic + potential
+
+    def solve(self, angles, times, rtol: float = 1e-12):
+        y0 = [angles[0], angles[1], 0.0, 0.0]
+        sol = solve_ivp(self.rhs, (0.0, times[-1]), y0, method="DOP853", rtol=rtol, atol=rtol, t_eval=times)
+        assert sol.success
+        return sol.y
+
+    def coms(self, y) -> np.ndarray:
+        """(T, 2, 3) centre-of-mass positions of the two rods."""
+        t1, t2 = y[0], y[1]
+        u1 = np.stack([np.sin(t1), np.zeros_like(t1), -np.cos(t1)], axis=-1)
+        u2 = np.stack([np.sin(t2), np.zeros_like(t2), -np.cos(t2)], axis=-1)
+        return self.pivot + np.stack([self.c1 * u1, self.l1 * u1 + self.c2 * u2], axis=1)

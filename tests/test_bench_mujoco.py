@@ -149,8 +149,11 @@ def test_forces_stop_on_the_same_step_as_ours() -> None:
 def test_benchmark_harness_end_to_end(tmp_path) -> None:
     """One configuration per engine on the double pendulum: every number and every output is produced."""
     pytest.importorskip("matplotlib")
-    sweep = harness.run_vs_error(["double_pendulum"], [60], [1e-6], repeats=1, progress=False)
+    sweep = harness.run_vs_error(["double_pendulum"], [60], [1e-6], repeats=1, progress=False, orders=(2, 4))
     ref = sweep["references"]["double_pendulum"]
+    ours = {r["order"]: r for r in sweep["runs"] if r["engine"] == "warpimpulse"}
+    assert set(ours) == {2, 4} and ours[4]["tolerance"] < ours[2]["tolerance"]
+    assert ours[4]["trajectory_error"] < 0.01 * ours[2]["trajectory_error"]  # order 4 at the same h
     assert ref["self_check_residual"] < 1e-8
     rk4 = next(r for r in sweep["runs"] if r["variant"] == "RK4" and r["engine"] == "mujoco")
     assert rk4["failed"] is None and rk4["trajectory_error"] < 1e-3 and rk4["energy_drift"] < 1e-2
@@ -160,6 +163,7 @@ def test_benchmark_harness_end_to_end(tmp_path) -> None:
     assert "| mujoco | RK4 | 1/60 |" in text and "## Where we win and lose" in text
     written = report.plots(results, tmp_path)
     assert {p.name for p in written} == {"pareto_double_pendulum.png", "energy_drift.png"}
+    assert "| warpimpulse | auto order 4 | 1/60 |" in text
     readme = tmp_path / "README.md"
     readme.write_text(f"# title\n\nkept\n{report.README_BEGIN}\nold\n{report.README_END}\nkept too\n")
     report.write_readme_block(readme, report.readme_block(results))

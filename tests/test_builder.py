@@ -158,12 +158,12 @@ def test_finalize_rechecks_values_changed_after_adding(spoil, message):
 @pytest.mark.parametrize(
     "kwargs, message",
     [
-        ({"dt": 0.0}, "dt must be a positive"),
-        ({"dt": -1.0}, "dt must be a positive"),
-        ({"dt": math.nan}, "dt must be a positive"),
+        ({"dt": 0.0}, "dt must be positive"),
+        ({"dt": -1.0}, "dt must be positive"),
+        ({"dt": math.nan}, "dt must be positive"),
         ({"tolerance": 0.0}, "tolerance must be positive"),
         ({"velocity_tolerance": -1.0}, "velocity_tolerance must be positive"),
-        ({"dt": math.inf}, "dt must be a positive"),
+        ({"dt": math.inf}, "dt must be positive"),
         ({"tolerance": -1e-6}, "tolerance must be positive"),
         ({"tolerance": math.nan}, "tolerance must be positive"),
         ({"tolerance": math.inf}, "tolerance must be positive"),

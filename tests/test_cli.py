@@ -255,3 +255,19 @@ def test_preview_without_matplotlib_says_what_to_install(recorded):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.count("\n") == 1 and 'pip install "warpimpulse[preview]"' in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("order", [2, 4, 6])
+def test_order_is_recorded(order, tmp_path, capsys):
+    from pxr import Sdf
+
+    from warpimpulse import composition
+
+    out = tmp_path / "x.usda"
+    argv = ["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--order", str(order)]
+    code, _ = run(argv, capsys)
+    assert code == 0
+    data = Sdf.Layer.FindOrOpen(str(out)).customLayerData
+    assert data["warpimpulse:order"] == order
+    assert data["warpimpulse:composition"] == composition.DEFAULT[order]
+    assert data["warpimpulse:tolerance"] == composition.default_tolerance(1 / 30, order)

@@ -449,7 +449,7 @@ def test_interrupt_keeps_frames_done_so_far(tmp_path):
     assert os.listdir(tmp_path) == ["partial.usda"]  # no temporary file left behind
     layer = Sdf.Layer.FindOrOpen(str(out))
     assert layer.customLayerData["warpimpulse:complete"] is False
-    assert layer.customLayerData["warpimpulse:stoppedEarly"] == "interrupted"
+    assert layer.customLayerData["warpimpulse:stoppedEarly"] == "interrupted (SIGINT)"
     assert layer.endTimeCode == 2.0
     assert len(usd.read_animation(str(out)).time_codes) == 3
     assert usd.validate(str(out)) == []
@@ -839,7 +839,7 @@ def test_cli_ctrl_c_keeps_a_valid_file_with_the_frames_done(tmp_path, monkeypatc
     assert "interrupted" in capsys.readouterr().err
     assert os.listdir(tmp_path) == ["stopped.usdc"]
     layer = Sdf.Layer.FindOrOpen(str(out))
-    assert layer.customLayerData["warpimpulse:stoppedEarly"] == "interrupted"
+    assert layer.customLayerData["warpimpulse:stoppedEarly"] == "interrupted (SIGINT)"
     assert usd.read_animation(str(out)).time_codes.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0]
     assert usd.validate(str(out)) == []
 

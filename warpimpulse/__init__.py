@@ -8,10 +8,11 @@ and out), `wi.run` (the frame loop) and `wi.sweep` (parameter sweeps) are import
 import importlib
 
 from .builder import SceneBuilder, SceneError
+from .files import WriteError
 from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import Shape
-from .simulator import SimulationError, Simulator, StepStats
+from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
 from .threads import ThreadedSimulator
 from .types import WORLD, ConstraintKind, Quat, Vec3
@@ -24,6 +25,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "JOINT_TYPES",
+    "CheckpointError",
     "ConstraintKind",
     "Model",
     "SceneBuilder",
@@ -38,6 +40,7 @@ __all__ = [
     "Quat",
     "Vec3",
     "WORLD",
+    "WriteError",
     "__version__",
     "run",
     "scenes",

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import checks
+from .checks import SceneError
 from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import Shape
@@ -21,10 +23,6 @@ from .types import WORLD, ConstraintKind, Quat, Vec3
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
-
-
-class SceneError(ValueError):
-    """Invalid scene input: the message names the body, joint or value at fault."""
 
 
 @dataclass
@@ -78,22 +76,7 @@ class Force:
     until: float = math.inf
 
 
-def _vec(value, what: str, n: int = 3) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 0:
-        arr = np.full(n, float(arr))
-    if arr.shape != (n,):
-        raise SceneError(f"{what} must have {n} components, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f"{what} contains NaN or Inf: {arr.tolist()}")
-    return arr
-
-
-def _scalar(value, what: str) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise SceneError(f"{what} must be a number, got {value!r}") from None
+_vec = checks.vector
 
 
 def _axis(value, what: str) -> np.ndarray:
@@ -184,9 +167,9 @@ class SceneBuilder:
             name: unique; defaults to "body<index>". Errors and outputs name the body by it.
             shape: for display and mass only (bodies do not collide yet).
         """
-        name = name or f"body{len(self.bodies)}"
+        name = self._new_name(name, "body", len(self.bodies))
         what = f"body {name!r}"
-        mass = _scalar(mass, f"{what}: mass")
+        mass = checks.real(mass, f"{what}: mass")
         if not math.isfinite(mass) or mass <= 0.0:
             raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
         return self._append_body(
@@ -198,14 +181,20 @@ class SceneBuilder:
         self, position, orientation=(0.0, 0.0, 0.0, 1.0), name: str | None = None, shape: Shape | None = None
     ) -> int:
         """Add a body that never moves (infinite mass); joints may attach to it like to the world."""
-        name = name or f"body{len(self.bodies)}"
+        name = self._new_name(name, "body", len(self.bodies))
         return self._append_body(name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True)
+
+    @staticmethod
+    def _new_name(name, kind: str, index: int) -> str:
+        return f"{kind}{index}" if name is None else checks.name(name, f"{kind} {index} name")
 
     def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
         what = f"body {name!r}"
         self._open(what)
         if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
+        if shape is not None and not isinstance(shape, Shape):
+            raise SceneError(f"{what}: shape must be a warpimpulse Shape or None, got {shape!r}")
         q = _vec(orientation, f"{what} orientation", 4)
         norm = float(np.linalg.norm(q))
         if norm < 1e-9:
@@ -230,7 +219,7 @@ class SceneBuilder:
 
     @staticmethod
     def _inertia(inertia, what: str) -> np.ndarray:
-        arr = np.asarray(inertia, dtype=np.float64)
+        arr = checks.numbers(inertia, f"{what}: inertia")
         if arr.shape == (3,):
             arr = np.diag(arr)
         if arr.shape != (3, 3):
@@ -306,7 +295,7 @@ class SceneBuilder:
         """
         try:
             kind = ConstraintKind.parse(kind)
-        except ValueError as exc:
+        except (ValueError, TypeError) as exc:
             raise SceneError(f"joint {name or f'joint{len(self.joints)}'!r}: {exc}") from None
         return self.add_joint(kind.name.lower(), parent, child, anchor, axis, axis_child, name, (kind,))
 
@@ -319,13 +308,15 @@ class SceneBuilder:
             if index not in self._body_names:
                 raise SceneError(f"{what}: no body named {index!r}")
             return self._body_names[index]
-        if not isinstance(index, (int, np.integer)) or not 0 <= int(index) < len(self.bodies):
+        if not isinstance(index, (int, np.integer)):
+            raise SceneError(f"{what}: a body index (an integer) or name is expected, got {index!r}")
+        if not 0 <= int(index) < len(self.bodies):
             raise SceneError(f"{what}: body index {index!r} does not exist ({len(self.bodies)} bodies)")
         return int(index)
 
     def add_joint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None, kinds=None) -> int:
         """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this."""
-        name = name or f"joint{len(self.joints)}"
+        name = self._new_name(name, "joint", len(self.joints))
         what = f"joint {name!r}"
         self._open(what)
         p = self._body_index(parent, f"{what} parent")
@@ -337,7 +328,7 @@ class SceneBuilder:
         if (p == WORLD or self.bodies[p].static) and self.bodies[c].static:
             raise SceneError(f"{what}: both bodies are static; the joint constrains nothing")
         if kinds is None:
-            if kind not in JOINT_TYPES:
+            if not isinstance(kind, str) or kind not in JOINT_TYPES:
                 raise SceneError(f"{what}: unknown joint type {kind!r}; expected one of {sorted(JOINT_TYPES)}")
             kinds = JOINT_TYPES[kind]
         needs_axis = any(k.needs_axis for k in kinds)
@@ -388,7 +379,7 @@ class SceneBuilder:
         if b == WORLD or self.bodies[b].static:
             raise SceneError(f"force: body {body!r} is not dynamic")
         what = f"force on body {self.bodies[b].name!r}"
-        until = _scalar(until, f"{what}: until")
+        until = checks.real(until, f"{what}: until")
         if math.isnan(until):
             raise SceneError(f"{what}: until is NaN")
         self.forces.append(Force(b, _vec(force, f"{what}: force"), _vec(torque, f"{what}: torque"), until))
@@ -441,20 +432,37 @@ class SceneBuilder:
 
     def _check_arrays(self) -> None:
         """The add_* calls check their input, but the stored body arrays stay mutable (scenes set velocities
-        after adding bodies): check once more, vectorised, that no NaN or Inf and no bad mass reaches the
-        device. Constraint data is derived from checked input at add time and is not re-checked."""
-        if not np.all(np.isfinite(self.gravity)):
-            raise SceneError(f"gravity contains NaN or Inf: {self.gravity.tolist()}")
-        for f in ("position", "orientation", "linear_velocity", "angular_velocity", "inertia"):
-            values = np.array([getattr(b, f) for b in self.bodies]).reshape(len(self.bodies), -1)
-            bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1))
-            if bad.size:
-                name = self.bodies[bad[0]].name
-                raise SceneError(f"body {name!r} {f} contains NaN or Inf: {values[bad[0]].tolist()}")
-        mass = np.array([b.mass for b in self.bodies])
+        after adding bodies): check once more that no wrong type, NaN, Inf or bad mass reaches the device,
+        vectorised, and body by body (to name the culprit) only when something is wrong. Constraint data is
+        derived from checked input at add time and is not re-checked."""
+        self.gravity = _vec(self.gravity, "gravity")
+        n = len(self.bodies)
+        for f, shape in _BODY_ARRAYS.items():
+            try:
+                values = np.array([getattr(b, f) for b in self.bodies], dtype=np.float64)
+                ok = values.shape == (n, *shape) and np.abs(values).max(initial=0.0) <= checks.LARGEST
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:  # NaN fails the comparison too
+                for b in self.bodies:
+                    what = f"body {b.name!r} {f}"
+                    if f == "inertia":
+                        arr = checks.numbers(b.inertia, what)
+                        if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
+                            raise SceneError(f"{what} must be a finite 3x3 tensor, got {arr.tolist()}")
+                    else:
+                        _vec(getattr(b, f), what, shape[0])
+        for b in self.bodies:
+            if isinstance(b.mass, (bool, np.bool_)) or not isinstance(b.mass, (float, int, np.number)):
+                raise SceneError(f"body {b.name!r}: mass must be a number, got {b.mass!r}")
+        mass = np.array([b.mass for b in self.bodies], dtype=np.float64)
         bad = np.flatnonzero(~np.array([b.static for b in self.bodies]) & ~(np.isfinite(mass) & (mass > 0.0)))
         if bad.size:
             raise SceneError(f"body {self.bodies[bad[0]].name!r}: mass must be positive and finite, got {mass[bad[0]]}")
         for force in self.forces:
             if not (np.all(np.isfinite(force.force)) and np.all(np.isfinite(force.torque))):
                 raise SceneError(f"force on body {self.bodies[force.body].name!r} contains NaN or Inf")
+
+
+_BODY_ARRAYS = {"position": (3,), "orientation": (4,), "linear_velocity": (3,), "angular_velocity": (3,),
+                "inertia": (3, 3)}  # fmt: skip

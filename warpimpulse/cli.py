@@ -1,8 +1,9 @@
 """Command line: `warpimpulse simulate | preview | sweep | bench | stress`.
 
 User mistakes (bad flags, bad scene files) print one clear line and exit 2, never a traceback. A run
-that stops early (divergence, joints that do not converge, Ctrl-C) keeps the frames done so far in a
-valid file, says so, and exits 1 (130 for Ctrl-C).
+that stops early (divergence, joints that do not converge, Ctrl-C, SIGTERM, SIGHUP) keeps the frames done
+so far in a valid file, says so once the file holds them, and exits 1 (128 + the signal for a signal). An
+output the file system refuses (disk full, a size limit) is one line and exit 1, the previous file intact.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
 import time
 import warnings
@@ -18,6 +20,7 @@ from pathlib import Path
 from . import __version__
 from .builder import SceneError
 from .cliutil import EXIT_USAGE, ArgumentParser, check_writable
+from .files import Interrupted, WriteError, same_file, signals_interrupt
 from .scenes import SCENES
 from .types import SOLVERS
 
@@ -44,7 +47,10 @@ def _add_simulate(sub) -> None:
     p.add_argument("--fps", type=_positive(float), default=30.0, help="frames per second written (default 30)")
     p.add_argument("--dt", type=_positive(float),
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
-    p.add_argument("--tolerance", type=_positive(float), default=1e-6, help="joint tolerance, m or rad (default 1e-6)")
+    p.add_argument("--tolerance", type=_positive(float),
+                   help="joint tolerance, m or rad (default 1e-6; tighter at --order 4, 6)")  # fmt: skip
+    p.add_argument("--order", type=int, choices=(2, 4, 6), default=2,
+                   help="order in time: 2 is the paper's step, 4 and 6 compose it (default 2)")  # fmt: skip
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
     p.add_argument("--solver", choices=SOLVERS, default="auto", help="auto = cholesky (see types.SOLVERS)")
     p.add_argument("--max-iterations", type=_positive(int), default=100)
@@ -139,7 +145,8 @@ def _sweep(args) -> int:
 
 
 def _simulate(args) -> int:
-    from . import run, usd
+    from . import checks, run, usd
+    from .energy import EnergyWatch
     from .simulator import SimulationError, Simulator
     from .solver import SingularSystemError
     from .verbosity import verbose
@@ -148,6 +155,11 @@ def _simulate(args) -> int:
         verbose()
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
+    checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
+    try:
+        run.frame_count(args.duration, args.fps)
+    except ValueError as err:
+        raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
     if args.input:
         source = Path(args.input)
         if not source.is_file():
@@ -167,8 +179,10 @@ def _simulate(args) -> int:
     except ValueError as err:
         raise ValueError(f"{err} (dt from {source}'s warpimpulse:dt; pass --dt)" if dt == file_dt else err) from None
     out = args.out or Path("out") / f"{name}.usdc"
+    if args.input and same_file(out, source):
+        raise SceneError(f"{out}: is the input scene; the output would replace it (choose another --out)")
     check_writable(out, create_parent=args.out is None)
-    if out.exists():
+    if out.is_file():
         print(f"warpimpulse: overwriting {out}", file=sys.stderr)
     sim = Simulator(
         builder.finalize(args.device),
@@ -179,22 +193,35 @@ def _simulate(args) -> int:
         max_iterations=args.max_iterations,
         on_max_iterations=args.on_max_iterations,
         max_rotation=None if args.whole_steps else args.max_rotation,
+        order=args.order,
     )
     start = time.perf_counter()
     writer = usd.AnimationWriter(
         out, scene, args.fps, settings=run.settings(sim), flatten=args.flatten, instancer=args.instancer
     )
+    energy = EnergyWatch(sim)
+    on_frame = energy.follow(writer.settings)
+
+    def kept() -> str:  # true whatever happened: the file holds the frames only once it is saved
+        return f"{out} holds the {writer.frames_written} frames done" if writer.saved else f"{out} was not written"
+
     try:
         with writer:
-            frames = run.record_frames(sim, writer, args.duration, progress=args.progress)
+            frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame)
+    except WriteError as err:  # disk full, a file size limit: the previous file is unchanged
+        print(f"warpimpulse: error: {err}", file=sys.stderr)
+        return 1
     except (SimulationError, SingularSystemError, FloatingPointError) as err:
         print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
-        print(f"warpimpulse: {out} holds the {writer.frames_written} frames done before the stop", file=sys.stderr)
+        print(f"warpimpulse: {kept()} before the stop", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"\nwarpimpulse: interrupted; {out} holds the {writer.frames_written} frames done", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
+        print(f"\nwarpimpulse: interrupted ({signal.Signals(signum).name}); {kept()}", file=sys.stderr)
+        return 128 + signum
     elapsed = time.perf_counter() - start
+    if energy.warning():
+        print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
     print(
         f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {sim.step_count} steps of {dt:.6g} s "
         f"in {elapsed:.2f} s ({1e3 * elapsed / max(sim.step_count, 1):.3f} ms a step, output included)"
@@ -228,16 +255,18 @@ def main(argv: list[str] | None = None) -> int:
             return preview_main(args.input, args.out, args.frames, args.gif_frames)
         if args.command == "sweep":
             return _sweep(args)
-        return _simulate(args)
+        with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
+            return _simulate(args)
     except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return EXIT_USAGE
     except SimulationError as err:
         print(f"warpimpulse: stopped: {err}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("\nwarpimpulse: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:  # before the run (reading the scene)
+        signum = err.signum if isinstance(err, Interrupted) else signal.SIGINT
+        print(f"\nwarpimpulse: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return 128 + signum
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ mistake reported in one line with exit status 2, and an output path checked befo
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 from pathlib import Path
 
@@ -23,7 +24,12 @@ def check_writable(path: Path, create_parent: bool = False) -> None:
     """Refuse an output path that cannot be written, before any work: a long run must not fail at the end."""
     if path.is_dir():
         raise SceneError(f"{path}: is a directory; give a file name")
-    parent = path.parent
+    target = Path(os.path.realpath(path))  # a symbolic link is written through: its target's folder counts
+    if target.exists() and not target.is_file():  # a device or FIFO (/dev/null) is written into, not replaced
+        if not os.access(target, os.W_OK):
+            raise SceneError(f"{path}: cannot write into it (permission denied)")
+        return
+    parent = target.parent if path.is_symlink() else path.parent
     if create_parent:
         try:
             parent.mkdir(parents=True, exist_ok=True)

@@ -14,9 +14,9 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from . import checks
 from .topology import Graph, Topology, analyze
 from .types import ConstraintKind
-from .verbosity import device as warp_device
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -99,7 +99,7 @@ class Model:
             owns bodies [w n_w, (w + 1) n_w), and its constraints, joints and forces likewise, with indices into
             the whole model. Every launch covers all worlds; the simulator decides convergence per world.
         """
-        self.device = warp_device(device)  # the first call initialises Warp quietly
+        self.device = checks.device(device)  # the first call initialises Warp quietly
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)
         self.host = SimpleNamespace(

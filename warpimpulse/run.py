@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -37,6 +38,18 @@ def frame_steps(dt: float, fps: float) -> int:
     return steps
 
 
+def frame_count(duration: float, fps: float) -> int:
+    """The frames after frame 0 in `duration` seconds: round(duration * fps). Raises ValueError when that is
+    0, which would write the start state and simulate nothing."""
+    frames = int(round(duration * fps))
+    if frames < 1:
+        raise ValueError(
+            f"fps {fps:g}: a frame lasts {1.0 / fps:.6g} s, longer than the duration {duration:g} s, so no step "
+            "would be simulated; raise fps or the duration"
+        )
+    return frames
+
+
 def settings(sim: Any) -> dict[str, Any]:
     """The simulator settings an output file records (customLayerData warpimpulse:*), so a run can be
     repeated from its file."""
@@ -47,22 +60,30 @@ def settings(sim: Any) -> dict[str, Any]:
         "solver": sim.solver_name,
         "max_iterations": sim.max_iterations,
         "max_rotation": sim.max_rotation or 0.0,  # 0: whole steps
+        "order": sim.order,  # in time: 2 the paper's step, 4 and 6 its compositions
+        "composition": sim.scheme.name,
     }
 
 
 def record_frames(
-    sim: Any, writer: FrameWriter, duration: float, dt: float | None = None, progress: bool | None = None
+    sim: Any,
+    writer: FrameWriter,
+    duration: float,
+    dt: float | None = None,
+    progress: bool | None = None,
+    on_frame: Callable[[int], None] | None = None,
 ) -> int:
     """Step `sim` and write frames 0 .. round(duration * fps) inclusive (frame f holds t = f / fps).
 
     `sim` needs `step()`, `positions()` and `orientations()` (and `dt` unless given). A progress bar is
     drawn on stderr when it is a terminal (or `progress=True`). Returns the number of frames written;
     call it inside `with writer:` so that an error or Ctrl-C still leaves a valid file. A non-finite state
-    raises FloatingPointError naming the frame.
+    raises FloatingPointError naming the frame. `on_frame(f)` runs after frame f is written (the energy
+    watch of `energy.EnergyWatch.follow`).
     """
     dt = float(dt if dt is not None else sim.dt)
     steps = frame_steps(dt, writer.fps)
-    frames = int(round(duration * writer.fps))
+    frames = frame_count(duration, writer.fps)
     show = sys.stderr.isatty() if progress is None else progress
     start = time.perf_counter()
     for f in range(frames + 1):
@@ -73,6 +94,8 @@ def record_frames(
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
             raise FloatingPointError(f"the simulation diverged (non-finite state) before frame {f}")
         writer.write_frame(f, x, q)
+        if on_frame is not None:
+            on_frame(f)
         if show:
             done = (f + 1) / (frames + 1)
             bar = "#" * int(30 * done)

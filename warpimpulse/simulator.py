@@ -9,14 +9,16 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
-import os
 import warnings
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-from . import coordinates
+from . import checks, composition, coordinates, diagnose
+from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
@@ -34,6 +36,13 @@ from .worlds import Batch, WorldStats
 POLICIES = ("raise", "warn")
 
 
+STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be loaded into this simulator; the message names the file and the reason."""
+
+
 def _combined(parts: list[StepStats]) -> StepStats:
     """The stats of one step taken as consecutive substeps."""
     return StepStats(
@@ -44,6 +53,8 @@ def _combined(parts: list[StepStats]) -> StepStats:
         all(p.converged for p in parts),
         sum(p.linear_iterations for p in parts),
         sum(p.substeps for p in parts),
+        min(p.order for p in parts),
+        next((p.fallback for p in parts if p.fallback), ""),
     )
 
 
@@ -57,7 +68,7 @@ class Simulator:
         self,
         model: Model,
         dt: float,
-        tolerance: float = 1e-6,
+        tolerance: float | None = None,
         velocity_tolerance: float | None = None,
         solver: str = "auto",
         max_iterations: int = 100,
@@ -67,6 +78,8 @@ class Simulator:
         max_rotation: float | None = 0.5,
         specialize: bool = True,
         verbose: bool = False,
+        order: int = 2,
+        scheme: str | None = None,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -94,37 +107,40 @@ class Simulator:
             of kinds, compiled once and cached on disk); False shares one module for all six kinds.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
             off by default (`warpimpulse.verbosity`).
+        order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
+            running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
+            steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
+            1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
+        scheme: the composition for `order` by name (`composition.SCHEMES`); None takes the measured best.
         """
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        if not (math.isfinite(tolerance) and tolerance > 0.0):
-            raise ValueError(f"tolerance must be positive, got {tolerance!r}")
+        if not isinstance(model, Model):
+            raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
+        dt = checks.positive(dt, "dt", " (seconds)")
+        self.order = checks.integer(order, "order", 2)
+        self.scheme = composition.scheme(self.order, scheme)
+        tolerance = composition.default_tolerance(dt, self.order) if tolerance is None else tolerance
+        tolerance = checks.positive(tolerance, "tolerance", " (m or rad)")
         velocity_tolerance = tolerance if velocity_tolerance is None else velocity_tolerance
-        if not (math.isfinite(velocity_tolerance) and velocity_tolerance > 0.0):
-            raise ValueError(f"velocity_tolerance must be positive, got {velocity_tolerance!r}")
-        if not (isinstance(max_iterations, int) and not isinstance(max_iterations, bool) and max_iterations >= 1):
-            raise ValueError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
-        if not (
-            isinstance(max_substep_depth, int) and not isinstance(max_substep_depth, bool) and max_substep_depth >= 0
-        ):
-            raise ValueError(f"max_substep_depth must be an integer >= 0, got {max_substep_depth!r}")
-        if max_rotation is not None and not (math.isfinite(max_rotation) and max_rotation > 0.0):
-            raise ValueError(f"max_rotation must be a positive angle in radians or None, got {max_rotation!r}")
-        if formulation not in ("auto", *FORMULATIONS):
+        velocity_tolerance = checks.positive(velocity_tolerance, "velocity_tolerance", " (m/s or rad/s)")
+        max_iterations = checks.integer(max_iterations, "max_iterations", 1)
+        max_substep_depth = checks.integer(max_substep_depth, "max_substep_depth", 0)
+        if max_rotation is not None:
+            max_rotation = checks.positive(max_rotation, "max_rotation", " (rad), or None")
+        if not isinstance(formulation, str) or formulation not in ("auto", *FORMULATIONS):
             raise ValueError(f"unknown formulation {formulation!r}; expected auto or one of {FORMULATIONS}")
-        if solver not in SOLVERS:
+        if not isinstance(solver, str) or solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
-        if on_max_iterations not in POLICIES:
+        if not isinstance(on_max_iterations, str) or on_max_iterations not in POLICIES:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
         if verbose:
             show_warp_messages()
         self.model = model
-        self.dt = float(dt)
-        self.tolerance = float(tolerance)
-        self.velocity_tolerance = float(velocity_tolerance)
+        self.dt = dt
+        self.tolerance = tolerance
+        self.velocity_tolerance = velocity_tolerance
         self.max_iterations = max_iterations
         self.on_max_iterations = on_max_iterations
-        self.max_substep_depth = int(max_substep_depth)
+        self.max_substep_depth = max_substep_depth
         self.max_rotation = max_rotation
         self.solver_name = "cholesky" if solver == "auto" else solver
         self.specialized = specialize
@@ -157,10 +173,10 @@ class Simulator:
         self._counts = (model.body_count, nc)
         self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
         if model.world_count > 1:
-            if self.solver_name != "cholesky" or nc == 0:
+            if self.solver_name != "cholesky" or nc == 0 or self.order != 2:
                 raise ValueError(
-                    f"batched worlds ({model.world_count}) are stepped with the cholesky solver and need joints; "
-                    f"got solver {solver!r} and {nc} constraints"
+                    f"batched worlds ({model.world_count}) are stepped at order 2 with the cholesky solver and need "
+                    f"joints; got order {self.order}, solver {solver!r} and {nc} constraints"
                 )
             self.world_summary = wp.zeros((model.world_count, 2), dtype=wp.float64, device=d)
             self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
@@ -169,8 +185,12 @@ class Simulator:
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
+        self._fingerprint = diagnose.fingerprint(model)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
+        self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
+        self._save_start = self._capture(lambda: self._start.copy_from(self.state))
+        self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
         self._update_frames()
         self._check_finite(self.state, 0)
 
@@ -328,12 +348,20 @@ class Simulator:
 
     @staticmethod
     def _checked(values, shape, what) -> np.ndarray:
-        arr = np.asarray(values, dtype=np.float64)
+        arr = checks.numbers(values, what)
         if arr.shape != shape:
             raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{what} contains NaN or Inf")
+        if np.abs(arr).max(initial=0.0) > checks.LARGEST:
+            raise ValueError(f"{what} holds values too large for double precision (> {checks.LARGEST:g})")
         return arr
+
+    def forces_active(self) -> bool:
+        """Whether an external force or torque acts in the coming step (the model's, before its `until`, or
+        one set with `set_external_forces`): energy is conserved only while none does."""
+        return bool(np.any(self.time < self.model.host.force_until) or np.any(self._user_force)
+                    or np.any(self._user_torque))  # fmt: skip
 
     def _update_forces(self) -> None:
         """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
@@ -353,7 +381,8 @@ class Simulator:
     def step(self) -> StepStats:
         """Advance by dt, as 2**k substeps when a body spins faster than max_rotation / dt. A (sub)step whose
         joint correction diverges or runs out of iterations is redone as two half steps, down to
-        dt / 2**max_substep_depth, before the failure is reported.
+        dt / 2**max_substep_depth, before the failure is reported. At order 4 or 6 a (sub)step is a whole
+        composed step: the spin split and the halving apply to it, never to one of its stages.
 
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
@@ -361,29 +390,62 @@ class Simulator:
         if self.batch is not None:
             return self.batch.step()
         self._update_forces()
-        depth = self._spin_depth()
-        stats = _combined([self._advance(self.dt / 2**depth, depth) for _ in range(2**depth)])
+        stages, fallback = self.scheme.stages, self._fallback
+        if fallback:  # a non-reversible event in this step: composing it would not raise the order
+            stages, self._fallback = (1.0,), ""
+        depth = self._spin_depth(max(abs(g) for g in stages))
+        stats = _combined([self._advance(self.dt / 2**depth, depth, stages) for _ in range(2**depth)])
+        stats.order = self.order if len(stages) == len(self.scheme.stages) else 2
+        stats.fallback = fallback
         self._use_step_size(self.dt)
         self.step_count += 1
         self.time = self.step_count * self.dt
         return stats
 
-    def _advance(self, h: float, depth: int) -> StepStats:
-        self._use_step_size(h)
-        wp.capture_launch(self._save_velocities)
+    def fall_back(self, reason: str) -> None:
+        """Take the next step at order 2, recording `reason` in its StepStats. For whatever makes a step
+        non-reversible (contacts, impacts, friction, a state edited within the step): a symmetric composition
+        only raises the order of a symmetric step, and its backward substeps would run such an event
+        backwards."""
+        self._fallback = str(reason) or "unspecified"
+
+    def _advance(self, h: float, depth: int, stages: tuple[float, ...]) -> StepStats:
+        """One step of h composed of base steps of g h for g in `stages`; on a failed stage, the whole step is
+        undone and redone as two halves."""
         final = depth >= self.max_substep_depth
+        whole = len(stages) == 1
+        wp.capture_launch(self._save_velocities if whole else self._save_start)
+        parts = []
+        for g in stages:
+            part, ok = self._base_step(g * h, final)
+            parts.append(part)
+            if not ok:
+                if whole:  # undo this attempt's impulses: the frames of t0 still hold
+                    wp.copy(self.state.body_v, self._v0)
+                    wp.copy(self.state.body_w, self._w0)
+                else:  # back to the start of the composed step, and its frames
+                    self.state.copy_from(self._start)
+                    self._update_frames()
+                halves = _combined([self._advance(0.5 * h, depth + 1, stages) for _ in range(2)])
+                halves.joint_iterations += sum(p.joint_iterations for p in parts)  # the failed attempt's work
+                halves.velocity_iterations += sum(p.velocity_iterations for p in parts)
+                halves.linear_iterations += sum(p.linear_iterations for p in parts)
+                return halves
+        stats = _combined(parts)
+        stats.substeps = 1
+        return stats
+
+    def _base_step(self, h: float, final: bool) -> tuple[StepStats, bool]:
+        """The paper's step of h (h < 0 runs it backwards): its stats, and False when it failed and a smaller
+        step may still succeed (not `final`; the state then holds this attempt's impulses)."""
+        self._use_step_size(h)
         joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
         if ok:
             self._report_nonfinite(self.pred, self.step_count + 1)  # measured with the last prediction
             if not final and self._turns(h) > 1.0:
                 ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
-            wp.copy(self.state.body_v, self._v0)  # undo this attempt's impulses: the frames of t0 still hold
-            wp.copy(self.state.body_w, self._w0)
-            halves = _combined([self._advance(0.5 * h, depth + 1) for _ in range(2)])
-            halves.joint_iterations += joint_it  # the failed attempt's work counts too
-            halves.linear_iterations += linear_iterations
-            return halves
+            return StepStats(joint_it, 0, joint_err, math.inf, False, linear_iterations, 1), False
         wp.capture_launch(self._accept_graph)
         if self.linear is not None:
             self.linear.check()
@@ -411,22 +473,23 @@ class Simulator:
             # ill-conditioned K) is reported under the same policy as an iteration limit.
             self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
         converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
-        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1)
+        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1), True
 
-    def _spin_depth(self) -> int:
-        """k such that 2**k substeps turn the fastest body of the state at most max_rotation each
-        (k <= max_substep_depth)."""
-        return self._depth_of(self._spin)
+    def _spin_depth(self, reach: float) -> int:
+        """k such that 2**k substeps turn the fastest body of the state at most max_rotation in each base
+        step, the longest of which is `reach` substeps long (k <= max_substep_depth)."""
+        return self._depth_of(self._spin, reach)
 
-    def _depth_of(self, spin: float) -> int:
-        """The substep depth of a step that starts spinning at `spin` (rad/s)."""
-        turns = 0.0 if self.max_rotation is None else spin * self.dt / self.max_rotation
+    def _depth_of(self, spin: float, reach: float = 1.0) -> int:
+        """The substep depth of a step whose fastest body spins at `spin` (rad/s), its longest base step
+        `reach` substeps long."""
+        turns = 0.0 if self.max_rotation is None else spin * abs(reach * self.dt) / self.max_rotation
         return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
 
     def _turns(self, h: float) -> float:
-        """How many times max_rotation the fastest body of the last prediction turns in a step of h (0 when
-        steps are never split)."""
-        return 0.0 if self.max_rotation is None else self._spin * h / self.max_rotation
+        """How many times max_rotation the fastest body of the last prediction turns in a step of h (either
+        way; 0 when steps are never split)."""
+        return 0.0 if self.max_rotation is None else self._spin * abs(h) / self.max_rotation
 
     def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
         """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
@@ -491,10 +554,13 @@ class Simulator:
         bad = [j for j in np.argsort(joints)[::-1][:5] if joints[j] > 0]
         worst = ", ".join(f"{self.model.joint_name[j]!r} ({joints[j]:.3g})" for j in bad)
         tolerance = self.tolerance if what == "joint" else self.velocity_tolerance
+        hint = (
+            diagnose.mass_ratio_note(self.model)
+            or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
+        )
         failure = (
             f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the step halved "
-            f"{self.max_substep_depth} times already; a smaller dt, a looser tolerance or smaller mass ratios "
-            "between jointed bodies may help)"
+            f"{self.max_substep_depth} times already; {hint})"
             if diverging
             else f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         )
@@ -519,15 +585,24 @@ class Simulator:
         if not count:
             self._spin = float(spin)
             return
+        # The device sums each body's squared components: a NaN, an Inf, or a value whose square overflows
+        # (|x| > ~1e154, finite yet beyond arithmetic) counts. Recount the same way here to name those bodies.
         arrays = [
             a.numpy().reshape(self.model.body_count, -1)
             for a in (state.body_x, state.body_q, state.body_v, state.body_w)
         ]
-        bad = ~np.isfinite(np.concatenate(arrays, axis=1)).all(axis=1)
-        names = [self.model.body_name[b] for b in np.flatnonzero(bad)[:10]]
+        with np.errstate(over="ignore", invalid="ignore"):
+            sums = sum(np.sum(a * a, axis=1) for a in arrays)
+        bad = np.flatnonzero(~np.isfinite(sums))
+        if not bad.size:  # a sum at the edge of overflow rounded the other way: the largest is the culprit
+            bad = np.array([int(np.argmax(sums))])
+        names = ", ".join(repr(self.model.body_name[b]) for b in bad[:10])
+        if all(np.isfinite(a[bad]).all() for a in arrays):
+            kind = f"values up to {max(np.abs(a[bad]).max() for a in arrays):.3g}, too large to square"
+        else:
+            kind = "NaN or Inf"
         raise SimulationError(
-            f"step {step}: the simulation diverged (NaN or Inf) in {int(bad.sum())} bodies: "
-            + ", ".join(repr(n) for n in names)
+            f"step {step}: the simulation diverged ({kind}) in {bad.size} bod{'y' if bad.size == 1 else 'ies'}: {names}"
         )
 
     def simulate(self, duration: float, callback=None) -> list[StepStats]:
@@ -543,34 +618,96 @@ class Simulator:
 
     # ---------------------------------------------------------------- checkpoints
     def save_checkpoint(self, path) -> None:
-        """Write the full state to an .npz file (atomically); `load_checkpoint` continues bit-identically."""
-        data = {name: getattr(self.state, f"body_{name}").numpy() for name in ("x", "q", "v", "w")}
+        """Write the full state to an .npz file; `load_checkpoint` continues bit-identically.
+
+        The file also holds the scene's fingerprint (`diagnose.fingerprint`), so that a checkpoint is never
+        loaded into another scene of the same body count. Written as the output files are
+        (`files.write_atomically`): a failed write raises WriteError and leaves the previous checkpoint."""
+        data = {name: getattr(self.state, f"body_{name}").numpy() for name in STATE}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
-                    user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count)  # fmt: skip
+                    user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count,
+                    stages=np.array(self.scheme.stages), fallback=self._fallback)  # fmt: skip
+        data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(tmp, **data)
-        os.replace(tmp, path)
+        write_atomically(path, lambda tmp: np.savez(tmp, **data), ".npz")
 
     def load_checkpoint(self, path) -> None:
-        with np.load(path) as data:
-            if int(data["bodies"]) != self.model.body_count or float(data["dt"]) != self.dt:
-                raise ValueError(
-                    f"{path}: checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} does not match "
-                    f"this simulator ({self.model.body_count} bodies, dt={self.dt})"
-                )
-            for name in ("x", "q", "v", "w"):
-                getattr(self.state, f"body_{name}").assign(data[name])
-            self.time, self.step_count = float(data["time"]), int(data["step_count"])
-            self._user_force, self._user_torque = data["user_force"], data["user_torque"]
-            for key in data.files:
+        """Continue from a checkpoint of this scene. Everything in the file is read and checked before any of
+        it is assigned: a refused or unreadable checkpoint raises CheckpointError (a ValueError naming the
+        file) and leaves the simulator as it was."""
+        path = Path(path)
+        data = self._read_checkpoint(path)
+        for name in STATE:
+            getattr(self.state, f"body_{name}").assign(data[name])
+        self.time, self.step_count = float(data["time"]), int(data["step_count"])
+        self._user_force, self._user_torque = data["user_force"], data["user_torque"]
+        self._fallback = str(data["fallback"]) if "fallback" in data else ""
+        warm = getattr(self.linear, "_warm", None)  # CG warm starts; another solver's are not used
+        if warm is not None:
+            warm.clear()
+            for key in data:
                 if key.startswith("warm_"):
-                    self.linear._warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
+                    warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
         self._active_forces = None
         self._update_frames()
         self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
+
+    def _read_checkpoint(self, path: Path) -> dict[str, np.ndarray]:
+        """Every array of the checkpoint at `path`, checked against this simulator."""
+
+        def refuse(why: str) -> CheckpointError:
+            return CheckpointError(f"{path}: {why}")
+
+        try:
+            npz = np.load(path, allow_pickle=False)
+            if not isinstance(npz, np.lib.npyio.NpzFile):  # a lone .npy array
+                raise ValueError(path)
+            with npz:
+                data = {key: npz[key] for key in npz.files}
+        except FileNotFoundError:
+            raise refuse("no such checkpoint file") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as err:  # ValueError: pickled data
+            why = err.strerror if isinstance(err, OSError) and err.strerror else "truncated, corrupt or another format"
+            raise refuse(f"not a readable warpimpulse checkpoint ({why})") from None
+        n, nc = self.model.body_count, self.model.constraint_count
+        shapes = {"x": (n, 3), "q": (n, 4), "v": (n, 3), "w": (n, 3), "user_force": (n, 3), "user_torque": (n, 3),
+                  "time": (), "step_count": (), "dt": (), "bodies": ()}  # fmt: skip
+        missing = [key for key in (*shapes, *(f"scene_{k}" for k in self._fingerprint)) if key not in data]
+        if missing:
+            raise refuse(f"not a warpimpulse checkpoint of this version: it has no {', '.join(missing)}")
+        for key, shape in shapes.items():  # scalars first: the body count and dt make the clearest message
+            if data[key].dtype.kind not in "iuf" or (shape == () and data[key].shape != ()):
+                raise refuse(f"'{key}' is not {'a number' if shape == () else 'an array of numbers'}")
+        if int(data["bodies"]) != n or float(data["dt"]) != self.dt:
+            raise refuse(
+                f"checkpoint of {int(data['bodies'])} bodies at dt={float(data['dt'])} does not match this "
+                f"simulator ({n} bodies, dt={self.dt})"
+            )
+        for key, digest in self._fingerprint.items():
+            if str(data[f"scene_{key}"]) != digest:
+                raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+        if "stages" in data and (data["stages"].dtype.kind != "f" or data["stages"].ndim != 1):
+            raise refuse("'stages' is not a list of numbers")
+        stages = tuple(float(g) for g in data["stages"]) if "stages" in data else (1.0,)
+        if stages != self.scheme.stages:
+            raise refuse(
+                f"checkpoint taken with the composition {stages} of the base step; this simulator composes "
+                f"{self.scheme.stages} (order {self.order}): resuming would not continue the run"
+            )
+        for key, shape in shapes.items():
+            if data[key].shape != shape:
+                raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
+            if not np.all(np.isfinite(data[key])):
+                raise refuse(f"'{key}' contains NaN or Inf")
+        if data["step_count"].dtype.kind == "f" or int(data["step_count"]) < 0 or float(data["time"]) < 0.0:
+            raise refuse(f"step count {data['step_count']} at time {data['time']} is not a place in a run")
+        if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
+            raise refuse("an orientation is not a unit quaternion")
+        for key in data:
+            if key.startswith("warm_") and (data[key].shape != (nc, 3) or not np.all(np.isfinite(data[key]))):
+                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3)")
+        return data
 
     # ---------------------------------------------------------------- the state
     def reset(self) -> None:
@@ -583,6 +720,7 @@ class Simulator:
         n = self.model.body_count
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
+        self._fallback = ""
         getattr(self.linear, "_warm", {}).clear()
         self._update_frames()
         self._check_finite(self.state, 0)
@@ -703,16 +841,26 @@ class Simulator:
             return errors[w * m.world_joint_count : (w + 1) * m.world_joint_count]
         return errors if m.world_count == 1 else errors.reshape(m.world_count, -1)
 
-    def energy(self, world: int | None = None) -> float | np.ndarray:
-        """Kinetic plus gravitational potential energy (J); with batched worlds, (W,) for all of them or one
-        `world`'s."""
-        m = self.model.host.body_mass
-        x, q, v, w = self._state_arrays()
-        r = quat_to_matrix(q)
-        inertia = self.model.host.body_inertia
-        iw = np.einsum("nij,njk,nlk->nil", r, inertia, r)
-        kinetic = 0.5 * m * np.sum(v * v, axis=1) + 0.5 * np.einsum("ni,nij,nj->n", w, iw, w)
-        per_world = (kinetic - m * (x @ self.model.host.gravity)).reshape(self.model.world_count, -1).sum(axis=1)
+    def _per_world_sum(self, per_body: np.ndarray, world: int | None) -> float | np.ndarray:
+        """A sum over bodies, per world: a number for a one-world model or one `world`, else (W,)."""
+        per_world = per_body.reshape(self.model.world_count, -1).sum(axis=1)
         if world is not None:
             return float(per_world[self._world_rows(world).start // self.model.world_body_count])
         return float(per_world[0]) if self.model.world_count == 1 else per_world
+
+    def _kinetic_per_body(self) -> np.ndarray:
+        m = self.model.host.body_mass
+        _, q, v, w = self._state_arrays()
+        r = quat_to_matrix(q)
+        iw = np.einsum("nij,njk,nlk->nil", r, self.model.host.body_inertia, r)
+        return 0.5 * m * np.sum(v * v, axis=1) + 0.5 * np.einsum("ni,nij,nj->n", w, iw, w)
+
+    def kinetic_energy(self, world: int | None = None) -> float | np.ndarray:
+        """Translational plus rotational kinetic energy, J; with batched worlds (W,) or one `world`'s."""
+        return self._per_world_sum(self._kinetic_per_body(), world)
+
+    def energy(self, world: int | None = None) -> float | np.ndarray:
+        """Kinetic plus gravitational potential energy, J; with batched worlds (W,) or one `world`'s."""
+        h = self.model.host
+        potential = -h.body_mass * (self.state.body_x.numpy() @ h.gravity)
+        return self._per_world_sum(self._kinetic_per_body() + potential, world)

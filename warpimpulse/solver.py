@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from .diagnose import mass_ratio_note
 from .kernels import assemble as assemble_kernels
 from .kernels import cg as cg_kernels
 from .kernels import cholesky as cholesky_kernels
@@ -122,14 +123,14 @@ class CholeskySolver:
             unknown = int(self.pattern.perm[col - 1])
             m = self.model
             if self._augmented and unknown < self._offset:
-                body = m.body_name[unknown % m.body_count]
-                raise SingularSystemError(f"the system matrix is singular at body {body!r}: its mass or inertia")
-            c = unknown - self._offset if self._augmented else unknown
-            j = int(m.constraint_joint[c])
-            raise SingularSystemError(
-                f"the system matrix is singular at joint {m.joint_name[j]!r} ({m.joint_type[j]}, constraint {c}): "
-                "its constraints are redundant with others on the same bodies, or degenerate"
-            )
+                where, cause = f"body {m.body_name[unknown % m.body_count]!r}", "its mass or inertia"
+            else:
+                c = unknown - self._offset if self._augmented else unknown
+                j = int(m.constraint_joint[c])
+                where = f"joint {m.joint_name[j]!r} ({m.joint_type[j]}, constraint {c})"
+                cause = "its constraints are redundant with others on the same bodies, or degenerate"
+            # Masses 1e30 apart lose a pivot too: name them rather than call the joint redundant.
+            raise SingularSystemError(f"the system matrix is singular at {where}: {mass_ratio_note(m) or cause}")
 
     def solve_launches(self, rhs: wp.array, out: wp.array) -> list[wp.Launch]:
         """The launches of one solve from `rhs` into `out`, recorded once per pair of arrays."""
@@ -234,7 +235,10 @@ class CGSolver:
                 launch.launch()
             it += 1
         if not math.isfinite(self._rr()):
-            raise FloatingPointError("CG diverged: the system matrix is singular or indefinite")
+            note = mass_ratio_note(self.model)
+            raise FloatingPointError(
+                f"CG diverged: the system matrix is singular or indefinite{'; ' + note if note else ''}"
+            )
         wp.copy(out, self.x)
         if warm_key is not None:
             self._warm.setdefault(warm_key, wp.zeros_like(self.x))

@@ -19,3 +19,5 @@ class StepStats:
     converged: bool = True
     linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
     substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
+    order: int = 2  # the order in time the step was taken at (Simulator's `order`, unless it fell back)
+    fallback: str = ""  # why a step asked at order 4 or 6 was taken at order 2 (a non-reversible event)

@@ -17,6 +17,7 @@ from ..cliutil import EXIT_USAGE, ArgumentParser
 from ..types import SOLVERS
 from . import report, stress
 from .harness import (
+    QUICK_ORDERS,
     QUICK_RATES,
     QUICK_SCALING_BUDGET,
     QUICK_SCALING_CHAINS,
@@ -28,6 +29,7 @@ from .harness import (
     SCALING_REPEATS,
     SCALING_STEPS,
     SCALING_TREES,
+    SWEEP_ORDERS,
     SWEEP_RATES,
     SWEEP_SCENES,
     SWEEP_TOLERANCES,
@@ -61,6 +63,8 @@ def parser() -> ArgumentParser:
     p.add_argument("--report", type=Path, help="write the full markdown report (the stdout table) here too")
     p.add_argument("--scenes", nargs="+", help=f"scenes of the sweep (default {' '.join(SWEEP_SCENES)})")
     p.add_argument("--solver", default="auto", choices=SOLVERS)
+    p.add_argument("--orders", type=int, nargs="+", choices=(2, 4, 6),
+                   help="our orders in time (default 2 4 6, quick 2 4); 4, 6 at their default tolerance")  # fmt: skip
     p.add_argument("--repeats", type=int, help="timed repeats per configuration (default 5, quick 3)")
     p.add_argument("--no-sweep", action="store_true", help="skip run time against error")
     p.add_argument("--no-scaling", action="store_true", help="skip scaling")
@@ -87,6 +91,7 @@ def bench(argv: list[str]) -> int:
             QUICK_RATES if args.quick else SWEEP_RATES,
             QUICK_TOLERANCES if args.quick else SWEEP_TOLERANCES,
             repeats, args.solver, not args.no_progress,
+            args.orders or (QUICK_ORDERS if args.quick else SWEEP_ORDERS),
         ) | {"meta": meta}  # fmt: skip
     if not args.no_scaling:
         budget = args.scaling_budget or (QUICK_SCALING_BUDGET if args.quick else SCALING_BUDGET)

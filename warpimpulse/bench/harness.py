@@ -45,9 +45,13 @@ from .runner import Runner, StepFailed
 
 SWEEP_RATES = (30, 60, 120, 300)  # steps per second: h = 1/30 ... 1/300
 SWEEP_TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
+# Orders in time of ours: 2 (the paper's step) at every tolerance above; 4 and 6 (its compositions) at the
+# tolerance that follows h and the order (`composition.default_tolerance`), since a looser one caps the order.
+SWEEP_ORDERS = (2, 4, 6)
 SWEEP_SCENES = ("double_pendulum", "tree31", "tree127", "chain50", "star127")
 QUICK_RATES = (30, 60, 120)
 QUICK_TOLERANCES = (1e-4, 1e-8)
+QUICK_ORDERS = (2, 4)
 QUICK_SCENES = ("double_pendulum", "tree31", "tree127")
 REFERENCE_RATE, CHECK_RATE = 3000, 6000
 ERROR_TIME = 2.0  # s: trajectory error is measured here
@@ -151,10 +155,11 @@ def _to_body(position: np.ndarray, orientation: np.ndarray, point: np.ndarray) -
 class WarpimpulseRunner:
     """Our Simulator; a SimulationError (NaN, or no convergence in max_iterations) fails the configuration."""
 
-    def __init__(self, builder: SceneBuilder, rate: int, tolerance: float, solver: str = "auto", model=None):
-        self.sim = Simulator(
-            model if model is not None else builder.finalize("cpu"), 1.0 / rate, tolerance=tolerance, solver=solver
-        )
+    def __init__(
+        self, builder: SceneBuilder, rate: int, tolerance: float | None, solver: str = "auto", model=None, order=2
+    ):
+        model = model if model is not None else builder.finalize("cpu")
+        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, solver=solver, order=order)
         self.joint_iterations = self.velocity_iterations = self.linear_iterations = 0
         self.max_joint_iterations = 0
         self.max_step_error = 0.0
@@ -355,17 +360,20 @@ def run_vs_error(
     repeats: int,
     solver: str = "auto",
     progress: bool = True,
+    orders: Iterable[int] = (2,),
 ) -> dict:
-    """The accuracy/time sweep of every scene, for every engine that is available."""
+    """The accuracy/time sweep of every scene, for every engine that is available; ours at order 2 for every
+    tolerance, and at each other order of `orders` with the tolerance that order takes by default."""
     scene_names, rates, tolerances = list(scene_names), list(rates), list(tolerances)
     mujoco_missing, pin_missing = mujoco_available(), pinocchio_available()
     if mujoco_missing:
         raise RuntimeError(f"the reference needs MuJoCo: {mujoco_missing}")
     if pin_missing:
         log(f"note: {pin_missing}; no pinocchio peer, no cross-check of the reference")
-    configs = [("mujoco", integ, None) for integ in MUJOCO_INTEGRATORS]
-    configs += [] if pin_missing else [("pinocchio", "RK4", None)]
-    configs += [("warpimpulse", solver, tol) for tol in tolerances]
+    configs = [("mujoco", integ, None, None) for integ in MUJOCO_INTEGRATORS]
+    configs += [] if pin_missing else [("pinocchio", "RK4", None, None)]
+    configs += [("warpimpulse", solver, tol, 2) for tol in tolerances]
+    configs += [("warpimpulse", solver, None, order) for order in orders if order != 2]
     per_scene = len(rates) * len(configs)
     bar = Progress(len(scene_names) * (per_scene + 1), progress)
     rows, refs = [], {}
@@ -388,7 +396,7 @@ def run_vs_error(
                else f"; vs pinocchio RK4 h=1/{REFERENCE_RATE}: residual {ref.pinocchio_residual:.3g} m"))  # fmt: skip
         bar.advance(f"{name} reference")
         model = builder.finalize("cpu")
-        for engine, variant, tol in configs:
+        for engine, variant, tol, order in configs:
             for rate in rates:
                 if engine == "mujoco":
                     factory = partial(MujocoRunner, mscene, variant, rate)
@@ -397,20 +405,22 @@ def run_vs_error(
                     factory = partial(PinocchioRunner, pscene, rate)
                     runner = factory()
                 else:
-                    factory = partial(WarpimpulseRunner, builder, rate, tol, solver, model)
-                    runner = WarpimpulseRunner(builder, rate, tol, solver, model)
+                    factory = partial(WarpimpulseRunner, builder, rate, tol, solver, model, order)
+                    runner = factory()
                 acc = accuracy_run(runner, rate, probe, duration)
                 row = {"scene": name, "engine": engine, "variant": variant, "rate": rate, "h": 1.0 / rate,
-                       "tolerance": tol}  # fmt: skip
+                       "tolerance": tol, "order": order}  # fmt: skip
                 row.update(summarize(acc, ref, t_forces))
                 if engine == "warpimpulse":
+                    row["tolerance"] = runner.sim.tolerance  # the order's own where none was given
                     row["joint_error_internal_max"] = runner.max_step_error
                     row.update(runner.iteration_stats())
                 times = time_steps(factory, rate, repeats) if acc["failed"] is None else []
                 row["time_per_step_runs"] = times
                 row["time_per_step"] = statistics.median(times) if times else None
                 rows.append(row)
-                bar.advance(f"{name} {engine} {variant} 1/{rate}" + (f" tol {tol:g}" if tol else ""))
+                bar.advance(f"{name} {engine} {variant} 1/{rate}" + (f" tol {tol:g}" if tol else "")
+                            + (f" order {order}" if order not in (None, 2) else ""))  # fmt: skip
     missing = {"mujoco": mujoco_missing, "pinocchio": pin_missing}
     return {"references": refs, "runs": rows, "missing": missing}
 

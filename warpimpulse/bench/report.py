@@ -38,7 +38,8 @@ def speed_ratios(runs: list[dict], scene: str = BAR_SCENE) -> list[dict]:
         best = min(match, key=lambda p: p["time_per_step"] * p["rate"]) if match else None
         cost = r["time_per_step"] * r["rate"]
         out.append({
-            "rate": r["rate"], "tolerance": r["tolerance"], "trajectory_error": r["trajectory_error"],
+            "rate": r["rate"], "tolerance": r["tolerance"], "order": r.get("order", 2),
+            "trajectory_error": r["trajectory_error"],
             "time_per_step": r["time_per_step"], "time_per_second": cost,
             "mujoco": None if best is None else f"{best['variant']} 1/{best['rate']}",
             "mujoco_error": None if best is None else best["trajectory_error"],
@@ -85,7 +86,8 @@ def markdown(results: dict) -> str:
                       "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
             for r in (r for r in sweep["runs"] if r["scene"] == name):
                 lines.append(
-                    f"| {r['engine']} | {r['variant']} | 1/{r['rate']} | {_num(r['tolerance'], 'g')} | "
+                    f"| {r['engine']} | {r['variant']}{_order_suffix(r)} | 1/{r['rate']} | "
+                    f"{_num(r['tolerance'], 'g')} | "
                     f"{_us(r['time_per_step'])} | {_num(r['trajectory_error'])} | {_num(r['energy_drift'])} | "
                     f"{_num(r['joint_error_anchor_gap'])} | {_num(r.get('joint_error_internal_max'))} | "
                     f"{_num(r.get('joint_iterations_mean'), '.2f')} | {(r['failed'] or '')[:60]} |"
@@ -194,8 +196,18 @@ def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
     return lines + [""]
 
 
+def _order_suffix(r: dict) -> str:
+    order = r.get("order") or 2
+    return "" if order == 2 else f" order {order}"
+
+
+def _ours(r: dict) -> str:
+    """Our configuration's tolerance, and its order in time where not the paper's 2."""
+    return f"tol {r['tolerance']:g}" + _order_suffix(r).replace(" order", ", order")
+
+
 def _ratio_cell(r: dict | None) -> str:
-    return "—" if r is None else f"{r['ratio']:.3g} (1/{r['rate']}, tol {r['tolerance']:g} vs {r['mujoco']})"
+    return "—" if r is None else f"{r['ratio']:.3g} (1/{r['rate']}, {_ours(r)} vs {r['mujoco']})"
 
 
 def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") -> list[str]:
@@ -208,13 +220,13 @@ def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") ->
              "Ratio = run time per simulated second of the fastest MuJoCo configuration whose error is at most "
              "ours, over ours (> 1: warpimpulse is faster). Per second, not per step: h differs between the two.",
              "",
-             "| our h | tolerance | our error (m) | our µs/step | our ms/sim s | fastest MuJoCo at ≤ that error | "
-             "its error (m) | its µs/step | its ms/sim s | ratio |",
+             "| our h | tolerance, order | our error (m) | our µs/step | our ms/sim s | "
+             "fastest MuJoCo at ≤ that error | its error (m) | its µs/step | its ms/sim s | ratio |",
              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in ratios:
         theirs = r["mujoco_time_per_second"]
         lines.append(
-            f"| 1/{r['rate']} | {r['tolerance']:g} | {r['trajectory_error']:.3g} | {_us(r['time_per_step'])} | "
+            f"| 1/{r['rate']} | {_ours(r)} | {r['trajectory_error']:.3g} | {_us(r['time_per_step'])} | "
             f"{r['time_per_second'] * 1e3:.1f} | {r['mujoco'] or 'none reaches it'} | {_num(r['mujoco_error'])} | "
             f"{_us(r['mujoco_time_per_step'])} | {'—' if theirs is None else f'{theirs * 1e3:.1f}'} | "
             f"{_num(r['ratio'], '.3g')} |"
@@ -224,13 +236,13 @@ def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") ->
     lines += ["", f"We win in {len(wins)} of {len(ratios)} configurations and lose in {len(losses)}."]
     if wins:
         best = max(wins, key=lambda r: math.inf if r["ratio"] is None else r["ratio"])
-        lines.append(f"Best: h=1/{best['rate']}, tol {best['tolerance']:g}, error {best['trajectory_error']:.3g} m, "
+        lines.append(f"Best: h=1/{best['rate']}, {_ours(best)}, error {best['trajectory_error']:.3g} m, "
                      + ("no MuJoCo configuration of the sweep is that accurate." if best["ratio"] is None
                         else f"{best['ratio']:.2f}x faster than MuJoCo {best['mujoco']}."))  # fmt: skip
-        lines.append("We win at: " + ", ".join(f"1/{r['rate']} tol {r['tolerance']:g}" for r in wins) + ".")
+        lines.append("We win at: " + ", ".join(f"1/{r['rate']} {_ours(r)}" for r in wins) + ".")
     if losses:
         worst = min(losses, key=lambda r: r["ratio"])
-        lines.append(f"Worst: h=1/{worst['rate']}, tol {worst['tolerance']:g}, error {worst['trajectory_error']:.3g} "
+        lines.append(f"Worst: h=1/{worst['rate']}, {_ours(worst)}, error {worst['trajectory_error']:.3g} "
                      f"m, {1.0 / worst['ratio']:.2f}x slower than MuJoCo {worst['mujoco']}.")  # fmt: skip
     return lines + [""]
 
@@ -393,9 +405,13 @@ def _curves(runs: list[dict], scene: str) -> dict[str, list[dict]]:
     for r in runs:
         if r["scene"] != scene:
             continue
-        label = (
-            f"warpimpulse tol {r['tolerance']:g}" if r["engine"] == "warpimpulse" else f"{r['engine']} {r['variant']}"
-        )
+        order = r.get("order") or 2
+        if r["engine"] != "warpimpulse":
+            label = f"{r['engine']} {r['variant']}"
+        elif order == 2:
+            label = f"warpimpulse tol {r['tolerance']:g}"
+        else:  # one front per order: its tolerance follows h
+            label = f"warpimpulse order {order}"
         curves.setdefault(label, []).append(r)
     return curves
 

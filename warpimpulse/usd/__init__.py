@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 from ..builder import SceneBuilder
-from ..run import frame_steps, record_frames, settings
+from ..energy import EnergyWatch
+from ..run import frame_count, frame_steps, record_frames, settings
 from .check import Animation, read_animation, validate
 from .reader import load_stage
 from .scene import UnsupportedFeatureError, UsdScene, UsdSceneError, scene_from_builder
@@ -79,13 +81,19 @@ def record(
 
     The simulator's settings are recorded in customLayerData (warpimpulse:dt, :tolerance, ...). If the
     simulation stops (SimulationError, FloatingPointError, Ctrl-C), the frames done so far are written,
-    the file records the stop (warpimpulse:stoppedEarly), and the exception propagates.
+    the file records the stop (warpimpulse:stoppedEarly), and the exception propagates. The energy gain over
+    the run goes into the layer data too (warpimpulse:energyGain; `energy.EnergyWatch`), with a RuntimeWarning
+    above 5% of the largest kinetic energy: the step is then too large for the motion.
     """
     frame_steps(sim.dt, fps)  # a bad fps is refused before a file is touched
+    frame_count(duration, fps)
     start_steps, start = sim.step_count, time.perf_counter()
     writer = AnimationWriter(
         path, sim.model if scene is None else scene, fps, settings(sim), flatten=flatten, instancer=instancer
     )
+    energy = EnergyWatch(sim)
     with writer:
-        frames = record_frames(sim, writer, duration, progress=progress)
+        frames = record_frames(sim, writer, duration, progress=progress, on_frame=energy.follow(writer.settings))
+    if energy.warning():
+        warnings.warn(energy.warning(), RuntimeWarning, stacklevel=2)
     return Recording(writer.path, frames, writer.fps, sim.step_count - start_steps, time.perf_counter() - start)

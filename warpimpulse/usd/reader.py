@@ -20,11 +20,13 @@ from typing import Any
 import numpy as np
 
 from ..builder import SceneBuilder, SceneError
+from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..shapes import Shape
 from ..transforms import quat_conj, quat_from_matrix, quat_mul, quat_rotate, quat_to_matrix
 from .scene import IDENTITY_QUAT, UnsupportedFeatureError, UsdScene, UsdSceneError, open_stage, pxr
 
+JOINT_GAP = 1e-5  # m per m of the anchor's distance from the origin (at least 1 m): float32 localPos round-off
 _DOFS = ("transX", "transY", "transZ", "rotX", "rotY", "rotZ")
 _EYE = np.eye(3)
 
@@ -86,6 +88,27 @@ def _unit_quat(path: str, name: str, value: Any) -> np.ndarray:
     return q / n
 
 
+def _not_only_sampled(prim, attr) -> None:
+    """The scene is read at the default time: an attribute authored only as time samples has no value there
+    (an XformCache takes such an op as the identity, a schema attribute its fallback), so the body would
+    start in the wrong place, or at rest. Refuse it."""
+    _, _, _, Usd, *_ = pxr()
+    if attr.GetNumTimeSamples() and (
+        attr.GetResolveInfo(Usd.TimeCode.Default()).GetSource() != Usd.ResolveInfoSourceDefault
+    ):
+        times = attr.GetTimeSamples()
+        raise UsdSceneError(
+            f"{prim.GetPath()}: {attr.GetName()} is authored only as time samples ({len(times)}, from time "
+            f"{times[0]:g}); the initial state is read from default values: author a default value"
+        )
+
+
+def _check_defaults(prim) -> None:
+    """`_not_only_sampled` for every attribute of a body, joint or scene prim."""
+    for attr in prim.GetAttributes():
+        _not_only_sampled(prim, attr)
+
+
 class _Xforms:
     """World matrices from an XformCache, after checking the xformOps of the prim and its ancestors (each
     prim once): the cache reads a zero or NaN orient as the identity and drops a non-finite matrix op."""
@@ -104,6 +127,7 @@ class _Xforms:
                 for op in self._xformable(prim).GetOrderedXformOps():
                     value = op.Get()
                     if value is None:
+                        _not_only_sampled(prim, op.GetAttr())
                         continue
                     if op.GetOpType() == self._orient:
                         _unit_quat(path, op.GetName(), value)
@@ -364,16 +388,22 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             raise UsdSceneError(f"{path}: the stage's {key} must be positive and finite, got {value}")
     up = str(UsdGeom.GetStageUpAxis(stage))
     try:
-        parsed = UsdPhysics.UsdPhysicsLoadStageFromPrimRange(stage, [Sdf.Path("/")])
+        with fd2_captured() as caught:  # its warnings (e.g. a CollisionAPI on a non-geometry prim): one line each
+            parsed = UsdPhysics.UsdPhysicsLoadStageFromPrimRange(stage, [Sdf.Path("/")])
     except Exception as exc:  # noqa: BLE001 - the parser raises Tf errors of several kinds
-        raise UsdSceneError(f"{path}: the UsdPhysics parser failed: {exc}") from None
+        raise UsdSceneError(f"{path}: the UsdPhysics parser failed: {usd_message(exc)}") from None
+    for text in usd_warnings(caught):
+        warnings.warn(f"{path}: {text}", stacklevel=2)
     T = UsdPhysics.ObjectType
     get = lambda t: list(zip(*parsed[t])) if t in parsed else []  # noqa: E731
 
     # Gravity.
     scenes = get(T.Scene)
-    up_vec = {"X": [1.0, 0, 0], "Y": [0, 1.0, 0], "Z": [0, 0, 1.0]}[up]
+    if up not in ("Y", "Z"):  # UsdGeom allows only these two
+        raise UsdSceneError(f"{path}: the stage's upAxis must be Y or Z, got {up!r}")
+    up_vec = {"Y": [0, 1.0, 0], "Z": [0, 0, 1.0]}[up]
     if scenes:
+        _check_defaults(stage.GetPrimAtPath(scenes[0][0]))
         if len(scenes) > 1:
             report.note(f"{path}: {len(scenes)} PhysicsScene prims; using {scenes[0][0]}")
         spath, sd = str(scenes[0][0]), scenes[0][1]
@@ -401,6 +431,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     for i, (p, desc) in enumerate(bodies):
         bpath = str(p)
         prim = stage.GetPrimAtPath(p)
+        _check_defaults(prim)
         frame = decompose(xforms.world(prim), bpath)
         frames.append(frame)
         scales[i] = frame.s
@@ -460,6 +491,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             all_joints += [(str(p), t, d) for p, d in zip(paths, descs)]
     for jpath, t, desc in sorted(all_joints, key=lambda x: order.get(x[0], len(order))):
         jprim = stage.GetPrimAtPath(jpath)
+        _check_defaults(jprim)
         if not desc.jointEnabled:
             notes.append(f"{jpath}: joint disabled (physics:jointEnabled = false); skipped")
             continue
@@ -514,9 +546,12 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             if not plans:
                 notes.append(f"{jpath}: generic joint with no locked axis constrains nothing; skipped")
                 continue
-        gap = float(np.linalg.norm(a0 - a1))
-        if gap > 1e-5 * max(1.0, float(np.abs(a0).max())):
-            notes.append(f"{jpath}: the joint frames of body0 and body1 are {gap:.3g} m apart; using body0's")
+        gap, tolerance = float(np.linalg.norm(a0 - a1)), JOINT_GAP * max(1.0, float(np.abs(a0).max()))
+        if gap > tolerance and ends[0] != ends[1]:  # it would take body0's frame and pull body1 across the gap
+            raise UsdSceneError(
+                f"{jpath}: its frames on body0 and body1 (physics:localPos0, physics:localPos1) are {gap:.3g} m "
+                f"apart at the start; they must coincide (to {tolerance:.2g} m)"
+            )
         parent, child = ends
         if child is None:  # body1 empty: the world is on the child side; swap so the child is a body
             parent, child = None, parent

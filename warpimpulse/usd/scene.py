@@ -5,11 +5,13 @@ import."""
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..builder import SceneBuilder, SceneError
+from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..model import Model
 from ..transforms import quat_rotate
@@ -139,15 +141,23 @@ def as_scene(scene: UsdScene | SceneBuilder | Model) -> UsdScene:
 
 
 def open_stage(path: str):
-    """The stage of a file, or a UsdSceneError naming the file: missing, or not USD."""
+    """The stage of a file, or a UsdSceneError naming the file: missing, not USD, or part of it missing (a
+    sublayer, reference or payload that cannot be opened: the scene would be simulated without it). USD's own
+    warnings while composing go into the error instead of onto stderr."""
     _, _, Tf, Usd, *_ = pxr()
     if not os.path.isfile(path):
         raise UsdSceneError(f"{path}: no such file")
     try:
-        stage = Usd.Stage.Open(path)
+        with fd2_captured() as caught:
+            stage = Usd.Stage.Open(path)
     except Tf.ErrorException as exc:
-        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else ""
-        raise UsdSceneError(f"{path}: not a USD file that can be opened ({first.strip()})") from None
+        raise UsdSceneError(f"{path}: not a USD file that can be opened ({usd_message(exc)})") from None
     if stage is None:
         raise UsdSceneError(f"{path}: not a USD file that can be opened")
+    errors = [" ".join(str(e).split()) for e in stage.GetCompositionErrors()]
+    if errors:
+        more = f"; and {len(errors) - 3} more" if len(errors) > 3 else ""
+        raise UsdSceneError(f"{path}: part of the scene cannot be opened: {'; '.join(errors[:3])}{more}")
+    for text in usd_warnings(caught):
+        warnings.warn(f"{path}: {text}", stacklevel=2)
     return stage

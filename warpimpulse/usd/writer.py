@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from collections import deque
 from collections.abc import Iterable
 from itertools import chain, cycle, repeat
@@ -24,6 +23,7 @@ import numpy as np
 
 from .. import __version__
 from ..builder import WORLD, SceneBuilder
+from ..files import Interrupted, interrupts_deferred, same_file, write_atomically
 from ..shapes import Shape
 from ..transforms import quat_conj, quat_from_matrix, quat_mul, quat_rotate
 from .scene import IDENTITY_QUAT, INSTANCER_PATH, MODE_KEY, UsdScene, as_scene, pxr, scene_from_builder
@@ -347,6 +347,11 @@ class AnimationWriter:
             raise ValueError(f"fps must be positive, got {fps}")
         self.flatten = bool(flatten)
         layered = self.scene.source_path is not None
+        if layered and same_file(self.path, self.scene.source_path):
+            raise ValueError(
+                f"{self.path}: is the input scene {self.scene.source_path}; the output would replace it (choose "
+                "another output file)"
+            )
         n = self.scene.body_count
         if instancer is None:
             instancer = not layered and n > INSTANCER_AUTO_BODIES
@@ -360,6 +365,7 @@ class AnimationWriter:
         self.last_time: int | None = None
         self.stopped_early: str | None = None
         self._closed = False
+        self.saved = False  # True once close() has written the file
         self._ext = os.path.splitext(self.path)[1].lower() or ".usd"
         if self._ext not in (".usd", ".usda", ".usdc"):
             raise ValueError(f"{self.path}: output must end in .usd, .usda or .usdc")
@@ -521,23 +527,28 @@ class AnimationWriter:
         self._closed = True
 
     def close(self, stopped_early: str | None = None) -> str:
-        """Write the file (temporary file in the same folder, then rename). Returns the path. Idempotent."""
+        """Write the file (`files.write_atomically`: a temporary file renamed over the target, through a
+        symbolic link, straight into a device) and set `saved`. Returns the path. Idempotent. Raises
+        WriteError (the previous file unchanged) when the file system refuses it: disk full, a size limit."""
         if self._closed:
             return self.path
         self._closed = True
         if stopped_early:
             self.stopped_early = stopped_early
+        # From here to the rename, a Ctrl-C (or SIGTERM) would lose every frame: it waits for the file.
+        with interrupts_deferred(f"saving {self.path}"):
+            self._save()
+        return self.path
+
+    def _save(self) -> None:
         if not self.instancer:
             self._flush()
         layer = self.layer
         layer.startTimeCode = float(self.first_time if self.first_time is not None else 0)
         layer.endTimeCode = float(self.last_time if self.last_time is not None else 0)
         self._write_layer_data()
-        folder = os.path.dirname(self.path)
-        os.makedirs(folder, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(self.path)}.", suffix=self._ext, dir=folder)
-        os.close(fd)
-        try:
+
+        def export(tmp: str) -> bool:
             out = layer
             if self.flatten and self.scene.source_path is not None:
                 _, _, _, Usd, *_ = pxr()
@@ -545,15 +556,11 @@ class AnimationWriter:
                 for key in ("startTimeCode", "endTimeCode", "timeCodesPerSecond", "framesPerSecond"):
                     out.pseudoRoot.SetInfo(key, layer.pseudoRoot.GetInfo(key))
                 out.customLayerData = layer.customLayerData
-            if not out.Export(tmp):
-                raise OSError(f"could not write {tmp}")
-            os.chmod(tmp, _file_mode(self.path))  # mkstemp makes it 0600
-            os.replace(tmp, self.path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return self.path
+            return out.Export(tmp)
+
+        os.makedirs(os.path.dirname(os.path.realpath(self.path)), exist_ok=True)
+        write_atomically(self.path, export, self._ext, _file_mode(self.path))
+        self.saved = True
 
     def __enter__(self) -> AnimationWriter:
         return self
@@ -563,7 +570,10 @@ class AnimationWriter:
             self.close()
         else:
             # The caller reports the stop; the file records it in customLayerData (warpimpulse:stoppedEarly).
-            reason = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else f"{exc_type.__name__}: {exc}"
+            if issubclass(exc_type, KeyboardInterrupt):  # Ctrl-C, or SIGTERM / SIGHUP under files.signals_interrupt
+                reason = f"interrupted ({exc.name if isinstance(exc, Interrupted) else 'SIGINT'})"
+            else:
+                reason = f"{exc_type.__name__}: {exc}"
             self.close(stopped_early=reason)
         return False
 

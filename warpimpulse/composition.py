@@ -1,0 +1,102 @@
+"""Higher order in time by composing the paper's step (order 2, symmetric) with itself.
+
+The paper's step is symmetric: the impulses at t0 use the Jacobian of the constraints at t0 and land the
+prediction on them, the velocity projection at t0+h uses the same Jacobian at t0+h, so the step run with -h
+from its end undoes it (exactly, up to the O(h^5) of the RK4 free flight and the tolerances). For a symmetric
+step S(h) of order 2, the composition S(g_s h) ... S(g_1 h) with symmetric coefficients (g_i = g_{s+1-i}) that
+sum to 1 has order 4 when sum g_i^3 = 0, and order 6 under two more conditions (Hairer, Lubich & Wanner,
+Geometric Numerical Integration, section V.3). Some coefficients are negative: those substeps run backwards.
+
+The tables below are the classic schemes; the simulator takes the one `DEFAULT[order]` names, picked by
+measured error against cost (benchmarks/orders.py, docs/time-order.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+ORDERS = (2, 4, 6)
+
+
+@dataclass(frozen=True)
+class Scheme:
+    name: str
+    order: int
+    stages: tuple[float, ...]  # the substeps as fractions of the step, in the order they are taken
+    source: str
+
+    @property
+    def cost(self) -> int:
+        """Base steps per step."""
+        return len(self.stages)
+
+    @property
+    def reach(self) -> float:
+        """The largest |substep| as a fraction of the step (the spin split sizes steps by it)."""
+        return max(abs(g) for g in self.stages)
+
+
+def _mirror(*half: float) -> tuple[float, ...]:
+    """A symmetric scheme from its first half; the middle coefficient makes the sum 1."""
+    return (*half, 1.0 - 2.0 * sum(half), *half[::-1])
+
+
+_TRIPLE = 1.0 / (2.0 - 2.0 ** (1.0 / 3.0))
+_SUZUKI = 1.0 / (4.0 - 4.0 ** (1.0 / 3.0))
+
+SCHEMES = {
+    s.name: s
+    for s in (
+        Scheme("base", 2, (1.0,), "the paper's step"),
+        Scheme("yoshida3", 4, _mirror(_TRIPLE), "Yoshida 1990, Creutz & Gocksch 1989: the triple jump"),
+        Scheme("suzuki5", 4, _mirror(_SUZUKI, _SUZUKI), "Suzuki 1990: p, p, 1 - 4p, p, p with p = 1/(4 - 4^(1/3))"),
+        Scheme("mclachlan5", 4, _mirror(0.28, 0.62546642846767004501), "McLachlan 1995, optimised 5 stages"),
+        Scheme(
+            "yoshida7",
+            6,
+            _mirror(0.78451361047755726382, 0.23557321335935813368, -1.17767998417887100695),
+            "Yoshida 1990, solution A",
+        ),
+        Scheme(
+            "kahanli9",
+            6,
+            _mirror(0.39216144400731413928, 0.33259913678935943860, -0.70624617255763935981, 0.08221359629355080023),
+            "Kahan & Li 1997, s9odr6a",
+        ),
+    )
+}
+
+# Picked by benchmarks/orders.py: the smallest error for the work on the paper's tree, the double pendulum
+# and the 50-link chain (docs/time-order.md has the numbers).
+DEFAULT = {2: "base", 4: "suzuki5", 6: "kahanli9"}
+
+
+def scheme(order: int, name: str | None = None) -> Scheme:
+    """The composition for `order` (2, 4 or 6): `name` from SCHEMES, or the measured best."""
+    if order not in ORDERS:
+        raise ValueError(f"order must be one of {ORDERS}, got {order!r}")
+    chosen = SCHEMES.get(DEFAULT[order] if name is None else name)
+    if chosen is None:
+        raise ValueError(f"unknown composition {name!r}; expected one of {sorted(SCHEMES)}")
+    if chosen.order != order:
+        raise ValueError(f"composition {chosen.name!r} has order {chosen.order}, not {order}")
+    return chosen
+
+
+# The tolerance rule (m or rad). The joint correction stops within the tolerance, so every base step leaves
+# up to that much error, and a symmetric composition only cancels errors that are smooth in h: a tolerance
+# near the step's own error caps the order. Measured on the paper's tree (docs/time-order.md): the error stops
+# falling once the tolerance is about a tenth of it; a tolerance of 10 dt^(order+1) keeps below that on the
+# tree, the double pendulum and the 50-link chain (whose error constants are 3 to 20 m s^-4 at order 4).
+# Round-off in float64 sets the floor; 1e-6 (the paper's) the cap.
+TOLERANCE_CAP = 1e-6
+TOLERANCE_FLOOR = 1e-12
+
+
+def default_tolerance(dt: float, order: int) -> float:
+    """The joint tolerance used when the user gives none: 1e-6 at order 2 (the paper's), else
+    10 dt^(order + 1) (dt in s, read in m or rad), clamped to [1e-12, 1e-6]."""
+    if order == 2:
+        return TOLERANCE_CAP
+    return min(TOLERANCE_CAP, max(TOLERANCE_FLOOR, 10.0 * math.pow(abs(dt), order + 1)))
