@@ -6,9 +6,11 @@
    (`SceneBuilder.replicate`) on one thread, against `worlds` separate Simulators stepped in a loop: world-steps
    per second of each, and their ratio. Both start from the same state and run the same steps, and the
    batched run is checked to end bit for bit where the separate ones do.
-2. Every core: the same worlds (and 2 and 16 of them) by `ThreadedSimulator` on 1, 2, ... cores: world-steps
-   per second and the speed-up over one thread, with the process's CPU time over wall time (near the thread
-   count when the threads really run at once; well under it when the machine is busy with other work).
+2. Every core: `ThreadedSimulator` on 1, 2, ... cores for 2 worlds of tree4095, 16 of tree255 and the
+   batched case above (a share must have kernel work to run in parallel: two worlds of tree31 are mostly
+   host work, which holds the GIL): world-steps per second and the speed-up over one thread, with the
+   process's CPU time over wall time (near the thread count when the threads really run at once; well under
+   it when the machine is busy with other work).
 3. A hard world: one world spinning fast takes its steps alone, as substeps; the others' joint iterations are
    counted against a run without it (they should be equal).
 Variants are timed in turn, round after round, so load on the machine hits them alike; figures are medians
@@ -178,7 +180,9 @@ def main() -> None:
             "load_average_before": load_before,
         },  # fmt: skip
         "batched": batched_vs_separate(args.worlds, args.bodies, args.rounds),
-        "threads": [threads_scaling(n, args.bodies, args.rounds, cores) for n in sorted({2, 16, args.worlds})],
+        "threads": [
+            threads_scaling(w, b, args.rounds, cores) for w, b in ((2, 4095), (16, 255), (args.worlds, args.bodies))
+        ],
         "control_speedup": control(args.rounds, cores),
         "hard_world": hard_world(8, args.bodies),
     }
@@ -191,7 +195,7 @@ def main() -> None:
     for t in results["threads"]:
         line = ", ".join(f"{n} threads {v['speedup']:.2f}x (cpu/wall {v['cpu_over_wall']:.2f})"
                          for n, v in t["by_threads"].items())  # fmt: skip
-        print(f"{t['worlds']} worlds: {line}")
+        print(f"{t['worlds']} worlds of {t['bodies']} bodies: {line}")
     print("control (SHA-256, GIL released): " + ", ".join(f"{n} threads {v:.2f}x"
                                                           for n, v in results["control_speedup"].items()))  # fmt: skip
     h = results["hard_world"]
