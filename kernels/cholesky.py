@@ -20,17 +20,18 @@ f64 = wp.float64
 
 
 @wp.func
-def cholesky3(a: mat33d, tiny: f64):
-    """Lower Cholesky factor of an SPD 3x3 block; ok is False when a pivot is not above `tiny`."""
+def cholesky3(a: mat33d, tiny: f64, fallback: f64):
+    """Lower Cholesky factor of an SPD 3x3 block, and how many of its pivots were not above `tiny` (each
+    replaced by `fallback`)."""
     l = mat33d()
-    ok = True
+    bad = int(0)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
     for j in range(3):
         s = a[j, j]
         for k in range(j):
             s -= l[j, k] * l[j, k]
         if s <= tiny:
-            ok = False
-            s = f64(1.0)
+            bad += 1
+            s = fallback
         d = wp.sqrt(s)
         l[j, j] = d
         for i in range(j + 1, 3):
@@ -38,7 +39,7 @@ def cholesky3(a: mat33d, tiny: f64):
             for k in range(j):
                 t -= l[i, k] * l[j, k]
             l[i, j] = t / d
-    return l, ok
+    return l, bad
 
 
 @wp.func
@@ -64,7 +65,9 @@ def factor(
     update_b: wp.array(dtype=int),
     update_sign: wp.array(dtype=f64),
     col_sign: wp.array(dtype=f64),
+    col_loop: wp.array(dtype=int),
     pivot_tolerance: f64,
+    loop_tolerance: f64,
     # data in/out
     values: wp.array(dtype=mat33d),
     diag_inv: wp.array(dtype=mat33d),
@@ -74,10 +77,18 @@ def factor(
     L_ij = L_ij L_jj^-T s_j.
 
     `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
-    (a redundant or degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
+    (a degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
+
+    Columns of loop-closing joints (`col_loop`, eliminated last) may be redundant with the tree's: a pivot of
+    theirs below loop_tolerance times its assembled diagonal (before elimination) is a direction the tree already
+    constrains (the positive semidefinite Schur complement has a zero pivot there, and zeros below it). It is
+    regularised: replaced by that diagonal scale, so its impulse is the residual over that scale, round-off
+    against consistent errors, instead of round-off over round-off. `singular[1]` counts those rows:
+    information, not an error.
     """
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
+        assembled = col_sign[j] * values[col_start[j]]  # the diagonal block before elimination
         for u in range(update_start[j], update_start[j + 1]):
             values[update_target[u]] = values[update_target[u]] - update_sign[u] * values[update_a[u]] * wp.transpose(
                 values[update_b[u]]
@@ -86,9 +97,15 @@ def factor(
         sign = col_sign[j]
         a = sign * values[d]
         scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
-        l, ok = cholesky3(a, pivot_tolerance * scale)
-        if not ok and singular[0] == 0:
-            singular[0] = j + 1
+        l = mat33d()
+        if col_loop[j] != 0:  # relative to the assembled diagonal: the reduced one may be all round-off
+            full = wp.max(wp.max(assembled[0, 0], assembled[1, 1]), assembled[2, 2])
+            l, redundant = cholesky3(a, loop_tolerance * full, full)
+            singular[1] = singular[1] + redundant
+        else:
+            l, bad = cholesky3(a, pivot_tolerance * scale, f64(1.0))
+            if bad != 0 and singular[0] == 0:
+                singular[0] = j + 1
         values[d] = l
         li = lower_inverse3(l)
         diag_inv[j] = li

@@ -22,7 +22,7 @@ f64 = wp.float64
 
 @wp.func
 def solve_block(k: mat33d, rhs: vec3d) -> vec3d:
-    l, ok = cholesky3(k, f64(0.0))
+    l, bad = cholesky3(k, f64(0.0), f64(1.0))
     li = lower_inverse3(l)
     return wp.transpose(li) * (li * rhs)
 

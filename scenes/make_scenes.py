@@ -78,10 +78,13 @@ SCENES = {
     "star127": lambda: scenes.star(127),
     "chain": lambda: scenes.chain(10),
     "mechanism": mechanism,
+    "four_bar": scenes.four_bar,  # the paper's mechanisms (section 5), at h = 1/60 s as their tests
+    "car": scenes.car,
+    "walking_machine": scenes.walking_machine,
 }
 # Step sizes recorded in the files, where the default 1/fps is too coarse: the chain falling from the
 # horizontal whips its last links and diverges at t = 6.9 s with h = 1/30 (runs to 10 s with h = 1/120).
-DT = {"chain": 1.0 / 120.0}
+DT = {"chain": 1.0 / 120.0, "four_bar": 1.0 / 60.0, "car": 1.0 / 60.0, "walking_machine": 1.0 / 60.0}
 
 
 def main() -> None:

@@ -77,10 +77,16 @@ def test_tree127_takes_few_iterations():
 
 @pytest.mark.parametrize("formulation", ["constraint", "body"])
 def test_redundant_constraints_are_reported(formulation):
+    """K's loop rows redundant with the tree are regularised and counted (tests/test_loops.py); the augmented
+    matrix has no assembled diagonal to judge them by, so there they stay an error naming the joint."""
     b = wi.SceneBuilder()
     body = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, -1.0))
     b.add_joint_fixed(None, body, (0.0, 0.0, 0.0), name="weld")
     b.add_joint_revolute(None, body, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
+    if formulation == "constraint":
+        sim = wi.Simulator(b.finalize(), 1 / 60, formulation=formulation)
+        assert sim.redundant_rows == 5 and sim.step().converged
+        return
     with pytest.raises(wi.SingularSystemError, match="singular at joint 'hinge'"):
         wi.Simulator(b.finalize(), 1 / 60, formulation=formulation)
 

@@ -19,7 +19,7 @@ from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
-from .types import WORLD, ConstraintKind, Quat, Vec3
+from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
@@ -64,6 +64,7 @@ class Joint:
     axis: np.ndarray | None
     axis_child: np.ndarray | None
     constraints: list[int] = field(default_factory=list)
+    loop: bool = False  # close a kinematic loop with this joint where there is a choice (mark_loop_joint)
 
 
 @dataclass
@@ -76,7 +77,66 @@ class Force:
     until: float = math.inf
 
 
+@dataclass
+class Spring:
+    """A spring-damper between a point of body0 and a point of body1 (either may be WORLD), along the line
+    joining them: force = -stiffness (length - rest_length) - damping d(length)/dt, in N (method paper,
+    section 4.4: the car's wheel dampers)."""
+
+    name: str
+    body0: int
+    body1: int
+    anchor0: np.ndarray  # body0 frame (world frame for WORLD)
+    anchor1: np.ndarray  # body1 frame
+    stiffness: float  # N/m
+    damping: float  # N s/m
+    rest_length: float  # m
+
+
+@dataclass
+class Drive:
+    """A torque about a revolute axis (N m) or a force along a prismatic axis (N) from the joint coordinate
+    (rad or m, 0 as built) and its rate: a joint spring-damper, or a servo motor with a PID controller
+    (method paper, section 4.4). Position mode: kp (target - x) + ki integral(target - x) - kd dx/dt;
+    velocity mode: kp (target - dx/dt) + ki integral(target - dx/dt) - kd d2x/dt2 (kd is taken 0 there).
+    The output is clamped to +-max_force. A joint spring is a position drive with ki = 0 and no clamp."""
+
+    name: str
+    joint: int
+    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity
+    target: float  # rad, m (position) or rad/s, m/s (velocity)
+    kp: float
+    ki: float
+    kd: float
+    max_force: float
+    motor: bool  # False for a joint spring
+    stiff: bool = False  # an impulse-level velocity constraint instead of a force (velocity mode only)
+
+
+@dataclass
+class Limit:
+    """lower <= coordinate <= upper on a revolute (rad) or prismatic (m) joint: a push-only constraint."""
+
+    joint: int
+    lower: float
+    upper: float
+
+
 _vec = checks.vector
+
+
+def _finite(value, what: str) -> float:
+    x = checks.real(value, what)
+    if not math.isfinite(x):
+        raise SceneError(f"{what} must be finite, got {x}")
+    return x
+
+
+def _nonnegative(value, what: str) -> float:
+    x = _finite(value, what)
+    if x < 0.0:
+        raise SceneError(f"{what} must be >= 0, got {x}")
+    return x
 
 
 def _axis(value, what: str) -> np.ndarray:
@@ -96,6 +156,9 @@ class SceneBuilder:
         self.joints: list[Joint] = []
         self.constraints: list[Constraint] = []
         self.forces: list[Force] = []
+        self.springs: list[Spring] = []
+        self.drives: list[Drive] = []
+        self.limits: list[Limit] = []
         self._body_names: dict[str, int] = {}
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
@@ -110,6 +173,11 @@ class SceneBuilder:
             raise SceneError("replicate: this builder is already replicated; replicate the original scene")
         if not self.bodies:
             raise SceneError("replicate: the scene has no bodies")
+        if self.springs or self.drives or self.limits:  # the batched step has no force elements or limits yet
+            raise SceneError(
+                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives and "
+                f"{len(self.limits)} limits; batched worlds do not take springs, drives or limits yet"
+            )
         out = SceneBuilder(self.gravity)
         nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
         prefix = count > 1
@@ -385,6 +453,124 @@ class SceneBuilder:
         self.forces.append(Force(b, _vec(force, f"{what}: force"), _vec(torque, f"{what}: torque"), until))
         return len(self.forces) - 1
 
+    def add_spring(
+        self, body0, body1, anchor0, anchor1, stiffness: float, damping: float = 0.0, rest_length=None, name=None
+    ) -> int:
+        """A spring-damper between `anchor0` on `body0` and `anchor1` on `body1` (world points at build time; a
+        body of None is the world). `rest_length` (m) defaults to the built distance. Returns its index."""
+        name = name or f"spring{len(self.springs)}"
+        what = f"spring {name!r}"
+        self._open(what)
+        b0 = self._body_index(body0, f"{what} body0")
+        b1 = self._body_index(body1, f"{what} body1")
+        if b0 == b1:
+            raise SceneError(f"{what}: both ends are on the same body")
+        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
+        stiffness = _nonnegative(stiffness, f"{what}: stiffness")
+        damping = _nonnegative(damping, f"{what}: damping")
+        rest = float(np.linalg.norm(a1 - a0))
+        if rest_length is not None:
+            rest = _nonnegative(rest_length, f"{what}: rest_length")
+        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
+        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
+        self.springs.append(Spring(name, b0, b1, local0, local1, stiffness, damping, rest))
+        return len(self.springs) - 1
+
+    def add_joint_spring(self, joint, stiffness: float, damping: float = 0.0, rest: float = 0.0) -> int:
+        """A spring-damper on a revolute angle (N m/rad, N m s/rad, rest in rad) or a prismatic offset (N/m,
+        N s/m, rest in m), the coordinate being 0 as built. Returns its index among the joint springs."""
+        j = self._coordinate_joint(joint, "a joint spring")
+        what = f"joint {self.joints[j].name!r}: joint spring"
+        stiffness = _nonnegative(stiffness, f"{what} stiffness")
+        damping = _nonnegative(damping, f"{what} damping")
+        rest = _finite(rest, f"{what} rest")
+        return self._add_drive(Drive(f"{self.joints[j].name}.spring", j, 0, rest, stiffness, 0.0, damping,
+                                     math.inf, motor=False))  # fmt: skip
+
+    def add_motor(
+        self, joint, mode: str = "position", target: float = 0.0, kp: float = 1.0, ki: float = 0.0, kd: float = 0.0,
+        max_force: float = math.inf, stiff: bool = False,
+    ) -> int:  # fmt: skip
+        """A servo motor on a revolute (torque, N m) or prismatic (force, N) joint, driven by a PID controller on
+        the joint's angle/offset ("position", target in rad or m) or its rate ("velocity", rad/s or m/s), and
+        clamped to +-max_force. The torque acts on both bodies, equal and opposite. Returns the motor index
+        for `Simulator.set_motor_target`.
+
+        The PID torque is a force inside the prediction (explicit RK4, each body predicted alone): stable while
+        kp h / I, kd h / I (velocity, position mode) and h sqrt(kp / I) stay below about 2, with I the inertia
+        about the axis of the lighter body of the joint, alone; a light crank or steering knuckle driven hard
+        breaks that. `stiff=True` (the gains unused) makes the motor an impulse-level constraint instead: each
+        step the joint turns by h target exactly (velocity mode) or reaches the target (position mode), with an
+        impulse of at most max_force h, solved with the joints and limits (`kernels/limits.py`), stable at any
+        stiffness. Use the PID for compliant, tuned servos on bodies heavy enough; `stiff` for a speed or
+        angle that must hold, or a light body."""
+        j = self._coordinate_joint(joint, "a motor")
+        what = f"joint {self.joints[j].name!r}: motor"
+        if mode not in DRIVE_MODES:
+            raise SceneError(f"{what} mode must be one of {DRIVE_MODES}, got {mode!r}")
+        kp, ki, kd = (_nonnegative(g, f"{what} {n}") for g, n in ((kp, "kp"), (ki, "ki"), (kd, "kd")))
+        max_force = checks.real(max_force, f"{what} max_force")
+        if not max_force > 0.0:
+            raise SceneError(f"{what} max_force must be positive, got {max_force}")
+        target = _finite(target, f"{what} target")
+        drive = Drive(f"{self.joints[j].name}.motor", j, DRIVE_MODES.index(mode), target, kp, ki, kd, max_force,
+                      motor=True, stiff=bool(stiff))  # fmt: skip
+        return self._add_drive(drive)
+
+    def mark_loop_joint(self, joint) -> None:
+        """Close a kinematic loop with `joint` where the spanning tree has a choice (method paper, section 4.6;
+        USD's physics:excludeFromArticulation): its constraints go to the loop part of the system."""
+        if isinstance(joint, str):
+            names = [j.name for j in self.joints]
+            if joint not in names:
+                raise SceneError(f"mark_loop_joint: no joint named {joint!r}")
+            joint = names.index(joint)
+        if not isinstance(joint, (int, np.integer)) or not 0 <= int(joint) < len(self.joints):
+            raise SceneError(f"mark_loop_joint: joint {joint!r} does not exist ({len(self.joints)} joints)")
+        self._open("mark_loop_joint")
+        self.joints[int(joint)].loop = True
+
+    def add_joint_limit(self, joint, lower: float, upper: float) -> int:
+        """Keep a revolute angle (rad) or prismatic offset (m), 0 as built, within [lower, upper]."""
+        j = self._coordinate_joint(joint, "a limit")
+        what = f"joint {self.joints[j].name!r}: limit"
+        lower, upper = checks.real(lower, f"{what} lower"), checks.real(upper, f"{what} upper")
+        if math.isnan(lower) or math.isnan(upper):
+            raise SceneError(f"{what} is NaN")
+        self._open(what)
+        if lower > upper:
+            raise SceneError(f"{what} lower {lower} > upper {upper}")
+        if not lower <= 0.0 <= upper:
+            raise SceneError(f"{what} [{lower}, {upper}] excludes the built pose (coordinate 0)")
+        if any(limit.joint == j for limit in self.limits):
+            raise SceneError(f"{what}: the joint already has a limit")
+        self.limits.append(Limit(j, lower, upper))
+        return len(self.limits) - 1
+
+    def _add_drive(self, drive: Drive) -> int:
+        """Append a drive; its index among the drives of its kind (motors, or joint springs)."""
+        self._open(f"joint {self.joints[drive.joint].name!r}: {'motor' if drive.motor else 'joint spring'}")
+        self.drives.append(drive)
+        return sum(d.motor == drive.motor for d in self.drives) - 1
+
+    def _coordinate_joint(self, joint, what: str) -> int:
+        """The index of `joint` (index or name), which must have one coordinate (revolute or prismatic)."""
+        if isinstance(joint, str):
+            matches = [j for j, jt in enumerate(self.joints) if jt.name == joint]
+            if not matches:
+                raise SceneError(f"{what}: no joint named {joint!r}")
+            joint = matches[0]
+        if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
+            raise SceneError(f"{what}: a joint index or name is expected, got {joint!r}")
+        if not 0 <= int(joint) < len(self.joints):
+            raise SceneError(f"{what}: joint index {joint} does not exist ({len(self.joints)} joints)")
+        jt = self.joints[int(joint)]
+        if jt.kind not in COORDINATES:
+            raise SceneError(
+                f"joint {jt.name!r} ({jt.kind}) has no single coordinate for {what}; only revolute and prismatic do"
+            )
+        return int(joint)
+
     # ---------------------------------------------------------------- output
     @property
     def body_count(self) -> int:
@@ -427,7 +613,31 @@ class SceneBuilder:
             force_force=np.array([f.force for f in forces]).reshape(-1, 3),
             force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
             force_until=np.array([f.until for f in forces]),
+            **self._mechanism_arrays(),
             world_count=self.world_count,
+        )
+
+    def _mechanism_arrays(self) -> dict:
+        """The springs, drives and limits as `Model` arguments."""
+        springs, drives, limits = self.springs, self.drives, self.limits
+        return dict(
+            spring_name=[s.name for s in springs],
+            spring_body0=np.array([s.body0 for s in springs], dtype=np.int64),
+            spring_body1=np.array([s.body1 for s in springs], dtype=np.int64),
+            spring_anchor0=np.array([s.anchor0 for s in springs]).reshape(-1, 3),
+            spring_anchor1=np.array([s.anchor1 for s in springs]).reshape(-1, 3),
+            spring_params=np.array([(s.stiffness, s.damping, s.rest_length) for s in springs]).reshape(-1, 3),
+            drive_name=[x.name for x in drives],
+            drive_joint=np.array([x.joint for x in drives], dtype=np.int64),
+            drive_mode=np.array([x.mode for x in drives], dtype=np.int32),
+            drive_target=np.array([x.target for x in drives]),
+            drive_gains=np.array([(x.kp, x.ki, x.kd) for x in drives]).reshape(-1, 3),
+            drive_max_force=np.array([x.max_force for x in drives]),
+            drive_motor=np.array([x.motor for x in drives], dtype=bool),
+            drive_stiff=np.array([x.stiff for x in drives], dtype=bool),
+            limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
+            limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
+            joint_loop=np.array([j.loop for j in self.joints], dtype=bool),
         )
 
     def _check_arrays(self) -> None:

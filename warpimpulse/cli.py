@@ -195,6 +195,9 @@ def _simulate(args) -> int:
         max_rotation=None if args.whole_steps else args.max_rotation,
         order=args.order,
     )
+    if sim.redundant_rows:  # information: loop joints repeating what the tree already holds (a planar loop in 3D)
+        print(f"warpimpulse: {sim.redundant_rows} constraint rows of loop-closing joints are redundant "
+              "(regularised)", file=sys.stderr)  # fmt: skip
     start = time.perf_counter()
     writer = usd.AnimationWriter(
         out, scene, args.fps, settings=run.settings(sim), flatten=args.flatten, instancer=args.instancer

@@ -21,7 +21,18 @@ class Nothing:
         pass
 
 
-Work = wp.Launch | Nothing | Callable[[], object]
+class Launches:
+    """Recorded launches that always run in this order (a prediction of several stages), as one item of work."""
+
+    def __init__(self, launches: Sequence[wp.Launch | Nothing]) -> None:
+        self.launches = list(launches)
+
+    def launch(self) -> None:
+        for item in self.launches:
+            item.launch()
+
+
+Work = wp.Launch | Nothing | Launches | Callable[[], object]
 
 
 def _strip(name: str) -> str:
@@ -74,7 +85,7 @@ def capture(device, *work: Work) -> wp.Graph:
     wp.capture_begin(device=device)
     try:
         for item in work:
-            item.launch() if isinstance(item, (wp.Launch, Nothing)) else item()
+            item.launch() if isinstance(item, (wp.Launch, Nothing, Launches)) else item()
     finally:
         graph = wp.capture_end(device=device)
     return graph

@@ -16,7 +16,7 @@ import warp as wp
 
 from . import checks
 from .topology import Graph, Topology, analyze
-from .types import ConstraintKind
+from .types import COORDINATES, ConstraintKind
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -85,6 +85,23 @@ class Model:
         force_torque: np.ndarray,
         force_until: np.ndarray,
         world_count: int = 1,
+        spring_name: list[str] = (),
+        spring_body0: np.ndarray = (),
+        spring_body1: np.ndarray = (),
+        spring_anchor0: np.ndarray = (),
+        spring_anchor1: np.ndarray = (),
+        spring_params: np.ndarray = (),
+        drive_name: list[str] = (),
+        drive_joint: np.ndarray = (),
+        drive_mode: np.ndarray = (),
+        drive_target: np.ndarray = (),
+        drive_gains: np.ndarray = (),
+        drive_max_force: np.ndarray = (),
+        drive_motor: np.ndarray = (),
+        drive_stiff: np.ndarray = (),
+        joint_loop: np.ndarray = (),
+        limit_joint: np.ndarray = (),
+        limit_bounds: np.ndarray = (),
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
         gravity: (3,) m/s^2, world.
@@ -98,6 +115,14 @@ class Model:
         world_count: independent copies of one scene laid out world-major (`SceneBuilder.replicate`): world w
             owns bodies [w n_w, (w + 1) n_w), and its constraints, joints and forces likewise, with indices into
             the whole model. Every launch covers all worlds; the simulator decides convergence per world.
+        spring_*: spring-dampers between a point of body0 and one of body1 (anchors in their frames), params
+            (stiffness N/m, damping N s/m, rest length m).
+        drive_*: joint springs and PID motors on a revolute or prismatic joint: mode (`types.DRIVE_MODES`
+            index), initial target, gains (kp, ki, kd), max_force (N m or N), motor (False: a joint spring),
+            stiff (a velocity constraint in the correction loop, not a force).
+        limit_*: the joint and its (lower, upper) bounds (rad or m) of revolute or prismatic joints.
+        joint_loop: (k,) bool, the joints to close loops with where there is a choice (USD's
+            excludeFromArticulation); empty: the spanning tree chooses.
         """
         self.device = checks.device(device)  # the first call initialises Warp quietly
         d = self.device
@@ -156,6 +181,7 @@ class Model:
             joint_parent=h.joint_parent,
             joint_child=h.joint_child,
             world_count=self.world_count,
+            joint_loop=np.asarray(joint_loop, bool).reshape(-1) if len(joint_loop) else None,
         )
         self.topology: Topology = analyze(self.graph, level_order=d.is_cuda)
         self.kinds = sorted({ConstraintKind(int(k)) for k in h.constraint_kind})
@@ -176,6 +202,98 @@ class Model:
         self.constraint_axis1 = _array(h.constraint_axis1, wp.vec3d, d)
         self.constraint_rest_rotation = _array(h.constraint_rest_rotation, wp.quatd, d)
         self.constraint_rest_angle = _array(h.constraint_rest_angle, wp.float64, d)
+        self._mechanisms(
+            spring_name, spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params,
+            drive_name, drive_joint, drive_mode, drive_target, drive_gains, drive_max_force, drive_motor,
+            drive_stiff, limit_joint, limit_bounds, joint_loop,
+        )  # fmt: skip
+
+    def _mechanisms(
+        self, spring_name, spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params, drive_name,
+        drive_joint, drive_mode, drive_target, drive_gains, drive_max_force, drive_motor, drive_stiff, limit_joint,
+        limit_bounds, joint_loop,
+    ) -> None:  # fmt: skip
+        """Springs and drives (force elements, evaluated in every RK4 stage of the prediction: `kernels/forces.py`)
+        and the rows of the correction loop on a coordinate, limits then stiff motors (`kernels/limits.py`), on
+        the table of joint coordinates (every revolute angle and prismatic offset, 0 as built)."""
+        d, h = self.device, self.host
+        h.spring_body0 = np.asarray(spring_body0, np.int64)
+        h.spring_body1 = np.asarray(spring_body1, np.int64)
+        h.spring_params = np.asarray(spring_params, np.float64).reshape(-1, 3)
+        h.spring_anchor0 = np.asarray(spring_anchor0, np.float64).reshape(-1, 3)
+        h.spring_anchor1 = np.asarray(spring_anchor1, np.float64).reshape(-1, 3)
+        h.drive_mode = np.asarray(drive_mode, np.int32)
+        h.drive_gains = np.asarray(drive_gains, np.float64).reshape(-1, 3)
+        h.drive_max_force = np.asarray(drive_max_force, np.float64)
+        h.joint_loop = np.asarray(joint_loop, bool).reshape(-1)
+        h.drive_joint = np.asarray(drive_joint, np.int64)
+        h.drive_target = np.asarray(drive_target, np.float64)
+        h.drive_motor = np.asarray(drive_motor, bool)
+        h.drive_stiff = np.asarray(drive_stiff, bool).reshape(-1)
+        stiff = np.flatnonzero(h.drive_stiff)
+        forced = np.flatnonzero(~h.drive_stiff)  # the drives that are force elements
+        # Rows on a coordinate in the correction loop: each limit, then each stiff motor (bounds unused).
+        limits = np.asarray(limit_joint, np.int64)
+        h.limit_joint = np.concatenate([limits, h.drive_joint[stiff]])
+        h.limit_bounds = np.concatenate(
+            [np.asarray(limit_bounds, np.float64).reshape(-1, 2), np.zeros((len(stiff), 2))]
+        )
+        h.limit_drive = np.concatenate([np.full(len(limits), -1), stiff]).astype(np.int64)  # -1: a limit
+        self.spring_name, self.drive_name = list(spring_name), list(drive_name)
+        self.spring_count, self.drive_count, self.limit_count = (
+            len(self.spring_name),
+            len(self.drive_name),
+            len(h.limit_joint),
+        )
+        self.force_drive_count = len(forced)
+        self.spring_body0 = _array(h.spring_body0, wp.int32, d)
+        self.spring_body1 = _array(h.spring_body1, wp.int32, d)
+        self.spring_anchor0 = _array(h.spring_anchor0, wp.vec3d, d)
+        self.spring_anchor1 = _array(h.spring_anchor1, wp.vec3d, d)
+        self.spring_params = _array(h.spring_params, wp.vec3d, d)
+
+        # The coordinate of a revolute joint (constraints POINT, AXIS) or prismatic one (LINE, ROTATION): anchors
+        # of its first constraint, the axis of the AXIS or LINE constraint in body0's frame, the rest rotation.
+        self.coordinate_joint = [j for j, kind in enumerate(self.joint_type) if kind in COORDINATES]
+        row_of = {j: r for r, j in enumerate(self.coordinate_joint)}
+        first = h.joint_constraint_start[self.coordinate_joint]
+        kind = np.array([COORDINATES[self.joint_type[j]] for j in self.coordinate_joint], dtype=np.int32)
+        axis_constraint = first + (kind == COORDINATES["revolute"])
+        self.coordinate_count = len(self.coordinate_joint)
+        self.coordinate_kind = _array(kind, wp.int32, d)
+        self.coordinate_body0 = _array(h.joint_parent[self.coordinate_joint], wp.int32, d)
+        self.coordinate_body1 = _array(h.joint_child[self.coordinate_joint], wp.int32, d)
+        self.coordinate_anchor0 = _array(h.constraint_anchor0[first], wp.vec3d, d)
+        self.coordinate_anchor1 = _array(h.constraint_anchor1[first], wp.vec3d, d)
+        self.coordinate_axis0 = _array(h.constraint_axis0[axis_constraint], wp.vec3d, d)
+        self.coordinate_rest_rotation = _array(h.constraint_rest_rotation[first], wp.quatd, d)
+
+        mode = np.asarray(drive_mode, np.int32)
+        gains = np.asarray(drive_gains, np.float64).reshape(-1, 3).copy()
+        gains[mode == 1, 2] = 0.0  # velocity mode has no derivative term
+        gains[stiff] = 0.0  # a stiff motor is no PID
+        # drive_* arrays are over every drive (targets and integrals are per drive); the force elements are
+        # the drives listed in drive_element.
+        self.drive_element = _array(forced, wp.int32, d)
+        self.drive_coordinate = _array([row_of[j] for j in h.drive_joint], wp.int32, d)
+        self.drive_mode = _array(mode, wp.int32, d)
+        self.drive_gains = _array(gains, wp.vec3d, d)
+        self.drive_max_force = _array(np.asarray(drive_max_force, np.float64), wp.float64, d)
+        self.limit_coordinate = _array([row_of[j] for j in h.limit_joint], wp.int32, d)
+        self.limit_bounds = _array(h.limit_bounds, wp.vec2d, d)
+        self.limit_drive = _array(h.limit_drive, wp.int32, d)
+
+        # The wrench rows of the force elements on each body: 2 e + side, springs first, then drives.
+        driven = h.drive_joint[forced]
+        ends = [*zip(h.spring_body0, h.spring_body1), *zip(h.joint_parent[driven], h.joint_child[driven])]
+        rows: list[list[int]] = [[] for _ in range(self.body_count)]
+        for e, pair in enumerate(ends):
+            for side, b in enumerate(pair):
+                if b >= 0:
+                    rows[b].append(2 * e + side)
+        self.element_count = len(ends)
+        self.body_wrench_start = _array(np.cumsum([0] + [len(r) for r in rows]), wp.int32, d)
+        self.body_wrench_rows = _array([r for rs in rows for r in rs], wp.int32, d)
 
     def set_masses(self, mass: np.ndarray, inertia: np.ndarray) -> None:
         """Every body's mass (kg) and inertia ((n, 3, 3) kg m^2, body frame about the centre of mass), on the
@@ -212,6 +330,8 @@ class Model:
         simulator steps a world alone this way, and a thread steps its share of the worlds."""
         if not 0 <= start < stop <= self.world_count:
             raise ValueError(f"worlds [{start}, {stop}) do not exist ({self.world_count} worlds)")
+        if self.spring_count or self.drive_count or self.limit_count:
+            raise ValueError("a model with springs, drives or limits does not split into worlds")
         h, count = self.host, stop - start
 
         def rows(values, per_world: int):
@@ -249,6 +369,7 @@ class Model:
             force_torque=rows(h.force_torque, nf),
             force_until=rows(h.force_until, nf),
             world_count=count,
+            joint_loop=rows(h.joint_loop, nj) if len(h.joint_loop) else (),
         )
 
     def joint_constraints(self, joint: int) -> range:

@@ -107,6 +107,150 @@ def double_pendulum(length: float = 1.0, mass: float = 1.0, angles=(math.pi / 2,
     return builder
 
 
+# ---------------------------------------------------------------- the paper's mechanisms (section 5)
+STEEL = 7800.0  # kg/m^3, the mechanisms' links
+
+
+def _link(builder: SceneBuilder, start, end, width: float, name: str, color) -> int:
+    """A box bar of square section `width` from `start` to `end` (its local z along the bar)."""
+    start, end = np.asarray(start, dtype=float), np.asarray(end, dtype=float)
+    length = float(np.linalg.norm(end - start))
+    shape = Shape("box", size=(width, width, length), color=color)
+    mass, inertia = shape.mass_properties(STEEL)
+    q = quat_between([0.0, 0.0, 1.0], (end - start) / length)
+    return builder.add_body(mass, inertia, 0.5 * (start + end), q, name=name, shape=shape)
+
+
+FOUR_BAR = (0.4, 0.1, 0.35, 0.3)  # ground d, crank a, coupler b, rocker c (m): a Grashof crank-rocker
+
+
+def four_bar_points(crank_angle: float, lengths=FOUR_BAR) -> tuple[np.ndarray, np.ndarray]:
+    """B (crank tip) and C (coupler-rocker hinge) of the planar four-bar in the x-z plane, A at the origin and
+    D at (d, 0, 0), for a crank angle from +x towards +z; C on the upper branch."""
+    d, a, b, c = lengths
+    bp = np.array([a * math.cos(crank_angle), 0.0, a * math.sin(crank_angle)])
+    dp = np.array([d, 0.0, 0.0])
+    span = float(np.linalg.norm(dp - bp))
+    along = (b * b - c * c + span * span) / (2.0 * span)  # from B towards D
+    e = (dp - bp) / span
+    normal = np.array([-e[2], 0.0, e[0]])  # e turned +90 degrees in x-z
+    cp = bp + along * e + math.sqrt(b * b - along * along) * normal
+    return bp, cp
+
+
+def four_bar(crank_speed: float = 2.0 * math.pi, lengths=FOUR_BAR, crank_angle: float = 0.5 * math.pi) -> SceneBuilder:
+    """The planar four-bar: three links and the world, four parallel hinges about -y (so angles grow from +x
+        towards +z), redundant in 3D (20 constraint rows for 18 degrees of freedom and one mobility). A velocity
+        motor turns the crank at `crank_speed` (rad/s) against gravity: a stiff one (a velocity constraint), since the
+    light crank would need a PID gain beyond the explicit prediction's stability. The rocker's hinge to the world closes
+        the loop."""
+    builder = SceneBuilder()
+    axis = (0.0, -1.0, 0.0)
+    bp, cp = four_bar_points(crank_angle, lengths)
+    dp = np.array([lengths[0], 0.0, 0.0])
+    crank = _link(builder, np.zeros(3), bp, 0.02, "crank", (0.8, 0.3, 0.2))
+    coupler = _link(builder, bp, cp, 0.02, "coupler", (0.3, 0.6, 0.8))
+    rocker = _link(builder, dp, cp, 0.02, "rocker", (0.3, 0.8, 0.4))
+    drive = builder.add_joint_revolute(None, crank, np.zeros(3), axis, name="A")
+    builder.add_joint_revolute(crank, coupler, bp, axis, name="B")
+    builder.add_joint_revolute(coupler, rocker, cp, axis, name="C")
+    builder.add_joint_revolute(None, rocker, dp, axis, name="D")
+    builder.add_motor(drive, "velocity", target=crank_speed, max_force=50.0, stiff=True)
+    return builder
+
+
+def _solid(builder: SceneBuilder, shape: Shape, density: float, position, orientation, name: str) -> int:
+    mass, inertia = shape.mass_properties(density)
+    return builder.add_body(mass, inertia, position, orientation, name=name, shape=shape)
+
+
+CAR_WHEEL_SPEED = 5.0  # rad/s, the wheel servos' initial target
+CAR_STEERING = 0.3  # rad, the steering servos' initial target (to the left)
+
+
+def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) -> SceneBuilder:
+    """The paper's car (section 5): a chassis; per wheel a strut on a slider with a spring-damper along z (the
+    suspension, its spring preloaded so that the built pose is the rest pose), a front knuckle on a steering
+    hinge about z (front wheels), and the wheel on a hinge about y driven by a velocity servo. The two
+    steering hinges carry position servos with one target: the steering servo. The servos are stiff motors
+    (`SceneBuilder.add_motor`): a PID torque on the light knuckle would need a gain too low to steer.
+    Until contacts exist the chassis is fixed to the world ("hold"), so the wheels spin and steer in the air.
+
+    Motors, in add order: wheels front-left, front-right, rear-left, rear-right, then steering left, right.
+    """
+    builder = SceneBuilder()
+    z_axis, y_axis = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
+    chassis = _solid(builder, Shape("box", size=(2.4, 1.2, 0.3), color=(0.7, 0.1, 0.1)), 300.0, (0.0, 0.0, 0.8),
+                     (0.0, 0.0, 0.0, 1.0), "chassis")  # fmt: skip
+    builder.add_joint_fixed(None, chassis, (0.0, 0.0, 0.8), name="hold")
+    k, c, strut_mass = 2.0e4, 400.0, 15.0
+    wheel_shape = Shape("cylinder", radius=0.3, length=0.2, color=(0.15, 0.15, 0.15))
+    upright = quat_between([0.0, 0.0, 1.0], y_axis)  # the cylinder's axis along y
+    g = float(np.linalg.norm(builder.gravity))
+    wheels, steering_hinges = [], []
+    for name, x, y in (("front_left", 0.9, 0.7), ("front_right", 0.9, -0.7), ("rear_left", -0.9, 0.7),
+                       ("rear_right", -0.9, -0.7)):  # fmt: skip
+        top = np.array([x, y, 0.8])
+        hub = np.array([x, y, 0.35])
+        strut = builder.add_body(strut_mass, (0.2, 0.2, 0.05), 0.5 * (top + hub), name=f"{name}_strut")
+        slider = builder.add_joint_prismatic(chassis, strut, 0.5 * (top + hub), z_axis, name=f"{name}_suspension")
+        carrier = strut
+        hung = strut_mass  # the mass the spring carries: strut, knuckle, wheel
+        if name.startswith("front"):
+            carrier = builder.add_body(2.0, (0.02, 0.02, 0.02), hub, name=f"{name}_knuckle")
+            steering_hinges.append(builder.add_joint_revolute(strut, carrier, hub, z_axis, name=f"{name}_steering"))
+            hung += 2.0
+        wheel = _solid(builder, wheel_shape, 350.0, hub, upright, f"{name}_wheel")
+        hung += builder.bodies[wheel].mass
+        wheels.append(builder.add_joint_revolute(carrier, wheel, hub, y_axis, name=f"{name}_axle"))
+        builder.add_joint_spring(slider, k, damping=c, rest=hung * g / k)
+    for joint in wheels:
+        builder.add_motor(joint, "velocity", target=wheel_speed, max_force=300.0, stiff=True)
+    for joint in steering_hinges:
+        builder.add_motor(joint, "position", target=steering, max_force=50.0, stiff=True)
+    return builder
+
+
+WALKER_LEGS = ((0.5, 0.35, 0.0), (-0.5, 0.35, 0.5), (0.5, -0.35, 0.5), (-0.5, -0.35, 0.0))
+"""(x, y, crank phase in turns) of each leg of the walking machine."""
+
+
+def walker_leg_points(phase: float, crank: float = 0.12, sleeve_height: float = 0.35, foot: float = 0.55):
+    """Crank pivot O (origin), crank tip P, sleeve pivot S and foot F of one leg in its x-z plane for a crank
+    angle `phase` (rad, from +x towards +z): the leg passes through P and S and reaches `foot` beyond P."""
+    o = np.zeros(3)
+    p = np.array([crank * math.cos(phase), 0.0, crank * math.sin(phase)])
+    s = np.array([0.0, 0.0, sleeve_height])
+    u = (p - s) / np.linalg.norm(p - s)
+    return o, p, s, p + foot * u
+
+
+def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
+    """The paper's walking machine (section 5): per leg one servo motor (a stiff velocity motor on the crank's
+    hinge), two hinges (crank to leg, body to sleeve) and one slider (the leg through the sleeve): one closed
+    loop per leg, a crank-driven slotted lever whose foot traces a closed curve each crank turn. Four legs,
+    cranks half a turn apart on each side. Until contacts exist the body is fixed to the world ("hold")."""
+    builder = SceneBuilder()
+    axis = np.array([0.0, -1.0, 0.0])  # angles grow from +x towards +z
+    height = 1.0
+    body = _solid(builder, Shape("box", size=(1.4, 0.5, 0.2), color=(0.3, 0.3, 0.7)), 500.0, (0.0, 0.0, height + 0.3),
+                  (0.0, 0.0, 0.0, 1.0), "body")  # fmt: skip
+    builder.add_joint_fixed(None, body, (0.0, 0.0, height + 0.3), name="hold")
+    for i, (x, y, phase) in enumerate(WALKER_LEGS):
+        origin = np.array([x, y, height])
+        o, p, s, f = (origin + v for v in walker_leg_points(2.0 * math.pi * phase))
+        u = (p - s) / np.linalg.norm(p - s)
+        crank = _link(builder, o, p, 0.03, f"leg{i}_crank", (0.8, 0.6, 0.2))
+        sleeve = _link(builder, s - 0.05 * u, s + 0.05 * u, 0.06, f"leg{i}_sleeve", (0.5, 0.5, 0.5))
+        leg = _link(builder, s - 0.15 * u, f, 0.03, f"leg{i}_leg", (0.2, 0.6, 0.3))
+        servo = builder.add_joint_revolute(body, crank, o, axis, name=f"leg{i}_servo")
+        builder.add_joint_revolute(crank, leg, p, axis, name=f"leg{i}_knee")
+        builder.add_joint_revolute(body, sleeve, s, axis, name=f"leg{i}_hip")
+        builder.add_joint_prismatic(sleeve, leg, s, u, name=f"leg{i}_slider")
+        builder.add_motor(servo, "velocity", target=crank_speed, max_force=500.0, stiff=True)
+    return builder
+
+
 SCENES = {
     "tree31": lambda: binary_tree(31),
     "tree63": lambda: binary_tree(63),
@@ -116,4 +260,7 @@ SCENES = {
     "chain": lambda: chain(10),
     "chain50": lambda: chain(50),
     "double_pendulum": double_pendulum,
+    "four_bar": four_bar,
+    "car": car,
+    "walking_machine": walking_machine,
 }

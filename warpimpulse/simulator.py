@@ -20,16 +20,18 @@ import warp as wp
 from . import checks, composition, coordinates, diagnose
 from .files import write_atomically
 from .kernels import constraints as constraint_kernels
+from .kernels import forces as force_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
+from .kernels import limits as limit_kernels
 from .kernels import rigid as rigid_kernels
 from .kernels import worlds as world_kernels
-from .launch import capture, record
+from .launch import Launches, capture, record
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
 from .steps import SimulationError, StepStats
-from .transforms import quat_to_matrix
-from .types import FORMULATIONS, SOLVERS
+from .transforms import quat_rotate, quat_to_matrix
+from .types import DRIVE_MODES, FORMULATIONS, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
@@ -96,9 +98,11 @@ class Simulator:
         on_max_iterations: "raise" a SimulationError naming the worst joints, or "warn" and go on with
             `StepStats.converged` False.
         max_substep_depth: a failing step is halved down to dt / 2**max_substep_depth before it fails.
-        formulation: "auto", "constraint" or "body": the matrix the Cholesky solver factors
+        formulation: "auto", "constraint", "body" or "split": the matrix the Cholesky solver factors
             (`topology.Pattern`); "auto" takes the augmented body-joint matrix only where a body has many
-            joints.
+            joints and the scene has no loops. "split" factors the tree's and the loop joints' systems apart
+            (the paper's section 4.6, iterated together): about 10x the iterations of one matrix with the
+            loop joints last on the four-bar, so "auto" never takes it (docs/mechanisms.md).
         max_rotation: a step in which some body would turn further than this (rad), at the angular velocity
             it starts or ends with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth): the
             method is second order in the rotation per step, and a whipping chain or a body tumbling at
@@ -134,6 +138,18 @@ class Simulator:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
         if verbose:
             show_warp_messages()
+        if model.limit_count and checks.integer(order, "order", 2) > 2:
+            raise ValueError(
+                "joint limits and stiff motors are not reversible (impacts, saturation): a composed step of order "
+                f"{order} would run them backwards in its negative substeps; use order 2"
+            )
+        if solver == "iterative" and model.limit_count:
+            raise ValueError("solver 'iterative' has no joint limits or stiff motors: use 'cholesky' or 'cg'")
+        if solver == "iterative" and model.element_count:
+            raise ValueError(
+                "solver 'iterative' predicts each body alone with a constant force; the scene's springs, joint "
+                "springs or motors couple bodies in the prediction: use 'cholesky' or 'cg'"
+            )
         self.model = model
         self.dt = dt
         self.tolerance = tolerance
@@ -171,12 +187,38 @@ class Simulator:
         elif self.solver_name == "cg":
             self.linear = CGSolver(model, self.frames)
         self._counts = (model.body_count, nc)
+        self._forced = model.element_count > 0  # state-dependent forces: the coupled RK4 prediction
+        if self._forced:
+            self._stage = model.state()
+            sums = model.state()  # the weighted sums of the RK4 stage derivatives
+            self.rk4_sum_x, self.rk4_sum_q, self.rk4_sum_v, self.rk4_sum_w = (
+                sums.body_x,
+                sums.body_q,
+                sums.body_v,
+                sums.body_w,
+            )
+            self.wrench_force = wp.zeros(2 * model.element_count, dtype=wp.vec3d, device=d)
+            self.wrench_torque = wp.zeros(2 * model.element_count, dtype=wp.vec3d, device=d)
+        self.drive_target = wp.array(model.host.drive_target, dtype=wp.float64, device=d)
+        self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
+        nl = model.limit_count
+        self.limit_impulse = wp.zeros(nl, dtype=wp.float64, device=d)  # accumulated over the step, push only
+        (self.limit_value, self.limit_rate, self.limit_error, self.limit_velocity_impulse, self.limit_rhs,
+         self.limit_delta, self.limit_low, self.limit_high, self.limit_goal, self.limit_before,
+         self.limit_scratch) = (wp.zeros(nl, dtype=wp.float64, device=d) for _ in range(11))  # fmt: skip
+        self.limit_mask = wp.zeros(nl, dtype=wp.int32, device=d)
+        self.limit_matrix = wp.zeros(nl * nl, dtype=wp.float64, device=d)  # the rows' system S
+        self.limit_work = wp.zeros(nl * nl, dtype=wp.float64, device=d)
+        self.limit_coupling = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # J M^-1 g^T of each limit
+        self.limit_response = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # K^-1 J M^-1 g^T
         self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
         if model.world_count > 1:
-            if self.solver_name != "cholesky" or nc == 0 or self.order != 2:
+            mechanisms = model.spring_count + model.drive_count + model.limit_count
+            if self.solver_name != "cholesky" or nc == 0 or self.order != 2 or mechanisms:
                 raise ValueError(
                     f"batched worlds ({model.world_count}) are stepped at order 2 with the cholesky solver and need "
-                    f"joints; got order {self.order}, solver {solver!r} and {nc} constraints"
+                    f"joints and no springs, drives or limits yet; got order {self.order}, solver {solver!r}, "
+                    f"{nc} constraints and {mechanisms} springs, drives and limits"
                 )
             self.world_summary = wp.zeros((model.world_count, 2), dtype=wp.float64, device=d)
             self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
@@ -219,35 +261,84 @@ class Simulator:
             self._world_checks = {id(st): self._record(world_kernels.summarize_worlds, nb, st) for st in (s, self.pred)}
             self._mask = [self._record(world_kernels.mask_worlds, nc, rhs=self.rhs)]
         prepare = self.linear.prepare_launches if self.linear is not None else []
-        frames = [self._inertia, self._frames, *prepare]
+        frames = [self._inertia, self._frames, *prepare, *self._limit_system_launches()]
         self._frames_graph = self._capture(*frames)
         # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
         self._accept_graph = self._capture(lambda: self.state.copy_from(self.pred), *frames)
-        self._save_velocities = self._capture(lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w))
+        self._save_velocities = self._capture(
+            lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w), self.limit_impulse.zero_
+        )
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
             solve = self.linear.solve_launches(self.rhs, self.impulse)
             self._velocity_fix = self._capture(*self._mask, *solve, self._apply, self._velocity_errors)
         self._use_step_size(self.dt)
 
+    def _limit_system_launches(self) -> list:
+        """The rows' system S (limits and stiff motors) with the joints holding, at the current state and factor
+        (`kernels/limits.py`): one solve with the factor per row; with CG (no factor to reuse) the free bodies'
+        mobility."""
+        s, nl, nc = self.state, self.model.limit_count, self.model.constraint_count
+        if nl == 0:
+            return []
+        coupled = isinstance(self.linear, CholeskySolver)
+        launches = []
+        if coupled:
+            launches.append(self._record(limit_kernels.limit_coupling, (nl, nc), s))
+            for l in range(nl):
+                rows = slice(l * nc, (l + 1) * nc)
+                launches += self.linear.solve_launches(self.limit_coupling[rows], self.limit_response[rows])
+        launches.append(self._record(limit_kernels.limit_matrix, (nl, nl), s, coupled=int(coupled)))
+        return launches
+
     def _use_step_size(self, h: float) -> None:
         """Point the launches that depend on the step size at h (recorded once per h, then cached)."""
         if h not in self._launches_by_h:
             s, p, (nb, nc) = self.state, self.pred, self._counts
-            predict = self._record(rigid_kernels.predict, nb, s, p, h=h)
+            if self._forced:
+                predict = self._coupled_prediction(h)
+            else:
+                predict = self._record(rigid_kernels.predict, nb, s, p, h=h)
+            integrate = self._record(force_kernels.integrate_drives, self.model.drive_count, s, h=h)
             errors = self._record(self.kernels.position_errors, nc, p, inv_h=1.0 / h)
             sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
             # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
-            measure = [errors, self.summary.zero_, self._check_states[id(p)]]
+            start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
+            limits = self._record(limit_kernels.limit_errors, self.model.limit_count, p, h=h, **start)
+            measure = [errors, limits, self.summary.zero_, self._check_states[id(p)]]
             if self.batch is not None:
                 measure += [self.world_summary.zero_, self._world_checks[id(p)]]
+            nl, coupled = self.model.limit_count, int(self._direct)
+            correct_limits, correct_limit_velocities = (
+                self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, limit_count=nl, coupled=coupled,
+                             h=h, body_v=s.body_v, body_w=s.body_w)
+                for v in (0, 1)
+            )  # fmt: skip
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iterate = self._capture(*self._mask, *solve, self._apply, predict, *measure)
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate)
-        (self._predict, self._position_errors, self._sweep_positions, self._evaluate,
-         self._iterate) = self._launches_by_h[h]  # fmt: skip
+                iterate = self._capture(*self._mask, *solve, self._apply, correct_limits, predict, *measure)
+            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate, integrate,
+                                      correct_limits, correct_limit_velocities)  # fmt: skip
+        (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
+         self._integrate_drives, self._correct_limits,
+         self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
+
+    def _coupled_prediction(self, h: float) -> Launches:
+        """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""
+        m, s, p, stage = self.model, self.state, self.pred, self._stage
+        start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
+        launches = []
+        for k in range(4):
+            at = s if k == 0 else stage
+            launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
+            launches.append(
+                self._record(force_kernels.drive_wrenches, m.force_drive_count, at, row_offset=m.spring_count)
+            )
+            launches.append(
+                self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
+            )
+        return Launches(launches)
 
     def prepare_substeps(self) -> None:
         """Record the launches of every substep size a step may take (dt / 2**k, k <= max_substep_depth) now,
@@ -345,6 +436,21 @@ class Simulator:
         if self.batch is not None:
             self.batch.forget(range(m.world_count) if world is None else [world])
         self._update_frames()
+
+    def set_motor_target(self, motor: int, target: float) -> None:
+        """The target of a motor (`SceneBuilder.add_motor`'s index): rad or m in position mode, rad/s or m/s
+        in velocity mode; held until set again."""
+        m = self.model
+        motors = np.flatnonzero(m.host.drive_motor)
+        if isinstance(motor, bool) or not isinstance(motor, (int, np.integer)) or not 0 <= motor < len(motors):
+            raise ValueError(f"motor {motor!r} does not exist ({len(motors)} motors)")
+        drive = int(motors[motor])
+        target = float(target)
+        if not math.isfinite(target):
+            raise ValueError(f"motor {motor} ({m.drive_name[drive]!r}): target must be finite, got {target}")
+        values = self.drive_target.numpy()
+        values[drive] = target
+        self.drive_target.assign(values)
 
     @staticmethod
     def _checked(values, shape, what) -> np.ndarray:
@@ -449,6 +555,7 @@ class Simulator:
         wp.capture_launch(self._accept_graph)
         if self.linear is not None:
             self.linear.check()
+        self._integrate_drives.launch()
 
         if self.linear is None:
             vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
@@ -457,16 +564,16 @@ class Simulator:
         else:
             vel_it = 0
             self._velocity_errors.launch()
+            if self.model.limit_count:  # joints exact, then the limits, then the joints take up their reaction
+                linear_iterations += self._fix_velocities()
+                self._correct_limit_velocities.launch()
+                self._velocity_errors.launch()
             vel_err = self._max_error("velocity")
-            if vel_err > self.velocity_tolerance:
-                if self._direct:
-                    wp.capture_launch(self._velocity_fix)
-                    linear_iterations += 1
-                else:
-                    linear_iterations += self.linear.solve(self.rhs, self.impulse, "velocity")
-                    self._apply.launch()
-                    self._velocity_errors.launch()
-                vel_it = 1
+            # One exact solve, except with the split systems (section 4.6), which iterate side by side.
+            split = getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split"
+            while vel_err > self.velocity_tolerance and vel_it < (self.max_iterations if split else 1):
+                linear_iterations += self._fix_velocities()
+                vel_it += 1
                 vel_err = self._max_error("velocity")
         if vel_err > self.velocity_tolerance and self.linear is not None:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
@@ -474,6 +581,17 @@ class Simulator:
             self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
         converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
         return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1), True
+
+    def _fix_velocities(self) -> int:
+        """The velocity correction's solve from the velocity errors just measured, applied, and the errors
+        measured again; returns the linear iterations it took."""
+        if self._direct:
+            wp.capture_launch(self._velocity_fix)
+            return 1
+        iterations = self.linear.solve(self.rhs, self.impulse, "velocity")
+        self._apply.launch()
+        self._velocity_errors.launch()
+        return iterations
 
     def _spin_depth(self, reach: float) -> int:
         """k such that 2**k substeps turn the fastest body of the state at most max_rotation in each base
@@ -515,6 +633,7 @@ class Simulator:
             else:
                 linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
                 self._apply.launch()
+                self._correct_limits.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1
 
@@ -531,6 +650,8 @@ class Simulator:
     def _max_error(self, what: str) -> float:
         """The largest constraint error of the `what` ("joint" or "velocity") correction just measured."""
         err = float(self.errors.numpy().max()) if self.model.constraint_count else 0.0
+        if what == "joint" and self.model.limit_count:
+            err = max(err, float(self.limit_error.numpy().max()))
         if not math.isfinite(err):
             if what == "joint":
                 self._check_finite(self.pred, self.step_count + 1)
@@ -626,7 +747,8 @@ class Simulator:
         data = {name: getattr(self.state, f"body_{name}").numpy() for name in STATE}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
                     user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count,
-                    stages=np.array(self.scheme.stages), fallback=self._fallback)  # fmt: skip
+                    stages=np.array(self.scheme.stages), fallback=self._fallback,
+                    drive_target=self.drive_target.numpy(), drive_integral=self.drive_integral.numpy())  # fmt: skip
         data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
@@ -643,6 +765,9 @@ class Simulator:
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
         self._user_force, self._user_torque = data["user_force"], data["user_torque"]
         self._fallback = str(data["fallback"]) if "fallback" in data else ""
+        if "drive_target" in data:  # motors' targets and PID integrals
+            self.drive_target.assign(data["drive_target"])
+            self.drive_integral.assign(data["drive_integral"])
         warm = getattr(self.linear, "_warm", None)  # CG warm starts; another solver's are not used
         if warm is not None:
             warm.clear()
@@ -712,8 +837,11 @@ class Simulator:
     # ---------------------------------------------------------------- the state
     def reset(self) -> None:
         """Return to the built state at t = 0, as a new Simulator of the same model: the bodies' initial poses
-        and velocities, no user loads (`set_external_forces`), no warm start."""
+        and velocities, no user loads (`set_external_forces`), no warm start, the motors' built targets and
+        no PID integral."""
         self.state.copy_from(self.model.state())
+        self.drive_target.assign(self.model.host.drive_target)
+        self.drive_integral.zero_()
         self.time, self.step_count = 0.0, 0
         if self.batch is not None:
             self.batch.reset()
@@ -824,6 +952,12 @@ class Simulator:
         its parent's frame."""
         return coordinates.velocities(self.model, self._joint_index(joint, world), *self._state_arrays())
 
+    @property
+    def redundant_rows(self) -> int:
+        """Constraint rows of loop-closing joints that the last factorization found redundant with the tree (a
+        planar four-bar has 3): information, not an error; they are regularised (`CholeskySolver`)."""
+        return getattr(self.linear, "redundant_rows", 0)
+
     def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
         out = np.zeros(self.model.joint_count)
         np.maximum.at(out, self.model.constraint_joint, constraint_errors)
@@ -859,8 +993,32 @@ class Simulator:
         """Translational plus rotational kinetic energy, J; with batched worlds (W,) or one `world`'s."""
         return self._per_world_sum(self._kinetic_per_body(), world)
 
-    def energy(self, world: int | None = None) -> float | np.ndarray:
-        """Kinetic plus gravitational potential energy, J; with batched worlds (W,) or one `world`'s."""
+    def potential_energy(self, world: int | None = None) -> float | np.ndarray:
+        """Gravity's potential energy plus the elastic energy of the springs and joint springs, J (zero for
+        gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
+        and store none. With batched worlds (which have no springs or drives) (W,) or one `world`'s."""
         h = self.model.host
-        potential = -h.body_mass * (self.state.body_x.numpy() @ h.gravity)
-        return self._per_world_sum(self._kinetic_per_body() + potential, world)
+        x = self.state.body_x.numpy()
+        gravity = self._per_world_sum(-h.body_mass * (x @ h.gravity), world)
+        if self.model.world_count > 1:
+            return gravity
+        energy = gravity
+        if len(h.spring_params):
+            q = self.state.body_q.numpy()
+            ends = []
+            for body, anchor in ((h.spring_body0, h.spring_anchor0), (h.spring_body1, h.spring_anchor1)):
+                world_end = body < 0  # an anchor on the world is a world point
+                pose_q = np.where(world_end[:, None], [0.0, 0.0, 0.0, 1.0], q[body])
+                pose_x = np.where(world_end[:, None], 0.0, x[body])
+                ends.append(pose_x + quat_rotate(pose_q, anchor))
+            stretch = np.linalg.norm(ends[1] - ends[0], axis=1) - h.spring_params[:, 2]
+            energy += float(np.sum(0.5 * h.spring_params[:, 0] * stretch**2))
+        for d in np.flatnonzero(~h.drive_motor & (h.drive_mode == DRIVE_MODES.index("position"))):
+            offset = self.joint_coordinates(int(h.drive_joint[d]))[0] - h.drive_target[d]
+            energy += 0.5 * float(h.drive_gains[d, 0]) * offset**2
+        return energy
+
+    def energy(self, world: int | None = None) -> float | np.ndarray:
+        """Kinetic plus potential energy (`potential_energy`), J: conserved by a scene without loads, motors,
+        dampers or limits; with batched worlds (W,) or one `world`'s."""
+        return self.kinetic_energy(world) + self.potential_energy(world)

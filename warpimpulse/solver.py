@@ -63,7 +63,17 @@ class CholeskySolver:
 
     name = "cholesky"
 
-    def __init__(self, model: Model, frames: Frames, pivot_tolerance: float = 1e-14, formulation: str = "auto") -> None:
+    def __init__(
+        self,
+        model: Model,
+        frames: Frames,
+        pivot_tolerance: float = 1e-14,
+        formulation: str = "auto",
+        loop_tolerance: float = 1e-9,
+    ) -> None:
+        """`loop_tolerance`: a pivot of a loop-closing joint's column below this times its diagonal is a row
+        redundant with the tree (a planar four-bar's out-of-plane rows) and is regularised, not an error;
+        `redundant_rows` counts them at the last factorization (kernels/cholesky.py, `factor`)."""
         self.model = model
         d = model.device
         pat = model.topology.pattern(formulation)
@@ -71,7 +81,8 @@ class CholeskySolver:
         n = len(pat.perm)
         self.values = wp.zeros(len(pat.col_row), dtype=wp.mat33d, device=d)
         self.diag_inv = wp.zeros(n, dtype=wp.mat33d, device=d)
-        self.singular = wp.zeros(1, dtype=wp.int32, device=d)
+        self.singular = wp.zeros(2, dtype=wp.int32, device=d)  # first degenerate column + 1, redundant rows
+        self.redundant_rows = 0
         self._augmented = pat.formulation == "body"
         group_start, levels = schedule(pat, parallel=d.is_cuda)
         # The pattern on the device, under the names the kernels' parameters have.
@@ -80,6 +91,7 @@ class CholeskySolver:
         self.device_pattern = SimpleNamespace(
             group_start=_int(group_start, d),
             col_sign=_float(pat.col_sign, d),
+            col_loop=_int(self._loop_columns(model, pat), d),
             update_sign=_float(pat.update_sign, d),
             **{name: _int(getattr(pat, name), d) for name in ints},
         )
@@ -99,7 +111,15 @@ class CholeskySolver:
         self.work = wp.zeros(n, dtype=wp.vec3d, device=d)
         sources = (self.device_pattern, self)
         self._factor = [
-            record(cholesky_kernels.factor, count, d, sources, first_group=first, pivot_tolerance=pivot_tolerance)
+            record(
+                cholesky_kernels.factor,
+                count,
+                d,
+                sources,
+                first_group=first,
+                pivot_tolerance=pivot_tolerance,
+                loop_tolerance=loop_tolerance,
+            )  # fmt: skip
             for first, count in levels
         ]
         self._levels = levels
@@ -115,9 +135,22 @@ class CholeskySolver:
             launch.launch()
         self.check()
 
+    @staticmethod
+    def _loop_columns(model: Model, pat) -> np.ndarray:
+        """1 for the columns (in elimination order) of the constraints of loop-closing joints; none in the
+        augmented matrix, whose constraint diagonal is 0: there no assembled scale tells redundancy apart."""
+        if pat.formulation == "body":
+            return np.zeros(len(pat.perm), dtype=np.int32)
+        loops = np.zeros(model.joint_count, dtype=bool)
+        loops[model.topology.loop_joints] = True
+        return loops[model.constraint_joint[pat.perm]].astype(np.int32)
+
     def check(self) -> None:
-        """Raise SingularSystemError naming the joint (or body) whose pivot the last factorization lost."""
-        col = int(self.singular.numpy()[0])
+        """Raise SingularSystemError naming the joint (or body) whose pivot the last factorization lost; note
+        the rows of loop joints found redundant (`redundant_rows`)."""
+        col, self.redundant_rows = (int(x) for x in self.singular.numpy())
+        if self.redundant_rows:
+            self.singular.zero_()
         if col:
             self.singular.zero_()
             unknown = int(self.pattern.perm[col - 1])

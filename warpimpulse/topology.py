@@ -29,6 +29,7 @@ class Graph:
     joint_parent: np.ndarray  # (joints,) int
     joint_child: np.ndarray  # (joints,) int
     world_count: int = 1  # batched worlds, world-major (`Model`): each world's unknowns are eliminated together
+    joint_loop: np.ndarray | None = None  # (joints,) bool: close loops with these where there is a choice
 
     @property
     def body_count(self) -> int:
@@ -116,13 +117,17 @@ class Topology:
 
     def pattern(self, formulation: str = "auto") -> Pattern:
         """The factor pattern of `formulation`, built once. "auto" takes K while every body has few
-        constraints (then K is as sparse as it gets, and smaller), else the one with fewer block updates."""
+        constraints (then K is as sparse as it gets, and smaller), else the one with fewer block updates. With
+        loop-closing joints "auto" takes K: their redundant rows are judged against K's assembled diagonal
+        (`kernels/cholesky.py`), which the augmented matrix does not have (its constraint diagonal is 0)."""
+        if formulation == "auto" and self.loop_joints:
+            formulation = "constraint"
         if formulation == "auto":
             cost = constraint_cost(self.graph)
             small = cost <= 8.0 * (self.graph.body_count + self.graph.constraint_count)
             formulation = "constraint" if small or self.pattern("body").updates >= cost else "body"
         if formulation not in self._patterns:
-            build = constraint_pattern if formulation == "constraint" else body_pattern
+            build = {"constraint": constraint_pattern, "body": body_pattern, "split": split_pattern}[formulation]
             pattern = build(self.graph, self.depth, self.loop_joints)
             if self.level_order:
                 order = np.argsort(pattern.height, kind="stable")
@@ -157,8 +162,11 @@ def shared_sides(graph: Graph, i: int, j: int) -> list[int]:
 
 
 def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
-    """Depth of every body from the world (or from a root per floating island), and the loop joints."""
+    """Depth of every body from the world (or from a root per floating island), and the loop joints: those
+    the breadth-first spanning tree does not use. Joints marked `joint_loop` (USD's excludeFromArticulation)
+    join the tree only where no other joint reaches a body, so they close the loops when the scene says so."""
     n = graph.body_count
+    hinted = np.zeros(graph.joint_count, bool) if graph.joint_loop is None else np.asarray(graph.joint_loop, bool)
     adjacency: list[list[tuple[int, int]]] = [[] for _ in range(n)]
     grounded: list[tuple[int, int]] = []
     for ji, (parent, child) in enumerate(zip(graph.joint_parent.tolist(), graph.joint_child.tolist())):
@@ -172,27 +180,30 @@ def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
     depth = np.full(n, -1, dtype=np.int64)
     tree_joints: set[int] = set()
     queue: deque[int] = deque()
-    for b, ji in grounded:
-        if depth[b] < 0:
-            depth[b] = 0
-            queue.append(b)
-            tree_joints.add(ji)
 
-    def grow() -> None:
+    def grow(allow_hinted: bool) -> None:
         while queue:
             b = queue.popleft()
             for other, ji in adjacency[b]:
-                if depth[other] < 0:
+                if depth[other] < 0 and (allow_hinted or not hinted[ji]):
                     depth[other] = depth[b] + 1
                     tree_joints.add(ji)
                     queue.append(other)
 
-    grow()
+    for allow_hinted in (False, True):
+        for b, ji in grounded:
+            if depth[b] < 0 and (allow_hinted or ji < 0 or not hinted[ji]):
+                depth[b] = 0
+                queue.append(b)
+                tree_joints.add(ji)
+        if allow_hinted:  # grow on from everything reached, now through the marked joints too
+            queue.extend(sorted(np.flatnonzero(depth >= 0).tolist(), key=lambda b: depth[b]))
+        grow(allow_hinted)
     for b in range(n):  # floating islands: root at their first body
         if depth[b] < 0:
             depth[b] = 0
             queue.append(b)
-            grow()
+            grow(True)
     loops = [ji for ji in range(graph.joint_count) if ji not in tree_joints]
     return depth, loops
 
@@ -312,6 +323,19 @@ def constraint_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], 
     st = _structure(perm, _coupling(graph), graph.constraint_count)
     sides = [shared_sides(graph, int(i), int(j)) for i, j in zip(st["slot_row"], st["slot_col"])]
     return _pattern("constraint", st, np.ones(len(perm)), slot_sides=np.array(sides, np.int32).reshape(-1, 4))
+
+
+def split_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:
+    """K without the blocks that couple a loop joint's constraints to the tree's: the tree's system and the
+    loop joints' system of the method paper's section 4.6, factored apart (no fill between them) and solved
+    side by side from the same prediction in each iteration of the common loop, until both hold."""
+    if perm is None:
+        perm = elimination_order(graph, depth, loop_joints)
+    loops = np.isin(graph.constraint_joint, loop_joints)
+    adj = [{d for d in near if loops[d] == loops[c]} for c, near in enumerate(_coupling(graph))]
+    st = _structure(perm, adj, graph.constraint_count)
+    sides = [shared_sides(graph, int(i), int(j)) for i, j in zip(st["slot_row"], st["slot_col"])]
+    return _pattern("split", st, np.ones(len(perm)), slot_sides=np.array(sides, np.int32).reshape(-1, 4))
 
 
 def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=None) -> Pattern:

@@ -77,6 +77,15 @@ SOLVERS = ("auto", "cholesky", "cg", "iterative")
 and the next step's joint correction, and a tree's factor is linear in its joints; "cg" iterates on the same K;
 "iterative" is the paper's sweep over joints one at a time, without a system (the baseline)."""
 
-FORMULATIONS = ("constraint", "body")
-"""The matrix the Cholesky solver factors: K = J M^-1 J^T ("constraint") or the augmented body-joint matrix
-("body"); see `topology.Pattern`."""
+FORMULATIONS = ("constraint", "body", "split")
+"""The matrix the Cholesky solver factors: K = J M^-1 J^T ("constraint"), the augmented body-joint matrix
+("body"), or K without its blocks between the tree's and the loop joints' constraints ("split": the method
+paper's section 4.6, two systems solved side by side in each iteration of the common loop); see
+`topology.Pattern`."""
+
+COORDINATES = {"revolute": 0, "prismatic": 1}
+"""The joint types with one coordinate, and its code in the kernels: 0 an angle (rad) about the axis, 1 an
+offset (m) along it. Drives (joint springs, motors) and limits act on it."""
+
+DRIVE_MODES = ("position", "velocity")
+"""`SceneBuilder.add_motor(mode=...)`; the index is the code the kernels read."""

@@ -2,7 +2,8 @@
 
 Rigid bodies, mass and joints come from `UsdPhysics.UsdPhysicsLoadStageFromPrimRange`; transforms come from
 `UsdGeom.XformCache` in double precision (the parser's poses are float). Generic (D6) joints map to the
-combined joint their locked axes describe, or to basic constraints. Drives, limits and break forces are
+combined joint their locked axes describe, or to basic constraints. Revolute and prismatic joints' drives and
+limits become motors, joint springs and limits; other joints' drives and limits, and break forces, are
 refused (or dropped with a warning when `ignore_unsupported`), never silently.
 
 Units: the simulator is SI. Inputs are converted with metersPerUnit / kilogramsPerUnit; angles in USD are
@@ -369,11 +370,48 @@ def _check_limits_drives(desc, path: str, report: _Reporter) -> tuple[set[int], 
     return locked_t, locked_r
 
 
+def _limit_and_drive(
+    builder: SceneBuilder, joint: int, prim, desc, angular: bool, sign: float, mpu: float, kpu: float
+) -> None:
+    """A revolute or prismatic joint's limit (physics:lowerLimit / upperLimit) and its DriveAPI as warpimpulse
+    limits, motors and joint springs. Angular values are in degrees in USD (stiffness and damping per degree),
+    linear ones in stage units. A drive is kp (targetPosition - x) + kd (targetVelocity - dx/dt): with a
+    stiffness, a position motor (kp = stiffness, kd = damping, target = targetPosition); without, a velocity
+    motor (kp = damping, target = targetVelocity). warpimpulse's extras on the joint prim: warpimpulse:drive:ki
+    (per the unit of the coordinate and second), warpimpulse:drive:stiff (a stiff motor) and
+    warpimpulse:drive:jointSpring (a joint spring, not a motor)."""
+    unit = math.radians(1.0) if angular else mpu  # USD's unit of the coordinate, in rad or m
+    if desc.limit.enabled:
+        lower, upper = sorted((sign * desc.limit.lower * unit, sign * desc.limit.upper * unit))
+        if math.isfinite(lower) or math.isfinite(upper):
+            builder.add_joint_limit(joint, lower, upper)
+    drive = desc.drive
+    if not drive.enabled:
+        return
+    force_unit = kpu * mpu * (mpu if angular else 1.0)  # USD's unit of force (torque) in N (N m)
+    per = force_unit / unit  # a gain per USD unit, as one per rad or m
+    extra = {name: prim.GetAttribute(f"warpimpulse:drive:{name}").Get() for name in ("ki", "stiff", "jointSpring")}
+    max_force = drive.forceLimit * force_unit if math.isfinite(drive.forceLimit) else math.inf
+    if extra["jointSpring"]:
+        builder.add_joint_spring(joint, drive.stiffness * per, drive.damping * per, sign * drive.targetPosition * unit)
+    elif drive.stiffness > 0.0:
+        if drive.targetVelocity != 0.0:
+            raise SceneError("a drive with a stiffness and a targetVelocity (tracking both) is not simulated")
+        builder.add_motor(joint, "position", sign * drive.targetPosition * unit, drive.stiffness * per,
+                          float(extra["ki"] or 0.0) * per, drive.damping * per, max_force,
+                          stiff=bool(extra["stiff"]))  # fmt: skip
+    else:
+        builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per,
+                          float(extra["ki"] or 0.0) * per, 0.0, max_force, stiff=bool(extra["stiff"]))  # fmt: skip
+
+
 def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> UsdScene:
     """Read a UsdPhysics scene into a SceneBuilder (SI units) plus what export needs.
 
     Body and joint names in the builder are their prim paths. Raises `UsdSceneError` (a `SceneError`)
-    naming the prim for input that cannot be simulated; drives, limits and break forces raise
+    naming the prim for input that cannot be simulated. Revolute and prismatic joints' limits and drives
+    become limits, motors and joint springs (`_limit_and_drive`); physics:excludeFromArticulation marks the
+    joints that close loops. Limits and drives of other joint types, and break forces, raise
     `UnsupportedFeatureError` unless `ignore_unsupported`, which warns and drops them.
     """
     _, Sdf, _, _, UsdGeom, UsdPhysics, _ = pxr()
@@ -528,10 +566,6 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             token = jprim.GetAttribute("physics:axis").Get()
             if token not in ("X", "Y", "Z"):  # the parser reads any other token as X
                 raise UsdSceneError(f"{jpath}: physics:axis must be X, Y or Z, got {token!r}")
-            if desc.limit.enabled:
-                report.unsupported(jpath, f"a limit [{desc.limit.lower}, {desc.limit.upper}]")
-            if desc.drive.enabled:
-                report.unsupported(jpath, "a drive")
             ax = r0[:, "XYZ".index(token)]
             plans = [_JointPlan("revolute" if t == T.RevoluteJoint else "prismatic", ax)]
         elif t == T.SphericalJoint:
@@ -559,6 +593,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
                                 p.axis if p.axis_child is not None else None) for p in plans]  # fmt: skip
         if desc.excludeFromArticulation:
             loop_joints.append(jpath)
+        first_joint = len(builder.joints)
         for plan in plans:
             try:
                 if plan.kind in JOINT_TYPES:
@@ -568,6 +603,16 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             except SceneError as exc:
                 raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
             joint_paths.append(jpath)
+        if desc.excludeFromArticulation:
+            for k in range(first_joint, len(builder.joints)):
+                builder.mark_loop_joint(k)
+        if t in (T.RevoluteJoint, T.PrismaticJoint):
+            # The coordinate is body1's against body0's: negated when the world was on body1's side.
+            sign = 1.0 if ends[1] is not None else -1.0
+            try:
+                _limit_and_drive(builder, first_joint, jprim, desc, t == T.RevoluteJoint, sign, mpu, kpu)
+            except SceneError as exc:
+                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
     parsed_joints = {j[0] for j in all_joints}
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
         if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:

@@ -15,7 +15,7 @@ from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..model import Model
 from ..transforms import quat_rotate
-from ..types import WORLD, ConstraintKind
+from ..types import DRIVE_MODES, WORLD, ConstraintKind
 
 WORLD_PATH = "/World"
 INSTANCER_PATH = "/World/Instancer"
@@ -126,7 +126,33 @@ def builder_from_model(model: Model) -> SceneBuilder:
         add(kind, None if parent == WORLD else parent, child, anchor, axis, axis_child, name)
     for body, force, torque, until in zip(h.force_body, h.force_force, h.force_torque, h.force_until):
         builder.add_force(int(body), force, torque, float(until))
+    _mechanisms_from_model(builder, model)
     return builder
+
+
+def _mechanisms_from_model(builder: SceneBuilder, model: Model) -> None:
+    """The model's springs, drives, limits and loop marks back on `builder` (whose bodies and joints are the
+    model's, in order)."""
+    h = model.host
+    for k in np.flatnonzero(h.joint_loop).tolist():
+        builder.mark_loop_joint(k)
+    for i, name in enumerate(model.spring_name):
+        b0, b1 = int(h.spring_body0[i]), int(h.spring_body1[i])
+        ends = []
+        for b, anchor in ((b0, h.spring_anchor0[i]), (b1, h.spring_anchor1[i])):
+            ends.append(anchor if b == WORLD else h.body_x[b] + quat_rotate(h.body_q[b], anchor))
+        k, c, rest = h.spring_params[i]
+        builder.add_spring(None if b0 == WORLD else b0, None if b1 == WORLD else b1, *ends, k, c, rest, name)
+    for i in range(model.drive_count):
+        joint, (kp, ki, kd) = int(h.drive_joint[i]), h.drive_gains[i]
+        if not h.drive_motor[i]:
+            builder.add_joint_spring(joint, kp, kd, h.drive_target[i])
+        else:
+            builder.add_motor(joint, DRIVE_MODES[h.drive_mode[i]], h.drive_target[i], kp, ki, kd,
+                              h.drive_max_force[i], stiff=bool(h.drive_stiff[i]))  # fmt: skip
+    for joint, (lower, upper), drive in zip(h.limit_joint, h.limit_bounds, h.limit_drive):
+        if drive < 0:  # the stiff motors' rows come back with their motors
+            builder.add_joint_limit(int(joint), lower, upper)
 
 
 def as_scene(scene: UsdScene | SceneBuilder | Model) -> UsdScene:

@@ -22,10 +22,11 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..builder import WORLD, SceneBuilder
+from ..builder import WORLD, SceneBuilder, SceneError
 from ..files import Interrupted, interrupts_deferred, same_file, write_atomically
 from ..shapes import Shape
 from ..transforms import quat_conj, quat_from_matrix, quat_mul, quat_rotate
+from ..types import DRIVE_MODES
 from .scene import IDENTITY_QUAT, INSTANCER_PATH, MODE_KEY, UsdScene, as_scene, pxr, scene_from_builder
 
 # Above this many bodies a procedural export uses a PointInstancer unless told otherwise. Measured with
@@ -214,7 +215,9 @@ def _loop_joints(builder: SceneBuilder) -> set[int]:
 
     node = [world if b.static else i for i, b in enumerate(builder.bodies)]
     loops = set()
-    for k, j in enumerate(builder.joints):
+    order = sorted(range(len(builder.joints)), key=lambda k: builder.joints[k].loop)  # marked loop joints last
+    for k in order:
+        j = builder.joints[k]
         a = find(world if j.parent == WORLD else node[j.parent])
         c = find(node[j.child])
         if a == c:
@@ -222,6 +225,56 @@ def _loop_joints(builder: SceneBuilder) -> set[int]:
         else:
             parent[a] = c
     return loops
+
+
+def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[str]]]:
+    """Per joint: the DriveAPI schema and the attribute lines of its limit and drive (revolute: degrees, gains
+    per degree; prismatic: metres), the inverse of the reader's `_limit_and_drive`. USD has one drive per
+    joint axis, and no point-to-point spring: a joint with two drives, or a scene with springs, is refused."""
+    if builder.springs:
+        raise SceneError(f"spring {builder.springs[0].name!r}: USD has no spring between two points; not written")
+    out: dict[int, tuple[list[str], list[str]]] = {}
+    for limit in builder.limits:
+        j = builder.joints[limit.joint]
+        unit = math.degrees(1.0) if j.kind == "revolute" else 1.0
+        lines = []
+        for name, value in (("lowerLimit", limit.lower), ("upperLimit", limit.upper)):
+            if math.isfinite(value):
+                lines.append(f"float physics:{name} = {_f(value * unit)}")
+        out[limit.joint] = ([], lines)
+    for drive in builder.drives:
+        j = builder.joints[drive.joint]
+        what = f"joint {j.name!r}"
+        if drive.joint in out and out[drive.joint][0]:
+            raise SceneError(f"{what}: USD has one drive per joint axis; this joint has two (a spring and a motor)")
+        angular = j.kind == "revolute"
+        unit = math.degrees(1.0) if angular else 1.0  # a coordinate in USD's unit
+        per = 1.0 / unit  # a gain per USD unit
+        kind = "angular" if angular else "linear"
+        velocity = drive.mode == DRIVE_MODES.index("velocity")
+        stiffness, damping = (0.0, drive.kp) if velocity else (drive.kp, drive.kd)
+        attrs = {
+            "type": '"force"',
+            "stiffness": _f(stiffness * per),
+            "damping": _f(damping * per),
+            "targetPosition": _f(0.0 if velocity else drive.target * unit),
+            "targetVelocity": _f(drive.target * unit if velocity else 0.0),
+        }
+        lines = [
+            f"{'uniform token' if name == 'type' else 'float'} drive:{kind}:physics:{name} = {value}"
+            for name, value in attrs.items()
+        ]
+        if math.isfinite(drive.max_force):
+            lines.append(f"float drive:{kind}:physics:maxForce = {_f(drive.max_force)}")
+        if drive.ki:
+            lines.append(f"custom double warpimpulse:drive:ki = {_f(drive.ki * per)}")
+        if drive.stiff:
+            lines.append("custom bool warpimpulse:drive:stiff = 1")
+        if not drive.motor:
+            lines.append("custom bool warpimpulse:drive:jointSpring = 1")
+        limit_lines = out.get(drive.joint, ([], []))[1]
+        out[drive.joint] = ([f'"PhysicsDriveAPI:{kind}"'], limit_lines + lines)
+    return out
 
 
 def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | None) -> str:
@@ -287,10 +340,12 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
         loops = _loop_joints(builder)
         out.append('    def Scope "Joints"\n    {\n')
         bodies = builder.bodies
+        mechanisms = _joint_mechanisms(builder)
         for k, (j, jpath) in enumerate(zip(builder.joints, scene.joint_paths)):
             f0, f1, type_name, locked, axis = _joint_frames(j)
-            schemas = ", ".join(f'"PhysicsLimitAPI:{d}"' for d in locked)
-            meta = f" (\n            prepend apiSchemas = [{schemas}]\n        )" if locked else ""
+            drive_schema, drive_lines = mechanisms.get(k, ([], []))
+            schemas = ", ".join([*(f'"PhysicsLimitAPI:{d}"' for d in locked), *drive_schema])
+            meta = f" (\n            prepend apiSchemas = [{schemas}]\n        )" if schemas else ""
             out.append(f'        def {type_name} "{jpath.rsplit("/", 1)[1]}"{meta}\n        {{\n')
             lines = []
             for side, bi, fr in ((0, j.parent, f0), (1, j.child, f1)):
@@ -310,6 +365,7 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
                 lines.append("bool physics:excludeFromArticulation = 1")
             for dof in locked:
                 lines += [f"float limit:{dof}:physics:low = 1", f"float limit:{dof}:physics:high = -1"]
+            lines += drive_lines
             out.append("".join(f"            {line}\n" for line in lines))
             out.append("        }\n")
         out.append("    }\n")

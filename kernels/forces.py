@@ -1,0 +1,353 @@
+"""Forces that depend on the state, inside the prediction (method paper, sections 3 and 4.4).
+
+Springs, dampers and servo motors change with the poses and velocities, so the prediction evaluates them
+at every RK4 stage, and a spring couples the bodies it joins: the prediction of a scene with such force
+elements advances all bodies together, stage by stage:
+
+    for each stage k: element wrenches at the stage state  ->  every body's derivative and its next stage
+    state (or, after stage 4, the predicted state).
+
+Each element writes the wrench on each of its two sides (rows 2 e + side); a body gathers its rows, so
+the sum needs no atomics and has the same order on every device. Scenes without elements keep the
+single-body prediction of `rigid.predict`.
+"""
+
+import warp as wp
+
+from .constraints import pose_q, pose_x
+
+wp.set_module_options({"enable_backward": False})
+
+vec3d = wp.vec3d
+quatd = wp.quatd
+mat33d = wp.mat33d
+f64 = wp.float64
+
+ANGLE_COORDINATE = wp.constant(0)  # revolute; 1 is a prismatic offset
+VELOCITY_MODE = wp.constant(1)
+
+
+@wp.func
+def pose_v(b: int, vs: wp.array(dtype=vec3d)) -> vec3d:
+    """A body's (linear or angular) velocity; the world's is zero."""
+    if b < 0:
+        return vec3d()
+    return vs[b]
+
+
+@wp.func
+def joint_coordinate(
+    coordinate: int,
+    x0: vec3d, q0: quatd, v0: vec3d, w0: vec3d,
+    x1: vec3d, q1: quatd, v1: vec3d, w1: vec3d,
+    anchor0: vec3d, anchor1: vec3d, axis0: vec3d, rest_rotation: quatd,
+):  # fmt: skip
+    """(value, rate, world axis, world point B) of a joint coordinate.
+
+    Angle (rad): the rotation of q0^-1 q1 rest^-1 about axis0, in (-pi, pi]; rate = (w1 - w0) . axis.
+    Offset (m): (B - A) . axis with A on body0 and B on body1; rate = (u_B - u_B0) . axis, the velocity of B
+    on body1 against the point of body0 at B, which makes (force x rate) the power of the pair."""
+    a = wp.quat_rotate(q0, axis0)
+    b = x1 + wp.quat_rotate(q1, anchor1)
+    if coordinate == ANGLE_COORDINATE:
+        d = wp.quat_inverse(q0) * q1 * wp.quat_inverse(rest_rotation)
+        s = wp.dot(vec3d(d[0], d[1], d[2]), axis0)
+        c = d[3]
+        if c < f64(0.0):
+            s = -s
+            c = -c
+        return f64(2.0) * wp.atan2(s, c), wp.dot(w1 - w0, a), a, b
+    p = x0 + wp.quat_rotate(q0, anchor0)
+    u1 = v1 + wp.cross(w1, b - x1)
+    u0 = v0 + wp.cross(w0, b - x0)
+    return wp.dot(b - p, a), wp.dot(u1 - u0, a), a, b
+
+
+@wp.func
+def coordinate_row(
+    r: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """`joint_coordinate` of coordinate row r at the given state."""
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    return joint_coordinate(
+        coordinate_kind[r], pose_x(b0, body_x), pose_q(b0, body_q), pose_v(b0, body_v), pose_v(b0, body_w),
+        pose_x(b1, body_x), pose_q(b1, body_q), pose_v(b1, body_v), pose_v(b1, body_w),
+        coordinate_anchor0[r], coordinate_anchor1[r], coordinate_axis0[r], coordinate_rest_rotation[r],
+    )  # fmt: skip
+
+
+@wp.func
+def wrap_angle(x: f64) -> f64:
+    """x in (-pi, pi]."""
+    pi = f64(3.141592653589793)
+    return x - f64(2.0) * pi * wp.floor((x + pi) / (f64(2.0) * pi))
+
+
+@wp.func
+def drive_output(
+    coordinate: int, mode: int, value: f64, rate: f64, target: f64, gains: vec3d, max_force: f64, integral: f64
+) -> f64:
+    """The PID output (N m or N) of a drive, gains = (kp, ki, kd), clamped to +-max_force."""
+    if mode == VELOCITY_MODE:
+        out = gains[0] * (target - rate) + gains[1] * integral
+    else:
+        e = target - value
+        if coordinate == ANGLE_COORDINATE:
+            e = wrap_angle(e)
+        out = gains[0] * e + gains[1] * integral - gains[2] * rate
+    return wp.clamp(out, -max_force, max_force)
+
+
+@wp.func
+def drive_error(coordinate: int, mode: int, value: f64, rate: f64, target: f64) -> f64:
+    """The error the PID integrates: target - value (position) or target - rate (velocity)."""
+    if mode == VELOCITY_MODE:
+        return target - rate
+    e = target - value
+    if coordinate == ANGLE_COORDINATE:
+        e = wrap_angle(e)
+    return e
+
+
+@wp.kernel
+def spring_wrenches(
+    # Model:
+    spring_body0: wp.array(dtype=int),
+    spring_body1: wp.array(dtype=int),
+    spring_anchor0: wp.array(dtype=vec3d),
+    spring_anchor1: wp.array(dtype=vec3d),
+    spring_params: wp.array(dtype=vec3d),  # stiffness N/m, damping N s/m, rest length m
+    # Data in: the stage state
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out: rows 2 e + side from row 0
+    wrench_force_out: wp.array(dtype=vec3d),
+    wrench_torque_out: wp.array(dtype=vec3d),
+):
+    """f = -k (L - L0) - c dL/dt along the unit vector n from A (body0) to B (body1): f n on body1 at B,
+    -f n on body0 at A. Both act along one line, so momentum and angular momentum are kept."""
+    e = wp.tid()
+    b0 = spring_body0[e]
+    b1 = spring_body1[e]
+    x0 = pose_x(b0, body_x_in)
+    x1 = pose_x(b1, body_x_in)
+    pa = x0 + wp.quat_rotate(pose_q(b0, body_q_in), spring_anchor0[e])
+    pb = x1 + wp.quat_rotate(pose_q(b1, body_q_in), spring_anchor1[e])
+    ua = pose_v(b0, body_v_in) + wp.cross(pose_v(b0, body_w_in), pa - x0)
+    ub = pose_v(b1, body_v_in) + wp.cross(pose_v(b1, body_w_in), pb - x1)
+    k = spring_params[e]
+    d = pb - pa
+    length = wp.length(d)
+    f = -k[0] * d  # a spring of rest length 0 at coincident points: no direction needed
+    if length > f64(1.0e-12):
+        n = d / length
+        f = n * (-k[0] * (length - k[2]) - k[1] * wp.dot(ub - ua, n))
+    wrench_force_out[2 * e] = -f
+    wrench_torque_out[2 * e] = wp.cross(pa - x0, -f)
+    wrench_force_out[2 * e + 1] = f
+    wrench_torque_out[2 * e + 1] = wp.cross(pb - x1, f)
+
+
+@wp.kernel
+def drive_wrenches(
+    # Model:
+    row_offset: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    drive_element: wp.array(dtype=int),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_gains: wp.array(dtype=vec3d),
+    drive_max_force: wp.array(dtype=f64),
+    # Data in: control, the integral at the step's start, the stage state
+    drive_target: wp.array(dtype=f64),
+    drive_integral: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out: rows 2 (row_offset + e) + side
+    wrench_force_out: wp.array(dtype=vec3d),
+    wrench_torque_out: wp.array(dtype=vec3d),
+):
+    """The torque tau of drive element e about the axis (+tau on body1, -tau on body0), or its force f along the
+    axis at B (+f on body1, -f on body0 at the same point, so no net couple)."""
+    e = wp.tid()
+    i = drive_element[e]
+    r = drive_coordinate[i]
+    value, rate, a, pb = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+    )  # fmt: skip
+    kind = coordinate_kind[r]
+    out = drive_output(
+        kind, drive_mode[i], value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i]
+    )
+    row = 2 * (row_offset + e)
+    if kind == ANGLE_COORDINATE:
+        wrench_force_out[row] = vec3d()
+        wrench_torque_out[row] = -out * a
+        wrench_force_out[row + 1] = vec3d()
+        wrench_torque_out[row + 1] = out * a
+    else:
+        f = out * a
+        wrench_force_out[row] = -f
+        wrench_torque_out[row] = wp.cross(pb - pose_x(coordinate_body0[r], body_x_in), -f)
+        wrench_force_out[row + 1] = f
+        wrench_torque_out[row + 1] = wp.cross(pb - pose_x(coordinate_body1[r], body_x_in), f)
+
+
+@wp.kernel
+def integrate_drives(
+    # Model:
+    h: f64,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_gains: wp.array(dtype=vec3d),
+    drive_max_force: wp.array(dtype=f64),
+    # Data in: control and the state at the end of the step
+    drive_target: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out:
+    drive_integral: wp.array(dtype=f64),
+):
+    """The PID's integral += h e(t0 + h), held constant within a step; clamped so that ki |integral| stays
+    within max_force (anti wind-up)."""
+    e = wp.tid()
+    ki = drive_gains[e][1]
+    if ki == f64(0.0):
+        return
+    r = drive_coordinate[e]
+    value, rate, a, pb = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+    )  # fmt: skip
+    bound = drive_max_force[e] / ki
+    integral = drive_integral[e] + h * drive_error(coordinate_kind[r], drive_mode[e], value, rate, drive_target[e])
+    drive_integral[e] = wp.clamp(integral, -bound, bound)
+
+
+@wp.func
+def body_derivative(
+    q: quatd, v: vec3d, w: vec3d, inv_mass: f64, inertia: mat33d, inv_inertia: mat33d, force: vec3d, torque: vec3d,
+    gravity: vec3d,
+):  # fmt: skip
+    """(dx, dv, dq, dw)/dt with the world angular velocity: equations 1-4 of the paper; dq/dt = 1/2 (w, 0) q
+    and dw/dt = J~^-1 (tau - w x J~ w) with J~ = R J R^T."""
+    r = wp.quat_to_matrix(q)
+    jw = r * inertia * wp.transpose(r)
+    ji = r * inv_inertia * wp.transpose(r)
+    dq = f64(0.5) * (quatd(w[0], w[1], w[2], f64(0.0)) * q)
+    return v, gravity + force * inv_mass, dq, ji * (torque - wp.cross(w, jw * w))
+
+
+@wp.kernel
+def rk4_stage(
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    body_wrench_start: wp.array(dtype=int),
+    body_wrench_rows: wp.array(dtype=int),
+    stage: int,
+    h: f64,
+    # Data in: the state at t0 (start_*), the stage state, external and element wrenches
+    start_x: wp.array(dtype=vec3d),
+    start_q: wp.array(dtype=quatd),
+    start_v: wp.array(dtype=vec3d),
+    start_w: wp.array(dtype=vec3d),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    body_force: wp.array(dtype=vec3d),
+    body_torque: wp.array(dtype=vec3d),
+    wrench_force: wp.array(dtype=vec3d),
+    wrench_torque: wp.array(dtype=vec3d),
+    # Data in/out: the weighted sum of the stage derivatives
+    rk4_sum_x: wp.array(dtype=vec3d),
+    rk4_sum_q: wp.array(dtype=quatd),
+    rk4_sum_v: wp.array(dtype=vec3d),
+    rk4_sum_w: wp.array(dtype=vec3d),
+    # Data out: the next stage state (stages 0-2) or the prediction (stage 3)
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Stage `stage` (0-3) of classic RK4 for every body at once: k = f(stage state), sum += weight k, next
+    stage = y0 + c k (c = h/2, h/2, h), and after the fourth stage y(t0 + h) = y0 + h/6 sum."""
+    b = wp.tid()
+    inv_mass = body_inv_mass[b]
+    if inv_mass == f64(0.0):
+        body_x_out[b] = start_x[b]
+        body_q_out[b] = start_q[b]
+        body_v_out[b] = start_v[b]
+        body_w_out[b] = start_w[b]
+        return
+    force = body_force[b]
+    torque = body_torque[b]
+    for k in range(body_wrench_start[b], body_wrench_start[b + 1]):
+        r = body_wrench_rows[k]
+        force += wrench_force[r]
+        torque += wrench_torque[r]
+    dx, dv, dq, dw = body_derivative(
+        body_q_in[b], body_v_in[b], body_w_in[b], inv_mass, body_inertia[b], body_inv_inertia[b], force, torque, gravity
+    )
+    weight = f64(2.0)
+    step = f64(0.5) * h
+    if stage == 0 or stage == 3:
+        weight = f64(1.0)
+    if stage == 2:
+        step = h
+    if stage == 0:
+        rk4_sum_x[b] = dx
+        rk4_sum_q[b] = dq
+        rk4_sum_v[b] = dv
+        rk4_sum_w[b] = dw
+    else:
+        rk4_sum_x[b] = rk4_sum_x[b] + dx * weight
+        rk4_sum_q[b] = rk4_sum_q[b] + dq * weight
+        rk4_sum_v[b] = rk4_sum_v[b] + dv * weight
+        rk4_sum_w[b] = rk4_sum_w[b] + dw * weight
+    if stage == 3:
+        sixth = h / f64(6.0)
+        body_x_out[b] = start_x[b] + rk4_sum_x[b] * sixth
+        body_q_out[b] = wp.normalize(start_q[b] + rk4_sum_q[b] * sixth)
+        body_v_out[b] = start_v[b] + rk4_sum_v[b] * sixth
+        body_w_out[b] = start_w[b] + rk4_sum_w[b] * sixth
+    else:
+        body_x_out[b] = start_x[b] + dx * step
+        body_q_out[b] = wp.normalize(start_q[b] + dq * step)  # a rotation, for the elements and the next stage
+        body_v_out[b] = start_v[b] + dv * step
+        body_w_out[b] = start_w[b] + dw * step

@@ -1,0 +1,589 @@
+"""Joint limits: lower <= coordinate <= upper on revolute angles and prismatic offsets, as push-only impulses
+in the joint-correction loop (method paper, section 4.5's iteration, with unilateral constraints).
+
+Each iteration of the loop measures the prediction (`limit_errors`), solves the joints' system, then solves
+the rows' own system (`correct_rows`): a row's predicted coordinate is updated to first order by the impulses
+applied since the measurement, h (rate now - rate measured), and the rows' impulses move every active row to
+its goal at once. The rows' system is S = G M^-1 G^T - C^T K^-1 C with C = J M^-1 G^T (`limit_coupling`, one
+solve with K's factor per row and step; `limit_matrix`): the rows' mobility with the joints holding, as the
+loop joints' system of section 4.6 is to the tree's. Each row's impulse is applied with the joints' linear
+reaction -K^-1 c (`compensate`), so the joints stay as they were to first order. A swing into a limit settles
+in 2 iterations at h = 1/60 s, where the free body's mobility alone took 36 (a rod on a hinge), and a motor on
+a four-bar's light crank, 47 times freer alone than in its loop, would not settle; rows coupled through the
+joints (a limit or a motor on every hinge of a chain) are solved together, not one after another. With CG (no
+factor) C is not formed: S is the free mobility.
+
+The impulse accumulated over the step keeps its sign (push only) and may shrink back to 0, never past it: the
+active set is the limits with a nonzero accumulated impulse, and for them the bound is an equality. The loop
+ends when the joints and the limits hold, so a swing into a limit stops there, as a perfectly inelastic
+impact: it cannot gain energy.
+
+A stiff motor is a row of the same loop (`limit_drive` >= 0): its coordinate must advance by h target in
+the step (velocity mode) or reach the target (position mode): an equality on the offset from that goal,
+wrapped for angles, with an impulse of at most max_force h either way. A saturated motor counts as holding.
+"""
+
+import warp as wp
+
+from .constraints import pose_x
+from .forces import VELOCITY_MODE, coordinate_row, wrap_angle
+
+wp.set_module_options({"enable_backward": False})
+
+vec3d = wp.vec3d
+quatd = wp.quatd
+mat33d = wp.mat33d
+f64 = wp.float64
+
+ANGLE_COORDINATE = wp.constant(0)
+
+
+@wp.kernel
+def limit_errors(
+    # Model:
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    limit_bounds: wp.array(dtype=wp.vec2d),
+    limit_drive: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_max_force: wp.array(dtype=f64),
+    # Data in: the impulse accumulated this step, the prediction (body_*_in), the state at t0 (start_*)
+    h: f64,
+    drive_target: wp.array(dtype=f64),
+    limit_impulse: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    start_x: wp.array(dtype=vec3d),
+    start_q: wp.array(dtype=quatd),
+    start_v: wp.array(dtype=vec3d),
+    start_w: wp.array(dtype=vec3d),
+    # Data out: the predicted coordinate, its rate at t0 now, and the error (m or rad)
+    limit_value_out: wp.array(dtype=f64),
+    limit_rate_out: wp.array(dtype=f64),
+    limit_error_out: wp.array(dtype=f64),
+):
+    """The error of a limit at the prediction: its violation, or for an active limit the distance to its bound.
+    A stiff motor's value is its offset from its goal, value(t0) + h target or target, its bounds (0, 0)."""
+    i = wp.tid()
+    r = limit_coordinate[i]
+    value, rate, a, pb = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+    )  # fmt: skip
+    value0, rate0, a0, pb0 = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, start_x, start_q, start_v, start_w,
+    )  # fmt: skip
+    bounds = limit_bounds[i]
+    lam = limit_impulse[i]
+    motor = limit_drive[i]
+    if motor >= 0:
+        goal = drive_target[motor]
+        if drive_mode[motor] == VELOCITY_MODE:
+            goal = value0 + h * drive_target[motor]
+        value = value - goal
+        if coordinate_kind[r] == ANGLE_COORDINATE:
+            value = wrap_angle(value)
+        cap = drive_max_force[motor] * h
+        err = wp.abs(value)
+        if (lam >= cap and value < f64(0.0)) or (lam <= -cap and value > f64(0.0)):
+            err = f64(0.0)  # saturated: the motor gives all it has
+    else:
+        err = wp.max(wp.max(bounds[0] - value, value - bounds[1]), f64(0.0))
+        if lam > f64(0.0):
+            err = wp.abs(value - bounds[0])
+        elif lam < f64(0.0):
+            err = wp.abs(value - bounds[1])
+    limit_value_out[i] = value
+    limit_rate_out[i] = rate0
+    limit_error_out[i] = err
+
+
+@wp.func
+def limit_side(
+    r: int,
+    side: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """(body, linear row, angular row) of a limit's Jacobian g on one side: d(rate) = g_lin . v + g_ang . w."""
+    value, rate, a, pb = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    b = coordinate_body0[r]
+    sign = f64(-1.0)
+    if side == 1:
+        b = coordinate_body1[r]
+        sign = f64(1.0)
+    if coordinate_kind[r] == ANGLE_COORDINATE:
+        return b, vec3d(), a * sign
+    return b, a * sign, wp.cross(pb - pose_x(b, body_x), a) * sign
+
+
+@wp.kernel
+def limit_coupling(
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    # Data in:
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out: c of limit l for constraint i at l * constraint_count + i
+    limit_coupling_out: wp.array(dtype=vec3d),
+):
+    """c_i = sum over the bodies that limit l and constraint i share of J_ib M_b^-1 g_b^T."""
+    l, i = wp.tid()
+    nc = constraint_body0.shape[0]
+    r = limit_coordinate[l]
+    c = vec3d()
+    for side in range(2):
+        b, g_lin, g_ang = limit_side(
+            r, side, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+        )  # fmt: skip
+        if b >= 0:
+            if constraint_body0[i] == b:
+                c += jac_lin_in[2 * i] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i] * (
+                    inv_inertia_world_in[b] * g_ang
+                )
+            if constraint_body1[i] == b:
+                c += jac_lin_in[2 * i + 1] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i + 1] * (
+                    inv_inertia_world_in[b] * g_ang
+                )
+    limit_coupling_out[l * nc + i] = c
+
+
+@wp.kernel
+def limit_matrix(
+    # Model:
+    coupled: int,
+    body_inv_mass: wp.array(dtype=f64),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    # Data in: c and K^-1 c of every row (when `coupled`)
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    limit_coupling_in: wp.array(dtype=vec3d),
+    limit_response_in: wp.array(dtype=vec3d),
+    # Data out: S, row-major (rows k, l)
+    limit_matrix_out: wp.array(dtype=f64),
+):
+    """The rows' own system with the joints holding: S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l, the rate change of
+    row k per unit impulse of row l. A diagonal is kept at least 1e-9 of its free value g M^-1 g^T (a row the
+    joints lock gets no unbounded impulse)."""
+    k, l = wp.tid()
+    nl = limit_coordinate.shape[0]
+    free = f64(0.0)
+    for sk in range(2):
+        bk, glk, gak = limit_side(
+            limit_coordinate[k], sk, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+            coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in,
+            body_w_in,
+        )  # fmt: skip
+        if bk >= 0:
+            for sl in range(2):
+                bl, gll, gal = limit_side(
+                    limit_coordinate[l], sl, coordinate_kind, coordinate_body0, coordinate_body1,
+                    coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in,
+                    body_q_in, body_v_in, body_w_in,
+                )  # fmt: skip
+                if bl == bk:
+                    free += body_inv_mass[bk] * wp.dot(glk, gll) + wp.dot(gak, inv_inertia_world_in[bk] * gal)
+    held = free
+    if coupled != 0:
+        nc = limit_coupling_in.shape[0] // nl
+        for i in range(nc):
+            held -= wp.dot(limit_coupling_in[k * nc + i], limit_response_in[l * nc + i])
+    if k == l:
+        held = wp.max(held, f64(1.0e-9) * free)
+    limit_matrix_out[k * nl + l] = held
+
+
+@wp.func
+def solve_masked(
+    n: int,
+    matrix: wp.array(dtype=f64),
+    mask: wp.array(dtype=int),
+    rhs: wp.array(dtype=f64),
+    work: wp.array(dtype=f64),
+    scratch: wp.array(dtype=f64),
+    out: wp.array(dtype=f64),
+):
+    """out = S_AA^-1 rhs_A on the rows with mask 1 (other rows keep their out), by a dense Cholesky in `work`
+    (`scratch`: n more); a pivot below 1e-12 of its diagonal (rows that repeat each other) is regularised to
+    that diagonal."""
+    for i in range(n):
+        for j in range(n):
+            v = f64(0.0)
+            if mask[i] == 1 and mask[j] == 1:
+                v = matrix[i * n + j]
+            elif i == j:
+                v = f64(1.0)
+            work[i * n + j] = v
+    for j in range(n):
+        diag = work[j * n + j]
+        t = diag
+        for k in range(j):
+            t -= work[j * n + k] * work[j * n + k]
+        if t <= f64(1.0e-12) * diag:
+            t = diag
+        d = wp.sqrt(t)
+        work[j * n + j] = d
+        for i in range(j + 1, n):
+            u = work[i * n + j]
+            for k in range(j):
+                u -= work[i * n + k] * work[j * n + k]
+            work[i * n + j] = u / d
+    # The unit rows and columns outside A keep those rows out of the solve (their scratch entries are 0).
+    for i in range(n):
+        y = f64(0.0)
+        if mask[i] == 1:
+            y = rhs[i]
+        for k in range(i):
+            y -= work[i * n + k] * scratch[k]
+        scratch[i] = y / work[i * n + i]
+    for ii in range(n):
+        i = n - 1 - ii
+        x = scratch[i]
+        for k in range(i + 1, n):
+            x -= work[k * n + i] * scratch[k]
+        scratch[i] = x / work[i * n + i]
+    for i in range(n):
+        if mask[i] == 1:
+            out[i] = scratch[i]
+
+
+@wp.func
+def compensate(
+    l: int,
+    amount: f64,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    limit_response: wp.array(dtype=vec3d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Apply the joints' impulses -K^-1 c_l amount that keep them holding under limit l's impulse `amount`."""
+    nc = constraint_body0.shape[0]
+    for i in range(nc):
+        lam = limit_response[l * nc + i] * (-amount)
+        b0 = constraint_body0[i]
+        b1 = constraint_body1[i]
+        if b0 >= 0:
+            body_v[b0] = body_v[b0] + wp.transpose(jac_lin[2 * i]) * lam * body_inv_mass[b0]
+            body_w[b0] = body_w[b0] + inv_inertia_world[b0] * (wp.transpose(jac_ang[2 * i]) * lam)
+        if b1 >= 0:
+            body_v[b1] = body_v[b1] + wp.transpose(jac_lin[2 * i + 1]) * lam * body_inv_mass[b1]
+            body_w[b1] = body_w[b1] + inv_inertia_world[b1] * (wp.transpose(jac_ang[2 * i + 1]) * lam)
+
+
+@wp.func
+def apply_row(
+    i: int,
+    r: int,
+    amount: f64,
+    a: vec3d,
+    pb: vec3d,
+    coupled: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    limit_response: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Apply row i's impulse `amount` on coordinate r (axis a, point B = pb) to its two bodies, and, when
+    `coupled`, the joints' reaction to it."""
+    kind = coordinate_kind[r]
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    inv0 = mat33d()
+    inv1 = mat33d()
+    if b0 >= 0:
+        inv0 = inv_inertia_world[b0]
+    if b1 >= 0:
+        inv1 = inv_inertia_world[b1]
+    push_side(kind, b0, f64(-1.0), amount, a, pb - pose_x(b0, body_x), body_inv_mass, inv0, body_v, body_w)
+    push_side(kind, b1, f64(1.0), amount, a, pb - pose_x(b1, body_x), body_inv_mass, inv1, body_v, body_w)
+    if coupled != 0:
+        compensate(
+            i, amount, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+            limit_response, body_v, body_w,
+        )  # fmt: skip
+
+
+@wp.func
+def push_side(
+    kind: int,
+    b: int,
+    sign: f64,
+    lam: f64,
+    a: vec3d,
+    arm: vec3d,
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia: mat33d,
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Apply sign lam about (angle) or along (offset, at the arm) the axis to body b."""
+    if b < 0:
+        return
+    if kind == ANGLE_COORDINATE:
+        body_w[b] = body_w[b] + inv_inertia * a * (sign * lam)
+    else:
+        body_v[b] = body_v[b] + a * (sign * lam * body_inv_mass[b])
+        body_w[b] = body_w[b] + inv_inertia * wp.cross(arm, a) * (sign * lam)
+
+
+@wp.func
+def apply_fixed(
+    i: int,
+    amount: f64,
+    coupled: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    limit_response: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Row i's impulse `amount` on its bodies and the joints' reaction (`apply_row`), its axis and point at
+    the poses given."""
+    r = limit_coordinate[i]
+    value, rate, a, pb = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    apply_row(
+        i, r, amount, a, pb, coupled, coordinate_kind, coordinate_body0, coordinate_body1, body_inv_mass,
+        constraint_body0, constraint_body1, inv_inertia_world, jac_lin, jac_ang, limit_response, body_x, body_v,
+        body_w,
+    )  # fmt: skip
+
+
+@wp.kernel
+def correct_rows(
+    # Model:
+    velocity: int,
+    limit_count: int,
+    coupled: int,
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    limit_bounds: wp.array(dtype=wp.vec2d),
+    limit_drive: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_max_force: wp.array(dtype=f64),
+    # Data in:
+    h: f64,
+    drive_target: wp.array(dtype=f64),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    limit_response_in: wp.array(dtype=vec3d),
+    limit_matrix_in: wp.array(dtype=f64),
+    limit_value_in: wp.array(dtype=f64),
+    limit_rate_in: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    # Data in/out: the state at t0's (or t0 + h's) velocities, the impulses, scratch
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    limit_impulse: wp.array(dtype=f64),
+    limit_velocity_impulse: wp.array(dtype=f64),
+    limit_mask: wp.array(dtype=int),
+    limit_low: wp.array(dtype=f64),
+    limit_high: wp.array(dtype=f64),
+    limit_goal: wp.array(dtype=f64),
+    limit_before: wp.array(dtype=f64),
+    limit_rhs: wp.array(dtype=f64),
+    limit_delta: wp.array(dtype=f64),
+    limit_work: wp.array(dtype=f64),
+    limit_scratch: wp.array(dtype=f64),
+):
+    """All rows at once (one thread), on the rows' system S (`limit_matrix`) with an active set.
+
+    Position pass (`velocity` 0, in the joint-correction loop): each row's predicted coordinate, updated to
+    first order by the impulses since the measurement, h (rate now - rate measured); an active row (a motor,
+    a limit violated or already pushing) is moved to its goal: S_AA d = (goal - predicted) / h. Velocity pass
+    (1, after the step): a motor's rate to its target (velocity mode) or to 0 once it holds its target
+    (position mode), a limit that pushed in the step to rate 0: S_AA d = goal - rate. The totals stay in their
+    bounds (push only; |motor| <= max_force h over the step) by block pivoting: rows out of bounds are fixed
+    at them one at a time, fixed rows whose demand turns inwards are freed, until neither happens. The
+    impulses go to the bodies with the joints' reaction."""
+    n = limit_count
+    for i in range(n):
+        r = limit_coordinate[i]
+        value, rate, a, pb = coordinate_row(
+            r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v, body_w,
+        )  # fmt: skip
+        lam = limit_impulse[i]
+        motor = limit_drive[i]
+        bounds = limit_bounds[i]
+        active = int(0)  # noqa: UP018
+        goal = f64(0.0)
+        current = rate
+        if velocity == 0:
+            current = limit_value_in[i] + h * (rate - limit_rate_in[i])
+        if motor >= 0:
+            if velocity == 0 or drive_mode[motor] == VELOCITY_MODE:
+                active = 1
+                if velocity != 0:
+                    goal = drive_target[motor]
+            elif wp.abs(lam) < drive_max_force[motor] * h:
+                active = 1  # a position motor holding its target: hold it still
+        elif velocity == 0:
+            if lam > f64(0.0) or (lam == f64(0.0) and current < bounds[0]):
+                active = 1
+                goal = bounds[0]
+            elif lam < f64(0.0) or current > bounds[1]:
+                active = 1
+                goal = bounds[1]
+        elif lam != f64(0.0):
+            active = 1
+        # Bounds on the row's total impulse: a motor's max_force h either way; a limit pushes only (the
+        # velocity pass adds to the step's push, never takes from it).
+        low = f64(-1.0e300)
+        high = f64(1.0e300)
+        if motor >= 0:
+            low = -drive_max_force[motor] * h
+            high = drive_max_force[motor] * h
+        elif lam > f64(0.0) or (velocity == 0 and lam == f64(0.0) and goal == bounds[0]):
+            low = wp.where(velocity == 0, f64(0.0), lam)
+        else:
+            high = wp.where(velocity == 0, f64(0.0), lam)
+        limit_low[i] = low
+        limit_high[i] = high
+        limit_mask[i] = active
+        limit_goal[i] = goal - current
+        if velocity == 0:
+            limit_goal[i] = (goal - current) / h
+        limit_delta[i] = f64(0.0)
+        limit_before[i] = lam  # the row's total before this pass
+        if velocity != 0:
+            limit_velocity_impulse[i] = f64(0.0)
+    # Block pivoting on the box: mask 1 free (solved), 2 at its low bound, 3 at its high bound, 0 inactive.
+    # Each round solves the free rows with the fixed rows' impulses moved to the right-hand side, then fixes the
+    # free row furthest out of its bounds, or else frees the fixed row whose demand points inwards the most.
+    for _round in range(4 * n + 4):
+        for i in range(n):
+            want = limit_goal[i]
+            for j in range(n):
+                if limit_mask[j] >= 2:
+                    want -= limit_matrix_in[i * n + j] * limit_delta[j]
+            limit_rhs[i] = want
+        solve_masked(n, limit_matrix_in, limit_mask, limit_rhs, limit_work, limit_scratch, limit_delta)
+        pick = int(-1)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
+        worst = f64(0.0)
+        for i in range(n):
+            if limit_mask[i] == 1:
+                total = limit_before[i] + limit_delta[i]
+                over = wp.max(limit_low[i] - total, total - limit_high[i]) * limit_matrix_in[i * n + i]
+                if over > worst:
+                    worst = over
+                    pick = i
+        if pick >= 0:
+            total = limit_before[pick] + limit_delta[pick]
+            limit_mask[pick] = wp.where(total < limit_low[pick], 2, 3)
+            limit_delta[pick] = wp.clamp(total, limit_low[pick], limit_high[pick]) - limit_before[pick]
+        else:
+            for i in range(n):
+                if limit_mask[i] >= 2:
+                    demand = limit_rhs[i]  # the rate change still wanted at fixed row i, all impulses counted
+                    for j in range(n):
+                        if limit_mask[j] == 1:
+                            demand -= limit_matrix_in[i * n + j] * limit_delta[j]
+                    inward = wp.where(limit_mask[i] == 2, demand, -demand)  # towards the inside of its bounds
+                    if inward > worst:
+                        worst = inward
+                        pick = i
+            if pick < 0:
+                break
+            limit_mask[pick] = 1
+    for i in range(n):
+        if limit_mask[i] != 0:
+            d = limit_delta[i]
+            if velocity == 0:
+                limit_impulse[i] = limit_impulse[i] + d
+            else:
+                limit_velocity_impulse[i] = limit_velocity_impulse[i] + d
+            apply_fixed(
+                i, d, coupled, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+                coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, limit_coordinate, body_inv_mass,
+                constraint_body0, constraint_body1, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_response_in,
+                body_x_in, body_q_in, body_v, body_w,
+            )  # fmt: skip

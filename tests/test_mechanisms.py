@@ -1,0 +1,332 @@
+"""The paper's mechanisms (section 4.4): springs and dampers, joint springs, servo motors, joint limits.
+
+References are analytic: the harmonic oscillator (period 2 pi sqrt(m/k), the damped solution), the
+reduced mass of two bodies on a spring, a PI loop's steady state, and conserved energy and momentum.
+Angles are measured from the bodies' poses here, not from the engine's own coordinate reader.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+
+ROD_MASS, ROD_LENGTH = 1.0, 1.0
+ROD_INERTIA = np.array([1e-3, 1.0 / 12.0, 1.0 / 12.0])  # a thin rod along x, kg m^2 about its centre
+ROD_PIVOT_INERTIA = ROD_INERTIA[2] + ROD_MASS * 0.25  # about the hinge at its end
+
+
+def crossings(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Times where x crosses 0 upwards, linearly interpolated."""
+    i = np.flatnonzero((x[:-1] < 0.0) & (x[1:] >= 0.0))
+    return t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
+
+
+def run(sim: wi.Simulator, steps: int, measure) -> tuple[np.ndarray, np.ndarray]:
+    t, values = [0.0], [measure(sim)]
+    for _ in range(steps):
+        stats = sim.step()
+        assert stats.converged
+        t.append(sim.time)
+        values.append(measure(sim))
+    return np.array(t), np.array(values)
+
+
+def rod_on_hinge(gravity=(0.0, 0.0, 0.0)) -> tuple[wi.SceneBuilder, int, int]:
+    """A rod along +x hinged at the origin about z."""
+    b = wi.SceneBuilder(gravity=gravity)
+    body = b.add_body(ROD_MASS, ROD_INERTIA, (0.5 * ROD_LENGTH, 0.0, 0.0), name="rod")
+    joint = b.add_joint_revolute(None, body, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), name="hinge")
+    return b, body, joint
+
+
+def rod_angle(sim: wi.Simulator) -> float:
+    x = sim.positions()[0]
+    return math.atan2(x[1], x[0])
+
+
+# ---------------------------------------------------------------- springs
+@pytest.mark.parametrize("slider", [False, True])
+def test_spring_mass_period(slider):
+    """A 2 kg body on a 50 N/m spring, free or on a prismatic joint: period 2 pi sqrt(m/k) to 1e-4 relative
+    at h = 0.01 s. Forces frozen at t0 of each step would miss this by far more (first order in h)."""
+    m, k = 2.0, 50.0
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, -9.81) if slider else (0.0, 0.0, 0.0))
+    body = b.add_body(m, (0.1, 0.1, 0.1), (1.0, 0.0, 0.0), linear_velocity=(0.3, 0.0, 0.0))
+    if slider:
+        b.add_joint_prismatic(None, body, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    b.add_spring(None, body, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), k)
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    t, x = run(sim, 1000, lambda s: s.positions()[0, 0] - 1.0)
+    periods = np.diff(crossings(t, x))
+    assert len(periods) >= 5
+    np.testing.assert_allclose(periods, 2.0 * math.pi * math.sqrt(m / k), rtol=1e-4)
+    if slider:
+        assert np.abs(sim.positions()[0, 1:]).max() < 1e-6  # the slider holds against gravity
+
+
+def test_damped_spring_matches_the_analytic_solution():
+    """m x'' = -k x - c x': x(t) = e^(-gamma t) (x0 cos(wd t) + (v0 + gamma x0)/wd sin(wd t)) to 1e-5 of the
+    amplitude, and its peaks (refined by a parabola through the samples) on the envelope x0 e^(-gamma t)."""
+    m, k, c, x0, v0 = 1.5, 40.0, 0.9, 0.2, 0.0
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    body = b.add_body(m, (0.1, 0.1, 0.1), (x0, 0.0, 0.0))
+    b.add_spring(None, body, (-1.0, 0.0, 0.0), (x0, 0.0, 0.0), k, damping=c, rest_length=1.0)
+    sim = wi.Simulator(b.finalize(), dt=0.005)
+    t, x = run(sim, 800, lambda s: s.positions()[0, 0])
+    gamma = c / (2.0 * m)
+    wd = math.sqrt(k / m - gamma * gamma)
+    exact = np.exp(-gamma * t) * (x0 * np.cos(wd * t) + (v0 + gamma * x0) / wd * np.sin(wd * t))
+    assert np.abs(x - exact).max() < 1e-5 * x0
+    i = np.flatnonzero((x[1:-1] > x[:-2]) & (x[1:-1] > x[2:])) + 1
+    a, b, c = x[i - 1], x[i], x[i + 1]
+    shift = 0.5 * (a - c) / (a - 2.0 * b + c)  # the parabola's vertex, in samples
+    peak, t_peak = b - 0.25 * (a - c) * shift, t[i] + shift * (t[1] - t[0])
+    assert len(i) >= 3
+    np.testing.assert_allclose(peak, x0 * np.exp(-gamma * t_peak), rtol=1e-4)
+
+
+def test_spring_between_two_bodies_keeps_momentum():
+    """Two bodies on a spring: period 2 pi sqrt(mu/k) with the reduced mass, momentum and angular momentum
+    kept (the forces act along one line), energy kept with the spring's own."""
+    m1, m2, k = 1.0, 3.0, 30.0
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    a = b.add_body(m1, (0.01, 0.02, 0.03), (0.0, 0.0, 0.0), linear_velocity=(-0.3, 0.1, 0.0),
+                   angular_velocity=(0.0, 0.0, 0.7))  # fmt: skip
+    c = b.add_body(m2, (0.02, 0.02, 0.02), (1.0, 0.0, 0.0), linear_velocity=(0.1, 0.0, 0.05))
+    b.add_spring(a, c, (0.1, 0.05, 0.0), (0.9, 0.0, 0.0), k)
+    sim = wi.Simulator(b.finalize(), dt=0.002)
+    mass = np.array([m1, m2])
+
+    def momenta(s):
+        x, v = s.positions(), s.linear_velocities()
+        w, r = s.angular_velocities(), wi.transforms.quat_to_matrix(s.orientations())
+        spin = np.einsum("nij,njk,nlk,nl->ni", r, s.model.body_inertia.numpy(), r, w).sum(axis=0)
+        return np.concatenate([mass @ v, np.cross(x, mass[:, None] * v).sum(axis=0) + spin])
+
+    t, p = run(sim, 1500, momenta)
+    assert np.abs(p - p[0]).max() < 1e-9
+    x = sim.positions()
+    assert np.linalg.norm(x[1] - x[0]) > 0.5  # it moved
+
+
+def test_joint_spring_period():
+    """A rod on a hinge with a 3 N m/rad joint spring: period 2 pi sqrt(I_pivot / k) to 1e-4, no gravity (the
+    joint correction makes the hinged motion second order in h: 1.1e-4 at h = 0.01 s, 3e-5 at 0.005 s)."""
+    k = 3.0
+    b, body, joint = rod_on_hinge()
+    b.add_joint_spring(joint, k)
+    b.bodies[body].angular_velocity = np.array([0.0, 0.0, 0.5])
+    b.bodies[body].linear_velocity = np.array([0.0, 0.25, 0.0])
+    sim = wi.Simulator(b.finalize(), dt=0.005)
+    t, angle = run(sim, 1400, rod_angle)
+    periods = np.diff(crossings(t, angle))
+    assert len(periods) >= 2
+    np.testing.assert_allclose(periods, 2.0 * math.pi * math.sqrt(ROD_PIVOT_INERTIA / k), rtol=1e-4)
+    np.testing.assert_allclose(sim.joint_coordinates(joint)[0], angle[-1], atol=1e-9)
+
+
+def test_prismatic_joint_spring_with_rest_offset():
+    """A slider's joint spring pulls the offset to its rest value, damped."""
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    body = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 0.0))
+    joint = b.add_joint_prismatic(None, body, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    b.add_joint_spring(joint, 20.0, damping=8.0, rest=0.3)
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    run(sim, 500, rod_angle)
+    np.testing.assert_allclose(sim.positions()[0], [0.0, 0.3, 0.0], atol=1e-6)
+    np.testing.assert_allclose(sim.joint_coordinates(joint)[0], 0.3, atol=1e-6)
+
+
+def test_scenes_without_force_elements_keep_the_single_body_prediction():
+    b, _, joint = rod_on_hinge()
+    assert not wi.Simulator(b.finalize(), dt=0.01)._forced
+    b.add_joint_spring(joint, 1.0)
+    assert wi.Simulator(b.finalize(), dt=0.01)._forced
+
+
+# ---------------------------------------------------------------- motors
+def test_position_servo_reaches_and_holds_its_target():
+    """A PID servo lifts a rod against gravity to 0.5 rad, holds it, then goes to -1 rad on a new target."""
+    b, _, joint = rod_on_hinge(gravity=(0.0, -9.81, 0.0))
+    motor = b.add_motor(joint, "position", target=0.5, kp=50.0, ki=20.0, kd=10.0)
+    sim = wi.Simulator(b.finalize(), dt=1.0 / 60.0)
+    t, angle = run(sim, 600, rod_angle)
+    assert abs(angle[-1] - 0.5) < 1e-3
+    assert np.abs(angle[t > 8.0] - 0.5).max() < 2e-3  # held, the integral carrying the load
+    sim.set_motor_target(motor, -1.0)
+    t, angle = run(sim, 900, rod_angle)
+    assert abs(angle[-1] + 1.0) < 1e-3
+
+
+def test_velocity_servo_holds_its_speed_under_load():
+    """A wheel with a 2 N m braking load: a PI velocity servo turns it at 3 rad/s; the integral carries the
+    load, so the speed error vanishes; max_force caps the torque."""
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, -9.81))
+    wheel = b.add_body(2.0, (0.05, 0.05, 0.09), (0.0, 0.0, 1.0))
+    joint = b.add_joint_revolute(None, wheel, (0.0, 0.0, 1.0), (0.0, 0.0, 1.0))
+    b.add_force(wheel, torque=(0.0, 0.0, -2.0))
+    b.add_motor(joint, "velocity", target=3.0, kp=5.0, ki=10.0, max_force=50.0)
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    t, w = run(sim, 800, lambda s: s.angular_velocities()[0, 2])
+    assert np.abs(w[t > 6.0] - 3.0).max() < 1e-3
+    np.testing.assert_allclose(sim.joint_velocities(joint)[0], w[-1], atol=1e-9)
+
+
+def test_motor_torque_is_clamped():
+    """With max_force 0.5 N m a rod of pivot inertia I spins up at 0.5 / I rad/s^2, however large kp."""
+    b, _, joint = rod_on_hinge()
+    b.add_motor(joint, "velocity", target=100.0, kp=1e4, max_force=0.5)
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    run(sim, 100, rod_angle)
+    np.testing.assert_allclose(sim.angular_velocities()[0, 2], 0.5 / ROD_PIVOT_INERTIA * 1.0, rtol=1e-5)
+
+
+# ---------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda b, j: b.add_motor("ball", target=1.0), "'ball' (ball) has no single coordinate"),
+        (lambda b, j: b.add_joint_limit("ball", -1.0, 1.0), "'ball' (ball) has no single coordinate"),
+        (lambda b, j: b.add_joint_limit(j, 0.5, -0.5), "'hinge': limit lower 0.5 > upper -0.5"),
+        (lambda b, j: b.add_joint_spring(j, -1.0), "'hinge': joint spring stiffness must be >= 0"),
+        (lambda b, j: b.add_motor(j, kp=-2.0), "'hinge': motor kp must be >= 0"),
+        (lambda b, j: b.add_motor(j, target=math.nan), "'hinge': motor target must be finite"),
+        (lambda b, j: b.add_motor(j, mode="torque"), "'hinge': motor mode must be"),
+        (lambda b, j: b.add_motor("nope"), "no joint named 'nope'"),
+        (lambda b, j: b.add_spring(0, 0, (0, 0, 0), (1, 0, 0), 1.0), "both ends are on the same body"),
+        (lambda b, j: b.add_spring(None, 0, (0, 0, 0), (1, 0, 0), -1.0), "stiffness must be >= 0"),
+    ],
+)
+def test_bad_mechanism_input_names_the_joint(call, message):
+    b, body, joint = rod_on_hinge()
+    other = b.add_body(1.0, (0.1, 0.1, 0.1), (2.0, 0.0, 0.0))
+    b.add_joint_ball(body, other, (1.0, 0.0, 0.0), name="ball")
+    with pytest.raises(wi.SceneError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        call(b, joint)
+
+
+def test_set_motor_target_checks_its_input():
+    b, _, joint = rod_on_hinge()
+    b.add_joint_spring(joint, 1.0)
+    motor = b.add_motor(joint, "position", kp=1.0)
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    assert motor == 0  # motors are counted apart from joint springs
+    sim.set_motor_target(motor, 1.0)
+    with pytest.raises(ValueError, match="target must be finite"):
+        sim.set_motor_target(motor, math.inf)
+    with pytest.raises(ValueError, match="does not exist"):
+        sim.set_motor_target(5, 1.0)
+    with pytest.raises(ValueError, match="solver 'iterative'"):
+        wi.Simulator(b.finalize(), dt=0.01, solver="iterative")
+
+
+# ---------------------------------------------------------------- limits
+def swing_into_limit(limit: bool, dt: float = 1.0 / 60.0, steps: int = 300):
+    """A rod hung from a hinge, swung at 4 rad/s towards a +-30 degree limit; (angles, energies, stats)."""
+    b = wi.SceneBuilder(gravity=(0.0, -9.81, 0.0))
+    body = b.add_body(ROD_MASS, ROD_INERTIA[[1, 0, 2]], (0.0, -0.5, 0.0), name="rod")  # along y
+    joint = b.add_joint_revolute(None, body, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), name="hinge")
+    if limit:
+        b.add_joint_limit(joint, -math.radians(30.0), math.radians(30.0))
+    b.bodies[body].angular_velocity = np.array([0.0, 0.0, 4.0])
+    b.bodies[body].linear_velocity = np.array([2.0, 0.0, 0.0])
+    sim = wi.Simulator(b.finalize(), dt=dt)
+    e0 = sim.energy()
+    angles, energies, stats = [], [], []
+    for _ in range(steps):
+        stats.append(sim.step())
+        q = sim.orientations()[0]  # a rotation about z from the built pose: (0, 0, sin(a/2), cos(a/2))
+        angles.append(2.0 * math.atan2(q[2], q[3]))
+        energies.append(sim.energy() - e0)
+        assert sim.joint_errors().max() < 1e-6
+    return np.array(angles), np.array(energies), stats
+
+
+def test_pendulum_into_a_limit_never_passes_it_and_gains_no_energy():
+    """Unlimited, the swing reaches 63 degrees; limited, it stops at 30 degrees within the tolerance (1e-6
+    rad), swings back to -30 and never gains energy: the impact is inelastic, the swings after it keep their
+    energy to the method's own drift (the same as the unlimited pendulum's)."""
+    free, free_energy, _ = swing_into_limit(False)
+    assert np.abs(free).max() > math.radians(60.0)
+    angles, energy, stats = swing_into_limit(True)
+    bound = math.radians(30.0)
+    assert np.abs(angles).max() <= bound + 1e-6
+    assert angles.max() > bound - 1e-6  # it reached the limit
+    drift = np.abs(free_energy).max()  # the integrator's own, about 3e-3 J at h = 1/60 s
+    assert energy.max() < drift
+    hit = int(np.argmax(angles > bound - 1e-6))
+    assert energy[hit + 1] < -1.0  # the kinetic energy into the stop is gone
+    after = energy[hit + 2 :]
+    assert after.max() - after.min() < drift  # later swings reach 30 degrees again, without gaining
+    assert all(s.converged for s in stats)
+
+
+@pytest.mark.parametrize("solver", ["cholesky", "cg"])
+def test_prismatic_limit_stops_a_falling_slider(solver):
+    """A slider falling along -z stops at its lower limit -0.2 m and rests there, at rest."""
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, -9.81))
+    body = b.add_body(1.0, (0.1, 0.1, 0.1), (0.3, 0.0, 1.0))
+    joint = b.add_joint_prismatic(None, body, (0.3, 0.0, 1.0), (0.0, 0.0, 1.0))
+    b.add_joint_limit(joint, -0.2, 0.5)
+    sim = wi.Simulator(b.finalize(), dt=0.01, solver=solver)
+    t, z = run(sim, 200, lambda s: s.positions()[0, 2])
+    assert z.min() >= 0.8 - 1e-6
+    np.testing.assert_allclose(z[-50:], 0.8, atol=1e-6)
+    assert abs(sim.linear_velocities()[0, 2]) < 1e-3
+
+
+def test_checkpoint_and_reset_keep_the_motors(tmp_path):
+    """A checkpoint carries the motors' targets and PID integrals: the run continues bit-identically; reset
+    returns to the built targets."""
+    b, _, joint = rod_on_hinge(gravity=(0.0, -9.81, 0.0))
+    motor = b.add_motor(joint, "position", target=0.5, kp=50.0, ki=20.0, kd=10.0)
+    sim = wi.Simulator(b.finalize(), dt=1.0 / 60.0)
+    run(sim, 30, rod_angle)
+    sim.set_motor_target(motor, -0.3)
+    sim.save_checkpoint(tmp_path / "c.npz")
+    _, ahead = run(sim, 30, rod_angle)
+    again = wi.Simulator(b.finalize(), dt=1.0 / 60.0)
+    again.load_checkpoint(tmp_path / "c.npz")
+    _, resumed = run(again, 30, rod_angle)
+    np.testing.assert_array_equal(resumed, ahead)
+    sim.reset()
+    assert sim.drive_target.numpy()[motor] == 0.5 and not sim.drive_integral.numpy().any()
+
+
+def test_limits_refuse_composed_orders_and_springs_take_them():
+    """A limit's impact and a saturating stiff motor are not reversible: a composition of order 4 would run
+    them backwards in its negative substeps, so it is refused naming why; springs are smooth and compose."""
+    b, _, joint = rod_on_hinge()
+    b.add_joint_limit(joint, -0.3, 0.3)
+    with pytest.raises(ValueError, match="not reversible"):
+        wi.Simulator(b.finalize(), dt=0.01, order=4)
+    m, k = 2.0, 50.0
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    body = b.add_body(m, (0.1, 0.1, 0.1), (1.0, 0.0, 0.0), linear_velocity=(0.3, 0.0, 0.0))
+    b.add_spring(None, body, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), k)
+    sim = wi.Simulator(b.finalize(), dt=0.05, order=4)
+    t, x = run(sim, 200, lambda s: s.positions()[0, 0] - 1.0)
+    np.testing.assert_allclose(np.diff(crossings(t, x)), 2.0 * math.pi * math.sqrt(m / k), rtol=1e-4)
+
+
+def test_energy_counts_the_springs_and_is_conserved():
+    """Two bodies on a spring, one hinged to the world with a joint spring, no gravity: kinetic energy turns
+    into elastic energy and back, and the sum stays put (the sum without the springs' share would swing)."""
+    b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    a = b.add_body(1.0, (0.02, 0.02, 0.02), (0.0, 0.0, 0.0), linear_velocity=(0.0, 0.3, 0.0))
+    c = b.add_body(2.0, (0.03, 0.05, 0.04), (1.0, 0.0, 0.0), angular_velocity=(0.0, 0.0, 0.4))
+    b.add_spring(a, c, (0.0, 0.0, 0.0), (1.0, 0.1, 0.0), stiffness=40.0, rest_length=0.8)
+    hinge = b.add_joint_revolute(None, c, (1.5, 0.0, 0.0), (0.0, 0.0, 1.0))
+    b.add_joint_spring(hinge, stiffness=3.0, rest=0.1)
+    sim = wi.Simulator(b.finalize("cpu"), 1 / 600, tolerance=1e-10)
+    energies, elastic = [], []
+    for _ in range(600):
+        sim.step()
+        energies.append(sim.energy())
+        elastic.append(sim.potential_energy())
+    assert np.ptp(elastic) > 0.1 * max(elastic)  # energy really moves between the two forms
+    assert np.ptp(energies) < 1e-4 * max(energies)
