@@ -154,7 +154,13 @@ def test_replicate_refuses_bad_input():
     builder = wi.scenes.binary_tree(BODIES)
     with pytest.raises(SceneError, match="count must be an integer >= 1"):
         builder.replicate(0)
+    motorised = wi.scenes.chain(3)
+    motorised.add_motor(0, "velocity", target=1.0)
+    with pytest.raises(SceneError, match="do not take springs, drives or limits yet"):
+        motorised.replicate(2)
     many = builder.replicate(2)
+    with pytest.raises(SceneError, match="takes no additions"):
+        wi.scenes.chain(3).replicate(2).add_joint_limit(0, -1.0, 1.0)
     with pytest.raises(SceneError, match="takes no additions"):
         many.add_body(1.0, (1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
     with pytest.raises(SceneError, match="already replicated"):
