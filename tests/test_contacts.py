@@ -304,3 +304,10 @@ def test_the_car_turns_left_when_it_steers():
     iterations and more a step while it turned)."""
     sim = _car_on_ground(scenes.CAR_STEERING, 2.0, tolerance=1e-4)
     assert _yaw(sim) > math.radians(10.0) and sim.positions()[0, 1] > 0.5
+
+
+def test_batched_worlds_refuse_contacts():
+    with pytest.raises(wi.SceneError, match="batched worlds do not take contacts yet"):
+        scenes.box_stack(2).replicate(2)
+    with pytest.raises(wi.SceneError, match="ground 0: a replicated scene takes no additions"):
+        scenes.binary_tree(3).replicate(2).add_ground()

@@ -6,6 +6,7 @@ Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -183,6 +184,59 @@ class SceneBuilder:
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
         self._body_names: dict[str, int] = {}
+        self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
+
+    def replicate(self, count: int) -> SceneBuilder:
+        """A builder of `count` independent copies of this scene, "world0/..." to "world{count-1}/...", finalized
+        to one Model that the simulator steps as batched worlds (every launch covers all of them; each world
+        converges, and fails, on its own). Per-world masses, loads and states are set on the Simulator
+        afterwards, without rebuilding. The copies are laid out world-major; the result takes no additions."""
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise SceneError(f"replicate: count must be an integer >= 1, got {count!r}")
+        if self.world_count > 1:
+            raise SceneError("replicate: this builder is already replicated; replicate the original scene")
+        if not self.bodies:
+            raise SceneError("replicate: the scene has no bodies")
+        if self.grounds or any(b.shape is not None and b.shape.collide for b in self.bodies):
+            raise SceneError(
+                "replicate: the scene has colliding shapes or grounds; batched worlds do not take contacts yet "
+                "(Shape(..., collide=False) keeps a shape for display and mass)"
+            )
+        if self.springs or self.drives or self.limits:  # the batched step has no force elements or limits yet
+            raise SceneError(
+                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives and "
+                f"{len(self.limits)} limits; batched worlds do not take springs, drives or limits yet"
+            )
+        out = SceneBuilder(self.gravity)
+        nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
+        prefix = count > 1
+
+        def body(b: int, w: int) -> int:
+            return b if b == WORLD else b + w * nb
+
+        for w in range(int(count)):
+            bodies, joints, cons, forces = copy.deepcopy((self.bodies, self.joints, self.constraints, self.forces))
+            for b in bodies:
+                b.name = f"world{w}/{b.name}" if prefix else b.name
+                out._body_names[b.name] = len(out.bodies)
+                out.bodies.append(b)
+            for j in joints:
+                j.name = f"world{w}/{j.name}" if prefix else j.name
+                j.parent, j.child = body(j.parent, w), body(j.child, w)
+                j.constraints = [c + w * nc for c in j.constraints]
+                out.joints.append(j)
+            for c in cons:
+                c.body0, c.body1, c.joint = body(c.body0, w), body(c.body1, w), c.joint + w * nj
+                out.constraints.append(c)
+            for f in forces:
+                f.body = body(f.body, w)
+                out.forces.append(f)
+        out.world_count = int(count)
+        return out
+
+    def _open(self, what: str) -> None:
+        if self.world_count > 1:
+            raise SceneError(f"{what}: a replicated scene takes no additions; add to the scene before replicate()")
 
     # ---------------------------------------------------------------- bodies
     def add_body(
@@ -247,6 +301,7 @@ class SceneBuilder:
         """A collision plane {x : normal . x = height} (m), solid on the side opposite `normal` (world frame, any
         length but zero). Returns its index. Several planes may be added (a floor and a slope)."""
         what = f"ground {len(self.grounds)}"
+        self._open(what)
         normal = _axis(normal, f"{what} normal")
         height = checks.real(height, f"{what} height")
         if not math.isfinite(height):
@@ -257,6 +312,7 @@ class SceneBuilder:
 
     def filter_collision(self, a: BodyRef, b: BodyRef) -> None:
         """Bodies a and b never collide with each other (jointed bodies never do anyway)."""
+        self._open("filter_collision")
         i, j = self._body_index(a, "filter_collision"), self._body_index(b, "filter_collision")
         if WORLD in (i, j) or i == j:
             raise SceneError(f"filter_collision: needs two different bodies, got {a!r} and {b!r}")
@@ -268,6 +324,7 @@ class SceneBuilder:
 
     def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static, friction, restitution):
         what = f"body {name!r}"
+        self._open(what)
         if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
         if shape is not None and not isinstance(shape, Shape):
@@ -400,6 +457,7 @@ class SceneBuilder:
         """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this."""
         name = self._new_name(name, "joint", len(self.joints))
         what = f"joint {name!r}"
+        self._open(what)
         p = self._body_index(parent, f"{what} parent")
         c = self._body_index(child, f"{what} child")
         if c == WORLD:
@@ -455,6 +513,7 @@ class SceneBuilder:
     # ---------------------------------------------------------------- forces
     def add_force(self, body, force=0.0, torque=0.0, until: float = math.inf) -> int:
         """A constant world-frame force and torque on `body`, applied while the simulated time < `until`."""
+        self._open("force")
         b = self._body_index(body, "force")
         if b == WORLD or self.bodies[b].static:
             raise SceneError(f"force: body {body!r} is not dynamic")
@@ -472,6 +531,7 @@ class SceneBuilder:
         body of None is the world). `rest_length` (m) defaults to the built distance. Returns its index."""
         name = name or f"spring{len(self.springs)}"
         what = f"spring {name!r}"
+        self._open(what)
         b0 = self._body_index(body0, f"{what} body0")
         b1 = self._body_index(body1, f"{what} body1")
         if b0 == b1:
@@ -538,6 +598,7 @@ class SceneBuilder:
             joint = names.index(joint)
         if not isinstance(joint, (int, np.integer)) or not 0 <= int(joint) < len(self.joints):
             raise SceneError(f"mark_loop_joint: joint {joint!r} does not exist ({len(self.joints)} joints)")
+        self._open("mark_loop_joint")
         self.joints[int(joint)].loop = True
 
     def add_joint_limit(self, joint, lower: float, upper: float) -> int:
@@ -547,6 +608,7 @@ class SceneBuilder:
         lower, upper = checks.real(lower, f"{what} lower"), checks.real(upper, f"{what} upper")
         if math.isnan(lower) or math.isnan(upper):
             raise SceneError(f"{what} is NaN")
+        self._open(what)
         if lower > upper:
             raise SceneError(f"{what} lower {lower} > upper {upper}")
         if not lower <= 0.0 <= upper:
@@ -558,6 +620,7 @@ class SceneBuilder:
 
     def _add_drive(self, drive: Drive) -> int:
         """Append a drive; its index among the drives of its kind (motors, or joint springs)."""
+        self._open(f"joint {self.joints[drive.joint].name!r}: {'motor' if drive.motor else 'joint spring'}")
         self.drives.append(drive)
         return sum(d.motor == drive.motor for d in self.drives) - 1
 
@@ -623,6 +686,7 @@ class SceneBuilder:
             force_until=np.array([f.until for f in forces]),
             colliders=self._colliders(),
             **self._mechanism_arrays(),
+            world_count=self.world_count,
         )
 
     def _colliders(self) -> Colliders | None:

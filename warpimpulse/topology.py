@@ -28,6 +28,7 @@ class Graph:
     constraint_joint: np.ndarray  # (constraints,) int: the joint a constraint belongs to
     joint_parent: np.ndarray  # (joints,) int
     joint_child: np.ndarray  # (joints,) int
+    world_count: int = 1  # batched worlds, world-major (`Model`): each world's unknowns are eliminated together
     joint_loop: np.ndarray | None = None  # (joints,) bool: close loops with these where there is a choice
 
     @property
@@ -41,6 +42,12 @@ class Graph:
     @property
     def joint_count(self) -> int:
         return len(self.joint_parent)
+
+    def body_world(self, b: int) -> int:
+        return b * self.world_count // max(self.body_count, 1)
+
+    def constraint_world(self, c: int) -> int:
+        return c * self.world_count // max(self.constraint_count, 1)
 
 
 @dataclass
@@ -202,13 +209,15 @@ def _spanning_tree(graph: Graph) -> tuple[np.ndarray, list[int]]:
 
 
 def elimination_order(graph: Graph, depth: np.ndarray, loop_joints: list[int]) -> np.ndarray:
-    """Constraints deepest first; loop-closing joints last; a joint's constraints stay together."""
+    """Constraints deepest first; loop-closing joints last; a joint's constraints stay together. Batched worlds
+    one after the other, each in the order it has alone (so each factors as it does alone, bit for bit, and a
+    world's columns are contiguous)."""
     loops = set(loop_joints)
     keys = []
     for c in range(graph.constraint_count):
         level = max(depth[b] if b != WORLD else -1 for b in _bodies(graph, c))
-        keys.append((int(graph.constraint_joint[c]) in loops, -level, c))
-    return np.array([k[2] for k in sorted(keys)], dtype=np.int64)
+        keys.append((graph.constraint_world(c), int(graph.constraint_joint[c]) in loops, -level, c))
+    return np.array([k[-1] for k in sorted(keys)], dtype=np.int64)
 
 
 def _constraints_on_bodies(graph: Graph) -> list[list[int]]:
@@ -337,13 +346,14 @@ def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=N
     if perm is None:
         loops = set(loop_joints)
         keys = []
-        for b in range(nb):
+        for b in range(nb):  # (world, loop, level, is constraint, index, angular part)
             if _dynamic(graph, b):
-                keys += [(False, -2 * depth[b], 0, b, 0), (False, -2 * depth[b], 0, b, 1)]
+                w = graph.body_world(b)
+                keys += [(w, False, -2 * depth[b], 0, b, 0), (w, False, -2 * depth[b], 0, b, 1)]
         for c in range(nc):
             level = max(depth[b] for b in _bodies(graph, c) if _dynamic(graph, b))
-            keys.append((int(graph.constraint_joint[c]) in loops, 1 - 2 * level, 1, c, 0))
-        perm = np.array([2 * nb + k[3] if k[2] else k[3] + k[4] * nb for k in sorted(keys)], dtype=np.int64)
+            keys.append((graph.constraint_world(c), int(graph.constraint_joint[c]) in loops, 1 - 2 * level, 1, c, 0))
+        perm = np.array([2 * nb + k[4] if k[3] else k[4] + k[5] * nb for k in sorted(keys)], dtype=np.int64)
     adj: list[set[int]] = [set() for _ in range(2 * nb + nc)]
     for b, constraints in enumerate(_constraints_on_bodies(graph)):
         for c in constraints:
