@@ -1,7 +1,8 @@
 """warpimpulse: impulse-based articulated rigid bodies (Bender & Schmitt 2006) on NVIDIA Warp.
 
 `import warpimpulse as wi` gives the builder and simulator; `wi.scenes` (built-in scenes), `wi.usd` (USD in
-and out) and `wi.run` (the frame loop) are imported on first use, so that `import warpimpulse` stays fast.
+and out), `wi.run` (the frame loop) and `wi.sweep` (parameter sweeps) are imported on first use, so that
+`import warpimpulse` stays fast.
 """
 
 import importlib
@@ -13,8 +14,10 @@ from .model import Model
 from .shapes import Shape
 from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
+from .threads import ThreadedSimulator
 from .types import WORLD, ConstraintKind, Quat, Vec3
 from .verbosity import quiet_by_default
+from .worlds import WorldStats
 
 quiet_by_default()  # no Warp banner or module-load lines unless asked (Simulator(verbose=True), --verbose)
 
@@ -32,6 +35,8 @@ __all__ = [
     "Simulator",
     "SingularSystemError",
     "StepStats",
+    "ThreadedSimulator",
+    "WorldStats",
     "Quat",
     "Vec3",
     "WORLD",
@@ -39,10 +44,11 @@ __all__ = [
     "__version__",
     "run",
     "scenes",
+    "sweep",
     "usd",
 ]
 
-_LAZY = ("run", "scenes", "usd")
+_LAZY = ("run", "scenes", "sweep", "usd")
 
 
 def __getattr__(name: str):

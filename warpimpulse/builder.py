@@ -6,6 +6,7 @@ Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -16,7 +17,7 @@ from . import checks
 from .checks import SceneError
 from .joints import JOINT_TYPES
 from .model import Model
-from .shapes import Shape
+from .shapes import SHAPE_CODES, Colliders, Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
@@ -35,6 +36,18 @@ class Body:
     angular_velocity: np.ndarray  # world frame
     shape: Shape | None = None
     static: bool = False
+    friction: float = 0.5
+    restitution: float = 0.0
+
+
+@dataclass
+class Ground:
+    """A collision plane {x : normal . x = height}, solid on the side opposite the normal."""
+
+    normal: np.ndarray
+    height: float
+    friction: float
+    restitution: float
 
 
 @dataclass
@@ -124,6 +137,16 @@ class Limit:
 _vec = checks.vector
 
 
+def checked_material(friction, restitution, what: str) -> tuple[float, float]:
+    """A checked (friction >= 0, restitution in [0, 1]) pair."""
+    friction, restitution = checks.real(friction, f"{what}: friction"), checks.real(restitution, f"{what}: restitution")
+    if not (math.isfinite(friction) and friction >= 0.0):
+        raise SceneError(f"{what}: friction must be a finite number >= 0, got {friction}")
+    if not 0.0 <= restitution <= 1.0:
+        raise SceneError(f"{what}: restitution must be in [0, 1], got {restitution}")
+    return friction, restitution
+
+
 def _finite(value, what: str) -> float:
     x = checks.real(value, what)
     if not math.isfinite(x):
@@ -155,10 +178,65 @@ class SceneBuilder:
         self.joints: list[Joint] = []
         self.constraints: list[Constraint] = []
         self.forces: list[Force] = []
+        self.grounds: list[Ground] = []
+        self.collision_filters: set[tuple[int, int]] = set()
         self.springs: list[Spring] = []
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
         self._body_names: dict[str, int] = {}
+        self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
+
+    def replicate(self, count: int) -> SceneBuilder:
+        """A builder of `count` independent copies of this scene, "world0/..." to "world{count-1}/...", finalized
+        to one Model that the simulator steps as batched worlds (every launch covers all of them; each world
+        converges, and fails, on its own). Per-world masses, loads and states are set on the Simulator
+        afterwards, without rebuilding. The copies are laid out world-major; the result takes no additions."""
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise SceneError(f"replicate: count must be an integer >= 1, got {count!r}")
+        if self.world_count > 1:
+            raise SceneError("replicate: this builder is already replicated; replicate the original scene")
+        if not self.bodies:
+            raise SceneError("replicate: the scene has no bodies")
+        if self.grounds or any(b.shape is not None and b.shape.collide for b in self.bodies):
+            raise SceneError(
+                "replicate: the scene has colliding shapes or grounds; batched worlds do not take contacts yet "
+                "(Shape(..., collide=False) keeps a shape for display and mass)"
+            )
+        if self.springs or self.drives or self.limits:  # the batched step has no force elements or limits yet
+            raise SceneError(
+                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives and "
+                f"{len(self.limits)} limits; batched worlds do not take springs, drives or limits yet"
+            )
+        out = SceneBuilder(self.gravity)
+        nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
+        prefix = count > 1
+
+        def body(b: int, w: int) -> int:
+            return b if b == WORLD else b + w * nb
+
+        for w in range(int(count)):
+            bodies, joints, cons, forces = copy.deepcopy((self.bodies, self.joints, self.constraints, self.forces))
+            for b in bodies:
+                b.name = f"world{w}/{b.name}" if prefix else b.name
+                out._body_names[b.name] = len(out.bodies)
+                out.bodies.append(b)
+            for j in joints:
+                j.name = f"world{w}/{j.name}" if prefix else j.name
+                j.parent, j.child = body(j.parent, w), body(j.child, w)
+                j.constraints = [c + w * nc for c in j.constraints]
+                out.joints.append(j)
+            for c in cons:
+                c.body0, c.body1, c.joint = body(c.body0, w), body(c.body1, w), c.joint + w * nj
+                out.constraints.append(c)
+            for f in forces:
+                f.body = body(f.body, w)
+                out.forces.append(f)
+        out.world_count = int(count)
+        return out
+
+    def _open(self, what: str) -> None:
+        if self.world_count > 1:
+            raise SceneError(f"{what}: a replicated scene takes no additions; add to the scene before replicate()")
 
     # ---------------------------------------------------------------- bodies
     def add_body(
@@ -171,6 +249,8 @@ class SceneBuilder:
         angular_velocity: Vec3 | float = 0.0,
         name: str | None = None,
         shape: Shape | None = None,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
         """Add a dynamic body and return its index.
 
@@ -184,7 +264,10 @@ class SceneBuilder:
             linear_velocity: of the centre of mass, world frame (m/s); a scalar fills all three.
             angular_velocity: world frame (rad/s); a scalar fills all three.
             name: unique; defaults to "body<index>". Errors and outputs name the body by it.
-            shape: for display and mass only (bodies do not collide yet).
+            shape: for display, and for collision unless `shape.collide` is False; centred on the centre of mass.
+            friction: Coulomb's coefficient (>= 0) of the body's surface; a contact takes the geometric mean of
+                its two bodies' coefficients.
+            restitution: Newton's coefficient in [0, 1]; a contact takes the larger of its two bodies'.
         """
         name = self._new_name(name, "body", len(self.bodies))
         what = f"body {name!r}"
@@ -193,26 +276,62 @@ class SceneBuilder:
             raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
         return self._append_body(
             name, mass, self._inertia(inertia, what), position, orientation,
-            linear_velocity, angular_velocity, shape, static=False,
+            linear_velocity, angular_velocity, shape, False, friction, restitution,
         )  # fmt: skip
 
     def add_static_body(
-        self, position, orientation=(0.0, 0.0, 0.0, 1.0), name: str | None = None, shape: Shape | None = None
+        self,
+        position,
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        name: str | None = None,
+        shape: Shape | None = None,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
-        """Add a body that never moves (infinite mass); joints may attach to it like to the world."""
+        """Add a body that never moves (infinite mass); joints may attach to it like to the world, and bodies
+        collide with its shape (a wall, a slope)."""
         name = self._new_name(name, "body", len(self.bodies))
-        return self._append_body(name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True)
+        return self._append_body(
+            name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True, friction, restitution
+        )
+
+    def add_ground(
+        self, height: float = 0.0, normal: Vec3 = (0.0, 0.0, 1.0), friction: float = 0.5, restitution: float = 0.0
+    ) -> int:
+        """A collision plane {x : normal . x = height} (m), solid on the side opposite `normal` (world frame, any
+        length but zero). Returns its index. Several planes may be added (a floor and a slope)."""
+        what = f"ground {len(self.grounds)}"
+        self._open(what)
+        normal = _axis(normal, f"{what} normal")
+        height = checks.real(height, f"{what} height")
+        if not math.isfinite(height):
+            raise SceneError(f"{what}: height must be finite, got {height}")
+        friction, restitution = checked_material(friction, restitution, what)
+        self.grounds.append(Ground(normal, height, friction, restitution))
+        return len(self.grounds) - 1
+
+    def filter_collision(self, a: BodyRef, b: BodyRef) -> None:
+        """Bodies a and b never collide with each other (jointed bodies never do anyway)."""
+        self._open("filter_collision")
+        i, j = self._body_index(a, "filter_collision"), self._body_index(b, "filter_collision")
+        if WORLD in (i, j) or i == j:
+            raise SceneError(f"filter_collision: needs two different bodies, got {a!r} and {b!r}")
+        self.collision_filters.add((min(i, j), max(i, j)))
 
     @staticmethod
     def _new_name(name, kind: str, index: int) -> str:
         return f"{kind}{index}" if name is None else checks.name(name, f"{kind} {index} name")
 
-    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
+    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static, friction, restitution):
         what = f"body {name!r}"
+        self._open(what)
         if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
         if shape is not None and not isinstance(shape, Shape):
             raise SceneError(f"{what}: shape must be a warpimpulse Shape or None, got {shape!r}")
+        if shape is not None and shape.collide and shape.zero_size():
+            raise SceneError(f"{what}: collision shape {shape.kind} has zero size ({shape})")
+        friction, restitution = checked_material(friction, restitution, what)
         q = _vec(orientation, f"{what} orientation", 4)
         norm = float(np.linalg.norm(q))
         if norm < 1e-9:
@@ -230,6 +349,8 @@ class SceneBuilder:
                 angular_velocity=_vec(w, f"{what} angular_velocity"),
                 shape=shape,
                 static=static,
+                friction=friction,
+                restitution=restitution,
             )
         )
         self._body_names[name] = len(self.bodies) - 1
@@ -336,6 +457,7 @@ class SceneBuilder:
         """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this."""
         name = self._new_name(name, "joint", len(self.joints))
         what = f"joint {name!r}"
+        self._open(what)
         p = self._body_index(parent, f"{what} parent")
         c = self._body_index(child, f"{what} child")
         if c == WORLD:
@@ -391,6 +513,7 @@ class SceneBuilder:
     # ---------------------------------------------------------------- forces
     def add_force(self, body, force=0.0, torque=0.0, until: float = math.inf) -> int:
         """A constant world-frame force and torque on `body`, applied while the simulated time < `until`."""
+        self._open("force")
         b = self._body_index(body, "force")
         if b == WORLD or self.bodies[b].static:
             raise SceneError(f"force: body {body!r} is not dynamic")
@@ -408,6 +531,7 @@ class SceneBuilder:
         body of None is the world). `rest_length` (m) defaults to the built distance. Returns its index."""
         name = name or f"spring{len(self.springs)}"
         what = f"spring {name!r}"
+        self._open(what)
         b0 = self._body_index(body0, f"{what} body0")
         b1 = self._body_index(body1, f"{what} body1")
         if b0 == b1:
@@ -474,6 +598,7 @@ class SceneBuilder:
             joint = names.index(joint)
         if not isinstance(joint, (int, np.integer)) or not 0 <= int(joint) < len(self.joints):
             raise SceneError(f"mark_loop_joint: joint {joint!r} does not exist ({len(self.joints)} joints)")
+        self._open("mark_loop_joint")
         self.joints[int(joint)].loop = True
 
     def add_joint_limit(self, joint, lower: float, upper: float) -> int:
@@ -483,6 +608,7 @@ class SceneBuilder:
         lower, upper = checks.real(lower, f"{what} lower"), checks.real(upper, f"{what} upper")
         if math.isnan(lower) or math.isnan(upper):
             raise SceneError(f"{what} is NaN")
+        self._open(what)
         if lower > upper:
             raise SceneError(f"{what} lower {lower} > upper {upper}")
         if not lower <= 0.0 <= upper:
@@ -494,6 +620,7 @@ class SceneBuilder:
 
     def _add_drive(self, drive: Drive) -> int:
         """Append a drive; its index among the drives of its kind (motors, or joint springs)."""
+        self._open(f"joint {self.joints[drive.joint].name!r}: {'motor' if drive.motor else 'joint spring'}")
         self.drives.append(drive)
         return sum(d.motor == drive.motor for d in self.drives) - 1
 
@@ -557,7 +684,31 @@ class SceneBuilder:
             force_force=np.array([f.force for f in forces]).reshape(-1, 3),
             force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
             force_until=np.array([f.until for f in forces]),
+            colliders=self._colliders(),
             **self._mechanism_arrays(),
+            world_count=self.world_count,
+        )
+
+    def _colliders(self) -> Colliders | None:
+        """The collision geometry, or None for a scene where nothing collides (then the step has no contact
+        stage at all)."""
+        colliding = [b.shape is not None and b.shape.collide for b in self.bodies]
+        if not any(colliding) or (not self.grounds and sum(colliding) < 2):
+            return None
+        pairs = {(min(j.parent, j.child), max(j.parent, j.child)) for j in self.joints if j.parent != WORLD}
+        pairs |= self.collision_filters
+        planes = self.grounds
+        return Colliders(
+            shape_kind=np.array([SHAPE_CODES[b.shape.kind] if c else -1 for b, c in zip(self.bodies, colliding)]),
+            shape_size=np.array([b.shape.collision_size() if c else (0, 0, 0) for b, c in zip(self.bodies, colliding)]),
+            bound=np.array([b.shape.bounding_radius() if c else 0.0 for b, c in zip(self.bodies, colliding)]),
+            friction=np.array([b.friction for b in self.bodies]),
+            restitution=np.array([b.restitution for b in self.bodies]),
+            plane_normal=np.array([g.normal for g in planes]).reshape(-1, 3),
+            plane_offset=np.array([g.height for g in planes]),
+            plane_friction=np.array([g.friction for g in planes]),
+            plane_restitution=np.array([g.restitution for g in planes]),
+            filter_pairs=np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2),
         )
 
     def _mechanism_arrays(self) -> dict:

@@ -1,4 +1,4 @@
-"""Command line: `warpimpulse simulate | preview | bench | stress`.
+"""Command line: `warpimpulse simulate | preview | sweep | bench | stress`.
 
 User mistakes (bad flags, bad scene files) print one clear line and exit 2, never a traceback. A run
 that stops early (divergence, joints that do not converge, Ctrl-C, SIGTERM, SIGHUP) keeps the frames done
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import signal
 import sys
 import time
@@ -76,6 +77,71 @@ def _add_preview(sub) -> None:
                    "(every frame, up to --gif-frames) (default: <input>.png)")  # fmt: skip
     p.add_argument("--frames", type=_positive(int), default=4, help="panels in a .png (default 4)")
     p.add_argument("--gif-frames", type=_positive(int), default=60, help="most frames in a .gif (default 60)")
+
+
+def _add_sweep(sub) -> None:
+    p = sub.add_parser("sweep", help="a grid or random sample of parameters over scenes, as batched worlds on Ray or "
+                       "a local process pool, into one table")  # fmt: skip
+    p.add_argument("config", nargs="?", type=Path, help="a TOML file: [params] name = [values] (a grid); [random] "
+                   "samples = N, seed = S, [random.ranges] name = [low, high]")  # fmt: skip
+    p.add_argument("--param", action="append", default=[], metavar="NAME=V1,V2",
+                   help="values of one parameter (repeat the flag): scene, dt, tolerance, duration, max_iterations; "
+                   "per world: mass_scale, spin, force (warpimpulse.sweep.PARAMETERS)")  # fmt: skip
+    p.add_argument("--samples", type=_positive(int), help="a random sample of this many points instead of the grid")
+    p.add_argument("--seed", type=int, help="of the random sample (default 0)")
+    p.add_argument("--out", "-o", type=Path, default=Path("out/sweep"),
+                   help="folder for points.jsonl (a sweep run again there resumes), sweep.csv, sweep.json, sweep.png "
+                   "(default out/sweep)")  # fmt: skip
+    p.add_argument("--workers", type=_positive(int), help="processes or Ray CPUs (default: one per core)")
+    p.add_argument("--chunk", type=_positive(int), default=16, help="most points one task runs as batched worlds")
+    p.add_argument("--backend", choices=("auto", "ray", "pool"), default="auto",
+                   help="auto: Ray when installed (the [sweep] extra), else the standard library's process "
+                   "pool")  # fmt: skip
+    p.add_argument("--address", metavar="HOST:PORT", help="a running Ray cluster (default: a local one, ray.init())")
+    p.add_argument("--plot", action=argparse.BooleanOptionalAction, default=True, help="sweep.png (needs matplotlib)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar (default: when stderr is a terminal)")  # fmt: skip
+
+
+def _sweep(args) -> int:
+    from . import sweep
+
+    params, samples, seed, ranges = {}, None, 0, {}
+    if args.config is not None:
+        config = sweep.load_config(args.config)
+        params, samples, seed, ranges = config["params"], config["samples"], config["seed"], config["ranges"]
+    params.update(sweep.parse_param(text) for text in args.param)
+    samples = args.samples or samples
+    seed = seed if args.seed is None else args.seed
+    if not params and not ranges:
+        raise ValueError("nothing to sweep: give a TOML file or --param name=v1,v2,...")
+    points = sweep.make_points(params, samples, seed, ranges)
+    workers = args.workers or os.cpu_count() or 1
+    backend = args.backend
+    if backend != "pool" and not sweep.ray_available():
+        if backend == "ray" or args.address:
+            raise ValueError("Ray is not installed: pip install 'warpimpulse[sweep]'")
+        print("warpimpulse: Ray is not installed (pip install 'warpimpulse[sweep]'); running on the standard "
+              f"library's process pool, {workers} workers, on this machine", file=sys.stderr)  # fmt: skip
+        backend = "pool"
+    if args.address and backend == "pool":
+        raise ValueError("--address names a Ray cluster; it does not go with --backend pool")
+    check_writable(args.out / "sweep.csv", create_parent=True)
+    show = sys.stderr.isatty() if args.progress is None else args.progress
+    result = sweep.run(points, args.out, workers, backend, args.address, args.chunk,
+                       progress=sweep.progress_bar if show else None)  # fmt: skip
+    outcomes = [row["outcome"] for row in result.rows]
+    before = len(points) - len(result.computed)
+    print(f"swept {len(points)} points ({len(result.computed)} computed on {result.backend}, {before} done before): "
+          f"{outcomes.count('ok')} ok, {outcomes.count('stopped')} stopped, {outcomes.count('error')} errors; "
+          f"table in {args.out / 'sweep.csv'} and sweep.json")  # fmt: skip
+    if args.plot:
+        if sweep.plot(result.rows, args.out / "sweep.png"):
+            print(f"plots in {args.out / 'sweep.png'}")
+        else:
+            print("warpimpulse: no plots: matplotlib is not installed (pip install 'warpimpulse[preview]')",
+                  file=sys.stderr)  # fmt: skip
+    return 1 if "error" in outcomes else 0
 
 
 def _simulate(args) -> int:
@@ -172,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
     _add_preview(sub)
+    _add_sweep(sub)
     sub.add_parser("bench", help="benchmark harness (see `warpimpulse bench --help`)", add_help=False)
     sub.add_parser("stress", help="stress suite (see `warpimpulse stress --help`)", add_help=False)
     args, rest = parser.parse_known_args(argv)
@@ -189,6 +256,8 @@ def main(argv: list[str] | None = None) -> int:
             from .preview import main as preview_main
 
             return preview_main(args.input, args.out, args.frames, args.gif_frames)
+        if args.command == "sweep":
+            return _sweep(args)
         with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
             return _simulate(args)
     except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run

@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from . import checks
+from .shapes import Colliders
 from .topology import Graph, Topology, analyze
 from .types import COORDINATES, ConstraintKind
 
@@ -84,6 +85,7 @@ class Model:
         force_force: np.ndarray,
         force_torque: np.ndarray,
         force_until: np.ndarray,
+        world_count: int = 1,
         spring_name: list[str] = (),
         spring_body0: np.ndarray = (),
         spring_body1: np.ndarray = (),
@@ -101,6 +103,7 @@ class Model:
         joint_loop: np.ndarray = (),
         limit_joint: np.ndarray = (),
         limit_bounds: np.ndarray = (),
+        colliders: Colliders | None = None,
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
         gravity: (3,) m/s^2, world.
@@ -111,6 +114,10 @@ class Model:
         joint_*: name, catalogue type, parent and child body, and the first of its constraints (a joint's
             constraints are consecutive; (k + 1,) with the end last).
         force_*: constant world forces (N) and torques (N m) on bodies, active while t < until (s).
+        world_count: independent copies of one scene laid out world-major (`SceneBuilder.replicate`): world w
+            owns bodies [w n_w, (w + 1) n_w), and its constraints, joints and forces likewise, with indices into
+            the whole model. Every launch covers all worlds; the simulator decides convergence per world.
+        colliders: the collision shapes, planes and filters; None where nothing collides.
         spring_*: spring-dampers between a point of body0 and one of body1 (anchors in their frames), params
             (stiffness N/m, damping N s/m, rest length m).
         drive_*: joint springs and PID motors on a revolute or prismatic joint: mode (`types.DRIVE_MODES`
@@ -121,16 +128,13 @@ class Model:
             excludeFromArticulation); empty: the spanning tree chooses.
         """
         self.device = checks.device(device)  # the first call initialises Warp quietly
+        self.colliders = colliders
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)
-        inertia = np.asarray(body_inertia, dtype=np.float64).reshape(-1, 3, 3)
-        inv_inertia = np.zeros_like(inertia)
-        inv_inertia[dynamic] = np.linalg.inv(inertia[dynamic])
-        mass = np.asarray(body_mass, dtype=np.float64)
         self.host = SimpleNamespace(
             gravity=np.asarray(gravity, dtype=np.float64),
-            body_mass=mass,
-            body_inertia=inertia,
+            body_mass=np.array(body_mass, dtype=np.float64),
+            body_inertia=np.array(body_inertia, dtype=np.float64).reshape(-1, 3, 3),
             body_static=~dynamic,
             body_x=np.asarray(body_x, np.float64).reshape(-1, 3),
             body_q=np.asarray(body_q, np.float64).reshape(-1, 4),
@@ -161,6 +165,18 @@ class Model:
         self.body_count = len(self.body_name)
         self.joint_count = len(self.joint_name)
         self.constraint_count = len(h.constraint_kind)
+        self.world_count = int(world_count)
+        counts = {"bodies": self.body_count, "constraints": self.constraint_count, "joints": self.joint_count,
+                  "forces": len(h.force_body)}  # fmt: skip
+        for what, count in counts.items():
+            if self.world_count < 1 or count % self.world_count:
+                raise ValueError(f"{count} {what} do not split into {self.world_count} equal worlds")
+        self.world_body_count = self.body_count // self.world_count
+        self.world_constraint_count = self.constraint_count // self.world_count
+        self.world_joint_count = self.joint_count // self.world_count
+        self.constraint_world = _array(np.arange(self.constraint_count) // max(self.world_constraint_count, 1),
+                                       wp.int32, d)  # fmt: skip
+
         self.graph = Graph(
             body_static=h.body_static,
             constraint_body0=h.constraint_body0,
@@ -168,15 +184,17 @@ class Model:
             constraint_joint=self.constraint_joint,
             joint_parent=h.joint_parent,
             joint_child=h.joint_child,
+            world_count=self.world_count,
             joint_loop=np.asarray(joint_loop, bool).reshape(-1) if len(joint_loop) else None,
         )
         self.topology: Topology = analyze(self.graph, level_order=d.is_cuda)
         self.kinds = sorted({ConstraintKind(int(k)) for k in h.constraint_kind})
 
         self.gravity = wp.vec3d(*h.gravity)
-        self.body_inv_mass = _array(np.where(dynamic, 1.0 / np.where(dynamic, mass, 1.0), 0.0), wp.float64, d)
-        self.body_inertia = _array(inertia, wp.mat33d, d)
-        self.body_inv_inertia = _array(inv_inertia, wp.mat33d, d)
+        self.body_inv_mass = wp.zeros(self.body_count, dtype=wp.float64, device=d)
+        self.body_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
+        self.body_inv_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
+        self.set_masses(h.body_mass, h.body_inertia)
         self.body_rows_start = _array(self.topology.body_rows_start, wp.int32, d)
         self.body_rows = _array(self.topology.body_rows, wp.int32, d)
         self.constraint_kind = _array(h.constraint_kind, wp.int32, d)
@@ -281,6 +299,19 @@ class Model:
         self.body_wrench_start = _array(np.cumsum([0] + [len(r) for r in rows]), wp.int32, d)
         self.body_wrench_rows = _array([r for rs in rows for r in rs], wp.int32, d)
 
+    def set_masses(self, mass: np.ndarray, inertia: np.ndarray) -> None:
+        """Every body's mass (kg) and inertia ((n, 3, 3) kg m^2, body frame about the centre of mass), on the
+        host and the device (inverses included); static bodies keep zero inverses. Checked by the caller
+        (`Simulator.set_masses`, the builder)."""
+        h, dynamic = self.host, ~self.host.body_static
+        h.body_mass[:] = mass
+        h.body_inertia[:] = inertia
+        inv_inertia = np.zeros_like(h.body_inertia)
+        inv_inertia[dynamic] = np.linalg.inv(h.body_inertia[dynamic])
+        self.body_inv_mass.assign(np.where(dynamic, 1.0 / np.where(dynamic, h.body_mass, 1.0), 0.0))
+        self.body_inertia.assign(h.body_inertia)
+        self.body_inv_inertia.assign(inv_inertia)
+
     def state(self) -> State:
         """A new State at the initial poses and velocities."""
         h, d = self.host, self.device
@@ -296,6 +327,53 @@ class Model:
         zeros = np.zeros((self.body_count, 3))
         return Control(
             body_force=_array(zeros, wp.vec3d, self.device), body_torque=_array(zeros, wp.vec3d, self.device)
+        )
+
+    def worlds(self, start: int, stop: int) -> Model:
+        """A Model of worlds [start, stop) of this one, with their current masses (`Simulator.set_masses`): the
+        simulator steps a world alone this way, and a thread steps its share of the worlds."""
+        if not 0 <= start < stop <= self.world_count:
+            raise ValueError(f"worlds [{start}, {stop}) do not exist ({self.world_count} worlds)")
+        if self.spring_count or self.drive_count or self.limit_count:
+            raise ValueError("a model with springs, drives or limits does not split into worlds")
+        h, count = self.host, stop - start
+
+        def rows(values, per_world: int):
+            return values[start * per_world : stop * per_world]
+
+        def shifted(indices, per_world: int):  # body indices into the new model; WORLD stays
+            i = rows(indices, per_world)
+            return np.where(i >= 0, i - start * self.world_body_count, i)
+
+        nb, nc, nj = self.world_body_count, self.world_constraint_count, self.world_joint_count
+        nf = len(h.force_body) // self.world_count
+        return Model(
+            self.device,
+            gravity=h.gravity,
+            body_name=rows(self.body_name, nb),
+            **{
+                f"body_{k}": rows(getattr(h, f"body_{k}"), nb)
+                for k in ("mass", "inertia", "static", "x", "q", "v", "w")
+            },  # fmt: skip
+            constraint_kind=rows(h.constraint_kind, nc),
+            constraint_body0=shifted(h.constraint_body0, nc),
+            constraint_body1=shifted(h.constraint_body1, nc),
+            **{
+                f"constraint_{k}": rows(getattr(h, f"constraint_{k}"), nc)
+                for k in ("anchor0", "anchor1", "axis0", "axis1", "rest_rotation", "rest_angle")
+            },  # fmt: skip
+            constraint_joint=rows(self.constraint_joint, nc) - start * nj,
+            joint_name=rows(self.joint_name, nj),
+            joint_type=rows(self.joint_type, nj),
+            joint_parent=shifted(h.joint_parent, nj),
+            joint_child=shifted(h.joint_child, nj),
+            joint_constraint_start=np.append(rows(h.joint_constraint_start[:-1], nj), stop * nc) - start * nc,
+            force_body=shifted(h.force_body, nf),
+            force_force=rows(h.force_force, nf),
+            force_torque=rows(h.force_torque, nf),
+            force_until=rows(h.force_until, nf),
+            world_count=count,
+            joint_loop=rows(h.joint_loop, nj) if len(h.joint_loop) else (),
         )
 
     def joint_constraints(self, joint: int) -> range:

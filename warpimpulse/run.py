@@ -89,7 +89,7 @@ def record_frames(
     for f in range(frames + 1):
         if f > 0:
             sim.step(steps)
-        x, q = sim.positions(), sim.orientations()
+        x, q = sim.positions().reshape(-1, 3), sim.orientations().reshape(-1, 4)  # batched worlds: all of them
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
             raise FloatingPointError(f"the simulation diverged (non-finite state) before frame {f}")
         writer.write_frame(f, x, q)

@@ -12,13 +12,13 @@ import math
 import warnings
 import zipfile
 import zlib
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
 from . import checks, composition, coordinates, diagnose
+from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import forces as force_kernels
@@ -27,14 +27,20 @@ from .kernels import iterative as iterative_kernels
 from .kernels import limits as limit_kernels
 from .kernels import rigid as rigid_kernels
 from .kernels import step as step_kernels
+from .kernels import worlds as world_kernels
 from .launch import Launches, capture, record
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames
+from .steps import SimulationError, StepStats
 from .transforms import quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
+from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
+VELOCITY_ALTERNATIONS = 10
+"""Rounds of (joint velocity correction, contact velocity sweeps) at t0+h before the last joint correction: the
+two blocks converge linearly into each other (a cart on its wheels: about 0.7 a round)."""
 
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
@@ -42,23 +48,6 @@ STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, 
 
 class CheckpointError(ValueError):
     """A checkpoint that cannot be loaded into this simulator; the message names the file and the reason."""
-
-
-class SimulationError(RuntimeError):
-    """The simulation cannot go on: divergence (NaN/Inf) or joints that did not converge."""
-
-
-@dataclass
-class StepStats:
-    joint_iterations: int  # linear solves (or sweeps) of the joint correction
-    velocity_iterations: int
-    max_joint_error: float  # after the joint correction, in m or rad
-    max_velocity_error: float  # after the velocity correction, in m/s or rad/s
-    converged: bool = True
-    linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
-    substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
-    order: int = 2  # the order in time the step was taken at (Simulator's `order`, unless it fell back)
-    fallback: str = ""  # why a step asked at order 4 or 6 was taken at order 2 (a non-reversible event)
 
 
 def _combined(parts: list[StepStats]) -> StepStats:
@@ -73,6 +62,9 @@ def _combined(parts: list[StepStats]) -> StepStats:
         sum(p.substeps for p in parts),
         min(p.order for p in parts),
         next((p.fallback for p in parts if p.fallback), ""),
+        parts[-1].contacts,
+        max(p.max_penetration for p in parts),
+        sum(p.contact_sweeps for p in parts),
     )
 
 
@@ -98,6 +90,10 @@ class Simulator:
         verbose: bool = False,
         order: int = 2,
         scheme: str | None = None,
+        contact_solver: str = "pgs",
+        contact_margin: float = 0.005,
+        broad_phase: str = "bvh",
+        contact_sweeps: int = 30,
         schedule: str = "auto",
     ) -> None:
         """Args:
@@ -133,6 +129,14 @@ class Simulator:
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
             1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
         scheme: the composition for `order` by name (`composition.SCHEMES`); None takes the measured best.
+        contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
+            found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
+        contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
+            only if the corrections close them).
+        broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
+        contact_sweeps: Gauss-Seidel sweeps over the contacts at most per position solve ("pgs"), between two
+            predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
+            impulses settle to a tenth of `velocity_tolerance`, at most 8 times as many.
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
@@ -145,6 +149,12 @@ class Simulator:
         velocity_tolerance = checks.positive(velocity_tolerance, "velocity_tolerance", " (m/s or rad/s)")
         max_iterations = checks.integer(max_iterations, "max_iterations", 1)
         max_substep_depth = checks.integer(max_substep_depth, "max_substep_depth", 0)
+        contact_margin = checks.positive(contact_margin, "contact_margin", " (m)")
+        contact_sweeps = checks.integer(contact_sweeps, "contact_sweeps", 1)
+        if contact_solver not in CONTACT_SOLVERS:
+            raise ValueError(f"unknown contact_solver {contact_solver!r}; expected one of {CONTACT_SOLVERS}")
+        if broad_phase not in BROAD_PHASES:
+            raise ValueError(f"unknown broad_phase {broad_phase!r}; expected one of {BROAD_PHASES}")
         if max_rotation is not None:
             max_rotation = checks.positive(max_rotation, "max_rotation", " (rad), or None")
         if not isinstance(formulation, str) or formulation not in ("auto", *FORMULATIONS):
@@ -178,6 +188,7 @@ class Simulator:
         self.max_substep_depth = max_substep_depth
         self.max_rotation = max_rotation
         self.solver_name = "cholesky" if solver == "auto" else solver
+        self.specialized = specialize
         self.time = 0.0
         self.step_count = 0
 
@@ -229,6 +240,18 @@ class Simulator:
         self.limit_work = wp.zeros(nl * nl, dtype=wp.float64, device=d)
         self.limit_coupling = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # J M^-1 g^T of each limit
         self.limit_response = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # K^-1 J M^-1 g^T
+        self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
+        if model.world_count > 1:
+            mechanisms = model.spring_count + model.drive_count + model.limit_count
+            if self.solver_name != "cholesky" or nc == 0 or self.order != 2 or mechanisms:
+                raise ValueError(
+                    f"batched worlds ({model.world_count}) are stepped at order 2 with the cholesky solver and need "
+                    f"joints and no springs, drives or limits yet; got order {self.order}, solver {solver!r}, "
+                    f"{nc} constraints and {mechanisms} springs, drives and limits"
+                )
+            self.world_summary = wp.zeros((model.world_count, 2), dtype=wp.float64, device=d)
+            self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
+            self.batch = Batch(self)
         self._launches_by_h: dict[float, tuple] = {}
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
@@ -239,6 +262,13 @@ class Simulator:
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
         self._save_start = self._capture(lambda: self._start.copy_from(self.state))
         self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
+        self.contact_stage = None
+        self._penetration, self._contact_sweeps = 0.0, 0  # of the (sub)step's position phase
+        if model.colliders is not None:
+            self.contact_stage = ContactStage(
+                model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
+                contact_margin, contact_solver, broad_phase, contact_sweeps,
+            )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
         self._check_finite(self.state, 0)
@@ -261,6 +291,12 @@ class Simulator:
         self._apply = self._record(impulse_kernels.apply_impulses, nb, data_out=s)
         self._sweep_velocities = self._record(iterative_kernels.sweep_velocities, 1, s, s, constraint_count=nc)
         self._check_states = {id(st): self._record(rigid_kernels.summarize_state, nb, st) for st in (s, self.pred)}
+        # Batched worlds: per-world summaries, and right-hand sides masked to the worlds still iterating.
+        self._world_checks = {}
+        self._mask = []
+        if self.batch is not None:
+            self._world_checks = {id(st): self._record(world_kernels.summarize_worlds, nb, st) for st in (s, self.pred)}
+            self._mask = [self._record(world_kernels.mask_worlds, nc, rhs=self.rhs)]
         prepare = self.linear.prepare_launches if self.linear is not None else []
         frames = [self._inertia, self._frames, *prepare, *self._limit_system_launches()]
         self._frames_graph = self._capture(*frames)
@@ -272,7 +308,7 @@ class Simulator:
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
             solve = self.linear.solve_launches(self.rhs, self.impulse)
-            self._velocity_fix = self._capture(*solve, self._apply, self._velocity_errors)
+            self._velocity_fix = self._capture(*self._mask, *solve, self._apply, self._velocity_errors)
         self._use_step_size(self.dt)
 
     def _limit_system_launches(self) -> list:
@@ -307,6 +343,8 @@ class Simulator:
             start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
             limits = self._record(limit_kernels.limit_errors, self.model.limit_count, p, h=h, **start)
             measure = [errors, limits, self.summary.zero_, self._check_states[id(p)]]
+            if self.batch is not None:
+                measure += [self.world_summary.zero_, self._world_checks[id(p)]]
             nl, coupled = self.model.limit_count, int(self._direct)
             correct_limits, correct_limit_velocities = (
                 self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, limit_count=nl, coupled=coupled,
@@ -316,7 +354,7 @@ class Simulator:
             iterate = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iterate = self._capture(*solve, self._apply, correct_limits, predict, *measure)
+                iterate = self._capture(*self._mask, *solve, self._apply, correct_limits, predict, *measure)
             self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate, integrate,
                                       correct_limits, correct_limit_velocities)  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
@@ -339,6 +377,14 @@ class Simulator:
             )
         return Launches(launches)
 
+    def prepare_substeps(self) -> None:
+        """Record the launches of every substep size a step may take (dt / 2**k, k <= max_substep_depth) now,
+        instead of on first use: recording captures graphs, and a capture on a CPU takes in every launch of the
+        process, so threads that step simulators at once (`threads.py`) must find nothing left to capture."""
+        for k in range(self.max_substep_depth + 1):
+            self._use_step_size(self.dt / 2**k)
+        self._use_step_size(self.dt)
+
     def _update_frames(self) -> None:
         """P_i, J_ib and K at the current state; factor K for the coming solves."""
         wp.capture_launch(self._frames_graph)
@@ -346,14 +392,87 @@ class Simulator:
             self.linear.check()
 
     # ---------------------------------------------------------------- forces
-    def set_external_forces(self, force=None, torque=None) -> None:
-        """World forces (at the centres of mass) and torques, (N, 3) each, held until set again."""
-        n = self.model.body_count
+    def set_external_forces(self, force=None, torque=None, world: int | None = None) -> None:
+        """World forces (N, at the centres of mass) and torques (N m), (n, 3) each, held until set again; with
+        batched worlds (W, n, 3) for all of them, or (n, 3) for one `world`."""
         if force is not None:
-            self._user_force = self._checked(force, (n, 3), "force")
+            rows, values = self._world_values(force, "force", world)
+            self._user_force = self._user_force.copy()
+            self._user_force[rows] = values
         if torque is not None:
-            self._user_torque = self._checked(torque, (n, 3), "torque")
+            rows, values = self._world_values(torque, "torque", world)
+            self._user_torque = self._user_torque.copy()
+            self._user_torque[rows] = values
         self._active_forces = None
+
+    def _world_values(self, values, what: str, world: int | None, shape=(3,)) -> tuple[slice, np.ndarray]:
+        """The body rows of `world` (all when None) and `values` checked for them, flattened to (rows, *shape):
+        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds."""
+        m = self.model
+        if world is None:
+            lead = (m.body_count,) if m.world_count == 1 else (m.world_count, m.world_body_count)
+            return slice(None), self._checked(values, (*lead, *shape), what).reshape(-1, *shape)
+        return self._world_rows(world), self._checked(values, (m.world_body_count, *shape), what)
+
+    def _world_rows(self, world: int) -> slice:
+        """The body rows of `world`, checked."""
+        m = self.model
+        if isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer)):
+            raise ValueError(f"a world index is expected, got {world!r}")
+        if not 0 <= int(world) < m.world_count:
+            raise ValueError(f"world {world} does not exist ({m.world_count} worlds)")
+        return slice(int(world) * m.world_body_count, (int(world) + 1) * m.world_body_count)
+
+    def _per_world(self, values: np.ndarray, world: int | None) -> np.ndarray:
+        """Per-body values as the accessors give them: (n, ...) for one `world` or a one-world model, else
+        with a leading world dimension (W, n, ...)."""
+        m = self.model
+        if world is not None:
+            return values[self._world_rows(world)]
+        return values if m.world_count == 1 else values.reshape(m.world_count, m.world_body_count, *values.shape[1:])
+
+    @property
+    def stopped(self) -> dict[int, str]:
+        """Batched worlds that have stopped, by index, with why (the others go on); empty for one world."""
+        return self.batch.stopped if self.batch is not None else {}
+
+    @property
+    def world_stats(self) -> WorldStats | None:
+        """Each batched world's figures of the last step (None for one world)."""
+        return self.batch.stats if self.batch is not None else None
+
+    def set_masses(self, mass=None, inertia=None, world: int | None = None) -> None:
+        """Change bodies' masses (kg) and inertias (kg m^2, body frame about the centre of mass: (3, 3) tensors
+        or 3 principal moments) without rebuilding: (n,) and (n, 3, 3) or (n, 3), with a leading world
+        dimension for all batched worlds, or for one `world`. Static bodies keep theirs (values there are
+        ignored). The factorization is refreshed at once."""
+        m = self.model
+        masses, inertias = m.host.body_mass.copy(), m.host.body_inertia.copy()
+        if mass is not None:
+            rows, values = self._world_values(mass, "mass", world, shape=())
+            masses[rows] = values
+        if inertia is not None:
+            arr = np.asarray(inertia, dtype=np.float64)
+            if arr.shape[-1:] == (3,) and arr.shape[-2:] != (3, 3):
+                arr = arr[..., :, None] * np.eye(3)  # principal moments
+            rows, values = self._world_values(arr, "inertia", world, shape=(3, 3))
+            inertias[rows] = values
+        dynamic = ~m.host.body_static
+        bad = dynamic & ~(masses > 0.0)
+        if not bad.any():
+            sym = np.abs(inertias - inertias.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 * np.abs(inertias).max()
+            bad = dynamic & ~sym
+            bad[dynamic] |= np.linalg.eigvalsh(0.5 * (inertias[dynamic] + inertias[dynamic].transpose(0, 2, 1)))[
+                :, 0] <= 0.0  # fmt: skip
+        if bad.any():
+            b = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"body {m.body_name[b]!r}: mass {masses[b]} and inertia {inertias[b].tolist()} must be "
+                             "positive (definite, symmetric)")  # fmt: skip
+        masses[~dynamic], inertias[~dynamic] = 0.0, 0.0
+        m.set_masses(masses, inertias)
+        if self.batch is not None:
+            self.batch.forget(range(m.world_count) if world is None else [world])
+        self._update_frames()
 
     def set_motor_target(self, motor: int, target: float) -> None:
         """The target of a motor (`SceneBuilder.add_motor`'s index): rad or m in position mode, rad/s or m/s
@@ -411,6 +530,10 @@ class Simulator:
             return "parallel", ""
         if self.solver_name == "cg":
             return "parallel", "the CG solver runs its iterations from the host"
+        if self.batch is not None:
+            return "parallel", "batched worlds step each world's convergence from the host (`worlds.py`)"
+        if self.contact_stage is not None:
+            return "parallel", "contacts are a stage the fused step does not have yet"
         if getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split":
             return "parallel", "the split systems iterate their velocity correction from the host"
         if len(self.scheme.stages) > 1:
@@ -526,13 +649,19 @@ class Simulator:
 
         The fused schedule takes the n steps in one launch where nothing needs the host between them. For
         n > 1 the stats are combined: iterations and substeps summed, the largest joint error, the last
-        velocity error."""
+        velocity error.
+
+        Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
+        step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
+        each world's figures of the step, and the StepStats returned the largest over the worlds."""
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
         stats = self._steps(n)
         return stats[0] if n == 1 else _combined(stats)
 
     def _steps(self, n: int) -> list[StepStats]:
+        if self.batch is not None:
+            return [self.batch.step() for _ in range(n)]
         if self.schedule != "fused":
             return [self._step_parallel() for _ in range(n)]
         out: list[StepStats] = []
@@ -549,6 +678,8 @@ class Simulator:
         stages, fallback = self.scheme.stages, self._fallback
         if fallback:  # a non-reversible event in this step: composing it would not raise the order
             stages, self._fallback = (1.0,), ""
+        elif len(stages) > 1 and self._contacts_ahead(stages):
+            stages, fallback = (1.0,), "contacts"
         depth = self._spin_depth(max(abs(g) for g in stages))
         stats = _combined([self._advance(self.dt / 2**depth, depth, stages) for _ in range(2**depth)])
         stats.order = self.order if len(stages) == len(self.scheme.stages) else 2
@@ -557,6 +688,17 @@ class Simulator:
         self.step_count += 1
         self.time = self.step_count * self.dt
         return stats
+
+    def _contacts_ahead(self, stages: tuple[float, ...]) -> bool:
+        """Whether a composed step could meet a contact: any collider within the contact margin of another (or
+        of a ground) along its free motion from t0 to the furthest the stages reach forward. Contacts, impacts
+        and friction are not reversible, so such a step is taken at order 2 (`StepStats.fallback`)."""
+        if self.contact_stage is None:
+            return False
+        reach = self.dt * max(1.0, *np.cumsum(stages))
+        self._use_step_size(reach)
+        wp.capture_launch(self._evaluate)
+        return self.contact_stage.detect(reach) > 0
 
     def fall_back(self, reason: str) -> None:
         """Take the next step at order 2, recording `reason` in its StepStats. For whatever makes a step
@@ -595,7 +737,10 @@ class Simulator:
         """The paper's step of h (h < 0 runs it backwards): its stats, and False when it failed and a smaller
         step may still succeed (not `final`; the state then holds this attempt's impulses)."""
         self._use_step_size(h)
-        joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        if self.contact_stage is None:
+            joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        else:
+            joint_it, joint_err, linear_iterations, ok = self._correct_with_contacts(h, final)
         if ok:
             self._report_nonfinite(self.pred, self.step_count + 1)  # measured with the last prediction
             if not final and self._turns(h) > 1.0:
@@ -629,8 +774,15 @@ class Simulator:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
             # ill-conditioned K) is reported under the same policy as an iteration limit.
             self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
-        converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
-        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1), True
+        stats = StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1)
+        if self.contact_stage is not None:
+            self._contact_velocities(h, stats)
+        stats.converged = (
+            stats.max_joint_error <= self.tolerance
+            and stats.max_velocity_error <= self.velocity_tolerance
+            and stats.max_penetration <= self.tolerance
+        )
+        return stats, True
 
     def _fix_velocities(self) -> int:
         """The velocity correction's solve from the velocity errors just measured, applied, and the errors
@@ -646,7 +798,12 @@ class Simulator:
     def _spin_depth(self, reach: float) -> int:
         """k such that 2**k substeps turn the fastest body of the state at most max_rotation in each base
         step, the longest of which is `reach` substeps long (k <= max_substep_depth)."""
-        turns = self._turns(reach * self.dt)
+        return self._depth_of(self._spin, reach)
+
+    def _depth_of(self, spin: float, reach: float = 1.0) -> int:
+        """The substep depth of a step whose fastest body spins at `spin` (rad/s), its longest base step
+        `reach` substeps long."""
+        turns = 0.0 if self.max_rotation is None else spin * abs(reach * self.dt) / self.max_rotation
         return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
 
     def _turns(self, h: float) -> float:
@@ -681,6 +838,95 @@ class Simulator:
                 self._correct_limits.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1
+
+    def _joint_iteration(self) -> int:
+        """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns
+        the linear solves it took."""
+        if self.linear is None:
+            self._sweep_positions.launch()
+            wp.capture_launch(self._evaluate)
+            return 0
+        if self._direct:
+            wp.capture_launch(self._iterate)
+            return 1
+        solves = self.linear.solve(self.rhs, self.impulse, None)
+        self._apply.launch()
+        self._correct_limits.launch()
+        wp.capture_launch(self._evaluate)
+        return solves
+
+    def _correct_with_contacts(self, h: float, final: bool) -> tuple[int, float, int, bool]:
+        """`_correct_joints` with the contacts in the same loop (method paper's way; docs/contacts.md): correct the
+        joints first and detect on that prediction (it holds the motion motors and loops impose, which the free
+        prediction does not); then, until every joint and every contact holds to the tolerance, correct the
+        joints (one direct solve: the joints as one block), predict, and close the contacts' predicted gaps
+        with push-only impulses at t0 (Gauss-Seidel around that block), and predict again. The error returned
+        is the larger of the joints' and the deepest penetration."""
+        cs = self.contact_stage
+        joint_it, _, linear_iterations, ok = self._correct_joints(final)  # the joints' (and motors') motion first
+        if not ok:
+            return joint_it, math.inf, linear_iterations, False
+        cs.detect(h)
+        self._contact_sweeps = 0
+        iterations, best = joint_it, math.inf
+        joints = self.model.constraint_count > 0
+        while True:
+            joint_err = self._max_error("joint") if joints else 0.0
+            self._penetration = cs.measure(h)
+            err = max(joint_err, self._penetration)
+            best = min(best, err)
+            if err <= self.tolerance:
+                return iterations, joint_err, linear_iterations, True
+            if not self._may_iterate(iterations, err, "joint", best, final):
+                return iterations, joint_err, linear_iterations, final
+            if joint_err > self.tolerance:
+                linear_iterations += self._joint_iteration()
+                cs.measure(h)
+            self._contact_sweeps += cs.solve_positions(h)
+            wp.capture_launch(self._evaluate)
+            iterations += 1
+
+    def _contact_velocities(self, h: float, stats: StepStats) -> None:
+        """Restitution and friction at t0+h, alternated with the joints' velocity correction (at most
+        `VELOCITY_ALTERNATIONS` rounds), then a last joint correction: the joints hold to the tolerance at the
+        end of the step, the contacts' velocities as far as the rounds brought them (their positions are held
+        to the tolerance by the next step's position phase)."""
+        cs = self.contact_stage
+        sweeps = cs.solve_velocities(h)
+        if self.model.constraint_count:
+            self._velocity_errors.launch()
+            err = self._max_error("velocity")
+            rounds = 0
+            while err > self.velocity_tolerance and rounds <= VELOCITY_ALTERNATIONS:
+                if self.linear is None:
+                    self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+                else:
+                    self._fix_velocities()
+                    if self.model.limit_count:  # the limits and stiff motors, as in the joint-only step
+                        self._correct_limit_velocities.launch()
+                        self._velocity_errors.launch()
+                        self._fix_velocities()
+                stats.velocity_iterations += 1
+                rounds += 1
+                if rounds <= VELOCITY_ALTERNATIONS:
+                    sweeps += cs.solve_velocities(h, first=False)
+                self._velocity_errors.launch()
+                err = self._max_error("velocity")
+            if err > self.velocity_tolerance:
+                self._may_iterate(self.max_iterations, err, "velocity", err, True)
+            stats.max_velocity_error = err
+        stats.contacts = cs.count
+        stats.max_penetration = self._penetration
+        stats.contact_sweeps = self._contact_sweeps + sweeps
+
+    def contacts(self) -> Contacts:
+        """The contacts of the last step at the current state (`contacts.Contacts`: bodies, points, normals,
+        depths, normal and friction impulses), numpy; empty for a scene without colliders."""
+        if self.contact_stage is None:
+            e = np.zeros(0)
+            return Contacts(e.astype(np.int32), e.astype(np.int32), np.zeros((0, 3)), np.zeros((0, 3)), e, e,
+                            np.zeros((0, 3)))  # fmt: skip
+        return self.contact_stage.contacts()
 
     def _sweep(self, launch: wp.Launch, tolerance: float, what: str, final: bool) -> tuple[int, float]:
         sweeps, best = 0, math.inf
@@ -743,6 +989,8 @@ class Simulator:
         self.summary.zero_()
         self._check_states[id(state)].launch()
         self._report_nonfinite(state, step)
+        if self.batch is not None:
+            self.batch.measure(state)
 
     def _report_nonfinite(self, state: State, step: int) -> None:
         count, spin = self.summary.numpy()
@@ -888,6 +1136,8 @@ class Simulator:
         self.drive_target.assign(self.model.host.drive_target)
         self.drive_integral.zero_()
         self.time, self.step_count = 0.0, 0
+        if self.batch is not None:
+            self.batch.reset()
         n = self.model.body_count
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
@@ -902,6 +1152,7 @@ class Simulator:
         orientations: np.ndarray | None = None,
         linear_velocities: np.ndarray | None = None,
         angular_velocities: np.ndarray | None = None,
+        world: int | None = None,
     ) -> None:
         """Overwrite part of the state; what is not given stays. The Jacobians and the factorization are
         recomputed at once, so the next step starts from the new state (writing `sim.state` arrays directly
@@ -912,71 +1163,87 @@ class Simulator:
             orientations: (n, 4) quaternions (x, y, z, w), body to world; normalised (a zero one is refused).
             linear_velocities: (n, 3) centre-of-mass velocities, world frame (m/s).
             angular_velocities: (n, 3) angular velocities, world frame (rad/s).
+            world: with batched worlds, the one world these are for; None gives every world's, each array with
+                a leading world dimension (W, n, ...).
 
         All values are checked before any is written. The joints are not projected: a state that breaks them
         is corrected by the next steps' impulses.
         """
-        n = self.model.body_count
         new = {}
         given = {"positions": positions, "orientations": orientations, "linear_velocities": linear_velocities,
                  "angular_velocities": angular_velocities}  # fmt: skip
         for (what, values), field in zip(given.items(), ("body_x", "body_q", "body_v", "body_w")):
             if values is not None:
-                new[field] = self._checked(values, (n, 4 if field == "body_q" else 3), what)
+                new[field] = self._world_values(values, what, world, (4 if field == "body_q" else 3,))
         if "body_q" in new:
-            norms = np.linalg.norm(new["body_q"], axis=1)
+            rows, q = new["body_q"]
+            norms = np.linalg.norm(q, axis=1)
             if np.any(norms < 1e-9):
-                body = self.model.body_name[int(np.argmin(norms))]
+                body = self.model.body_name[rows][int(np.argmin(norms))]
                 raise ValueError(f"orientations: the quaternion of body {body!r} is zero")
-            new["body_q"] = new["body_q"] / norms[:, None]
-        for field, values in new.items():
-            getattr(self.state, field).assign(values)
+            new["body_q"] = rows, q / norms[:, None]
+        for field, (rows, values) in new.items():
+            full = getattr(self.state, field).numpy().copy()
+            full[rows] = values
+            getattr(self.state, field).assign(full)
         self._update_frames()
         self._check_finite(self.state, self.step_count)
 
     # ---------------------------------------------------------------- numpy accessors
-    def positions(self) -> np.ndarray:
+    # With batched worlds each takes `world=` for one world's (n, ...) rows and gives all of them as (W, n, ...)
+    # without it.
+    def positions(self, world: int | None = None) -> np.ndarray:
         """(n, 3) centres of mass, world frame (m)."""
-        return self.state.body_x.numpy().copy()
+        return self._per_world(self.state.body_x.numpy().copy(), world)
 
-    def orientations(self) -> np.ndarray:
+    def orientations(self, world: int | None = None) -> np.ndarray:
         """(n, 4) quaternions (x, y, z, w), body to world (USD's Gf.Quat constructors take w first)."""
-        return self.state.body_q.numpy().copy()
+        return self._per_world(self.state.body_q.numpy().copy(), world)
 
-    def linear_velocities(self) -> np.ndarray:
+    def linear_velocities(self, world: int | None = None) -> np.ndarray:
         """(n, 3) centre-of-mass velocities, world frame (m/s)."""
-        return self.state.body_v.numpy().copy()
+        return self._per_world(self.state.body_v.numpy().copy(), world)
 
-    def angular_velocities(self) -> np.ndarray:
+    def angular_velocities(self, world: int | None = None) -> np.ndarray:
         """(n, 3) angular velocities, world frame (rad/s)."""
-        return self.state.body_w.numpy().copy()
+        return self._per_world(self.state.body_w.numpy().copy(), world)
 
-    def _joint_index(self, joint: int | str) -> int:
+    def _joint_index(self, joint: int | str, world: int | None = None) -> int:
+        """The model's index of `joint` (index or name); with `world`, of that world's joint of this index or
+        of this name in the scene ("j3" for "world2/j3")."""
         names = self.model.joint_name
+        first = 0
+        if world is not None:
+            first = self._world_rows(world).start // self.model.world_body_count * self.model.world_joint_count
+            names = names[first : first + self.model.world_joint_count]
+            if self.model.world_count > 1:
+                names = [n.partition("/")[2] for n in names]
         if isinstance(joint, str):
             if joint not in names:
                 raise ValueError(f"no joint named {joint!r}")
-            return names.index(joint)
+            return first + names.index(joint)
         if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
             raise ValueError(f"a joint index or name is expected, got {joint!r}")
         if not 0 <= int(joint) < len(names):
             raise ValueError(f"joint index {joint} does not exist ({len(names)} joints)")
-        return int(joint)
+        return first + int(joint)
 
     def _state_arrays(self) -> tuple[np.ndarray, ...]:
-        return self.positions(), self.orientations(), self.linear_velocities(), self.angular_velocities()
+        """Every body's position, orientation, linear and angular velocity, flat over the worlds."""
+        return tuple(getattr(self.state, f"body_{k}").numpy().copy() for k in ("x", "q", "v", "w"))
 
-    def joint_coordinates(self, joint: int | str) -> np.ndarray:
+    def joint_coordinates(self, joint: int | str, world: int | None = None) -> np.ndarray:
         """The joint's coordinates, zero at the build pose: a revolute's angle (rad, right-handed about its
         axis), a prismatic's offset (m), cylindrical [offset, angle], universal [angle about the parent axis,
         angle about the child axis], planar [x, y, angle] in the plane, a ball's relative rotation as a
-        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`)."""
-        return coordinates.coordinates(self.model, self._joint_index(joint), *self._state_arrays())
+        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`). With
+        batched worlds, `world` picks the world and `joint` is then its index or name in the scene."""
+        return coordinates.coordinates(self.model, self._joint_index(joint, world), *self._state_arrays())
 
-    def joint_velocities(self, joint: int | str) -> np.ndarray:
+    def joint_velocities(self, joint: int | str, world: int | None = None) -> np.ndarray:
         """The rates of `joint_coordinates` (rad/s, m/s); a ball joint's relative angular velocity (rad/s) in
         its parent's frame."""
-        return coordinates.velocities(self.model, self._joint_index(joint), *self._state_arrays())
+        return coordinates.velocities(self.model, self._joint_index(joint, world), *self._state_arrays())
 
     @property
     def redundant_rows(self) -> int:
@@ -989,34 +1256,53 @@ class Simulator:
         np.maximum.at(out, self.model.constraint_joint, constraint_errors)
         return out
 
-    def joint_errors(self) -> np.ndarray:
-        """The position error of every joint at the current state (max over its constraints, m or rad)."""
+    def joint_errors(self, world: int | None = None) -> np.ndarray:
+        """The position error of every joint at the current state (max over its constraints, m or rad); with
+        batched worlds (W, joints) or one `world`'s."""
         self.pred.copy_from(self.state)
         self._position_errors.launch()
-        return self.joint_errors_from(self.errors.numpy())
+        errors = self.joint_errors_from(self.errors.numpy())
+        m = self.model
+        if world is not None:
+            w = self._world_rows(world).start // m.world_body_count
+            return errors[w * m.world_joint_count : (w + 1) * m.world_joint_count]
+        return errors if m.world_count == 1 else errors.reshape(m.world_count, -1)
 
-    def kinetic_energy(self) -> float:
-        """Translational plus rotational kinetic energy, J."""
+    def _per_world_sum(self, per_body: np.ndarray, world: int | None) -> float | np.ndarray:
+        """A sum over bodies, per world: a number for a one-world model or one `world`, else (W,)."""
+        per_world = per_body.reshape(self.model.world_count, -1).sum(axis=1)
+        if world is not None:
+            return float(per_world[self._world_rows(world).start // self.model.world_body_count])
+        return float(per_world[0]) if self.model.world_count == 1 else per_world
+
+    def _kinetic_per_body(self) -> np.ndarray:
         m = self.model.host.body_mass
-        v, w = self.linear_velocities(), self.angular_velocities()
-        r = quat_to_matrix(self.orientations())
+        _, q, v, w = self._state_arrays()
+        r = quat_to_matrix(q)
         iw = np.einsum("nij,njk,nlk->nil", r, self.model.host.body_inertia, r)
-        return float(0.5 * np.sum(m * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
+        return 0.5 * m * np.sum(v * v, axis=1) + 0.5 * np.einsum("ni,nij,nj->n", w, iw, w)
 
-    def potential_energy(self) -> float:
+    def kinetic_energy(self, world: int | None = None) -> float | np.ndarray:
+        """Translational plus rotational kinetic energy, J; with batched worlds (W,) or one `world`'s."""
+        return self._per_world_sum(self._kinetic_per_body(), world)
+
+    def potential_energy(self, world: int | None = None) -> float | np.ndarray:
         """Gravity's potential energy plus the elastic energy of the springs and joint springs, J (zero for
         gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
-        and store none."""
+        and store none. With batched worlds (which have no springs or drives) (W,) or one `world`'s."""
         h = self.model.host
-        x = self.positions()
-        energy = -float(np.sum(h.body_mass * (x @ h.gravity)))
+        x = self.state.body_x.numpy()
+        gravity = self._per_world_sum(-h.body_mass * (x @ h.gravity), world)
+        if self.model.world_count > 1:
+            return gravity
+        energy = gravity
         if len(h.spring_params):
-            q = self.orientations()
+            q = self.state.body_q.numpy()
             ends = []
             for body, anchor in ((h.spring_body0, h.spring_anchor0), (h.spring_body1, h.spring_anchor1)):
-                world = body < 0  # an anchor on the world is a world point
-                pose_q = np.where(world[:, None], [0.0, 0.0, 0.0, 1.0], q[body])
-                pose_x = np.where(world[:, None], 0.0, x[body])
+                world_end = body < 0  # an anchor on the world is a world point
+                pose_q = np.where(world_end[:, None], [0.0, 0.0, 0.0, 1.0], q[body])
+                pose_x = np.where(world_end[:, None], 0.0, x[body])
                 ends.append(pose_x + quat_rotate(pose_q, anchor))
             stretch = np.linalg.norm(ends[1] - ends[0], axis=1) - h.spring_params[:, 2]
             energy += float(np.sum(0.5 * h.spring_params[:, 0] * stretch**2))
@@ -1025,7 +1311,7 @@ class Simulator:
             energy += 0.5 * float(h.drive_gains[d, 0]) * offset**2
         return energy
 
-    def energy(self) -> float:
+    def energy(self, world: int | None = None) -> float | np.ndarray:
         """Kinetic plus potential energy (`potential_energy`), J: conserved by a scene without loads, motors,
-        dampers or limits."""
-        return self.kinetic_energy() + self.potential_energy()
+        dampers or limits; with batched worlds (W,) or one `world`'s."""
+        return self.kinetic_energy(world) + self.potential_energy(world)

@@ -27,6 +27,7 @@ class Graph:
     constraint_joint: np.ndarray  # (constraints,) int: the joint a constraint belongs to
     joint_parent: np.ndarray  # (joints,) int
     joint_child: np.ndarray  # (joints,) int
+    world_count: int = 1  # batched worlds, world-major (`Model`): each world's unknowns are eliminated together
     joint_loop: np.ndarray | None = None  # (joints,) bool: close loops with these where there is a choice
 
     @property
@@ -40,6 +41,12 @@ class Graph:
     @property
     def joint_count(self) -> int:
         return len(self.joint_parent)
+
+    def body_world(self, b: int) -> int:
+        return b * self.world_count // max(self.body_count, 1)
+
+    def constraint_world(self, c: int) -> int:
+        return c * self.world_count // max(self.constraint_count, 1)
 
 
 @dataclass
@@ -153,6 +160,11 @@ def _member(values: np.ndarray, sorted_set: np.ndarray) -> np.ndarray:
     return sorted_set[at] == values if len(sorted_set) else np.zeros(len(values), dtype=bool)
 
 
+def _worlds(world_count: int, count: int) -> np.ndarray:
+    """The batched world of each of `count` world-major items (`Graph.body_world`, `constraint_world`)."""
+    return np.arange(count, dtype=np.int64) * world_count // max(count, 1)
+
+
 def _first_occurrences(values: np.ndarray) -> np.ndarray:
     """Indices of the first occurrence of each value, in the order they occur."""
     _, first = np.unique(values, return_index=True)
@@ -255,10 +267,13 @@ def _constraint_levels(graph: Graph, depth: np.ndarray) -> np.ndarray:
 
 
 def elimination_order(graph: Graph, depth: np.ndarray, loop_joints: list[int]) -> np.ndarray:
-    """Constraints deepest first; loop-closing joints last; a joint's constraints stay together."""
+    """Constraints deepest first; loop-closing joints last; a joint's constraints stay together. Batched worlds
+    one after the other, each in the order it has alone (so each factors as it does alone, bit for bit, and a
+    world's columns are contiguous)."""
     loop = np.isin(graph.constraint_joint, np.asarray(loop_joints, dtype=np.int64))
     level = _constraint_levels(graph, depth)
-    return np.lexsort((np.arange(graph.constraint_count), -level, loop)).astype(np.int64)
+    world = _worlds(graph.world_count, graph.constraint_count)
+    return np.lexsort((np.arange(graph.constraint_count), -level, loop, world)).astype(np.int64)
 
 
 def _body_constraints(graph: Graph) -> tuple[np.ndarray, np.ndarray]:
@@ -402,7 +417,7 @@ def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=N
     blocks of one body and one joint."""
     nb, nc = graph.body_count, graph.constraint_count
     if perm is None:
-        # Sort keys (loop joint, level, constraint after body, index, part) as in the docstring.
+        # Sort keys (world, loop joint, level, constraint after body, index, part) as in the docstring.
         bodies = np.flatnonzero(_dynamic(graph, np.arange(nb)))
         b0, b1 = graph.constraint_body0, graph.constraint_body1
         d0 = np.where(_dynamic(graph, b0), depth[np.maximum(b0, 0)] if nb else -1, -1)
@@ -410,13 +425,15 @@ def body_pattern(graph: Graph, depth: np.ndarray, loop_joints: list[int], perm=N
         loop = np.isin(graph.constraint_joint, np.asarray(loop_joints, dtype=np.int64))
         keys = np.concatenate(
             [
-                np.stack([np.zeros(2 * len(bodies)), np.repeat(-2 * depth[bodies], 2), np.zeros(2 * len(bodies)),
-                          np.repeat(bodies, 2), np.tile([0, 1], len(bodies))], axis=1),
-                np.stack([loop, 1 - 2 * np.maximum(d0, d1), np.ones(nc), np.arange(nc), np.zeros(nc)], axis=1),
+                np.stack([np.repeat(_worlds(graph.world_count, nb)[bodies], 2), np.zeros(2 * len(bodies)),
+                          np.repeat(-2 * depth[bodies], 2), np.zeros(2 * len(bodies)), np.repeat(bodies, 2),
+                          np.tile([0, 1], len(bodies))], axis=1),
+                np.stack([_worlds(graph.world_count, nc), loop, 1 - 2 * np.maximum(d0, d1), np.ones(nc),
+                          np.arange(nc), np.zeros(nc)], axis=1),
             ]
         ).astype(np.int64)  # fmt: skip
         keys = keys[np.lexsort(keys.T[::-1])]
-        perm = np.where(keys[:, 2] == 1, 2 * nb + keys[:, 3], keys[:, 3] + keys[:, 4] * nb).astype(np.int64)
+        perm = np.where(keys[:, 3] == 1, 2 * nb + keys[:, 4], keys[:, 4] + keys[:, 5] * nb).astype(np.int64)
     body, constraint = _body_constraints(graph)
     u = np.concatenate([body, nb + body, 2 * nb + constraint, 2 * nb + constraint])
     v = np.concatenate([2 * nb + constraint, 2 * nb + constraint, body, nb + body])

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ..builder import SceneBuilder, SceneError
+from ..builder import SceneBuilder, SceneError, checked_material
 from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..shapes import Shape
@@ -170,9 +170,10 @@ class _Reporter:
         warnings.warn(msg, stacklevel=4)
 
 
-def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Reporter):
-    """MassInformation (unit density) of one collision prim, in the body's rigid frame."""
-    Gf, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
+def _collider_shape(prim, xforms: _Xforms, report: _Reporter) -> tuple[Shape, str, int, Similarity]:
+    """A collision prim's solid with its world scale applied (stage units): (shape, kind, the axis index of a
+    capsule or cylinder, the prim's world similarity). A prim of another type is its extent box (noted)."""
+    _, _, _, _, UsdGeom, _, _ = pxr()
     path = str(prim.GetPath())
     sim = decompose(xforms.world(prim), path)
     kind, axis = None, 2
@@ -201,6 +202,13 @@ def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Rep
         report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
         shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
         sim.t = sim.t + quat_rotate(sim.q, 0.5 * (lo + hi) * sim.s)
+    return shape, kind, axis, sim
+
+
+def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Reporter):
+    """MassInformation (unit density) of one collision prim, in the body's rigid frame."""
+    Gf, _, _, _, _, UsdPhysics, _ = pxr()
+    shape, kind, axis, sim = _collider_shape(prim, xforms, report)
     volume = shape.volume()
     inertia = shape.inertia(volume)  # density 1
     if kind in ("capsule", "cylinder") and axis != 2:
@@ -497,6 +505,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         except SceneError as exc:
             raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
         _read_forces(builder, prim, index[bpath], mpu, kpu)
+    _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu, report)
     # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
     for i, (p, _desc) in enumerate(bodies):
         prim = stage.GetPrimAtPath(p)
@@ -631,6 +640,90 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
         xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, dt=_recorded_dt(stage, path),
     )  # fmt: skip
+
+
+def _material(stage, paths, where: str) -> tuple[float, float]:
+    """(friction, restitution) of a collider's first bound PhysicsMaterialAPI material; (0.5, 0) without one.
+    The dynamic friction is the Coulomb coefficient (warpimpulse has one for sliding and sticking)."""
+    _, _, _, _, _, UsdPhysics, _ = pxr()
+    for mpath in paths:
+        prim = stage.GetPrimAtPath(mpath)
+        if prim and prim.HasAPI(UsdPhysics.MaterialAPI):
+            api = UsdPhysics.MaterialAPI(prim)
+            friction = float(_real(str(mpath), "physics:dynamicFriction", api.GetDynamicFrictionAttr().Get() or 0.0))
+            restitution = float(_real(str(mpath), "physics:restitution", api.GetRestitutionAttr().Get() or 0.0))
+            if friction < 0.0:
+                raise UsdSceneError(f"{mpath}: physics:dynamicFriction must be >= 0, got {friction} (bound to {where})")
+            if not 0.0 <= restitution <= 1.0:
+                raise UsdSceneError(f"{mpath}: physics:restitution must be in [0, 1], got {restitution} "
+                                    f"(bound to {where})")  # fmt: skip
+            return friction, restitution
+    return 0.5, 0.0
+
+
+def _read_colliders(stage, get, builder: SceneBuilder, index, frames, com_offsets, xforms, mpu, report) -> None:
+    """CollisionAPI prims: a Plane without a rigid body is a ground; a Sphere, Capsule, Cube or Cylinder of a
+    rigid body, centred on its centre of mass with its axis (a cube's edges) along the body frame's z (edges),
+    is the body's collision shape (one per body), with its material's friction and restitution; a body's
+    FilteredPairsAPI targets never collide with it. Other colliders do not collide, with a note saying so."""
+    _, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
+    T = UsdPhysics.ObjectType
+    shaped: set[int] = set()
+    kinds = (T.SphereShape, T.CapsuleShape, T.Capsule1Shape, T.CubeShape, T.CylinderShape, T.Cylinder1Shape,
+             T.PlaneShape, T.ConeShape, T.MeshShape, T.CustomShape, T.SpherePointsShape)  # fmt: skip
+    for t in kinds:
+        for p, desc in get(t):
+            path = str(p)
+            prim = stage.GetPrimAtPath(p)
+            if not desc.collisionEnabled:
+                continue
+            body_prim = _rigid_ancestor(prim, index)
+            friction, restitution = _material(stage, desc.materials, path)
+            if t == T.PlaneShape and body_prim is None:
+                sim = decompose(xforms.world(prim), path)
+                axis = str(prim.GetAttribute("axis").Get() or "Z")
+                normal = quat_rotate(sim.q, np.eye(3)["XYZ".index(axis)])
+                builder.add_ground(float(np.dot(normal, sim.t)) * mpu, normal, friction, restitution)
+                continue
+            if t not in (T.SphereShape, T.CapsuleShape, T.CubeShape, T.CylinderShape) or body_prim is None:
+                what = "a static collider that is not a plane" if body_prim is None else f"a {t.name} collider"
+                report.note(f"{path}: {what} does not collide in warpimpulse")
+                continue
+            b = index[str(body_prim.GetPath())]
+            if b in shaped:
+                report.note(f"{path}: a second collider on a body does not collide in warpimpulse")
+                continue
+            shape, kind, axis, sim = _collider_shape(prim, xforms, report)
+            frame = frames[b]
+            centre = frame.t + quat_rotate(frame.q, com_offsets[b])
+            offset = quat_rotate(quat_conj(frame.q), sim.t - centre)
+            turn = quat_to_matrix(quat_mul(quat_conj(frame.q), sim.q))
+            along = np.abs(turn[:, axis]) if kind in ("capsule", "cylinder") else None
+            aligned = (kind == "sphere" or (kind == "box" and np.allclose(np.abs(turn), np.eye(3), atol=1e-6))
+                       or (along is not None and along[2] > 1.0 - 1e-6))  # fmt: skip
+            scale = max(shape.bounding_radius(), 1e-12)
+            if float(np.linalg.norm(offset)) > 1e-6 * scale or not aligned:
+                report.note(f"{path}: a collider off its body's centre of mass or turned from its body frame does "
+                            "not collide in warpimpulse")  # fmt: skip
+                continue
+            size = dict(
+                radius=shape.radius * mpu, length=shape.length * mpu, size=tuple(float(v) * mpu for v in shape.size)
+            )
+            body = builder.bodies[b]
+            try:
+                body.shape = Shape(kind, **size)
+                if body.shape.zero_size():
+                    raise SceneError(f"collision shape {kind} has zero size")
+                body.friction, body.restitution = checked_material(friction, restitution, path)
+            except (SceneError, ValueError) as exc:
+                raise UsdSceneError(f"{path}: {exc}") from None
+            shaped.add(b)
+    for p, desc in get(T.RigidBody):
+        a = index.get(str(p))
+        for target in desc.filteredCollisions:
+            other = _rigid_ancestor(stage.GetPrimAtPath(target), index)
+            if a is not None and other is not None and index[str(other.GetPath())] != a:
+                builder.filter_collision(a, index[str(other.GetPath())])
 
 
 def _rigid_ancestor(prim, index: dict[str, int]):

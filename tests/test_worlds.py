@@ -1,0 +1,243 @@
+"""Batched worlds (`SceneBuilder.replicate`): each world of a batched run is, bit for bit, the run of that world
+alone; one world's hard step costs the others no iterations; one world's failure stops only that world."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+from warpimpulse.builder import SceneError
+from warpimpulse.simulator import SimulationError, Simulator
+
+DT = 1.0 / 60.0
+WORLDS = 3
+BODIES = 7
+
+
+def state_of(sim: Simulator, world: int | None = None) -> list[np.ndarray]:
+    return [sim.positions(world), sim.orientations(world), sim.linear_velocities(world), sim.angular_velocities(world)]
+
+
+def worlds_setup():
+    """Per-world masses, loads and initial spins that differ from world to world."""
+    base = wi.scenes.binary_tree(BODIES).finalize().host
+    mass = np.stack([base.body_mass * (1.0 + 0.5 * w) for w in range(WORLDS)])
+    force = np.zeros((WORLDS, BODIES, 3))
+    force[1, 3] = (0.0, 2000.0, 0.0)
+    spin = np.zeros((WORLDS, BODIES, 3))
+    spin[2, 6] = (0.0, 0.0, 3.0)
+    return mass, force, spin
+
+
+def alone(world: int, steps: int, mass, force, spin, **settings) -> tuple[Simulator, list]:
+    sim = Simulator(wi.scenes.binary_tree(BODIES).finalize(), DT, **settings)
+    sim.set_masses(mass=mass[world])
+    sim.set_external_forces(force=force[world])
+    sim.set_state(angular_velocities=spin[world])
+    stats = [sim.step() for _ in range(steps)]
+    return sim, stats
+
+
+def batched(steps: int, mass, force, spin, **settings) -> tuple[Simulator, list]:
+    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, **settings)
+    sim.set_masses(mass=mass)
+    sim.set_external_forces(force=force)
+    sim.set_state(angular_velocities=spin)
+    stats = []
+    for _ in range(steps):
+        sim.step()
+        stats.append(sim.world_stats)
+    return sim, stats
+
+
+@pytest.mark.parametrize("formulation", ["constraint", "body"])
+def test_batched_run_matches_each_world_alone_bit_for_bit(formulation):
+    mass, force, spin = worlds_setup()
+    sim, stats = batched(30, mass, force, spin, formulation=formulation)
+    assert sim.positions().shape == (WORLDS, BODIES, 3)
+    for w in range(WORLDS):
+        one, one_stats = alone(w, 30, mass, force, spin, formulation=formulation)
+        for a, b in zip(state_of(one), state_of(sim, w)):
+            assert np.array_equal(a, b), f"world {w} differs from its run alone"
+        assert [s.joint_iterations for s in one_stats] == [int(s.joint_iterations[w]) for s in stats]
+        assert one.energy() == sim.energy(w) == sim.energy()[w]
+        assert np.array_equal(one.joint_errors(), sim.joint_errors(w))
+        assert np.array_equal(one.joint_errors(), sim.joint_errors()[w])
+        assert np.array_equal(one.joint_coordinates("j3"), sim.joint_coordinates("j3", world=w))
+        assert np.array_equal(one.joint_velocities(5), sim.joint_velocities(f"world{w}/j5"))
+    # The worlds differ from each other (the per-world values took effect).
+    assert not np.array_equal(sim.positions(0), sim.positions(1))
+
+
+def test_hard_step_in_one_world_costs_the_others_nothing():
+    """A world spinning fast takes its steps as substeps alone; the others take the iterations they take alone."""
+    mass, force, spin = worlds_setup()
+    spin[0, 6] = (0.0, 0.0, 200.0)  # world 0 must split its steps
+    sim, stats = batched(5, mass, force, spin)
+    assert all(s.alone[0] and s.substeps[0] > 1 for s in stats)
+    for w in (1, 2):
+        _, one_stats = alone(w, 5, mass, force, spin)
+        assert [s.joint_iterations for s in one_stats] == [int(s.joint_iterations[w]) for s in stats]
+        assert not any(s.alone[w] for s in stats)
+    hard, _ = alone(0, 5, mass, force, spin)
+    for a, b in zip(state_of(hard), state_of(sim, 0)):
+        assert np.array_equal(a, b)
+
+
+def test_a_failing_world_stops_alone_with_its_index():
+    mass, force, spin = worlds_setup()
+    force[1, 6] = (0.0, 0.0, 1e13)  # world 1's correction cannot converge
+    with pytest.raises(SimulationError) as alone_error:
+        alone(1, 10, mass, force, spin, max_iterations=10)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sim, _ = batched(10, mass, force, spin, max_iterations=10)
+    assert list(sim.stopped) == [1]
+    assert sim.stopped[1].startswith("world 1: step 1 ")
+    assert "world1/j6" in sim.stopped[1]
+    assert str(alone_error.value).split(";")[0] in sim.stopped[1]  # the same failure as alone
+    assert any("world 1:" in str(w.message) for w in caught)
+    for w in (0, 2):  # the others went on, exactly as alone
+        one, _ = alone(w, 10, mass, force, spin, max_iterations=10)
+        for a, b in zip(state_of(one), state_of(sim, w)):
+            assert np.array_equal(a, b)
+    # The stopped world stays at its last good state: the start.
+    start = Simulator(wi.scenes.binary_tree(BODIES).finalize(), DT)
+    assert np.array_equal(sim.positions(1), start.positions())
+
+
+def test_every_world_stopped_raises():
+    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(2).finalize(), DT, max_iterations=5, max_substep_depth=0)
+    force = np.zeros((2, BODIES, 3))
+    force[:, 6] = (0.0, 0.0, 1e13)
+    sim.set_external_forces(force=force)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sim.step()
+        assert sorted(sim.stopped) == [0, 1]
+        with pytest.raises(SimulationError, match="every one of the 2 worlds has stopped"):
+            sim.step()
+
+
+def test_replicate_layout_and_names():
+    builder = wi.scenes.binary_tree(BODIES).replicate(WORLDS)
+    model = builder.finalize()
+    assert (model.world_count, model.world_body_count, model.body_count) == (WORLDS, BODIES, WORLDS * BODIES)
+    assert model.body_name[BODIES] == "world1/b0" and model.joint_name[-1] == f"world{WORLDS - 1}/j6"
+    single = wi.scenes.binary_tree(BODIES).finalize()
+    assert np.array_equal(model.host.constraint_body1[: single.constraint_count], single.host.constraint_body1)
+    assert np.array_equal(
+        model.host.constraint_body1[single.constraint_count : 2 * single.constraint_count],
+        single.host.constraint_body1 + BODIES,
+    )
+    nb, nc, n = BODIES, single.constraint_count, WORLDS * BODIES
+
+    def shifted(u, w):  # an unknown of the augmented matrix alone -> in world w: linear, angular, constraint parts
+        return np.where(u < nb, u + w * nb, np.where(u < 2 * nb, u - nb + n + w * nb, u - 2 * nb + 2 * n + w * nc))
+
+    # Each world's columns together, in the order they have alone.
+    alone, batch = single.topology.pattern("constraint").perm, model.topology.pattern("constraint").perm
+    assert np.array_equal(batch, np.concatenate([alone + w * nc for w in range(WORLDS)]))
+    alone, batch = single.topology.pattern("body").perm, model.topology.pattern("body").perm
+    assert np.array_equal(batch, np.concatenate([shifted(alone, w) for w in range(WORLDS)]))
+    part = model.worlds(1, 3)
+    assert part.world_count == 2 and part.body_name[0] == "world1/b0"
+    assert np.array_equal(part.host.joint_parent, model.host.joint_parent[: 2 * BODIES])
+    assert np.array_equal(part.host.force_body, model.host.force_body[:2])
+    assert wi.scenes.binary_tree(BODIES).replicate(1).finalize().body_name[0] == "b0"
+
+
+def test_replicate_refuses_bad_input():
+    builder = wi.scenes.binary_tree(BODIES)
+    with pytest.raises(SceneError, match="count must be an integer >= 1"):
+        builder.replicate(0)
+    motorised = wi.scenes.chain(3)
+    motorised.add_motor(0, "velocity", target=1.0)
+    with pytest.raises(SceneError, match="do not take springs, drives or limits yet"):
+        motorised.replicate(2)
+    many = builder.replicate(2)
+    with pytest.raises(SceneError, match="takes no additions"):
+        wi.scenes.chain(3).replicate(2).add_joint_limit(0, -1.0, 1.0)
+    with pytest.raises(SceneError, match="takes no additions"):
+        many.add_body(1.0, (1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
+    with pytest.raises(SceneError, match="already replicated"):
+        many.replicate(2)
+    model = many.finalize()
+    with pytest.raises(ValueError, match="cholesky"):
+        Simulator(model, DT, solver="cg")
+    sim = Simulator(model, DT)
+    with pytest.raises(ValueError, match="world 2 does not exist"):
+        sim.positions(world=2)
+    with pytest.raises(ValueError, match=r"force must have shape \(2, 7, 3\)"):
+        sim.set_external_forces(force=np.zeros((BODIES, 3)))
+    with pytest.raises(ValueError, match="world1/b0.*must be positive"):
+        sim.set_masses(mass=np.zeros(BODIES), world=1)
+
+
+def test_per_world_values_change_one_world_only():
+    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(2).finalize(), DT)
+    sim.set_state(linear_velocities=np.ones((BODIES, 3)), world=1)
+    assert np.all(sim.linear_velocities(1) == 1.0) and np.all(sim.linear_velocities(0) == 0.0)
+    before = sim.model.host.body_mass.copy()
+    sim.set_masses(mass=2.0 * before[:BODIES], world=0)
+    assert np.array_equal(sim.model.host.body_mass[:BODIES], 2.0 * before[:BODIES])
+    assert np.array_equal(sim.model.host.body_mass[BODIES:], before[BODIES:])
+    sim.reset()
+    assert np.all(sim.linear_velocities() == 0.0) and sim.stopped == {}
+
+
+def test_threads_give_the_batched_run_and_stop_worlds_alone():
+    """Shares of two worlds and of one (3 worlds on 2 threads): the same run as one batched Simulator, bit for
+    bit; a failure in either kind of share stops that world only, by its index in the whole model."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    mass, force, spin = worlds_setup()
+    force[1, 6] = force[2, 6] = (0.0, 0.0, 1e13)  # world 1 in the two-world share, world 2 alone in its share
+    with pytest.warns(RuntimeWarning, match="the world stops"):
+        ref, _ = batched(5, mass, force, spin, max_iterations=10)
+    with ThreadedSimulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, threads=2,
+                           max_iterations=10) as sim:  # fmt: skip
+        assert [p.model.world_count for p in sim.parts] == [2, 1]
+        sim.set_masses(mass=mass)
+        sim.set_external_forces(force=force)
+        sim.set_state(angular_velocities=spin)
+        with pytest.warns(RuntimeWarning, match="world 2: step 1"):
+            for _ in range(5):
+                sim.step()
+        assert sorted(sim.stopped) == [1, 2] and sim.stopped[1].startswith("world 1: ")
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)
+        assert np.array_equal(sim.positions(2), ref.positions(2))
+        assert sim.energy().shape == (WORLDS,) and sim.step_count == 5
+
+
+def test_a_batched_run_records_every_world(tmp_path):
+    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(2).finalize(), 1.0 / 30.0)
+    rec = wi.usd.record(sim, tmp_path / "worlds.usda", duration=0.1, fps=30)
+    anim = wi.usd.read_animation(rec.path)
+    assert anim.positions.shape == (4, 2 * BODIES, 3)
+    assert np.allclose(anim.positions[-1], sim.positions().reshape(-1, 3))
+
+
+def test_threads_with_split_steps_give_the_batched_run():
+    """Worlds whose steps split into substeps, in a two-world share (alone, after the threads) and in a one-world
+    share (on its thread, with every substep size recorded beforehand)."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    mass, force, spin = worlds_setup()
+    spin[0, 6] = spin[2, 6] = (0.0, 0.0, 200.0)
+    ref, ref_stats = batched(4, mass, force, spin)
+    assert ref_stats[-1].substeps[0] > 1 and ref_stats[-1].substeps[2] > 1
+    with ThreadedSimulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, threads=2) as sim:
+        sim.set_masses(mass=mass)
+        sim.set_external_forces(force=force)
+        sim.set_state(angular_velocities=spin)
+        for _ in range(4):
+            sim.step()
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)
+        assert np.array_equal(sim.world_stats.substeps, ref_stats[-1].substeps)
+        assert np.array_equal(sim.world_stats.joint_iterations, ref_stats[-1].joint_iterations)

@@ -1,0 +1,26 @@
+"""What a step reports: its StepStats, and the SimulationError that ends a run (kept apart from the
+simulator so that the batched worlds' step, `worlds.py`, reports the same way without importing it)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+class SimulationError(RuntimeError):
+    """The simulation cannot go on: divergence (NaN/Inf) or joints that did not converge."""
+
+
+@dataclass
+class StepStats:
+    joint_iterations: int  # linear solves (or sweeps) of the joint correction
+    velocity_iterations: int
+    max_joint_error: float  # after the joint correction, in m or rad
+    max_velocity_error: float  # after the velocity correction, in m/s or rad/s
+    converged: bool = True
+    linear_iterations: int = 0  # linear solves (Cholesky) or inner CG iterations, summed over the step
+    substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
+    order: int = 2  # the order in time the step was taken at (Simulator's `order`, unless it fell back)
+    fallback: str = ""  # why a step asked at order 4 or 6 was taken at order 2 (a non-reversible event)
+    contacts: int = 0  # contact points detected (in the last substep)
+    max_penetration: float = 0.0  # m, the deepest contact after the position correction
+    contact_sweeps: int = 0  # Gauss-Seidel sweeps over the contacts, both phases, summed over the step

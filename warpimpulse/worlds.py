@@ -1,0 +1,233 @@
+"""Batched worlds: the step of a Model of many independent copies (`SceneBuilder.replicate`), every launch
+covering all of them, each world converging and failing on its own.
+
+How one step goes (`Batch.step`):
+- every world that has not stopped starts from its own spin, which sets its substeps (2**k, as for one world);
+  the worlds of the most common k are stepped together, the rest alone;
+- in the joint correction a world that holds its joints is masked (`kernels/worlds.mask_worlds`): its impulses
+  are zero, so its prediction repeats bit for bit and it takes no more iterations while others go on;
+- a world whose correction fails (iteration limit, divergence, NaN, a body turning too far, a velocity
+  correction that stops short) drops out of the batch and is frozen at the start of the step;
+- each world that was not finished in the batch takes the step alone, from its state at the start, on a
+  one-world Simulator of the same settings: the halving, splitting, raising and warning of one world, exactly.
+  A world whose step fails there stops (frozen at its last good state, `Batch.stopped` gives the message by
+  world index) and the others go on; only when every world has stopped does `step` raise.
+So a batched run gives each world the trajectory that a Simulator of that world alone gives, bit for bit
+(tests/test_worlds.py).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .model import State
+from .solver import SingularSystemError
+from .steps import SimulationError, StepStats
+
+
+@dataclass
+class WorldStats:
+    """Per-world figures of the last step, each an array over worlds (a stopped world's stay at zero)."""
+
+    joint_iterations: np.ndarray
+    velocity_iterations: np.ndarray
+    max_joint_error: np.ndarray
+    max_velocity_error: np.ndarray
+    converged: np.ndarray
+    linear_iterations: np.ndarray
+    substeps: np.ndarray
+    alone: np.ndarray  # True where the world took the step alone (a hard step, a failure or a stop)
+
+    @classmethod
+    def zeros(cls, count: int) -> WorldStats:
+        i, f = np.zeros(count, np.int64), np.zeros(count)
+        return cls(i.copy(), i.copy(), f.copy(), f.copy(), np.ones(count, bool), i.copy(), i.copy(),
+                   np.zeros(count, bool))  # fmt: skip
+
+    def set(self, world: int, stats) -> None:
+        """Put one world's StepStats (of a step taken alone)."""
+        for name in ("joint_iterations", "velocity_iterations", "max_joint_error", "max_velocity_error",
+                     "converged", "linear_iterations", "substeps"):  # fmt: skip
+            getattr(self, name)[world] = getattr(stats, name)
+
+
+class Batch:
+    """The per-world side of a Simulator whose model has several worlds (`Simulator.batch`)."""
+
+    def __init__(self, sim) -> None:
+        m = sim.model
+        self.sim = sim
+        self.count = m.world_count
+        self.bodies = m.world_body_count
+        self.spin = np.zeros(self.count)  # rad/s: each world's largest |w| of its last prediction
+        self.stopped: dict[int, str] = {}  # world -> why it stopped
+        self.stats = WorldStats.zeros(self.count)
+        self._t0: State = m.state()
+        self._solos: dict[int, object] = {}
+
+    # ---------------------------------------------------------------- per-world reductions
+    def world_max(self) -> np.ndarray:
+        """Each world's largest constraint error just measured (NaN where any is NaN)."""
+        return self.sim.errors.numpy().reshape(self.count, -1).max(axis=1)
+
+    def measure(self, state: State) -> np.ndarray:
+        """Each world's (NaN/Inf bodies, largest |w|) of `state`; sets the spin."""
+        self.sim.world_summary.zero_()
+        self.sim._world_checks[id(state)].launch()
+        return self._read_summary(np.ones(self.count, bool))
+
+    def _read_summary(self, worlds: np.ndarray) -> np.ndarray:
+        summary = self.sim.world_summary.numpy()
+        self.spin[worlds] = summary[worlds, 1]
+        return summary
+
+    def _restore(self, target: State, worlds: np.ndarray) -> None:
+        """Rows of `worlds` in `target` back to the start of the step."""
+        n = self.bodies
+        for w in np.flatnonzero(worlds).tolist():
+            for name in ("body_x", "body_q", "body_v", "body_w"):
+                wp.copy(getattr(target, name), getattr(self._t0, name), w * n, w * n, n)
+
+    def reset(self) -> None:
+        self.stopped.clear()
+        self.stats = WorldStats.zeros(self.count)
+
+    def forget(self, worlds) -> None:
+        """Drop the one-world simulators of `worlds` (their masses changed)."""
+        for w in worlds:
+            self._solos.pop(int(w), None)
+
+    # ---------------------------------------------------------------- the step
+    def step(self):
+        """One step of dt for every world that has not stopped (see the module docstring); returns the
+        StepStats over all worlds (the most iterations, the largest errors) and leaves per-world ones in
+        `stats`."""
+        self.step_batched()
+        return self.finish()
+
+    def step_batched(self) -> None:
+        """The batched part of a step: every world that can, together. It captures nothing, so threads may run
+        it for disjoint batches at once once their step sizes are recorded (`Simulator.prepare_substeps`)."""
+        sim = self.sim
+        sim._update_forces()
+        self._t0.copy_from(sim.state)
+        self._spin0 = self.spin.copy()  # a world stepped alone starts from its spin of the start
+        self._live = live = np.array([w not in self.stopped for w in range(self.count)])
+        if not live.any():
+            raise SimulationError(f"every one of the {self.count} worlds has stopped: {self.stopped[0]}")
+        depths = np.array([sim._depth_of(s) for s in self.spin])
+        depth = int(np.bincount(depths[live]).argmax())
+        self._batch = batch = live & (depths == depth)
+        self._stats = WorldStats.zeros(self.count)
+        for _ in range(2**depth):
+            self._advance(sim.dt / 2**depth, depth, batch, self._stats)
+        sim._use_step_size(sim.dt)
+
+    def finish(self):
+        """The rest of the step: the worlds not finished in the batch, each alone (this may build a one-world
+        simulator, so a thread must not run it while others step); then the time and the stats."""
+        sim, batch, live, stats = self.sim, self._batch, self._live, self._stats
+        alone = live & ~batch
+        if (~batch).any():
+            self._restore(sim.state, ~batch)  # frozen: the alone ones start there, the stopped ones stay
+            for w in np.flatnonzero(alone).tolist():
+                self._step_alone(w, stats)
+            sim._update_frames()
+        stats.alone = alone
+        stats.converged &= np.array([w not in self.stopped for w in range(self.count)])
+        sim.step_count += 1
+        sim.time = sim.step_count * sim.dt
+        self.stats = stats
+        return StepStats(
+            int(stats.joint_iterations.max()), int(stats.velocity_iterations.max()),
+            float(stats.max_joint_error.max()), float(stats.max_velocity_error.max()),
+            bool(stats.converged[live].all()), int(stats.linear_iterations.max()), int(stats.substeps.max()),
+        )  # fmt: skip
+
+    def _advance(self, h: float, depth: int, batch: np.ndarray, stats: WorldStats) -> None:
+        """One substep of h for the worlds of `batch`; a world that fails leaves `batch` (frozen at the start
+        of the step, to be stepped alone)."""
+        sim = self.sim
+        sim._use_step_size(h)
+        final = depth >= sim.max_substep_depth
+        tolerance = sim.tolerance
+        iterations = np.zeros(self.count, np.int64)
+        best = np.full(self.count, np.inf)
+        wp.capture_launch(sim._evaluate)
+        while True:
+            err = self.world_max()
+            best = np.minimum(best, err)
+            pending = batch & ~(err <= tolerance)
+            diverging = (iterations >= 3) & (err > 1e3 * best)
+            failed = pending & (~np.isfinite(err) | (iterations >= sim.max_iterations) | diverging)
+            batch &= ~failed
+            active = pending & ~failed
+            if not active.any():
+                break
+            sim.world_active.assign(active.astype(np.int32))
+            wp.capture_launch(sim._iterate)
+            iterations += active
+        summary = self._read_summary(batch)  # of the last prediction of each world
+        batch &= summary[:, 0] == 0
+        if not final and sim.max_rotation is not None:
+            batch &= ~(self.spin * h / sim.max_rotation > 1.0)  # turned too far: halve it, alone
+        if (~batch).any():
+            self._restore(sim.pred, ~batch)  # the accepted state of a frozen world is its start
+        wp.capture_launch(sim._accept_graph)
+        sim.linear.check()
+        sim._velocity_errors.launch()
+        verr = self.world_max()
+        fix = batch & ~(verr <= sim.velocity_tolerance)
+        if fix.any():
+            sim.world_active.assign(fix.astype(np.int32))
+            wp.capture_launch(sim._velocity_fix)
+            verr = self.world_max()
+        batch &= verr <= sim.velocity_tolerance  # one exact solve stopped short: alone, where it is reported
+        stats.joint_iterations[batch] += iterations[batch]
+        stats.velocity_iterations[batch] += fix[batch]
+        stats.max_joint_error[batch] = np.maximum(stats.max_joint_error[batch], err[batch])
+        stats.max_velocity_error[batch] = verr[batch]
+        stats.linear_iterations[batch] += iterations[batch] + fix[batch]
+        stats.substeps[batch] += 1
+
+    # ---------------------------------------------------------------- a world alone
+    def _solo(self, world: int):
+        """A one-world Simulator of this world (its current masses) with the batch's settings, made once."""
+        if world not in self._solos:
+            sim = self.sim
+            self._solos[world] = type(sim)(
+                sim.model.worlds(world, world + 1), sim.dt, tolerance=sim.tolerance,
+                velocity_tolerance=sim.velocity_tolerance, solver=sim.solver_name, max_iterations=sim.max_iterations,
+                on_max_iterations=sim.on_max_iterations, max_substep_depth=sim.max_substep_depth,
+                formulation=sim.linear.pattern.formulation if sim.linear is not None else "auto",
+                max_rotation=sim.max_rotation, specialize=sim.specialized,
+            )  # fmt: skip
+        return self._solos[world]
+
+    def _step_alone(self, world: int, stats: WorldStats) -> None:
+        """Take this step for `world` on its own simulator, from its state at the start of the step; a
+        failure stops the world (and warns), not the batch."""
+        sim, n = self.sim, self.bodies
+        solo = self._solo(world)
+        for name in ("body_x", "body_q", "body_v", "body_w"):
+            wp.copy(getattr(solo.state, name), getattr(self._t0, name), 0, world * n, n)
+        rows = slice(world * n, (world + 1) * n)
+        solo.set_external_forces(sim._user_force[rows], sim._user_torque[rows])
+        solo.time, solo.step_count = sim.time, sim.step_count
+        solo._update_frames()
+        solo._spin = self._spin0[world]
+        try:
+            result = solo.step()
+        except (SimulationError, SingularSystemError) as exc:
+            self.stopped[world] = f"world {world}: {exc}"
+            warnings.warn(f"{self.stopped[world]}; the world stops, the others go on", RuntimeWarning, stacklevel=4)
+            stats.converged[world] = False
+            return
+        for name in ("body_x", "body_q", "body_v", "body_w"):
+            wp.copy(getattr(sim.state, name), getattr(solo.state, name), world * n, 0, n)
+        self.spin[world] = solo._spin
+        stats.set(world, result)
