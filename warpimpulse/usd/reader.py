@@ -111,12 +111,14 @@ def _check_defaults(prim) -> None:
 
 
 class _Xforms:
-    """World matrices from an XformCache, after checking the xformOps of the prim and its ancestors (each
-    prim once): the cache reads a zero or NaN orient as the identity and drops a non-finite matrix op."""
+    """World matrices from an XformCache at `time` (the stage's start), after checking the xformOps of the prim
+    and its ancestors (each prim once): the cache reads a zero or NaN orient as the identity and drops a
+    non-finite matrix op."""
 
-    def __init__(self) -> None:
-        _, _, _, Usd, UsdGeom, *_ = pxr()
-        self._cache = UsdGeom.XformCache(Usd.TimeCode.Default())
+    def __init__(self, time) -> None:
+        _, _, _, _, UsdGeom, *_ = pxr()
+        self._time = time
+        self._cache = UsdGeom.XformCache(time)
         self._xformable = UsdGeom.Xformable
         self._orient = UsdGeom.XformOp.TypeOrient
         self._checked: set[str] = set()
@@ -126,7 +128,7 @@ class _Xforms:
             path = str(prim.GetPath())
             if prim.IsA(self._xformable):
                 for op in self._xformable(prim).GetOrderedXformOps():
-                    value = op.Get()
+                    value = op.Get(self._time)
                     if value is None:
                         _not_only_sampled(prim, op.GetAttr())
                         continue
@@ -151,9 +153,10 @@ class _Xforms:
 class _Reporter:
     """Unsupported features: an error naming the prim, or a warning when told to ignore them."""
 
-    def __init__(self, ignore: bool, notes: list[str]) -> None:
+    def __init__(self, ignore: bool, notes: list[str], warned: list[str] | None = None) -> None:
         self.ignore = ignore
         self.notes = notes
+        self.warned = [] if warned is None else warned  # the notes that were warnings
 
     def unsupported(self, prim: str, what: str) -> None:
         if not self.ignore:
@@ -161,13 +164,12 @@ class _Reporter:
                 f"{prim}: {what} is not simulated by warpimpulse (pass ignore_unsupported=True / "
                 f"--ignore-unsupported to drop it with a warning)"
             )
-        msg = f"{prim}: {what} is not simulated; ignored"
-        self.notes.append(msg)
-        warnings.warn(msg, stacklevel=4)
+        self.note(f"{prim}: {what} is not simulated; ignored", stacklevel=5)
 
-    def note(self, msg: str) -> None:
+    def note(self, msg: str, stacklevel: int = 4) -> None:
         self.notes.append(msg)
-        warnings.warn(msg, stacklevel=4)
+        self.warned.append(msg)
+        warnings.warn(msg, stacklevel=stacklevel)
 
 
 def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Reporter):
@@ -418,7 +420,8 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     path = os.fspath(path)
     stage = open_stage(path)
     notes: list[str] = []
-    report = _Reporter(ignore_unsupported, notes)
+    warned: list[str] = []
+    report = _Reporter(ignore_unsupported, notes, warned)
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
     kpu = float(UsdPhysics.GetStageKilogramsPerUnit(stage))
     for key, value in (("metersPerUnit", mpu), ("kilogramsPerUnit", kpu)):
@@ -455,7 +458,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         notes.append(f"{path}: no PhysicsScene; gravity 9.81 m/s^2 down the up axis ({up})")
     builder = SceneBuilder(gravity=gravity)
 
-    xforms = _Xforms()
+    xforms = _Xforms(_start_time(stage))
     order = {str(p.GetPath()): k for k, p in enumerate(stage.Traverse())}  # bodies and joints in file order
     bodies = sorted(get(T.RigidBody), key=lambda pd: order.get(str(pd[0]), len(order)))
     index: dict[str, int] = {}
@@ -545,15 +548,16 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             if not target:
                 raise UsdSceneError(f"{jpath}: physics:body{side} targets {rel}, which does not exist")
             # Not the parser's body0/body1: it leaves out bodies with physics:rigidBodyEnabled = false (static here).
+            # A prim inside a body stands for that body; any other prim (a static collider, the default prim)
+            # is the world, at that prim's transform (`_joint_frame`), as in PhysX.
             body = _rigid_ancestor(target, index)
-            if body is None:
-                raise UsdSceneError(
-                    f"{jpath}: physics:body{side} targets {rel}, which is not a rigid body or inside one "
-                    f"(leave physics:body{side} empty to attach the joint to the world)"
-                )
-            ends.append(index[str(body.GetPath())])
+            ends.append(None if body is None else index[str(body.GetPath())])
         if ends[0] is None and ends[1] is None:
-            raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
+            if desc.rel0.isEmpty and desc.rel1.isEmpty:
+                raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
+            report.note(f"{jpath}: neither physics:body0 nor physics:body1 is a rigid body or inside one; the "
+                        f"joint holds only the world to itself; skipped")  # fmt: skip
+            continue
         for attr in jprim.GetAuthoredAttributes():  # the parser reads a NaN limit as no limit
             if attr.GetName().endswith(_JOINT_BOUNDS) and attr.Get() is not None:
                 _real(jpath, attr.GetName(), attr.Get(), infinite_ok=True)
@@ -619,6 +623,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             report.unsupported(str(prim.GetPath()), _joint_type_text(prim.GetTypeName()))
     if not bodies:
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
+    colliders = _ignored_colliders(stage, index)
+    if colliders:
+        report.note(_colliders_text(colliders))
     default_prim = stage.GetDefaultPrim()
     default_prim_name = default_prim.GetName() if default_prim else ""
     if not default_prim_name:  # give the output a default prim even if the input lacks one
@@ -629,8 +636,49 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
         parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
-        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, dt=_recorded_dt(stage, path),
+        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, warnings=warned, colliders_ignored=len(colliders),
+        dt=_recorded_dt(stage, path), time_codes_per_second=float(stage.GetTimeCodesPerSecond()),
+        time_range=_time_range(stage, path),
     )  # fmt: skip
+
+
+def _ignored_colliders(stage, index: dict[str, int]) -> list[str]:
+    """The enabled collision prims (CollisionAPI), static ones first: contacts are not simulated, so they
+    only give their bodies mass."""
+    _, _, _, _, _, UsdPhysics, _ = pxr()
+    static, moving = [], []
+    for prim in stage.Traverse():
+        if prim.HasAPI(UsdPhysics.CollisionAPI) and UsdPhysics.CollisionAPI(prim).GetCollisionEnabledAttr().Get():
+            (static if _rigid_ancestor(prim, index) is None else moving).append(str(prim.GetPath()))
+    return static + moving
+
+
+def _colliders_text(colliders: list[str]) -> str:
+    """The one warning for colliders, naming how many and the first (a static one when there is one)."""
+    n = len(colliders)
+    many = n > 1
+    return (
+        f"{n} collider{'s are' if many else ' is'} ignored ({'e.g. ' if many else ''}{colliders[0]}): contacts "
+        f"are not simulated yet, so bodies pass through {'them' if many else 'it'}; colliders still give their "
+        f"bodies mass"
+    )
+
+
+def _time_range(stage, path: str) -> tuple[float, float] | None:
+    """[startTimeCode, endTimeCode] when the stage authors both, else None."""
+    if not stage.HasAuthoredTimeCodeRange():
+        return None
+    start, end = float(stage.GetStartTimeCode()), float(stage.GetEndTimeCode())
+    if not (math.isfinite(start) and math.isfinite(end) and end >= start):
+        raise UsdSceneError(f"{path}: the stage's time range [{start}, {end}] is not a finite interval")
+    return start, end
+
+
+def _start_time(stage):
+    """The time code at which the scene starts: the stage's startTimeCode when it authors one (a prim animated
+    in its layer stack is where it is then), else the default time."""
+    _, _, _, Usd, *_ = pxr()
+    return Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else Usd.TimeCode.Default()
 
 
 def _rigid_ancestor(prim, index: dict[str, int]):

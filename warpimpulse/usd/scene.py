@@ -65,7 +65,13 @@ class UsdScene:
     xform_ops: list[tuple[str, str]] | None = None  # (translate, orient) op names per body; None: plain
     loop_joints: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the notes that were warned about (the output records them)
+    colliders_ignored: int = 0  # CollisionAPI prims that take no part in the motion
     dt: float | None = None  # the step size the file asks for (customLayerData warpimpulse:dt), if any
+    # The stage's time: time codes per second, and its [start, end] range (None when it authors none).
+    # An output over the input keeps its rate, so that time code c means the same instant in both.
+    time_codes_per_second: float | None = None
+    time_range: tuple[float, float] | None = None
 
     @property
     def body_count(self) -> int:

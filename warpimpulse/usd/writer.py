@@ -383,6 +383,10 @@ class AnimationWriter:
     `INSTANCER_AUTO_BODIES` bodies for procedural scenes. Frames go into the Sdf layer in bounded chunks
     (`CHUNK_BYTES`); as a context manager, an exception or Ctrl-C still writes the frames done so far to a
     valid file.
+
+    Time: frame f (t = f / fps s) is time code start + f * rate / fps. A layered output keeps the input's
+    rate (timeCodesPerSecond) and starts at its startTimeCode, so that a time code means the same instant
+    in the output and in the input's layer stack; a procedural one has rate = fps and starts at 0.
     """
 
     def __init__(
@@ -416,9 +420,14 @@ class AnimationWriter:
                              "written as overs on its own body prims")  # fmt: skip
         self.instancer = bool(instancer)
         self.settings = dict(settings or {})
+        self.time_codes_per_second = self.fps
+        self.start_time_code = 0.0
+        if layered:
+            self.time_codes_per_second = self.scene.time_codes_per_second or self.fps
+            self.start_time_code = self.scene.time_range[0] if self.scene.time_range else 0.0
         self.frames_written = 0
-        self.first_time: int | None = None
-        self.last_time: int | None = None
+        self.first_time: float | None = None
+        self.last_time: float | None = None
         self.stopped_early: str | None = None
         self._closed = False
         self.saved = False  # True once close() has written the file
@@ -508,7 +517,7 @@ class AnimationWriter:
         root.SetInfo("upAxis", scene.up_axis)
         root.SetInfo("metersPerUnit", float(scene.meters_per_unit))
         root.SetInfo("kilogramsPerUnit", float(scene.kilograms_per_unit))
-        layer.timeCodesPerSecond = self.fps
+        layer.timeCodesPerSecond = self.time_codes_per_second
         layer.framesPerSecond = self.fps
         if scene.default_prim:
             layer.defaultPrim = scene.default_prim
@@ -522,6 +531,10 @@ class AnimationWriter:
             "warpimpulse:framesWritten": int(self.frames_written),
             "warpimpulse:complete": self.stopped_early is None,
         }
+        if self.scene.warnings:  # what the reader warned about: colliders ignored, features dropped
+            data["warpimpulse:warnings"] = self._Vt.StringArray(self.scene.warnings)
+        if self.scene.colliders_ignored:
+            data["warpimpulse:collidersIgnored"] = int(self.scene.colliders_ignored)
         if self.stopped_early:
             data["warpimpulse:stoppedEarly"] = self.stopped_early
         if self.scene.source_path:
@@ -531,8 +544,15 @@ class AnimationWriter:
         self.layer.customLayerData = data
 
     # ------------------------------------------------------------------ frames
-    def write_frame(self, time_code: int, positions, orientations) -> None:
-        """Add the state at `time_code` (= t * fps): centres of mass (N, 3) in metres, orientations (N, 4) xyzw."""
+    def time_code(self, frame: int) -> float:
+        """The time code of frame `frame` (t = frame / fps s)."""
+        if self.time_codes_per_second == self.fps:
+            return self.start_time_code + frame  # exact
+        return self.start_time_code + frame * self.time_codes_per_second / self.fps
+
+    def write_frame(self, frame: int, positions, orientations) -> None:
+        """Add frame `frame`, the state at t = frame / fps s (time code `time_code(frame)`): centres of mass
+        (N, 3) in metres, orientations (N, 4) xyzw."""
         if self._closed:
             raise RuntimeError("write_frame after close()")
         n = self.scene.body_count
@@ -540,7 +560,7 @@ class AnimationWriter:
         q = np.asarray(orientations, dtype=np.float64)
         if x.shape != (n, 3) or q.shape != (n, 4):
             raise ValueError(f"expected positions ({n}, 3) and orientations ({n}, 4), got {x.shape}, {q.shape}")
-        tc = float(time_code)
+        tc = float(self.time_code(frame))
         if self.instancer:
             Vt, layer = self._Vt, self.layer
             with self._Sdf.ChangeBlock():
@@ -559,8 +579,8 @@ class AnimationWriter:
             self._buf_times.append(tc)
             self._prev_q = local_q
         self.frames_written += 1
-        self.first_time = time_code if self.first_time is None else min(self.first_time, time_code)
-        self.last_time = time_code if self.last_time is None else max(self.last_time, time_code)
+        self.first_time = tc if self.first_time is None else min(self.first_time, tc)
+        self.last_time = tc if self.last_time is None else max(self.last_time, tc)
 
     def _flush(self) -> None:
         """Author the buffered frames into the layer, attribute by attribute."""
@@ -600,8 +620,8 @@ class AnimationWriter:
         if not self.instancer:
             self._flush()
         layer = self.layer
-        layer.startTimeCode = float(self.first_time if self.first_time is not None else 0)
-        layer.endTimeCode = float(self.last_time if self.last_time is not None else 0)
+        layer.startTimeCode = float(self.first_time if self.first_time is not None else self.start_time_code)
+        layer.endTimeCode = float(self.last_time if self.last_time is not None else self.start_time_code)
         self._write_layer_data()
 
         def export(tmp: str) -> bool:
