@@ -623,6 +623,8 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             report.unsupported(str(prim.GetPath()), _joint_type_text(prim.GetTypeName()))
     if not bodies:
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
+    for prim_path, type_name in _unknown_physics_prims(stage):
+        report.note(_unknown_type_text(prim_path, type_name))
     colliders = _ignored_colliders(stage, index)
     if colliders:
         report.note(_colliders_text(colliders))
@@ -651,6 +653,28 @@ def _ignored_colliders(stage, index: dict[str, int]) -> list[str]:
         if prim.HasAPI(UsdPhysics.CollisionAPI) and UsdPhysics.CollisionAPI(prim).GetCollisionEnabledAttr().Get():
             (static if _rigid_ancestor(prim, index) is None else moving).append(str(prim.GetPath()))
     return static + moving
+
+
+def _unknown_physics_prims(stage) -> list[tuple[str, str]]:
+    """(path, type name) of prims whose type no schema defines but which author physics:* properties: USD
+    (and so every simulator) ignores them, which the author rarely means (OpenUSD's own distance joint
+    example is a `DistancePhysicsJoint`)."""
+    _, _, Tf, *_ = pxr()
+    unknown = Tf.Type.Unknown
+    return [
+        (str(prim.GetPath()), str(prim.GetTypeName()))
+        for prim in stage.Traverse()
+        if prim.GetTypeName()
+        and prim.GetPrimTypeInfo().GetSchemaType() == unknown
+        and any(name.startswith("physics:") for name in prim.GetAuthoredPropertyNames())
+    ]
+
+
+def _unknown_type_text(path: str, type_name: str) -> str:
+    _, _, _, Usd, *_ = pxr()
+    guess = "Physics" + type_name.replace("Physics", "")
+    hint = f" (did you mean {guess}?)" if Usd.SchemaRegistry().FindConcretePrimDefinition(guess) else ""
+    return f"{path}: no schema defines the prim type {type_name}{hint}; its physics:* properties are ignored"
 
 
 def _colliders_text(colliders: list[str]) -> str:
