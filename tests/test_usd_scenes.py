@@ -40,11 +40,14 @@ def write(
 
 
 def simulate(path: str, tmp_path, capsys, *flags: str) -> tuple[usd.Animation, str, str, Sdf.Layer]:
-    """`warpimpulse simulate path [flags]`: the animation read back, stdout, stderr and the output layer."""
+    """`warpimpulse simulate path [flags]`, its output validated: the animation read back, stdout, stderr and the
+    output layer."""
     out = str(tmp_path / f"out{len(list(tmp_path.glob('out*.usda')))}.usda")  # a new file: layers are cached
     code = cli_main(["simulate", path, "--out", out, *flags])
     captured = capsys.readouterr()
     assert code == 0, captured.err
+    # The output adds no validation error to the input's (e.g. an over of another value type on a float3 scale).
+    assert set(usd.validate(out)) <= set(usd.validate(path))
     return usd.read_animation(out, load(path)), captured.out, captured.err, Sdf.Layer.FindOrOpen(out)
 
 

@@ -467,7 +467,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     parent_index = np.full(n, -1)
     parent_pos, parent_quat, parent_scale = np.zeros((n, 3)), np.tile(IDENTITY_QUAT, (n, 1)), np.ones(n)
     reset = np.zeros(n, dtype=bool)
-    xform_ops: list[tuple[str, str]] = []
+    xform_ops: list[tuple[str, str, str]] = []
     frames: list[Similarity] = []
     for i, (p, desc) in enumerate(bodies):
         bpath = str(p)
@@ -728,15 +728,16 @@ def _joint_type_text(type_name: str) -> str:
     return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed and generic D6 joints)"
 
 
-def _op_names(prim) -> tuple[str, str]:
-    """xformOp names for the exported pose: the plain ones unless the input gave them other value types
-    (an `over` of another type is a validation error), then ones with a `:warpimpulse` suffix."""
+def _op_names(prim) -> tuple[str, str, str]:
+    """xformOp names for the exported pose and scale: the plain ones unless the input gave them other value
+    types (an `over` of another type is a validation error; OpenUSD's examples scale with float3), then ones
+    with a `:warpimpulse` suffix."""
     ops = []
-    for op, type_name in (("xformOp:translate", "double3"), ("xformOp:orient", "quatd")):
+    for op, type_name in (("xformOp:translate", "double3"), ("xformOp:orient", "quatd"), ("xformOp:scale", "double3")):
         attr = prim.GetAttribute(op)
         clash = attr and attr.HasAuthoredValue() and str(attr.GetTypeName()) != type_name
         ops.append(f"{op}:warpimpulse" if clash else op)
-    return ops[0], ops[1]
+    return ops[0], ops[1], ops[2]
 
 
 def _read_forces(builder: SceneBuilder, prim, body: int, mpu: float, kpu: float) -> None:

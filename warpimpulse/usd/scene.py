@@ -62,7 +62,7 @@ class UsdScene:
     kilograms_per_unit: float = 1.0
     up_axis: str = "Z"
     default_prim: str = ""
-    xform_ops: list[tuple[str, str]] | None = None  # (translate, orient) op names per body; None: plain
+    xform_ops: list[tuple[str, str, str]] | None = None  # (translate, orient, scale) op names per body; None: plain
     loop_joints: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # the notes that were warned about (the output records them)

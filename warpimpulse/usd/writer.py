@@ -42,6 +42,7 @@ INSTANCER_AUTO_BODIES = 5000
 # holds; the samples themselves live in the Sdf layer until it is written.
 CHUNK_BYTES = 32 * 2**20
 CHUNK_FRAMES = 512
+_PLAIN_OPS = ("xformOp:translate", "xformOp:orient", "xformOp:scale")
 
 
 def _frame_axes(axis: np.ndarray, second: np.ndarray | None = None) -> np.ndarray:
@@ -474,7 +475,7 @@ class AnimationWriter:
             tv, qv = Vt.Vec3dArray.FromNumpy(local_t), Vt.QuatdArray.FromNumpy(local_q)
             for i in self._moving.tolist():  # static and kinematic bodies keep the input's transform (and animation)
                 spec = h.prim(layer, scene.body_paths[i], specifier=Sdf.SpecifierOver)
-                t_op, q_op = scene.xform_ops[i] if scene.xform_ops else ("xformOp:translate", "xformOp:orient")
+                t_op, q_op, s_op = scene.xform_ops[i] if scene.xform_ops else _PLAIN_OPS
                 ops = [t_op, q_op]
                 ratio = scene.body_scales[i].copy()
                 if not scene.reset_xform_stack[i]:
@@ -482,8 +483,8 @@ class AnimationWriter:
                     if scene.parent_index[i] >= 0:
                         ratio /= scene.body_scales[scene.parent_index[i], 0]
                 if np.abs(ratio - 1.0).max() > 1e-12:
-                    h.attr(spec, "xformOp:scale", T.Double3, h.Gf.Vec3d(*ratio))
-                    ops.append("xformOp:scale")
+                    h.attr(spec, s_op, T.Double3, h.Gf.Vec3d(*ratio))
+                    ops.append(s_op)
                 if scene.reset_xform_stack[i]:
                     ops.insert(0, "!resetXformStack!")
                 h.attr(spec, "xformOpOrder", T.TokenArray, Vt.TokenArray(ops), uniform=True)
