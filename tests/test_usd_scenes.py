@@ -312,6 +312,7 @@ def test_flags_override_the_stage_time_and_time_codes_keep_their_meaning(tmp_pat
     assert (layer.timeCodesPerSecond, layer.framesPerSecond) == (24.0, 48.0)
     np.testing.assert_allclose(anim.time_codes, 10.0 + 0.5 * np.arange(49))
     t = (anim.time_codes - 10.0) / 24.0
+    np.testing.assert_allclose(anim.seconds, t)
     g = -load(path).builder.gravity[2]
     np.testing.assert_allclose(anim.positions[:, 0, 2], 5.0 + 2.0 * t - 0.5 * g * t**2, atol=1e-9)
     anim, out, _, layer = simulate(path, tmp_path, capsys, "--duration", "0.5", "--fps", "24")

@@ -69,7 +69,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
     p.add_argument("--ignore-unsupported", action="store_true",
-                   help="drop drives, limits, unsupported joint types with a warning instead of stopping")  # fmt: skip
+                   help="drop what is not simulated (cone limits, break forces, ...) with a warning instead of "
+                   "stopping")  # fmt: skip
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")

@@ -17,7 +17,8 @@ from .scene import INSTANCER_PATH, MODE_KEY, UsdScene, open_stage, pxr
 @dataclass
 class Animation:
     """Frames read back from an exported file: centres of mass (F, N, 3) in metres and orientations
-    (F, N, 4) as (x, y, z, w), both in the stage's world frame, whose vertical is `up_axis`."""
+    (F, N, 4) as (x, y, z, w), both in the stage's world frame, whose vertical is `up_axis`. `fps` is the
+    file's timeCodesPerSecond; its startTimeCode is t = 0."""
 
     time_codes: np.ndarray
     body_paths: list[str]
@@ -25,6 +26,12 @@ class Animation:
     orientations: np.ndarray
     fps: float
     up_axis: str = "Z"
+    start_time_code: float = 0.0
+
+    @property
+    def seconds(self) -> np.ndarray:
+        """The simulated time of each frame, s."""
+        return (self.time_codes - self.start_time_code) / self.fps
 
 
 def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> Animation:
@@ -34,6 +41,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
     stage = open_stage(path)
     layer = stage.GetRootLayer()
     fps = float(layer.timeCodesPerSecond)
+    start = float(layer.startTimeCode)
     up = str(UsdGeom.GetStageUpAxis(stage))
     mode = layer.customLayerData.get(MODE_KEY, "")
     if mode == "instancer":
@@ -42,7 +50,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
         pos = np.array([np.array(inst.GetPositionsAttr().Get(t), dtype=np.float64) for t in times])
         ori = np.array([np.array(inst.GetOrientationsAttr().Get(t), dtype=np.float64) for t in times])
         n = pos.shape[1] if len(times) else 0
-        return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps, up)
+        return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps, up, start)
     scene = scene or load_stage(path, ignore_unsupported=True)
     prims = [stage.GetPrimAtPath(p) for p in scene.body_paths]
     times = sorted({t for p in prims for t in UsdGeom.Xformable(p).GetTimeSamples()})
@@ -54,7 +62,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
             fr = decompose(cache.GetLocalToWorldTransform(prim), str(prim.GetPath()))
             pos[k, i] = (fr.t + quat_rotate(fr.q, scene.com_offsets[i])) * scene.meters_per_unit
             ori[k, i] = fr.q
-    return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps, up)
+    return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps, up, start)
 
 
 def validate(path_or_stage: Any) -> list[str]:
