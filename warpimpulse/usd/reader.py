@@ -1,10 +1,13 @@
 """USD in: a UsdPhysics scene to a SceneBuilder (`load_stage`).
 
 Rigid bodies, mass and joints come from `UsdPhysics.UsdPhysicsLoadStageFromPrimRange`; transforms come from
-`UsdGeom.XformCache` in double precision (the parser's poses are float). Generic (D6) joints map to the
-combined joint their locked axes describe, or to basic constraints. Revolute and prismatic joints' drives and
-limits become motors, joint springs and limits; other joints' drives and limits, and break forces, are
-refused (or dropped with a warning when `ignore_unsupported`), never silently.
+`UsdGeom.XformCache` in double precision (the parser's poses are float), at the stage's start time. Generic
+(D6) joints map to the combined joint their locked axes describe, or to basic constraints. A joint end that
+targets a prim inside a body stands for that body (PhysX's rule); any other prim is the world at that prim's
+transform. Revolute and prismatic joints' drives and limits become motors, joint springs and limits; other
+joints' drives and limits, and break forces, are refused (or dropped with a warning when
+`ignore_unsupported`), never silently; colliders, which only give mass until contacts are simulated, get
+one warning.
 
 Units: the simulator is SI. Inputs are converted with metersPerUnit / kilogramsPerUnit; angles in USD are
 degrees. USD stores quaternions real part first (`Gf.Quatd(w, x, y, z)`); here they are (x, y, z, w).
