@@ -4,6 +4,7 @@ errors (`validate`). The tests and `warpimpulse preview` see an output the way a
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,7 +52,10 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
         ori = np.array([np.array(inst.GetOrientationsAttr().Get(t), dtype=np.float64) for t in times])
         n = pos.shape[1] if len(times) else 0
         return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps, up, start)
-    scene = scene or load_stage(path, ignore_unsupported=True)
+    if scene is None:
+        with warnings.catch_warnings():  # the run that wrote the file gave them (and its customLayerData has them)
+            warnings.simplefilter("ignore")
+            scene = load_stage(path, ignore_unsupported=True)
     prims = [stage.GetPrimAtPath(p) for p in scene.body_paths]
     times = sorted({t for p in prims for t in UsdGeom.Xformable(p).GetTimeSamples()})
     pos = np.zeros((len(times), len(prims), 3))
