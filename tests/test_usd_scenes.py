@@ -391,3 +391,55 @@ def test_a_prim_of_an_unknown_type_with_physics_properties_is_named(tmp_path, ca
         and "did you mean PhysicsDistanceJoint" in warning
     )
     assert "warpimpulse:collidersIgnored" not in layer.customLayerData
+
+
+M_FROM_10 = (
+    'defaultPrim = "World"\n    metersPerUnit = 1\n    upAxis = "Z"\n    startTimeCode = 10\n    endTimeCode = 20'
+)
+
+
+def test_a_joint_target_is_where_it_is_at_the_stage_start(tmp_path, capsys):
+    """A static collider animated in its layer: the joint attaches at its transform at startTimeCode (10), not
+    at its default or first sample; the ball hangs from that point."""
+    path = write(
+        tmp_path,
+        "animated.usda",
+        """
+        def Xform "World"
+        {
+            def Cube "Hook" (
+                prepend apiSchemas = ["PhysicsCollisionAPI"]
+            )
+            {
+                double size = 0.1
+                double3 xformOp:translate = (9, 9, 9)
+                double3 xformOp:translate.timeSamples = {
+                    0: (0, 0, 0),
+                    10: (1, 0, 2),
+                    20: (5, 0, 2),
+                }
+                uniform token[] xformOpOrder = ["xformOp:translate"]
+            }
+            def Xform "Ball" (
+                prepend apiSchemas = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]
+            )
+            {
+                float physics:mass = 1
+                float3 physics:diagonalInertia = (0.01, 0.01, 0.01)
+                double3 xformOp:translate = (1, 0, 1.5)
+                uniform token[] xformOpOrder = ["xformOp:translate"]
+            }
+            def PhysicsSphericalJoint "Rope"
+            {
+                rel physics:body0 = </World/Hook>
+                rel physics:body1 = </World/Ball>
+                point3f physics:localPos1 = (0, 0, 0.5)
+            }
+        }
+    """,
+        meta=M_FROM_10,
+    )
+    (joint,) = load(path).builder.joints
+    np.testing.assert_allclose(joint.anchor, [1.0, 0.0, 2.0], atol=1e-12)
+    anim, _, _, _ = simulate(path, tmp_path, capsys, "--duration", "0.5", "--fps", "20")
+    np.testing.assert_allclose(anim.positions[:, 0], np.tile([1.0, 0.0, 1.5], (11, 1)), atol=1e-9)  # hangs still
