@@ -443,3 +443,39 @@ def test_a_joint_target_is_where_it_is_at_the_stage_start(tmp_path, capsys):
     np.testing.assert_allclose(joint.anchor, [1.0, 0.0, 2.0], atol=1e-12)
     anim, _, _, _ = simulate(path, tmp_path, capsys, "--duration", "0.5", "--fps", "20")
     np.testing.assert_allclose(anim.positions[:, 0], np.tile([1.0, 0.0, 1.5], (11, 1)), atol=1e-9)  # hangs still
+
+
+SLIDER = """
+    def Xform "World"
+    {
+        def Xform "Slider" (
+            prepend apiSchemas = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]
+        )
+        {
+            float physics:mass = 1
+            float3 physics:diagonalInertia = (0.1, 0.1, 0.1)
+            vector3f physics:velocity = (0.5, 0, 0)
+            double3 xformOp:translate = (1, 0, 1)
+            uniform token[] xformOpOrder = ["xformOp:translate"]
+        }
+        def PhysicsPrismaticJoint "Rail"
+        {
+            rel physics:body0 = </World>
+            rel physics:body1 = </World/Slider>
+            uniform token physics:axis = "X"
+            point3f physics:localPos0 = POS0
+        }
+    }
+"""
+
+
+def test_a_prismatic_joint_may_start_apart_along_its_axis_not_across(tmp_path, capsys):
+    """Frames 0.1 m apart along the rail are where the slider starts on it (it slides on, held up); 0.2 m apart
+    across the rail is a joint that does not hold at the start: refused naming the joint and the gap."""
+    path = write(tmp_path, "along.usda", SLIDER.replace("POS0", "(0.9, 0, 1)"))
+    anim, _, _, _ = simulate(path, tmp_path, capsys, "--duration", "1", "--fps", "10")
+    np.testing.assert_allclose(anim.positions[:, 0], np.column_stack([1.0 + 0.5 * anim.seconds, 0 * anim.seconds,
+                                                                      1.0 + 0 * anim.seconds]), atol=1e-6)  # fmt: skip
+    path = write(tmp_path, "across.usda", SLIDER.replace("POS0", "(0.9, 0.2, 1)"))
+    assert cli_main(["simulate", path, "--out", str(tmp_path / "o.usda"), "--duration", "0.1"]) == 2
+    assert "/World/Rail: its frames on body0 and body1" in capsys.readouterr().err

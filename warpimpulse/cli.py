@@ -168,6 +168,16 @@ def _timing(args, scene) -> tuple[float, float]:
     return duration, fps
 
 
+def _refuse_no_frame(duration: float, fps: float) -> None:
+    """SceneError when `duration` holds no frame at `fps` (`run.frame_count`)."""
+    from . import run
+
+    try:
+        run.frame_count(duration, fps)
+    except ValueError as err:
+        raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
+
+
 def _simulate(args) -> int:
     from . import checks, run, usd
     from .energy import EnergyWatch
@@ -180,10 +190,8 @@ def _simulate(args) -> int:
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
     checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
-    try:
-        run.frame_count(args.duration, args.fps)
-    except ValueError as err:
-        raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
+    if args.duration is not None and args.fps is not None:
+        _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
     if args.input:
         source = Path(args.input)
         if not source.is_file():
@@ -197,6 +205,7 @@ def _simulate(args) -> int:
         builder = SCENES[name]()
         scene = builder
     args.duration, args.fps = _timing(args, scene if args.input else None)
+    _refuse_no_frame(args.duration, args.fps)
     file_dt = scene.dt if args.input else None  # a scene file may record the step size it needs
     dt = args.dt if args.dt is not None else (file_dt or 1.0 / args.fps)
     try:

@@ -93,9 +93,10 @@ def _unit_quat(path: str, name: str, value: Any) -> np.ndarray:
 
 
 def _not_only_sampled(prim, attr) -> None:
-    """The scene is read at the default time: an attribute authored only as time samples has no value there
-    (an XformCache takes such an op as the identity, a schema attribute its fallback), so the body would
-    start in the wrong place, or at rest. Refuse it."""
+    """Schema attributes (and, on a stage without a time range, transforms) are read at the default time: an
+    attribute authored only as time samples has no value there (an XformCache takes such an op as the
+    identity, a schema attribute its fallback), so the body would start in the wrong place, or at rest.
+    Refuse it. (On a stage with a time range, transforms are read at its startTimeCode, `_Xforms`.)"""
     _, _, _, Usd, *_ = pxr()
     if attr.GetNumTimeSamples() and (
         attr.GetResolveInfo(Usd.TimeCode.Default()).GetSource() != Usd.ResolveInfoSourceDefault
@@ -108,9 +109,11 @@ def _not_only_sampled(prim, attr) -> None:
 
 
 def _check_defaults(prim) -> None:
-    """`_not_only_sampled` for every attribute of a body, joint or scene prim."""
+    """`_not_only_sampled` for every attribute of a body, joint or scene prim but its xformOps, which `_Xforms`
+    reads (and checks) at the scene's start time."""
     for attr in prim.GetAttributes():
-        _not_only_sampled(prim, attr)
+        if not attr.GetName().startswith("xformOp:"):
+            _not_only_sampled(prim, attr)
 
 
 class _Xforms:
@@ -575,19 +578,23 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
                 raise UsdSceneError(f"{jpath}: physics:axis must be X, Y or Z, got {token!r}")
             ax = r0[:, "XYZ".index(token)]
             plans = [_JointPlan("revolute" if t == T.RevoluteJoint else "prismatic", ax)]
+            free_t = [ax] if t == T.PrismaticJoint else []
         elif t == T.SphericalJoint:
             if desc.limit.enabled:
                 report.unsupported(jpath, "a cone limit")
-            plans = [_JointPlan("ball")]
+            plans, free_t = [_JointPlan("ball")], []
         elif t == T.FixedJoint:
-            plans = [_JointPlan("fixed")]
+            plans, free_t = [_JointPlan("fixed")], []
         else:
             locked_t, locked_r = _check_limits_drives(desc, jpath, report)
             plans = _d6_plans(locked_t, locked_r, r0, r1)
             if not plans:
                 notes.append(f"{jpath}: generic joint with no locked axis constrains nothing; skipped")
                 continue
-        gap, tolerance = float(np.linalg.norm(a0 - a1)), JOINT_GAP * max(1.0, float(np.abs(a0).max()))
+            free_t = [r0[:, k] for k in range(3) if k not in locked_t]
+        # Apart along a free translation (a prismatic joint's axis) is where the joint starts; across, it is not.
+        offset = a1 - a0 - sum((np.dot(a1 - a0, d) * d for d in free_t), np.zeros(3))
+        gap, tolerance = float(np.linalg.norm(offset)), JOINT_GAP * max(1.0, float(np.abs(a0).max()))
         if gap > tolerance and ends[0] != ends[1]:  # it would take body0's frame and pull body1 across the gap
             raise UsdSceneError(
                 f"{jpath}: its frames on body0 and body1 (physics:localPos0, physics:localPos1) are {gap:.3g} m "
