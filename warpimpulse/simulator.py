@@ -144,7 +144,9 @@ class Simulator:
                 f"{order} would run them backwards in its negative substeps; use order 2"
             )
         if solver == "iterative" and model.limit_count:
-            raise ValueError("solver 'iterative' has no joint limits or stiff motors: use 'cholesky' or 'cg'")
+            raise ValueError(
+                "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
+            )
         if solver == "iterative" and model.element_count:
             raise ValueError(
                 "solver 'iterative' predicts each body alone with a constant force; the scene's springs, joint "
@@ -559,6 +561,8 @@ class Simulator:
 
         if self.linear is None:
             vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+            if self.model.limit_count:  # no constraints, only limits (distance constraints)
+                self._correct_limit_velocities.launch()
             self._velocity_errors.launch()
             vel_err = self._max_error("velocity")
         else:
@@ -613,7 +617,7 @@ class Simulator:
         """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
 
         ok is False when the correction failed and a smaller step may still succeed (not `final`)."""
-        if self.linear is None:
+        if self.linear is None and not self.model.limit_count:
             sweeps, err = self._sweep(self._sweep_positions, self.tolerance, "joint", final)
             wp.capture_launch(self._evaluate)
             err = self._max_error("joint")
@@ -631,8 +635,9 @@ class Simulator:
                 wp.capture_launch(self._iterate)
                 linear_iterations += 1
             else:
-                linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
-                self._apply.launch()
+                if self.linear is not None:  # else only limits and distance constraints: no system to solve
+                    linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
+                    self._apply.launch()
                 self._correct_limits.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1

@@ -269,8 +269,8 @@ def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[
             lines.append(f"float drive:{kind}:physics:maxForce = {_f(drive.max_force)}")
         if drive.ki:
             lines.append(f"custom double warpimpulse:drive:ki = {_f(drive.ki * per)}")
-        if drive.stiff:
-            lines.append("custom bool warpimpulse:drive:stiff = 1")
+        if drive.stiff or (drive.motor and velocity):  # the reader takes a velocity drive without it as stiff
+            lines.append(f"custom bool warpimpulse:drive:stiff = {int(drive.stiff)}")
         if not drive.motor:
             lines.append("custom bool warpimpulse:drive:jointSpring = 1")
         limit_lines = out.get(drive.joint, ([], []))[1]
@@ -337,11 +337,22 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
             geometry[shape] = _geometry_usda("geom", shape, "        ")
         out.append(geometry[shape])
         out.append("    }\n")
-    if builder.joints:
+    if builder.joints or builder.distances:
         loops = _loop_joints(builder)
         out.append('    def Scope "Joints"\n    {\n')
         bodies = builder.bodies
         mechanisms = _joint_mechanisms(builder)
+        for dist, dpath in zip(builder.distances, scene.distance_paths):
+            lines = [f"rel physics:body{side} = <{scene.body_paths[bi]}>"
+                     for side, bi in ((0, dist.body0), (1, dist.body1)) if bi != WORLD]  # fmt: skip
+            lines += [
+                f"point3f physics:localPos{side} = {_tup(a)}" for side, a in enumerate((dist.anchor0, dist.anchor1))
+            ]
+            lines.append(f"float physics:minDistance = {_f(dist.lower)}")
+            if math.isfinite(dist.upper):
+                lines.append(f"float physics:maxDistance = {_f(dist.upper)}")
+            out.append(f'        def PhysicsDistanceJoint "{dpath.rsplit("/", 1)[1]}"\n        {{\n')
+            out.append("".join(f"            {line}\n" for line in lines) + "        }\n")
         for k, (j, jpath) in enumerate(zip(builder.joints, scene.joint_paths)):
             f0, f1, type_name, locked, axis = _joint_frames(j)
             drive_schema, drive_lines = mechanisms.get(k, ([], []))
