@@ -647,9 +647,11 @@ BAD = {
         lambda s: _joint(s, "/W/j", UsdPhysics.SphericalJoint, None, None, (0, 0, 0), (0, 0, 0)),
         ["/W/j", "both"],
     ),
-    "unsupported_type": (
-        lambda s: _joint(s, "/W/dist", UsdPhysics.DistanceJoint, None, "/W/a", (0, 0, 0), (0, 0, 0)),
-        ["/W/dist", "joint type PhysicsDistanceJoint", "not simulated", "--ignore-unsupported"],
+    "unsupported_feature": (
+        lambda s: UsdPhysics.Joint(
+            _joint(s, "/W/weak", UsdPhysics.FixedJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))
+        ).CreateBreakForceAttr(100.0),
+        ["/W/weak", "break force", "not simulated", "--ignore-unsupported"],
     ),
     "non_uniform_parent": (
         lambda s: (
@@ -768,6 +770,21 @@ def test_not_usd_is_a_clear_error(tmp_path, content):
         usd.load_stage(str(tmp_path / "missing.usda"))
 
 
+def _with_drive(s):
+    """A drive toward a position and a velocity at once (a PID servo has one target)."""
+    j = _joint(s, "/W/j", UsdPhysics.RevoluteJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))
+    drive = UsdPhysics.DriveAPI.Apply(j, "angular")
+    drive.CreateStiffnessAttr(10.0)
+    drive.CreateTargetVelocityAttr(5.0)
+
+
+def _with_limit(s):
+    """A spherical joint's cone limit (limits are on one coordinate)."""
+    j = _joint(s, "/W/j", UsdPhysics.SphericalJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))
+    UsdPhysics.SphericalJoint(j).CreateConeAngle0LimitAttr(30.0)
+    UsdPhysics.SphericalJoint(j).CreateConeAngle1LimitAttr(30.0)
+
+
 def _with_d6_limit(s):
     j = _joint(s, "/W/j", UsdPhysics.Joint, None, "/W/a", (0, 0, 0), (0, 0, 0))
     _lock(j, "transX", "transY", "transZ")
@@ -776,14 +793,18 @@ def _with_d6_limit(s):
     limit.CreateHighAttr(30.0)
 
 
-def _with_distance_joint(s):
-    _joint(s, "/W/j", UsdPhysics.DistanceJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))  # dropped with a warning
+def _with_distance_limit(s):
+    j = _joint(s, "/W/j", UsdPhysics.Joint, None, "/W/a", (0, 0, 0), (0, 0, 0))  # dropped with a warning
+    limit = UsdPhysics.LimitAPI.Apply(j, "distance")
+    limit.CreateLowAttr(0.0)
+    limit.CreateHighAttr(1.0)
     _joint(s, "/W/ball", UsdPhysics.SphericalJoint, None, "/W/a", (0, 0, 0), (0, 0, 0))  # kept
 
 
 @pytest.mark.parametrize(
     "build,word",
-    [(_with_d6_limit, "rotX"), (_with_distance_joint, "PhysicsDistanceJoint")],
+    [(_with_drive, "drive"), (_with_limit, "limit"), (_with_d6_limit, "rotX"),
+     (_with_distance_limit, "Distance limit")],
 )  # fmt: skip
 def test_unsupported_features_error_or_warn(tmp_path, build, word):
     path = _bad_stage(tmp_path, word, build)

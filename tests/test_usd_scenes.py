@@ -13,6 +13,7 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import momenta, sim_state
 
 pytest.importorskip("pxr")
 from pxr import Sdf  # noqa: E402
@@ -479,3 +480,275 @@ def test_a_prismatic_joint_may_start_apart_along_its_axis_not_across(tmp_path, c
     path = write(tmp_path, "across.usda", SLIDER.replace("POS0", "(0.9, 0.2, 1)"))
     assert cli_main(["simulate", path, "--out", str(tmp_path / "o.usda"), "--duration", "0.1"]) == 2
     assert "/World/Rail: its frames on body0 and body1" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------- drives, limits
+def d6_scene(body0: str, body1: str, pos0, pos1) -> str:
+    """Modelled on usdPhysicsJoints.usda (centimetres, 24 time codes per second): a D6 joint with every DOF
+    locked but rotZ, which a velocity drive turns at 30 degrees a second, between a static collider (no rigid
+    body) and a bar whose centre is 60 cm from the joint along y."""
+    return f"""
+        def Xform "World"
+        {{
+            def PhysicsScene "physicsScene"
+            {{
+            }}
+            def Cube "StaticBox" (
+                prepend apiSchemas = ["PhysicsCollisionAPI"]
+            )
+            {{
+                double size = 100
+                float3 xformOp:scale = (0.1, 1, 0.1)
+                double3 xformOp:translate = (0, 0, 1000)
+                uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:scale"]
+            }}
+            def Cube "DynamicBox" (
+                prepend apiSchemas = ["PhysicsCollisionAPI", "PhysicsRigidBodyAPI"]
+            )
+            {{
+                double size = 100
+                float3 xformOp:scale = (0.1, 1, 0.1)
+                double3 xformOp:translate = (0, 120, 1000)
+                uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:scale"]
+            }}
+            def PhysicsJoint "D6Joint" (
+                prepend apiSchemas = ["PhysicsLimitAPI:transX", "PhysicsLimitAPI:transY", "PhysicsLimitAPI:transZ",
+                                      "PhysicsLimitAPI:rotX", "PhysicsLimitAPI:rotY", "PhysicsDriveAPI:rotZ"]
+            )
+            {{
+                rel physics:body0 = <{body0}>
+                rel physics:body1 = <{body1}>
+                float limit:rotX:physics:high = -1
+                float limit:rotX:physics:low = 1
+                float limit:rotY:physics:high = -1
+                float limit:rotY:physics:low = 1
+                float limit:transX:physics:high = -1
+                float limit:transX:physics:low = 1
+                float limit:transY:physics:high = -1
+                float limit:transY:physics:low = 1
+                float limit:transZ:physics:high = -1
+                float limit:transZ:physics:low = 1
+                float drive:rotZ:physics:targetVelocity = 30
+                float drive:rotZ:physics:damping = 1e4
+                point3f physics:localPos0 = {pos0}
+                point3f physics:localPos1 = {pos1}
+            }}
+        }}
+    """
+
+
+CM_24_RANGE = CM_24 + "startTimeCode = 0\n    endTimeCode = 48"
+
+
+@pytest.mark.parametrize("dynamic_is_body1", [True, False])
+def test_a_d6_velocity_drive_turns_the_joint_at_its_target_velocity(tmp_path, capsys, dynamic_is_body1):
+    """The bar turns about the vertical through the joint at (0, 60, 1000) cm at 30 deg/s, its locked DOFs
+    holding. The drive turns body1 against body0: with the static box as body1, the bar turns the other way."""
+    if dynamic_is_body1:
+        body = d6_scene("/World/StaticBox", "/World/DynamicBox", "(0, 60, 0)", "(0, -60, 0)")
+    else:
+        body = d6_scene("/World/DynamicBox", "/World/StaticBox", "(0, -60, 0)", "(0, 60, 0)")
+    anim, _, err, _ = simulate(write(tmp_path, "d6.usda", body, meta=CM_24_RANGE), tmp_path, capsys)
+    assert "drive" not in err and len(anim.time_codes) == 49  # 2 s, run plainly
+    x = anim.positions[:, 0] - [0.0, 0.6, 10.0]  # from the joint, m
+    np.testing.assert_allclose(np.linalg.norm(x, axis=1), 0.6, atol=1e-6)
+    np.testing.assert_allclose(x[:, 2], 0.0, atol=1e-6)
+    turned = np.unwrap(np.arctan2(-x[:, 0], x[:, 1]))  # about +z, from +y
+    sign = 1.0 if dynamic_is_body1 else -1.0
+    np.testing.assert_allclose(turned, sign * np.radians(30.0) * anim.time_codes / 24.0, atol=1e-6)
+
+
+def test_a_revolute_limit_in_degrees_stops_the_swing(tmp_path, capsys):
+    """The nested arm's elbow limited to [-60, 10] degrees (as usdPhysicsNestedArticulation.usda limits its
+    hinge): the link swings down from horizontal, stops at -60 degrees, and stays within the limit."""
+    limited = NESTED.replace(
+        "point3f physics:localPos1 = (0, -0.5, 0)",
+        "point3f physics:localPos1 = (0, -0.5, 0)\n                    float physics:lowerLimit = -60\n"
+        "                    float physics:upperLimit = 10",
+    )
+    path = write(tmp_path, "limited.usda", limited, meta='defaultPrim = "Arm"\n    metersPerUnit = 1\n    upAxis = "Z"')
+    anim, _, err, _ = simulate(path, tmp_path, capsys, "--duration", "2", "--fps", "60")
+    assert "limit" not in err
+    link = anim.positions[:, [b.name for b in load(path).builder.bodies].index("/Arm/Base/Link")]
+    angle = np.arctan2(link[:, 2] - 2.0, link[:, 1] - 0.3)  # about +x, from +y
+    assert angle.min() > np.radians(-60.0) - 1e-5
+    np.testing.assert_allclose(angle[-30:], np.radians(-60.0), atol=1e-4)  # resting on the limit
+    np.testing.assert_allclose(np.linalg.norm(link - [0.0, 0.3, 2.0], axis=1), 0.5, atol=1e-5)
+
+
+def test_a_prismatic_position_drive_is_a_spring_damper_to_its_target(tmp_path, capsys):
+    """A 1 kg slider on a horizontal prismatic joint, its frames 0.1 m apart as authored (the joint's position
+    is 0.1), driven to 0.3 by stiffness 100 N/m and damping 20 N s/m: critically damped,
+    x(t) = 0.3 - 0.2 (1 + w t) exp(-w t) with w = 10 /s."""
+    path = write(
+        tmp_path,
+        "slider.usda",
+        """
+        def Xform "World"
+        {
+            def PhysicsScene "scene"
+            {
+            }
+            def Xform "Slider" (
+                prepend apiSchemas = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]
+            )
+            {
+                float physics:mass = 1
+                float3 physics:diagonalInertia = (0.1, 0.1, 0.1)
+                double3 xformOp:translate = (1, 0, 1)
+                uniform token[] xformOpOrder = ["xformOp:translate"]
+            }
+            def PhysicsPrismaticJoint "Rail" (
+                prepend apiSchemas = ["PhysicsDriveAPI:linear"]
+            )
+            {
+                rel physics:body0 = </World>
+                rel physics:body1 = </World/Slider>
+                uniform token physics:axis = "X"
+                point3f physics:localPos0 = (0.9, 0, 1)
+                float drive:linear:physics:targetPosition = 0.3
+                float drive:linear:physics:stiffness = 100
+                float drive:linear:physics:damping = 20
+            }
+        }
+    """,
+    )
+    anim, _, _, _ = simulate(path, tmp_path, capsys, "--duration", "1", "--fps", "120")
+    t = anim.time_codes / 24.0  # the stage's rate: 24 time codes per second where it authors none
+    x = anim.positions[:, 0, 0] - 0.9
+    np.testing.assert_allclose(x, 0.3 - 0.2 * (1 + 10 * t) * np.exp(-10 * t), atol=1e-4)
+    np.testing.assert_allclose(anim.positions[:, 0, 1:], np.tile([0.0, 1.0], (len(t), 1)), atol=1e-9)
+
+
+def test_a_distance_joint_keeps_its_anchors_within_its_range(tmp_path, capsys):
+    """Modelled on usdPhysicsDistanceJoint.usda (with the schema's type name, PhysicsDistanceJoint): a box hangs
+    from a static box by a rope of 10-50 cm, released 30 cm to the side of the anchor: it falls until the rope
+    is taut, then swings on it, the anchors never further apart than 50 cm."""
+    path = write(
+        tmp_path,
+        "rope.usda",
+        """
+        def Xform "World"
+        {
+            def PhysicsScene "physicsScene"
+            {
+            }
+            def Cube "StaticBox" (
+                prepend apiSchemas = ["PhysicsCollisionAPI"]
+            )
+            {
+                double size = 100
+                float3 xformOp:scale = (0.1, 1, 0.1)
+                double3 xformOp:translate = (0, 0, 1000)
+                uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:scale"]
+            }
+            def Cube "DynamicBox" (
+                prepend apiSchemas = ["PhysicsCollisionAPI", "PhysicsRigidBodyAPI"]
+            )
+            {
+                double size = 20
+                double3 xformOp:translate = (30, 60, 1000)
+                uniform token[] xformOpOrder = ["xformOp:translate"]
+            }
+            def PhysicsDistanceJoint "DistanceJoint"
+            {
+                rel physics:body0 = </World/StaticBox>
+                rel physics:body1 = </World/DynamicBox>
+                point3f physics:localPos0 = (0, 60, 0)
+                point3f physics:localPos1 = (0, 0, 0)
+                float physics:maxDistance = 50
+                float physics:minDistance = 10
+            }
+        }
+    """,
+        meta=CM_24_RANGE,
+    )
+    anim, _, err, _ = simulate(path, tmp_path, capsys)
+    assert "Distance" not in err
+    x = anim.positions[:, 0]
+    gap = np.linalg.norm(x - [0.0, 0.6, 10.0], axis=1)  # the box's centre is its anchor
+    assert gap.max() < 0.5 + 1e-6 and gap.min() > 0.1 - 1e-6
+    taut = np.flatnonzero(gap > 0.5 - 1e-6)
+    assert taut.size > 10 and x[taut[0], 2] > 10.0 - 0.5  # taut while still above the lowest point ...
+    assert x[:, 2].min() == pytest.approx(10.0 - 0.5, abs=1e-3)  # ... and swinging through it
+    assert x[:, 0].min() < -0.1  # to the other side
+
+
+def test_distance_constraints_round_trip_through_a_scene_file(tmp_path):
+    """save_scene writes a builder's distance constraints as PhysicsDistanceJoint prims, and so does a recording
+    of the bare model (builder_from_model): both read back as the same constraint."""
+    from warpimpulse import SceneBuilder, Simulator
+
+    b = SceneBuilder()
+    ball = b.add_body(2.0, np.eye(3) * 0.02, [0.3, 0.0, -0.2], name="ball")
+    b.add_distance(None, ball, [0.0, 0.0, 0.5], [0.3, 0.0, -0.2], 0.25, 1.5, name="rope")
+    usd.save_scene(b, tmp_path / "rope.usda")
+    sim = Simulator(b.finalize("cpu"), 1 / 60)
+    usd.record(sim, tmp_path / "model.usda", duration=0.1, fps=30)
+    for name in ("rope.usda", "model.usda"):
+        scene = load(str(tmp_path / name))
+        (rope,) = scene.builder.distances
+        assert (rope.body0, rope.body1, rope.lower, rope.upper) == (-1, 0, 0.25, 1.5)
+        np.testing.assert_allclose(rope.anchor0, [0.0, 0.0, 0.5], atol=1e-7)
+        np.testing.assert_allclose(rope.anchor1, 0.0, atol=1e-7)
+        assert scene.distance_paths == ["/World/Joints/rope"]
+
+
+@pytest.mark.parametrize("solver", ["auto", "cg"])
+def test_a_distance_constraint_holds_with_the_joints_of_a_chain(solver):
+    """A three-link hinged chain released horizontal, its tip tied by a 0.6 m rope to a point under the chain:
+    the rope holds (push-only rows in the joints' correction loop) while the joints do."""
+    from warpimpulse import SceneBuilder, Simulator
+    from warpimpulse.transforms import quat_rotate
+
+    b = SceneBuilder()
+    link = None
+    for k in range(3):
+        body = b.add_body(1.0, np.diag([0.01, 0.1, 0.1]), [0.25 + 0.5 * k, 0.0, 0.0], name=f"link{k}")
+        b.add_joint_revolute(link, body, [0.5 * k, 0.0, 0.0], [0.0, 1.0, 0.0])
+        link = body
+    b.add_distance(None, link, [1.0, 0.0, -0.3], [1.5, 0.0, 0.0], 0.0, 0.6, name="rope")
+    sim = Simulator(b.finalize("cpu"), 1 / 120, solver=solver)
+    gaps = []
+    for _ in range(240):
+        assert sim.step().max_joint_error < 1e-6
+        tip = sim.positions()[2] + quat_rotate(sim.orientations()[2], np.array([0.25, 0.0, 0.0]))
+        gaps.append(np.linalg.norm(tip - [1.0, 0.0, -0.3]))
+    assert max(gaps) < 0.6 + 2e-6 and sum(g > 0.6 - 1e-6 for g in gaps) > 10  # taut, and held
+
+
+def test_a_rope_between_free_bodies_keeps_momentum():
+    """Two free bodies flying apart on a 1 m rope, no gravity: the rope's impulses are equal and opposite along
+    one line, so linear and angular momentum stay what they were when it snaps taut."""
+    from warpimpulse import SceneBuilder, Simulator
+    from warpimpulse.transforms import quat_rotate
+
+    b = SceneBuilder(gravity=(0.0, 0.0, 0.0))
+    inertia = np.diag([0.02, 0.03, 0.04])
+    a = b.add_body(2.0, inertia, [0.0, 0.0, 0.0], linear_velocity=[-0.5, 0.2, 0.0], name="a")
+    c = b.add_body(1.0, inertia, [0.5, 0.0, 0.0], linear_velocity=[1.0, 0.0, 0.3], angular_velocity=[0, 0, 2], name="c")
+    b.add_distance(a, c, [0.1, 0.0, 0.0], [0.4, 0.0, 0.0], 0.0, 1.0, name="rope")
+    sim = Simulator(b.finalize("cpu"), 1 / 200)
+    p0, l0 = momenta(b, *sim_state(sim))
+    gaps = []
+    for _ in range(400):
+        sim.step()
+        x, q = sim.positions(), sim.orientations()
+        ends = x + quat_rotate(q, np.array([[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0]]))  # anchors in the bodies
+        gaps.append(np.linalg.norm(ends[1] - ends[0]))
+    p1, l1 = momenta(b, *sim_state(sim))
+    np.testing.assert_allclose(p1, p0, atol=1e-9)
+    np.testing.assert_allclose(l1, l0, atol=1e-6)
+    assert max(gaps) < 1.0 + 1e-6 and gaps[-1] > 1.0 - 1e-6  # the rope went taut and holds them
+
+
+def test_a_joint_that_starts_outside_its_limits_is_refused_in_its_own_units(tmp_path, capsys):
+    limited = NESTED.replace(
+        "point3f physics:localPos1 = (0, -0.5, 0)",
+        "point3f physics:localPos1 = (0, -0.5, 0)\n                    float physics:lowerLimit = 20\n"
+        "                    float physics:upperLimit = 30",
+    )
+    path = write(tmp_path, "outside.usda", limited, meta='defaultPrim = "Arm"\n    metersPerUnit = 1\n    upAxis = "Z"')
+    assert cli_main(["simulate", path, "--out", str(tmp_path / "o.usda"), "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "/Arm/Base/Link/Elbow: the joint starts at 0 degrees, outside its limits [20.0, 30.0]" in err

@@ -4,8 +4,9 @@ Rigid bodies, mass and joints come from `UsdPhysics.UsdPhysicsLoadStageFromPrimR
 `UsdGeom.XformCache` in double precision (the parser's poses are float), at the stage's start time. Generic
 (D6) joints map to the combined joint their locked axes describe, or to basic constraints. A joint end that
 targets a prim inside a body stands for that body (PhysX's rule); any other prim is the world at that prim's
-transform. Revolute and prismatic joints' drives and limits become motors, joint springs and limits; other
-joints' drives and limits, and break forces, are refused (or dropped with a warning when
+transform. Limits and drives on a joint with one DOF (revolute, prismatic, or D6 with one free axis) become
+motors, joint springs and limits; distance joints distance constraints. What is not simulated (cone limits,
+limits or drives on a joint with several free DOFs, break forces) is refused (or dropped with a warning when
 `ignore_unsupported`), never silently; colliders, which only give mass until contacts are simulated, get
 one warning.
 
@@ -352,14 +353,16 @@ def _d6_plans(locked_t: set[int], locked_r: set[int], r0: np.ndarray, r1: np.nda
     return [p for p in (trans, rot) if p is not None]
 
 
-def _check_limits_drives(desc, path: str, report: _Reporter) -> tuple[set[int], set[int]]:
-    """Locked DOFs of a D6 joint; finite limits and drives are reported as unsupported."""
+def _d6_axes(desc, path: str, report: _Reporter) -> tuple[set[int], set[int], dict[int, tuple], dict[int, Any]]:
+    """A D6 joint's locked translations and rotations (axis indices), and its other limits (lower, upper) and
+    drives by DOF index (0-5 as `_DOFS`). Limits and drives of DOFs the schema's generic joint does not
+    index (the distance limit) are reported here."""
     _, _, _, _, _, UsdPhysics, _ = pxr()
     dof_index = {
         UsdPhysics.JointDOF.TransX: 0, UsdPhysics.JointDOF.TransY: 1, UsdPhysics.JointDOF.TransZ: 2,
         UsdPhysics.JointDOF.RotX: 3, UsdPhysics.JointDOF.RotY: 4, UsdPhysics.JointDOF.RotZ: 5,
     }  # fmt: skip
-    locked_t, locked_r = set(), set()
+    locked_t, locked_r, ranges, drives = set(), set(), {}, {}
     for pair in desc.jointLimits:
         dof, limit = pair.first, pair.second
         if not limit.enabled:
@@ -371,56 +374,87 @@ def _check_limits_drives(desc, path: str, report: _Reporter) -> tuple[set[int], 
         if limit.lower > limit.upper or (limit.lower == limit.upper == 0.0):
             (locked_t if i < 3 else locked_r).add(i % 3)
         else:
-            report.unsupported(path, f"a {_DOFS[i]} limit [{limit.lower}, {limit.upper}]")
+            ranges[i] = (limit.lower, limit.upper)
     for pair in desc.jointDrives:
         if pair.second.enabled:
-            report.unsupported(path, f"a {pair.first.name} drive")
-    return locked_t, locked_r
+            if pair.first not in dof_index:
+                report.unsupported(path, f"a {pair.first.name} drive")
+            else:
+                drives[dof_index[pair.first]] = pair.second
+    return locked_t, locked_r, ranges, drives
+
+
+def _usd_coordinate(angular: bool, k: int, a0: np.ndarray, q0: np.ndarray, a1: np.ndarray, q1: np.ndarray) -> float:
+    """The coordinate USD gives a joint with one DOF, about or along axis k of its frames: the angle (rad, in
+    (-pi, pi]) of joint frame 1 against frame 0 about it, or the offset (m) of frame 1's origin along it."""
+    if not angular:
+        return float(np.dot(a1 - a0, quat_rotate(q0, np.eye(3)[k])))
+    d = quat_mul(quat_conj(q0), q1)
+    sine, cosine = (d[k], d[3]) if d[3] >= 0.0 else (-d[k], -d[3])
+    return 2.0 * math.atan2(sine, cosine)
 
 
 def _limit_and_drive(
-    builder: SceneBuilder, joint: int, prim, desc, angular: bool, sign: float, mpu: float, kpu: float
-) -> None:
-    """A revolute or prismatic joint's limit (physics:lowerLimit / upperLimit) and its DriveAPI as warpimpulse
-    limits, motors and joint springs. Angular values are in degrees in USD (stiffness and damping per degree),
-    linear ones in stage units. A drive is kp (targetPosition - x) + kd (targetVelocity - dx/dt): with a
-    stiffness, a position motor (kp = stiffness, kd = damping, target = targetPosition); without, a velocity
-    motor (kp = damping, target = targetVelocity). warpimpulse's extras on the joint prim: warpimpulse:drive:ki
-    (per the unit of the coordinate and second), warpimpulse:drive:stiff (a stiff motor) and
-    warpimpulse:drive:jointSpring (a joint spring, not a motor)."""
+    builder: SceneBuilder, joint: int, prim, limit, drive, angular: bool, x0: float, sign: float, mpu: float,
+    kpu: float, report: _Reporter,
+) -> None:  # fmt: skip
+    """A USD limit (lower, upper) and DriveAPI on a joint's one DOF (a revolute or prismatic joint, or a D6 joint
+    with one free axis) as warpimpulse limits, motors and joint springs, on the coordinate sign (x - x0): x the
+    DOF as USD measures it (`_usd_coordinate`), x0 its value as built, sign -1 where the reader turned the joint
+    round (the world on body1's side).
+
+    Angular values are in degrees in USD (stiffness and damping per degree), linear ones in stage units. A drive
+    is stiffness (targetPosition - x) + damping (targetVelocity - dx/dt): with a stiffness, a position motor
+    (kp = stiffness, kd = damping); without, a velocity motor (kp = damping), which is stiff (it holds its
+    target velocity within maxForce, `SceneBuilder.add_motor(stiff=True)`) unless the file says otherwise: the
+    large damping of a velocity drive is beyond an explicit PID (kp h / I < 2) and PhysX's drives are implicit.
+    warpimpulse's extras on the joint prim: warpimpulse:drive:ki (per the unit of the coordinate and second),
+    warpimpulse:drive:stiff and warpimpulse:drive:jointSpring (a joint spring, not a motor)."""
+    jpath = str(prim.GetPath())
     unit = math.radians(1.0) if angular else mpu  # USD's unit of the coordinate, in rad or m
-    if desc.limit.enabled:
-        lower, upper = sorted((sign * desc.limit.lower * unit, sign * desc.limit.upper * unit))
+    if limit is not None:
+        lower, upper = sorted(sign * (v * unit - x0) for v in limit)
+        if lower > 1e-6 or upper < -1e-6:  # the engine's limits hold a built pose inside them
+            start = f"{math.degrees(x0):.6g} degrees" if angular else f"{x0 / mpu:.6g}"
+            raise UsdSceneError(f"{jpath}: the joint starts at {start}, outside its limits [{limit[0]}, {limit[1]}]")
         if math.isfinite(lower) or math.isfinite(upper):
-            builder.add_joint_limit(joint, lower, upper)
-    drive = desc.drive
-    if not drive.enabled:
+            builder.add_joint_limit(joint, min(lower, 0.0), max(upper, 0.0))  # round-off at a bound is on it
+    if drive is None:
         return
     force_unit = kpu * mpu * (mpu if angular else 1.0)  # USD's unit of force (torque) in N (N m)
     per = force_unit / unit  # a gain per USD unit, as one per rad or m
-    extra = {name: prim.GetAttribute(f"warpimpulse:drive:{name}").Get() for name in ("ki", "stiff", "jointSpring")}
+    attrs = {name: prim.GetAttribute(f"warpimpulse:drive:{name}") for name in ("ki", "stiff", "jointSpring")}
+    extra = {name: (a.Get() if a and a.HasAuthoredValue() else None) for name, a in attrs.items()}
+    ki = float(extra["ki"] or 0.0) * per
     max_force = drive.forceLimit * force_unit if math.isfinite(drive.forceLimit) else math.inf
-    if extra["jointSpring"]:
-        builder.add_joint_spring(joint, drive.stiffness * per, drive.damping * per, sign * drive.targetPosition * unit)
+    target = sign * (drive.targetPosition * unit - x0)
+    if drive.acceleration:
+        report.unsupported(jpath, "a drive of physics:type acceleration")
+    elif extra["jointSpring"]:
+        builder.add_joint_spring(joint, drive.stiffness * per, drive.damping * per, target)
     elif drive.stiffness > 0.0:
         if drive.targetVelocity != 0.0:
-            raise SceneError("a drive with a stiffness and a targetVelocity (tracking both) is not simulated")
-        builder.add_motor(joint, "position", sign * drive.targetPosition * unit, drive.stiffness * per,
-                          float(extra["ki"] or 0.0) * per, drive.damping * per, max_force,
+            report.unsupported(jpath, "a drive with a stiffness and a targetVelocity (tracking both)")
+            return
+        builder.add_motor(joint, "position", target, drive.stiffness * per, ki, drive.damping * per, max_force,
                           stiff=bool(extra["stiff"]))  # fmt: skip
     else:
-        builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per,
-                          float(extra["ki"] or 0.0) * per, 0.0, max_force, stiff=bool(extra["stiff"]))  # fmt: skip
+        stiff = drive.damping > 0.0 if extra["stiff"] is None else bool(extra["stiff"])
+        if not (stiff or drive.damping > 0.0 or ki > 0.0):
+            report.note(f"{jpath}: a drive with neither stiffness nor damping exerts nothing; ignored")
+            return
+        builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per, ki, 0.0,
+                          max_force, stiff=stiff)  # fmt: skip
 
 
 def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> UsdScene:
     """Read a UsdPhysics scene into a SceneBuilder (SI units) plus what export needs.
 
     Body and joint names in the builder are their prim paths. Raises `UsdSceneError` (a `SceneError`)
-    naming the prim for input that cannot be simulated. Revolute and prismatic joints' limits and drives
-    become limits, motors and joint springs (`_limit_and_drive`); physics:excludeFromArticulation marks the
-    joints that close loops. Limits and drives of other joint types, and break forces, raise
-    `UnsupportedFeatureError` unless `ignore_unsupported`, which warns and drops them.
+    naming the prim for input that cannot be simulated. Limits and drives on a joint with one DOF become
+    limits, motors and joint springs (`_limit_and_drive`); physics:excludeFromArticulation marks the joints that
+    close loops. Features not simulated (cone limits, break forces, ...) raise `UnsupportedFeatureError` unless
+    `ignore_unsupported`, which warns and drops them.
     """
     _, Sdf, _, _, UsdGeom, UsdPhysics, _ = pxr()
     path = os.fspath(path)
@@ -530,8 +564,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         parent_pos[i], parent_quat[i], parent_scale[i] = rel.t, rel.q, rel.s[0]
 
     joint_paths: list[str] = []
+    distance_paths: list[str] = []
     loop_joints: list[str] = []
-    supported = {T.RevoluteJoint, T.PrismaticJoint, T.SphericalJoint, T.FixedJoint, T.D6Joint}
+    supported = {T.RevoluteJoint, T.PrismaticJoint, T.SphericalJoint, T.FixedJoint, T.D6Joint, T.DistanceJoint}
     all_joints = []
     for t, (paths, descs) in parsed.items():
         if "Joint" in t.name:
@@ -572,6 +607,20 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         a0, q0 = _joint_frame(stage, jprim, 0, xforms, mpu)
         a1, q1 = _joint_frame(stage, jprim, 1, xforms, mpu)
         r0, r1 = quat_to_matrix(q0), quat_to_matrix(q1)
+        parent, child = ends
+        if t == T.DistanceJoint:
+            lower = desc.limit.lower * mpu if desc.minEnabled else 0.0
+            upper = desc.limit.upper * mpu if desc.maxEnabled else math.inf
+            if not (desc.minEnabled or desc.maxEnabled):
+                report.note(f"{jpath}: a distance joint with neither physics:minDistance nor maxDistance; skipped")
+                continue
+            try:
+                builder.add_distance(parent, child, a0, a1, lower, upper, jpath)
+                distance_paths.append(jpath)
+            except SceneError as exc:
+                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+            continue
+        dof, limit, drive = None, None, None  # the one DOF of a revolute or prismatic joint, its limit, its drive
         if t in (T.RevoluteJoint, T.PrismaticJoint):
             token = jprim.GetAttribute("physics:axis").Get()
             if token not in ("X", "Y", "Z"):  # the parser reads any other token as X
@@ -579,6 +628,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             ax = r0[:, "XYZ".index(token)]
             plans = [_JointPlan("revolute" if t == T.RevoluteJoint else "prismatic", ax)]
             free_t = [ax] if t == T.PrismaticJoint else []
+            dof = "XYZ".index(token) + 3 * (t == T.RevoluteJoint)
+            limit = (desc.limit.lower, desc.limit.upper) if desc.limit.enabled else None
+            drive = desc.drive if desc.drive.enabled else None
         elif t == T.SphericalJoint:
             if desc.limit.enabled:
                 report.unsupported(jpath, "a cone limit")
@@ -586,12 +638,19 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         elif t == T.FixedJoint:
             plans, free_t = [_JointPlan("fixed")], []
         else:
-            locked_t, locked_r = _check_limits_drives(desc, jpath, report)
+            locked_t, locked_r, ranges, drives = _d6_axes(desc, jpath, report)
             plans = _d6_plans(locked_t, locked_r, r0, r1)
             if not plans:
                 notes.append(f"{jpath}: generic joint with no locked axis constrains nothing; skipped")
                 continue
             free_t = [r0[:, k] for k in range(3) if k not in locked_t]
+            free = [i for i in range(6) if i % 3 not in (locked_t if i < 3 else locked_r)]
+            if len(free) == 1:  # a revolute or prismatic joint: its limit and drive act on its coordinate
+                dof, limit, drive = free[0], ranges.pop(free[0], None), drives.pop(free[0], None)
+            for i, (lo, hi) in sorted(ranges.items()):
+                report.unsupported(jpath, f"a {_DOFS[i]} limit [{lo}, {hi}] on a joint with {len(free)} free DOFs")
+            for i in sorted(drives):
+                report.unsupported(jpath, f"a {_DOFS[i]} drive on a joint with {len(free)} free DOFs")
         # Apart along a free translation (a prismatic joint's axis) is where the joint starts; across, it is not.
         offset = a1 - a0 - sum((np.dot(a1 - a0, d) * d for d in free_t), np.zeros(3))
         gap, tolerance = float(np.linalg.norm(offset)), JOINT_GAP * max(1.0, float(np.abs(a0).max()))
@@ -600,33 +659,31 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
                 f"{jpath}: its frames on body0 and body1 (physics:localPos0, physics:localPos1) are {gap:.3g} m "
                 f"apart at the start; they must coincide (to {tolerance:.2g} m)"
             )
-        parent, child = ends
+        sign = 1.0
         if child is None:  # body1 empty: the world is on the child side; swap so the child is a body
-            parent, child = None, parent
+            parent, child, sign = None, parent, -1.0
             plans = [_JointPlan(p.kind, p.axis_child if p.axis_child is not None else p.axis,
                                 p.axis if p.axis_child is not None else None) for p in plans]  # fmt: skip
         if desc.excludeFromArticulation:
             loop_joints.append(jpath)
         first_joint = len(builder.joints)
-        for plan in plans:
-            try:
+        try:
+            for plan in plans:
                 if plan.kind in JOINT_TYPES:
                     builder.add_joint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
                 else:
                     builder.add_constraint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
-            except SceneError as exc:
-                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
-            joint_paths.append(jpath)
-        if desc.excludeFromArticulation:
-            for k in range(first_joint, len(builder.joints)):
-                builder.mark_loop_joint(k)
-        if t in (T.RevoluteJoint, T.PrismaticJoint):
-            # The coordinate is body1's against body0's: negated when the world was on body1's side.
-            sign = 1.0 if ends[1] is not None else -1.0
-            try:
-                _limit_and_drive(builder, first_joint, jprim, desc, t == T.RevoluteJoint, sign, mpu, kpu)
-            except SceneError as exc:
-                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+                joint_paths.append(jpath)
+            if desc.excludeFromArticulation:
+                for k in range(first_joint, len(builder.joints)):
+                    builder.mark_loop_joint(k)
+            if limit is not None or drive is not None:
+                x0 = _usd_coordinate(dof >= 3, dof % 3, a0, q0, a1, q1)
+                _limit_and_drive(builder, first_joint, jprim, limit, drive, dof >= 3, x0, sign, mpu, kpu, report)
+        except UnsupportedFeatureError:
+            raise
+        except SceneError as exc:
+            raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
     parsed_joints = {j[0] for j in all_joints}
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
         if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:
@@ -648,8 +705,8 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
         parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
-        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, warnings=warned, colliders_ignored=len(colliders),
-        dt=_recorded_dt(stage, path), time_codes_per_second=float(stage.GetTimeCodesPerSecond()),
+        xform_ops=xform_ops, loop_joints=loop_joints, distance_paths=distance_paths, notes=notes, warnings=warned,
+        colliders_ignored=len(colliders), dt=_recorded_dt(stage, path), time_codes_per_second=_rate(stage, path),
         time_range=_time_range(stage, path),
     )  # fmt: skip
 
@@ -698,6 +755,14 @@ def _colliders_text(colliders: list[str]) -> str:
     )
 
 
+def _rate(stage, path: str) -> float:
+    """The stage's timeCodesPerSecond (24 where it authors none)."""
+    rate = float(stage.GetTimeCodesPerSecond())
+    if not (rate > 0.0 and math.isfinite(rate)):
+        raise UsdSceneError(f"{path}: the stage's timeCodesPerSecond must be positive and finite, got {rate}")
+    return rate
+
+
 def _time_range(stage, path: str) -> tuple[float, float] | None:
     """[startTimeCode, endTimeCode] when the stage authors both, else None."""
     if not stage.HasAuthoredTimeCodeRange():
@@ -735,7 +800,7 @@ def _recorded_dt(stage, path: str) -> float | None:
 
 
 def _joint_type_text(type_name: str) -> str:
-    return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed and generic D6 joints)"
+    return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed, distance and D6 joints)"
 
 
 def _op_names(prim) -> tuple[str, str, str]:
