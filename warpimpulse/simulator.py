@@ -140,8 +140,8 @@ class Simulator:
             show_warp_messages()
         if model.limit_count and checks.integer(order, "order", 2) > 2:
             raise ValueError(
-                "joint limits and stiff motors are not reversible (impacts, saturation): a composed step of order "
-                f"{order} would run them backwards in its negative substeps; use order 2"
+                "joint limits, stiff motors and distance constraints are not reversible (impacts, saturation): a "
+                f"composed step of order {order} would run them backwards in its negative substeps; use order 2"
             )
         if solver == "iterative" and model.limit_count:
             raise ValueError(
