@@ -466,10 +466,12 @@ class Simulator:
         return arr
 
     def forces_active(self) -> bool:
-        """Whether an external force or torque acts in the coming step (the model's, before its `until`, or
-        one set with `set_external_forces`): energy is conserved only while none does."""
-        return bool(np.any(self.time < self.model.host.force_until) or np.any(self._user_force)
-                    or np.any(self._user_torque))  # fmt: skip
+        """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
+        an external force or torque (the model's, before its `until`, or one set with `set_external_forces`),
+        a motor, or a spring or joint spring (whose stored energy `energy()` does not count)."""
+        m = self.model
+        return bool(m.drive_count or m.spring_count or np.any(self.time < m.host.force_until)
+                    or np.any(self._user_force) or np.any(self._user_torque))  # fmt: skip
 
     def _update_forces(self) -> None:
         """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
