@@ -673,6 +673,13 @@ def test_a_distance_joint_keeps_its_anchors_within_its_range(tmp_path, capsys):
     assert taut.size > 10 and x[taut[0], 2] > 10.0 - 0.5  # taut while still above the lowest point ...
     assert x[:, 2].min() == pytest.approx(10.0 - 0.5, abs=1e-3)  # ... and swinging through it
     assert x[:, 0].min() < -0.1  # to the other side
+    # As in OpenUSD's example, the anchors meeting at the start (inside minDistance) is said: the first step
+    # pushes them 10 cm apart, which adds energy.
+    path = write(tmp_path, "meet.usda", open(path).read().split(")\n", 1)[1].replace("(30, 60, 1000)", "(0, 60, 1000)"),
+                 meta=CM_24_RANGE)  # fmt: skip
+    anim, _, err, _ = simulate(path, tmp_path, capsys, "--duration", "0.5")
+    assert "/World/DistanceJoint: its anchors start 0 apart, outside [10, 50]" in err
+    assert np.linalg.norm(anim.positions[1:, 0] - [0.0, 0.6, 10.0], axis=1).min() > 0.1 - 1e-6
 
 
 def test_distance_constraints_round_trip_through_a_scene_file(tmp_path):

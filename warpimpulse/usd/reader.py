@@ -619,6 +619,11 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
                 distance_paths.append(jpath)
             except SceneError as exc:
                 raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+            apart = float(np.linalg.norm(a1 - a0))
+            if not lower <= apart <= upper:  # the first step's impulse pulls them in, adding energy
+                report.note(f"{jpath}: its anchors start {apart / mpu:.6g} apart, outside [{lower / mpu:.6g}, "
+                            f"{upper / mpu:.6g}]: the first step brings them within, at that gap per step, which adds "
+                            "energy")  # fmt: skip
             continue
         dof, limit, drive = None, None, None  # the one DOF of a revolute or prismatic joint, its limit, its drive
         if t in (T.RevoluteJoint, T.PrismaticJoint):
