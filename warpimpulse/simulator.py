@@ -468,9 +468,9 @@ class Simulator:
     def forces_active(self) -> bool:
         """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
         an external force or torque (the model's, before its `until`, or one set with `set_external_forces`),
-        a motor, or a spring or joint spring (whose stored energy `energy()` does not count)."""
+        or a motor."""
         m = self.model
-        return bool(m.drive_count or m.spring_count or np.any(self.time < m.host.force_until)
+        return bool(np.any(m.host.drive_motor) or np.any(self.time < m.host.force_until)
                     or np.any(self._user_force) or np.any(self._user_torque))  # fmt: skip
 
     def _update_forces(self) -> None:
