@@ -3,7 +3,8 @@ each scene is run with the plain `warpimpulse simulate FILE` and its motion chec
 
 Joints that target a prim that is no rigid body attach to the world at that prim's transform (a static collider,
 the default prim); a target inside a body stands for the body; the stage's time range and rate set the run;
-colliders, not simulated yet, give one warning that the output records.
+colliders, not simulated yet, give one warning that the output records; drives and limits of one-DOF joints (D6
+included) are motors and limits; distance joints are distance constraints (rows of the same correction loop).
 """
 
 from __future__ import annotations
