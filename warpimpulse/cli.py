@@ -148,6 +148,8 @@ def _sweep(args) -> int:
             print("warpimpulse: no plots: matplotlib is not installed (pip install 'warpimpulse[preview]')",
                   file=sys.stderr)  # fmt: skip
     return 1 if "error" in outcomes else 0
+
+
 def _timing(args, scene) -> tuple[float, float]:
     """(duration s, fps) from the flags, else from the scene file's time (its range [startTimeCode,
     endTimeCode] at its timeCodesPerSecond), else 10 s at 30 fps; what came from the file is said on stdout."""
