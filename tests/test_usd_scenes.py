@@ -761,3 +761,19 @@ def test_a_joint_that_starts_outside_its_limits_is_refused_in_its_own_units(tmp_
     assert cli_main(["simulate", path, "--out", str(tmp_path / "o.usda"), "--duration", "0.1"]) == 2
     err = capsys.readouterr().err
     assert "/Arm/Base/Link/Elbow: the joint starts at 0 degrees, outside its limits [20.0, 30.0]" in err
+
+
+def test_distance_constraints_are_not_replicated_yet():
+    """Batched worlds take no limit rows yet: a scene with a distance constraint is refused by replicate, and a
+    replicated scene takes none (not dropped without a word)."""
+    from warpimpulse import SceneBuilder, SceneError
+
+    b = SceneBuilder()
+    ball = b.add_body(1.0, [0.01, 0.01, 0.01], [0.0, 0.0, -0.5], name="ball")
+    b.add_joint_ball(None, ball, [0.0, 0.0, 0.0])
+    plain = b.replicate(2)
+    b.add_distance(None, ball, [0.0, 0.0, 0.0], [0.0, 0.0, -0.5], 0.0, 1.0, name="rope")
+    with pytest.raises(SceneError, match="1 distance constraints; batched worlds do not take"):
+        b.replicate(2)
+    with pytest.raises(SceneError, match="distance 'rope': a replicated scene takes no additions"):
+        plain.add_distance(None, 0, [0.0, 0.0, 0.0], [0.0, 0.0, -0.5], 0.0, 1.0, name="rope")

@@ -189,10 +189,11 @@ class SceneBuilder:
             raise SceneError("replicate: this builder is already replicated; replicate the original scene")
         if not self.bodies:
             raise SceneError("replicate: the scene has no bodies")
-        if self.springs or self.drives or self.limits:  # the batched step has no force elements or limits yet
+        if self.springs or self.drives or self.limits or self.distances:  # the batched step has no such rows yet
             raise SceneError(
-                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives and "
-                f"{len(self.limits)} limits; batched worlds do not take springs, drives or limits yet"
+                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives, "
+                f"{len(self.limits)} limits and {len(self.distances)} distance constraints; batched worlds do not "
+                "take springs, drives, limits or distance constraints yet"
             )
         out = SceneBuilder(self.gravity)
         nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
@@ -572,6 +573,7 @@ class SceneBuilder:
         The built distance may lie outside; the first step brings it in. Returns its index."""
         name = name or f"distance{len(self.distances)}"
         what = f"distance {name!r}"
+        self._open(what)
         b0 = self._body_index(body0, f"{what} body0")
         b1 = self._body_index(body1, f"{what} body1")
         if b0 == b1:
