@@ -22,13 +22,13 @@ def _rod(builder: SceneBuilder, a, b, name: str, color, radius: float = 0.03, de
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     d = b - a
     length = float(np.linalg.norm(d))
-    shape = Shape("capsule", radius=radius, length=length, color=color)
+    shape = Shape("capsule", radius=radius, length=length, color=color, collide=False)
     mass, inertia = shape.mass_properties(density)
     return builder.add_body(mass, inertia, 0.5 * (a + b), quat_between([0, 0, 1], d), name=name, shape=shape)
 
 
 def _block(builder: SceneBuilder, centre, size, name: str, color, density: float = 1000.0) -> int:
-    shape = Shape("box", size=tuple(size), color=color)
+    shape = Shape("box", size=tuple(size), color=color, collide=False)
     mass, inertia = shape.mass_properties(density)
     return builder.add_body(mass, inertia, centre, name=name, shape=shape)
 
@@ -65,7 +65,7 @@ def mechanism() -> SceneBuilder:
     # Planar: a puck that moves in the vertical x-z plane through y = 1 and turns about y.
     puck = b.add_body(0.5, Shape("cylinder", radius=0.1, length=0.05).inertia(0.5), (0.0, 1.0, 1.0),
                       quat_between([0, 0, 1], y), name="puck",
-                      shape=Shape("cylinder", radius=0.1, length=0.05, color=blue))  # fmt: skip
+                      shape=Shape("cylinder", radius=0.1, length=0.05, color=blue, collide=False))  # fmt: skip
     b.add_joint_planar(None, puck, (0.0, 1.0, 1.0), y, name="puck_plane")
     b.bodies[puck].linear_velocity[:] = (0.5, 0.0, 1.0)
     return b
@@ -81,10 +81,14 @@ SCENES = {
     "four_bar": scenes.four_bar,  # the paper's mechanisms (section 5), at h = 1/60 s as their tests
     "car": scenes.car,
     "walking_machine": scenes.walking_machine,
+    "box_stack": lambda: scenes.box_stack(10),
+    "pile": lambda: scenes.pile(1000),
+    "car_on_ground": lambda: scenes.car(ground=True),
 }
 # Step sizes recorded in the files, where the default 1/fps is too coarse: the chain falling from the
 # horizontal whips its last links and diverges at t = 6.9 s with h = 1/30 (runs to 10 s with h = 1/120).
-DT = {"chain": 1.0 / 120.0, "four_bar": 1.0 / 60.0, "car": 1.0 / 60.0, "walking_machine": 1.0 / 60.0}
+DT = {"chain": 1.0 / 120.0, "four_bar": 1.0 / 60.0, "car": 1.0 / 60.0, "walking_machine": 1.0 / 60.0,
+      "car_on_ground": 1.0 / 60.0}  # fmt: skip
 
 
 def main() -> None:

@@ -117,6 +117,6 @@ def test_usd_parser_warnings_are_one_line_each(tmp_path, capfd):
     assert code == 0, lines
     assert lines == [
         f"warpimpulse: warning: {path}: CollisionAPI applied to an unknown UsdGeomGPrim type, prim /World/a.",
-        "warpimpulse: warning: 1 collider is ignored (/World/a): contacts are not simulated yet, so bodies pass "
+        "warpimpulse: warning: 1 collider does not collide (/World/a: not a collision geometry): bodies pass "
         "through it; colliders still give their bodies mass",
     ], lines

@@ -17,7 +17,7 @@ from . import checks
 from .checks import SceneError
 from .joints import JOINT_TYPES
 from .model import Model
-from .shapes import Shape
+from .shapes import SHAPE_CODES, Colliders, Shape
 from .transforms import quat_conj, quat_mul, quat_rotate
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
@@ -36,6 +36,18 @@ class Body:
     angular_velocity: np.ndarray  # world frame
     shape: Shape | None = None
     static: bool = False
+    friction: float = 0.5
+    restitution: float = 0.0
+
+
+@dataclass
+class Ground:
+    """A collision plane {x : normal . x = height}, solid on the side opposite the normal."""
+
+    normal: np.ndarray
+    height: float
+    friction: float
+    restitution: float
 
 
 @dataclass
@@ -140,6 +152,16 @@ class Distance:
 _vec = checks.vector
 
 
+def checked_material(friction, restitution, what: str) -> tuple[float, float]:
+    """A checked (friction >= 0, restitution in [0, 1]) pair."""
+    friction, restitution = checks.real(friction, f"{what}: friction"), checks.real(restitution, f"{what}: restitution")
+    if not (math.isfinite(friction) and friction >= 0.0):
+        raise SceneError(f"{what}: friction must be a finite number >= 0, got {friction}")
+    if not 0.0 <= restitution <= 1.0:
+        raise SceneError(f"{what}: restitution must be in [0, 1], got {restitution}")
+    return friction, restitution
+
+
 def _finite(value, what: str) -> float:
     x = checks.real(value, what)
     if not math.isfinite(x):
@@ -171,6 +193,8 @@ class SceneBuilder:
         self.joints: list[Joint] = []
         self.constraints: list[Constraint] = []
         self.forces: list[Force] = []
+        self.grounds: list[Ground] = []
+        self.collision_filters: set[tuple[int, int]] = set()
         self.springs: list[Spring] = []
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
@@ -189,6 +213,11 @@ class SceneBuilder:
             raise SceneError("replicate: this builder is already replicated; replicate the original scene")
         if not self.bodies:
             raise SceneError("replicate: the scene has no bodies")
+        if self.grounds or any(b.shape is not None and b.shape.collide for b in self.bodies):
+            raise SceneError(
+                "replicate: the scene has colliding shapes or grounds; batched worlds do not take contacts yet "
+                "(Shape(..., collide=False) keeps a shape for display and mass)"
+            )
         if self.springs or self.drives or self.limits or self.distances:  # the batched step has no such rows yet
             raise SceneError(
                 f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives, "
@@ -237,6 +266,8 @@ class SceneBuilder:
         angular_velocity: Vec3 | float = 0.0,
         name: str | None = None,
         shape: Shape | None = None,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
         """Add a dynamic body and return its index.
 
@@ -250,7 +281,10 @@ class SceneBuilder:
             linear_velocity: of the centre of mass, world frame (m/s); a scalar fills all three.
             angular_velocity: world frame (rad/s); a scalar fills all three.
             name: unique; defaults to "body<index>". Errors and outputs name the body by it.
-            shape: for display and mass only (bodies do not collide yet).
+            shape: for display, and for collision unless `shape.collide` is False; centred on the centre of mass.
+            friction: Coulomb's coefficient (>= 0) of the body's surface; a contact takes the geometric mean of
+                its two bodies' coefficients.
+            restitution: Newton's coefficient in [0, 1]; a contact takes the larger of its two bodies'.
         """
         name = self._new_name(name, "body", len(self.bodies))
         what = f"body {name!r}"
@@ -259,27 +293,62 @@ class SceneBuilder:
             raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
         return self._append_body(
             name, mass, self._inertia(inertia, what), position, orientation,
-            linear_velocity, angular_velocity, shape, static=False,
+            linear_velocity, angular_velocity, shape, False, friction, restitution,
         )  # fmt: skip
 
     def add_static_body(
-        self, position, orientation=(0.0, 0.0, 0.0, 1.0), name: str | None = None, shape: Shape | None = None
+        self,
+        position,
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        name: str | None = None,
+        shape: Shape | None = None,
+        friction: float = 0.5,
+        restitution: float = 0.0,
     ) -> int:
-        """Add a body that never moves (infinite mass); joints may attach to it like to the world."""
+        """Add a body that never moves (infinite mass); joints may attach to it like to the world, and bodies
+        collide with its shape (a wall, a slope)."""
         name = self._new_name(name, "body", len(self.bodies))
-        return self._append_body(name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True)
+        return self._append_body(
+            name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True, friction, restitution
+        )
+
+    def add_ground(
+        self, height: float = 0.0, normal: Vec3 = (0.0, 0.0, 1.0), friction: float = 0.5, restitution: float = 0.0
+    ) -> int:
+        """A collision plane {x : normal . x = height} (m), solid on the side opposite `normal` (world frame, any
+        length but zero). Returns its index. Several planes may be added (a floor and a slope)."""
+        what = f"ground {len(self.grounds)}"
+        self._open(what)
+        normal = _axis(normal, f"{what} normal")
+        height = checks.real(height, f"{what} height")
+        if not math.isfinite(height):
+            raise SceneError(f"{what}: height must be finite, got {height}")
+        friction, restitution = checked_material(friction, restitution, what)
+        self.grounds.append(Ground(normal, height, friction, restitution))
+        return len(self.grounds) - 1
+
+    def filter_collision(self, a: BodyRef, b: BodyRef) -> None:
+        """Bodies a and b never collide with each other (jointed bodies never do anyway)."""
+        self._open("filter_collision")
+        i, j = self._body_index(a, "filter_collision"), self._body_index(b, "filter_collision")
+        if WORLD in (i, j) or i == j:
+            raise SceneError(f"filter_collision: needs two different bodies, got {a!r} and {b!r}")
+        self.collision_filters.add((min(i, j), max(i, j)))
 
     @staticmethod
     def _new_name(name, kind: str, index: int) -> str:
         return f"{kind}{index}" if name is None else checks.name(name, f"{kind} {index} name")
 
-    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static) -> int:
+    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static, friction, restitution):
         what = f"body {name!r}"
         self._open(what)
         if name in self._body_names:
             raise SceneError(f"{what}: a body of that name already exists")
         if shape is not None and not isinstance(shape, Shape):
             raise SceneError(f"{what}: shape must be a warpimpulse Shape or None, got {shape!r}")
+        if shape is not None and shape.collide and shape.zero_size():
+            raise SceneError(f"{what}: collision shape {shape.kind} has zero size ({shape})")
+        friction, restitution = checked_material(friction, restitution, what)
         q = _vec(orientation, f"{what} orientation", 4)
         norm = float(np.linalg.norm(q))
         if norm < 1e-9:
@@ -297,6 +366,8 @@ class SceneBuilder:
                 angular_velocity=_vec(w, f"{what} angular_velocity"),
                 shape=shape,
                 static=static,
+                friction=friction,
+                restitution=restitution,
             )
         )
         self._body_names[name] = len(self.bodies) - 1
@@ -663,8 +734,31 @@ class SceneBuilder:
             force_force=np.array([f.force for f in forces]).reshape(-1, 3),
             force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
             force_until=np.array([f.until for f in forces]),
+            colliders=self._colliders(),
             **self._mechanism_arrays(),
             world_count=self.world_count,
+        )
+
+    def _colliders(self) -> Colliders | None:
+        """The collision geometry, or None for a scene where nothing collides (then the step has no contact
+        stage at all)."""
+        colliding = [b.shape is not None and b.shape.collide for b in self.bodies]
+        if not any(colliding) or (not self.grounds and sum(colliding) < 2):
+            return None
+        pairs = {(min(j.parent, j.child), max(j.parent, j.child)) for j in self.joints if j.parent != WORLD}
+        pairs |= self.collision_filters
+        planes = self.grounds
+        return Colliders(
+            shape_kind=np.array([SHAPE_CODES[b.shape.kind] if c else -1 for b, c in zip(self.bodies, colliding)]),
+            shape_size=np.array([b.shape.collision_size() if c else (0, 0, 0) for b, c in zip(self.bodies, colliding)]),
+            bound=np.array([b.shape.bounding_radius() if c else 0.0 for b, c in zip(self.bodies, colliding)]),
+            friction=np.array([b.friction for b in self.bodies]),
+            restitution=np.array([b.restitution for b in self.bodies]),
+            plane_normal=np.array([g.normal for g in planes]).reshape(-1, 3),
+            plane_offset=np.array([g.height for g in planes]),
+            plane_friction=np.array([g.friction for g in planes]),
+            plane_restitution=np.array([g.restitution for g in planes]),
+            filter_pairs=np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2),
         )
 
     def _mechanism_arrays(self) -> dict:

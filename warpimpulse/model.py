@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from . import checks
+from .shapes import Colliders
 from .topology import Graph, Topology, analyze
 from .types import COORDINATES, DISTANCE_COORDINATE, ConstraintKind
 
@@ -106,6 +107,7 @@ class Model:
         distance_body: np.ndarray = (),
         distance_anchor: np.ndarray = (),
         distance_bounds: np.ndarray = (),
+        colliders: Colliders | None = None,
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
         gravity: (3,) m/s^2, world.
@@ -119,6 +121,7 @@ class Model:
         world_count: independent copies of one scene laid out world-major (`SceneBuilder.replicate`): world w
             owns bodies [w n_w, (w + 1) n_w), and its constraints, joints and forces likewise, with indices into
             the whole model. Every launch covers all worlds; the simulator decides convergence per world.
+        colliders: the collision shapes, planes and filters; None where nothing collides.
         spring_*: spring-dampers between a point of body0 and one of body1 (anchors in their frames), params
             (stiffness N/m, damping N s/m, rest length m).
         drive_*: joint springs and PID motors on a revolute or prismatic joint: mode (`types.DRIVE_MODES`
@@ -131,6 +134,7 @@ class Model:
             meet ((d, 3, 3), body frames), and (lower, upper) bounds on |B - A| (m).
         """
         self.device = checks.device(device)  # the first call initialises Warp quietly
+        self.colliders = colliders
         d = self.device
         dynamic = ~np.asarray(body_static, dtype=bool)
         self.host = SimpleNamespace(

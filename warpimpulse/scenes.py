@@ -22,7 +22,7 @@ def _capsule_body(builder: SceneBuilder, top, direction, length, name, color) ->
     """A capsule of total `length` hanging from `top` along `direction`. Returns (body, bottom point)."""
     radius = length / 20.0
     span = length - 2.0 * radius  # distance between the cap centres, where joints sit
-    shape = Shape("capsule", radius=radius, length=span, color=color)
+    shape = Shape("capsule", radius=radius, length=span, color=color, collide=False)
     mass, inertia = shape.mass_properties(DENSITY)
     centre = top + direction * (0.5 * span)
     q = quat_between([0.0, 0.0, 1.0], direction)
@@ -93,7 +93,7 @@ def double_pendulum(length: float = 1.0, mass: float = 1.0, angles=(math.pi / 2,
     """Two uniform rods (capsules) on hinges about y; `angles` from the downward vertical."""
     builder = SceneBuilder()
     radius = 0.02 * length
-    shape = Shape("capsule", radius=radius, length=length - 2.0 * radius, color=(0.8, 0.3, 0.3))
+    shape = Shape("capsule", radius=radius, length=length - 2.0 * radius, color=(0.8, 0.3, 0.3), collide=False)
     inertia = shape.inertia(mass)
     y_axis = np.array([0.0, 1.0, 0.0])
     top, parent = np.zeros(3), None
@@ -168,13 +168,14 @@ CAR_WHEEL_SPEED = 5.0  # rad/s, the wheel servos' initial target
 CAR_STEERING = 0.3  # rad, the steering servos' initial target (to the left)
 
 
-def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) -> SceneBuilder:
+def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, ground: bool = False) -> SceneBuilder:
     """The paper's car (section 5): a chassis; per wheel a strut on a slider with a spring-damper along z (the
     suspension, its spring preloaded so that the built pose is the rest pose), a front knuckle on a steering
     hinge about z (front wheels), and the wheel on a hinge about y driven by a velocity servo. The two
     steering hinges carry position servos with one target: the steering servo. The servos are stiff motors
     (`SceneBuilder.add_motor`): a PID torque on the light knuckle would need a gain too low to steer.
-    Until contacts exist the chassis is fixed to the world ("hold"), so the wheels spin and steer in the air.
+    Without `ground` the chassis is fixed to the world ("hold"), so the wheels spin and steer in the air; with
+    it the car is free and stands on its wheels on a ground (friction 1) that touches them, and drives.
 
     Motors, in add order: wheels front-left, front-right, rear-left, rear-right, then steering left, right.
     """
@@ -182,7 +183,8 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) ->
     z_axis, y_axis = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
     chassis = _solid(builder, Shape("box", size=(2.4, 1.2, 0.3), color=(0.7, 0.1, 0.1)), 300.0, (0.0, 0.0, 0.8),
                      (0.0, 0.0, 0.0, 1.0), "chassis")  # fmt: skip
-    builder.add_joint_fixed(None, chassis, (0.0, 0.0, 0.8), name="hold")
+    if not ground:
+        builder.add_joint_fixed(None, chassis, (0.0, 0.0, 0.8), name="hold")
     k, c, strut_mass = 2.0e4, 400.0, 15.0
     wheel_shape = Shape("cylinder", radius=0.3, length=0.2, color=(0.15, 0.15, 0.15))
     upright = quat_between([0.0, 0.0, 1.0], y_axis)  # the cylinder's axis along y
@@ -201,6 +203,8 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) ->
             steering_hinges.append(builder.add_joint_revolute(strut, carrier, hub, z_axis, name=f"{name}_steering"))
             hung += 2.0
         wheel = _solid(builder, wheel_shape, 350.0, hub, upright, f"{name}_wheel")
+        builder.bodies[wheel].friction = 1.0
+        builder.filter_collision(chassis, wheel)  # the wheel turns in the wheel arch
         hung += builder.bodies[wheel].mass
         wheels.append(builder.add_joint_revolute(carrier, wheel, hub, y_axis, name=f"{name}_axle"))
         builder.add_joint_spring(slider, k, damping=c, rest=hung * g / k)
@@ -208,6 +212,8 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING) ->
         builder.add_motor(joint, "velocity", target=wheel_speed, max_force=300.0, stiff=True)
     for joint in steering_hinges:
         builder.add_motor(joint, "position", target=steering, max_force=50.0, stiff=True)
+    if ground:
+        builder.add_ground(height=0.35 - wheel_shape.radius, friction=1.0)
     return builder
 
 
@@ -229,7 +235,9 @@ def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
     """The paper's walking machine (section 5): per leg one servo motor (a stiff velocity motor on the crank's
     hinge), two hinges (crank to leg, body to sleeve) and one slider (the leg through the sleeve): one closed
     loop per leg, a crank-driven slotted lever whose foot traces a closed curve each crank turn. Four legs,
-    cranks half a turn apart on each side. Until contacts exist the body is fixed to the world ("hold")."""
+    cranks half a turn apart on each side. Until it can walk on a ground the body is fixed to the world
+    ("hold"): on one, its feet pushed 2-3 cm into the ground within a step and the alternation of joints and
+    contacts diverged (docs/contacts.md)."""
     builder = SceneBuilder()
     axis = np.array([0.0, -1.0, 0.0])  # angles grow from +x towards +z
     height = 1.0
@@ -248,6 +256,48 @@ def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
         builder.add_joint_revolute(body, sleeve, s, axis, name=f"leg{i}_hip")
         builder.add_joint_prismatic(sleeve, leg, s, u, name=f"leg{i}_slider")
         builder.add_motor(servo, "velocity", target=crank_speed, max_force=500.0, stiff=True)
+        builder.filter_collision(body, leg)  # the leg slides through the sleeve, past the body
+    return builder
+
+
+def box_stack(boxes: int = 10, size: float = 0.2, density: float = 500.0) -> SceneBuilder:
+    """`boxes` cubes of edge `size` (m) stacked on the ground, touching, at rest."""
+    builder = SceneBuilder()
+    shape = Shape("box", size=(size, size, size), color=(0.7, 0.5, 0.3))
+    mass, inertia = shape.mass_properties(density)
+    for i in range(boxes):
+        builder.add_body(mass, inertia, (0.0, 0.0, size * (i + 0.5)), shape=shape, name=f"box{i}")
+    builder.add_ground()
+    return builder
+
+
+def pile(bodies: int = 1000, seed: int = 0) -> SceneBuilder:
+    """`bodies` spheres and capsules (radius 5 cm, capsules 20 cm long; alternating) on a grid of 24 cm cells,
+    ten by ten per layer, with random orientations and small offsets, dropped into a box 2.4 m wide (the ground
+    and four static walls 2.6 m high). No two start closer than 4 cm."""
+    rng = np.random.default_rng(seed)
+    builder = SceneBuilder()
+    per_row, cell, wall, height = 10, 0.24, 0.1, 2.6
+    width = per_row * cell
+    half = 0.5 * (width + wall)
+    side = Shape("box", size=(width + 2 * wall, wall, height), color=(0.6, 0.6, 0.6))
+    end = Shape("box", size=(wall, width, height), color=(0.6, 0.6, 0.6))
+    walls = [((0, half, 0.5 * height), side), ((0, -half, 0.5 * height), side),
+             ((half, 0, 0.5 * height), end), ((-half, 0, 0.5 * height), end)]  # fmt: skip
+    for i, (pos, shape) in enumerate(walls):
+        builder.add_static_body(pos, name=f"wall{i}", shape=shape)
+    builder.add_ground()
+    sphere = Shape("sphere", radius=0.05, color=(0.2, 0.5, 0.8))
+    capsule = Shape("capsule", radius=0.05, length=0.1, color=(0.8, 0.3, 0.2))
+    for i in range(bodies):
+        shape = sphere if i % 2 == 0 else capsule
+        mass, inertia = shape.mass_properties(DENSITY)
+        layer, index = divmod(i, per_row * per_row)
+        row, col = divmod(index, per_row)
+        x = -0.5 * width + cell * (col + 0.5) + rng.uniform(-0.01, 0.01)
+        y = -0.5 * width + cell * (row + 0.5) + rng.uniform(-0.01, 0.01)
+        q = quat_from_axis_angle(rng.normal(size=3), rng.uniform(0.0, math.pi))
+        builder.add_body(mass, inertia, (x, y, 0.15 + cell * layer), q, name=f"{shape.kind}{i}", shape=shape)
     return builder
 
 
@@ -263,4 +313,6 @@ SCENES = {
     "four_bar": four_bar,
     "car": car,
     "walking_machine": walking_machine,
+    "box_stack": box_stack,
+    "pile": pile,
 }

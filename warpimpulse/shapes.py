@@ -1,4 +1,4 @@
-"""Display shapes and their mass properties (uniform density, axis along local z)."""
+"""Shapes: display, mass properties (uniform density, axis along local z) and collision (`kernels/collide.py`)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,17 @@ from dataclasses import dataclass
 import numpy as np
 
 SHAPE_KINDS = ("capsule", "box", "sphere", "cylinder")
+SHAPE_CODES = {"sphere": 0, "capsule": 1, "box": 2, "cylinder": 3}
+"""The kernels' codes for the collision shapes (`kernels/collide.py`); -1 is a body that does not collide."""
 
 
 @dataclass(frozen=True)
 class Shape:
-    """A solid for display and for mass helpers.
+    """A solid for display, for mass helpers and for collision, in the body frame centred on the body's origin.
 
     capsule / cylinder: `radius`, `length` (cylinder part, along local z).
     sphere: `radius`. box: `size` (full edge lengths x, y, z).
+    collide: the body collides with this shape (False: display and mass only).
     """
 
     kind: str
@@ -23,6 +26,7 @@ class Shape:
     length: float = 0.0
     size: tuple[float, float, float] = (0.0, 0.0, 0.0)
     color: tuple[float, float, float] = (0.8, 0.5, 0.2)
+    collide: bool = True
 
     def __post_init__(self) -> None:
         if self.kind not in SHAPE_KINDS:
@@ -30,6 +34,28 @@ class Shape:
         values = (self.radius, self.length, *self.size)
         if not all(math.isfinite(v) and v >= 0.0 for v in values):
             raise ValueError(f"shape {self.kind} has a negative or non-finite size: {values}")
+
+    def zero_size(self) -> bool:
+        """A collision shape of no extent: a sphere, capsule or cylinder of zero radius, a cylinder of zero length,
+        a box with a zero edge."""
+        if self.kind == "box":
+            return min(self.size) <= 0.0
+        return self.radius <= 0.0 or (self.kind == "cylinder" and self.length <= 0.0)
+
+    def collision_size(self) -> tuple[float, float, float]:
+        """What the narrow phase reads (m): (radius, half length, 0) for spheres, capsules and cylinders, half
+        the edges for a box."""
+        if self.kind == "box":
+            return tuple(0.5 * v for v in self.size)
+        return (self.radius, 0.5 * self.length, 0.0)
+
+    def bounding_radius(self) -> float:
+        """The radius of a sphere about the body's origin that holds the shape (m), for the broad phase."""
+        if self.kind == "box":
+            return 0.5 * math.sqrt(sum(v * v for v in self.size))
+        if self.kind == "cylinder":
+            return math.hypot(self.radius, 0.5 * self.length)
+        return self.radius + 0.5 * self.length
 
     def volume(self) -> float:
         r, l = self.radius, self.length
@@ -68,3 +94,36 @@ class Shape:
     def mass_properties(self, density: float) -> tuple[float, np.ndarray]:
         mass = density * self.volume()
         return mass, self.inertia(mass)
+
+
+@dataclass
+class Colliders:
+    """A scene's collision geometry on the host (`SceneBuilder.finalize` fills it, `contacts.ContactStage` puts it
+    on the device). n bodies, p planes, f filtered pairs.
+
+    shape_kind: (n,) `SHAPE_CODES`, -1 for a body without a colliding shape.
+    shape_size: (n, 3) `Shape.collision_size()` (m). bound: (n,) `Shape.bounding_radius()` (m).
+    friction, restitution: (n,) Coulomb coefficient and Newton's coefficient of each body.
+    plane_normal (p, 3) unit, world; plane_offset (p,): the plane is {x : normal . x = offset} (m), solid below.
+    plane_friction, plane_restitution: (p,).
+    filter_pairs: (f, 2) bodies that never collide with each other (jointed pairs and user filters), a < b.
+    """
+
+    shape_kind: np.ndarray
+    shape_size: np.ndarray
+    bound: np.ndarray
+    friction: np.ndarray
+    restitution: np.ndarray
+    plane_normal: np.ndarray
+    plane_offset: np.ndarray
+    plane_friction: np.ndarray
+    plane_restitution: np.ndarray
+    filter_pairs: np.ndarray
+
+    @property
+    def plane_count(self) -> int:
+        return len(self.plane_offset)
+
+    @property
+    def collider_count(self) -> int:
+        return int(np.count_nonzero(self.shape_kind >= 0))

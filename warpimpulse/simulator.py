@@ -18,6 +18,7 @@ import numpy as np
 import warp as wp
 
 from . import checks, composition, coordinates, diagnose
+from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import forces as force_kernels
@@ -36,6 +37,9 @@ from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
+VELOCITY_ALTERNATIONS = 10
+"""Rounds of (joint velocity correction, contact velocity sweeps) at t0+h before the last joint correction: the
+two blocks converge linearly into each other (a cart on its wheels: about 0.7 a round)."""
 
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
@@ -57,6 +61,9 @@ def _combined(parts: list[StepStats]) -> StepStats:
         sum(p.substeps for p in parts),
         min(p.order for p in parts),
         next((p.fallback for p in parts if p.fallback), ""),
+        parts[-1].contacts,
+        max(p.max_penetration for p in parts),
+        sum(p.contact_sweeps for p in parts),
     )
 
 
@@ -82,6 +89,10 @@ class Simulator:
         verbose: bool = False,
         order: int = 2,
         scheme: str | None = None,
+        contact_solver: str = "pgs",
+        contact_margin: float = 0.005,
+        broad_phase: str = "bvh",
+        contact_sweeps: int = 30,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -116,6 +127,14 @@ class Simulator:
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
             1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
         scheme: the composition for `order` by name (`composition.SCHEMES`); None takes the measured best.
+        contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
+            found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
+        contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
+            only if the corrections close them).
+        broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
+        contact_sweeps: Gauss-Seidel sweeps over the contacts at most per position solve ("pgs"), between two
+            predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
+            impulses settle to a tenth of `velocity_tolerance`, at most 8 times as many.
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
@@ -128,6 +147,12 @@ class Simulator:
         velocity_tolerance = checks.positive(velocity_tolerance, "velocity_tolerance", " (m/s or rad/s)")
         max_iterations = checks.integer(max_iterations, "max_iterations", 1)
         max_substep_depth = checks.integer(max_substep_depth, "max_substep_depth", 0)
+        contact_margin = checks.positive(contact_margin, "contact_margin", " (m)")
+        contact_sweeps = checks.integer(contact_sweeps, "contact_sweeps", 1)
+        if contact_solver not in CONTACT_SOLVERS:
+            raise ValueError(f"unknown contact_solver {contact_solver!r}; expected one of {CONTACT_SOLVERS}")
+        if broad_phase not in BROAD_PHASES:
+            raise ValueError(f"unknown broad_phase {broad_phase!r}; expected one of {BROAD_PHASES}")
         if max_rotation is not None:
             max_rotation = checks.positive(max_rotation, "max_rotation", " (rad), or None")
         if not isinstance(formulation, str) or formulation not in ("auto", *FORMULATIONS):
@@ -235,6 +260,13 @@ class Simulator:
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
         self._save_start = self._capture(lambda: self._start.copy_from(self.state))
         self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
+        self.contact_stage = None
+        self._penetration, self._contact_sweeps = 0.0, 0  # of the (sub)step's position phase
+        if model.colliders is not None:
+            self.contact_stage = ContactStage(
+                model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
+                contact_margin, contact_solver, broad_phase, contact_sweeps,
+            )  # fmt: skip
         self._update_frames()
         self._check_finite(self.state, 0)
 
@@ -503,6 +535,8 @@ class Simulator:
         stages, fallback = self.scheme.stages, self._fallback
         if fallback:  # a non-reversible event in this step: composing it would not raise the order
             stages, self._fallback = (1.0,), ""
+        elif len(stages) > 1 and self._contacts_ahead(stages):
+            stages, fallback = (1.0,), "contacts"
         depth = self._spin_depth(max(abs(g) for g in stages))
         stats = _combined([self._advance(self.dt / 2**depth, depth, stages) for _ in range(2**depth)])
         stats.order = self.order if len(stages) == len(self.scheme.stages) else 2
@@ -511,6 +545,17 @@ class Simulator:
         self.step_count += 1
         self.time = self.step_count * self.dt
         return stats
+
+    def _contacts_ahead(self, stages: tuple[float, ...]) -> bool:
+        """Whether a composed step could meet a contact: any collider within the contact margin of another (or
+        of a ground) along its free motion from t0 to the furthest the stages reach forward. Contacts, impacts
+        and friction are not reversible, so such a step is taken at order 2 (`StepStats.fallback`)."""
+        if self.contact_stage is None:
+            return False
+        reach = self.dt * max(1.0, *np.cumsum(stages))
+        self._use_step_size(reach)
+        wp.capture_launch(self._evaluate)
+        return self.contact_stage.detect(reach) > 0
 
     def fall_back(self, reason: str) -> None:
         """Take the next step at order 2, recording `reason` in its StepStats. For whatever makes a step
@@ -549,7 +594,10 @@ class Simulator:
         """The paper's step of h (h < 0 runs it backwards): its stats, and False when it failed and a smaller
         step may still succeed (not `final`; the state then holds this attempt's impulses)."""
         self._use_step_size(h)
-        joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        if self.contact_stage is None:
+            joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
+        else:
+            joint_it, joint_err, linear_iterations, ok = self._correct_with_contacts(h, final)
         if ok:
             self._report_nonfinite(self.pred, self.step_count + 1)  # measured with the last prediction
             if not final and self._turns(h) > 1.0:
@@ -585,8 +633,15 @@ class Simulator:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
             # ill-conditioned K) is reported under the same policy as an iteration limit.
             self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
-        converged = joint_err <= self.tolerance and vel_err <= self.velocity_tolerance
-        return StepStats(joint_it, vel_it, joint_err, vel_err, converged, linear_iterations, 1), True
+        stats = StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1)
+        if self.contact_stage is not None:
+            self._contact_velocities(h, stats)
+        stats.converged = (
+            stats.max_joint_error <= self.tolerance
+            and stats.max_velocity_error <= self.velocity_tolerance
+            and stats.max_penetration <= self.tolerance
+        )
+        return stats, True
 
     def _fix_velocities(self) -> int:
         """The velocity correction's solve from the velocity errors just measured, applied, and the errors
@@ -643,6 +698,95 @@ class Simulator:
                 self._correct_limits.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1
+
+    def _joint_iteration(self) -> int:
+        """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns
+        the linear solves it took."""
+        if self.linear is None:
+            self._sweep_positions.launch()
+            wp.capture_launch(self._evaluate)
+            return 0
+        if self._direct:
+            wp.capture_launch(self._iterate)
+            return 1
+        solves = self.linear.solve(self.rhs, self.impulse, None)
+        self._apply.launch()
+        self._correct_limits.launch()
+        wp.capture_launch(self._evaluate)
+        return solves
+
+    def _correct_with_contacts(self, h: float, final: bool) -> tuple[int, float, int, bool]:
+        """`_correct_joints` with the contacts in the same loop (method paper's way; docs/contacts.md): correct the
+        joints first and detect on that prediction (it holds the motion motors and loops impose, which the free
+        prediction does not); then, until every joint and every contact holds to the tolerance, correct the
+        joints (one direct solve: the joints as one block), predict, and close the contacts' predicted gaps
+        with push-only impulses at t0 (Gauss-Seidel around that block), and predict again. The error returned
+        is the larger of the joints' and the deepest penetration."""
+        cs = self.contact_stage
+        joint_it, _, linear_iterations, ok = self._correct_joints(final)  # the joints' (and motors') motion first
+        if not ok:
+            return joint_it, math.inf, linear_iterations, False
+        cs.detect(h)
+        self._contact_sweeps = 0
+        iterations, best = joint_it, math.inf
+        joints = self.model.constraint_count > 0
+        while True:
+            joint_err = self._max_error("joint") if joints else 0.0
+            self._penetration = cs.measure(h)
+            err = max(joint_err, self._penetration)
+            best = min(best, err)
+            if err <= self.tolerance:
+                return iterations, joint_err, linear_iterations, True
+            if not self._may_iterate(iterations, err, "joint", best, final):
+                return iterations, joint_err, linear_iterations, final
+            if joint_err > self.tolerance:
+                linear_iterations += self._joint_iteration()
+                cs.measure(h)
+            self._contact_sweeps += cs.solve_positions(h)
+            wp.capture_launch(self._evaluate)
+            iterations += 1
+
+    def _contact_velocities(self, h: float, stats: StepStats) -> None:
+        """Restitution and friction at t0+h, alternated with the joints' velocity correction (at most
+        `VELOCITY_ALTERNATIONS` rounds), then a last joint correction: the joints hold to the tolerance at the
+        end of the step, the contacts' velocities as far as the rounds brought them (their positions are held
+        to the tolerance by the next step's position phase)."""
+        cs = self.contact_stage
+        sweeps = cs.solve_velocities(h)
+        if self.model.constraint_count:
+            self._velocity_errors.launch()
+            err = self._max_error("velocity")
+            rounds = 0
+            while err > self.velocity_tolerance and rounds <= VELOCITY_ALTERNATIONS:
+                if self.linear is None:
+                    self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+                else:
+                    self._fix_velocities()
+                    if self.model.limit_count:  # the limits and stiff motors, as in the joint-only step
+                        self._correct_limit_velocities.launch()
+                        self._velocity_errors.launch()
+                        self._fix_velocities()
+                stats.velocity_iterations += 1
+                rounds += 1
+                if rounds <= VELOCITY_ALTERNATIONS:
+                    sweeps += cs.solve_velocities(h, first=False)
+                self._velocity_errors.launch()
+                err = self._max_error("velocity")
+            if err > self.velocity_tolerance:
+                self._may_iterate(self.max_iterations, err, "velocity", err, True)
+            stats.max_velocity_error = err
+        stats.contacts = cs.count
+        stats.max_penetration = self._penetration
+        stats.contact_sweeps = self._contact_sweeps + sweeps
+
+    def contacts(self) -> Contacts:
+        """The contacts of the last step at the current state (`contacts.Contacts`: bodies, points, normals,
+        depths, normal and friction impulses), numpy; empty for a scene without colliders."""
+        if self.contact_stage is None:
+            e = np.zeros(0)
+            return Contacts(e.astype(np.int32), e.astype(np.int32), np.zeros((0, 3)), np.zeros((0, 3)), e, e,
+                            np.zeros((0, 3)))  # fmt: skip
+        return self.contact_stage.contacts()
 
     def _sweep(self, launch: wp.Launch, tolerance: float, what: str, final: bool) -> tuple[int, float]:
         sweeps, best = 0, math.inf

@@ -21,3 +21,6 @@ class StepStats:
     substeps: int = 1  # > 1 when a fast spin split the step, or a failing step was redone as smaller ones
     order: int = 2  # the order in time the step was taken at (Simulator's `order`, unless it fell back)
     fallback: str = ""  # why a step asked at order 4 or 6 was taken at order 2 (a non-reversible event)
+    contacts: int = 0  # contact points detected (in the last substep)
+    max_penetration: float = 0.0  # m, the deepest contact after the position correction
+    contact_sweeps: int = 0  # Gauss-Seidel sweeps over the contacts, both phases, summed over the step

@@ -61,7 +61,7 @@ def capsule(
     `density` kg/m^3 times `mass_factor`; returns the body and its far end (world, m)."""
     radius = 0.05 * length
     span = length - 2.0 * radius
-    shape = Shape("capsule", radius=radius, length=span)
+    shape = Shape("capsule", radius=radius, length=span, collide=False)
     mass, inertia = shape.mass_properties(density)
     direction = np.asarray(direction, dtype=float)
     q = quat_between([0.0, 0.0, 1.0], direction)
@@ -124,12 +124,12 @@ def hinge_through_centre() -> SceneBuilder:
         builder, np.zeros(3), quat_rotate(quat_from_axis_angle(y_axis, 0.8), [0, 0, -1.0]), 1.0, "rod"
     )
     builder.add_joint_revolute(None, rod, np.zeros(3), y_axis, name="pivot")
-    wheel = Shape("cylinder", radius=0.3, length=0.05)
+    wheel = Shape("cylinder", radius=0.3, length=0.05, collide=False)
     mass, inertia = wheel.mass_properties(1000.0)
     q = quat_between([0.0, 0.0, 1.0], [0.0, 1.0, 0.0])  # wheel axis along y
     w = builder.add_body(mass, inertia, bottom, q, angular_velocity=(0.0, 50.0, 0.0), name="wheel", shape=wheel)
     builder.add_joint_revolute(rod, w, bottom, y_axis, name="axle")  # through the wheel's centre of mass
-    box = Shape("box", size=(0.4, 0.2, 0.1))
+    box = Shape("box", size=(0.4, 0.2, 0.1), collide=False)
     mass, inertia = box.mass_properties(500.0)
     b = builder.add_body(mass, inertia, (2.0, 0.0, 0.0), angular_velocity=(3.0, 20.0, 1.0), name="box", shape=box)
     builder.add_joint_revolute(None, b, (2.0, 0.0, 0.0), (1.0, 1.0, 0.0), name="box_hinge")

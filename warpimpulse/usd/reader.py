@@ -7,8 +7,8 @@ targets a prim inside a body stands for that body (PhysX's rule); any other prim
 transform. Limits and drives on a joint with one DOF (revolute, prismatic, or D6 with one free axis) become
 motors, joint springs and limits; distance joints distance constraints. What is not simulated (cone limits,
 limits or drives on a joint with several free DOFs, break forces) is refused (or dropped with a warning when
-`ignore_unsupported`), never silently; colliders, which only give mass until contacts are simulated, get
-one warning.
+`ignore_unsupported`), never silently; colliders that do not collide (they still give mass) get one
+warning.
 
 Units: the simulator is SI. Inputs are converted with metersPerUnit / kilogramsPerUnit; angles in USD are
 degrees. USD stores quaternions real part first (`Gf.Quatd(w, x, y, z)`); here they are (x, y, z, w).
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..builder import SceneBuilder, SceneError
+from ..builder import SceneBuilder, SceneError, checked_material
 from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..shapes import Shape
@@ -179,9 +179,10 @@ class _Reporter:
         warnings.warn(msg, stacklevel=stacklevel)
 
 
-def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Reporter):
-    """MassInformation (unit density) of one collision prim, in the body's rigid frame."""
-    Gf, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
+def _collider_shape(prim, xforms: _Xforms, report: _Reporter) -> tuple[Shape, str, int, Similarity]:
+    """A collision prim's solid with its world scale applied (stage units): (shape, kind, the axis index of a
+    capsule or cylinder, the prim's world similarity). A prim of another type is its extent box (noted)."""
+    _, _, _, _, UsdGeom, _, _ = pxr()
     path = str(prim.GetPath())
     sim = decompose(xforms.world(prim), path)
     kind, axis = None, 2
@@ -210,6 +211,13 @@ def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Rep
         report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
         shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
         sim.t = sim.t + quat_rotate(sim.q, 0.5 * (lo + hi) * sim.s)
+    return shape, kind, axis, sim
+
+
+def _shape_mass_info(prim, body_frame: Similarity, xforms: _Xforms, report: _Reporter):
+    """MassInformation (unit density) of one collision prim, in the body's rigid frame."""
+    Gf, _, _, _, _, UsdPhysics, _ = pxr()
+    shape, kind, axis, sim = _collider_shape(prim, xforms, report)
     volume = shape.volume()
     inertia = shape.inertia(volume)  # density 1
     if kind in ("capsule", "cylinder") and axis != 2:
@@ -540,6 +548,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         except SceneError as exc:
             raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
         _read_forces(builder, prim, index[bpath], mpu, kpu)
+    colliding, not_colliding = _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu, report)
     # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
     for i, (p, _desc) in enumerate(bodies):
         prim = stage.GetPrimAtPath(p)
@@ -697,7 +706,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
     for prim_path, type_name in _unknown_physics_prims(stage):
         report.note(_unknown_type_text(prim_path, type_name))
-    colliders = _ignored_colliders(stage, index)
+    colliders = _ignored_colliders(stage, index, colliding, not_colliding)
     if colliders:
         report.note(_colliders_text(colliders))
     default_prim = stage.GetDefaultPrim()
@@ -716,14 +725,20 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     )  # fmt: skip
 
 
-def _ignored_colliders(stage, index: dict[str, int]) -> list[str]:
-    """The enabled collision prims (CollisionAPI), static ones first: contacts are not simulated, so they
-    only give their bodies mass."""
+def _ignored_colliders(
+    stage, index: dict[str, int], colliding: set[str], not_colliding: dict[str, str]
+) -> list[tuple[str, str]]:
+    """(path, why) of the enabled collision prims (CollisionAPI) that do not collide, static ones first: those
+    `_read_colliders` could not simulate, and those the parser did not take for colliders (not geometry)."""
     _, _, _, _, _, UsdPhysics, _ = pxr()
     static, moving = [], []
     for prim in stage.Traverse():
         if prim.HasAPI(UsdPhysics.CollisionAPI) and UsdPhysics.CollisionAPI(prim).GetCollisionEnabledAttr().Get():
-            (static if _rigid_ancestor(prim, index) is None else moving).append(str(prim.GetPath()))
+            path = str(prim.GetPath())
+            if path in colliding:
+                continue
+            why = not_colliding.get(path, "not a collision geometry")
+            (static if _rigid_ancestor(prim, index) is None else moving).append((path, why))
     return static + moving
 
 
@@ -749,14 +764,14 @@ def _unknown_type_text(path: str, type_name: str) -> str:
     return f"{path}: no schema defines the prim type {type_name}{hint}; its physics:* properties are ignored"
 
 
-def _colliders_text(colliders: list[str]) -> str:
-    """The one warning for colliders, naming how many and the first (a static one when there is one)."""
+def _colliders_text(colliders: list[tuple[str, str]]) -> str:
+    """The one warning for colliders that do not collide, naming how many and the first (a static one when
+    there is one) with why."""
     n = len(colliders)
-    many = n > 1
+    path, why = colliders[0]
     return (
-        f"{n} collider{'s are' if many else ' is'} ignored ({'e.g. ' if many else ''}{colliders[0]}): contacts "
-        f"are not simulated yet, so bodies pass through {'them' if many else 'it'}; colliders still give their "
-        f"bodies mass"
+        f"{n} collider{'s do' if n > 1 else ' does'} not collide ({'e.g. ' if n > 1 else ''}{path}: {why}): bodies "
+        f"pass through {'them' if n > 1 else 'it'}; colliders still give their bodies mass"
     )
 
 
@@ -783,6 +798,96 @@ def _start_time(stage):
     in its layer stack is where it is then), else the default time."""
     _, _, _, Usd, *_ = pxr()
     return Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else Usd.TimeCode.Default()
+
+
+def _material(stage, paths, where: str) -> tuple[float, float]:
+    """(friction, restitution) of a collider's first bound PhysicsMaterialAPI material; (0.5, 0) without one.
+    The dynamic friction is the Coulomb coefficient (warpimpulse has one for sliding and sticking)."""
+    _, _, _, _, _, UsdPhysics, _ = pxr()
+    for mpath in paths:
+        prim = stage.GetPrimAtPath(mpath)
+        if prim and prim.HasAPI(UsdPhysics.MaterialAPI):
+            api = UsdPhysics.MaterialAPI(prim)
+            friction = float(_real(str(mpath), "physics:dynamicFriction", api.GetDynamicFrictionAttr().Get() or 0.0))
+            restitution = float(_real(str(mpath), "physics:restitution", api.GetRestitutionAttr().Get() or 0.0))
+            if friction < 0.0:
+                raise UsdSceneError(f"{mpath}: physics:dynamicFriction must be >= 0, got {friction} (bound to {where})")
+            if not 0.0 <= restitution <= 1.0:
+                raise UsdSceneError(f"{mpath}: physics:restitution must be in [0, 1], got {restitution} "
+                                    f"(bound to {where})")  # fmt: skip
+            return friction, restitution
+    return 0.5, 0.0
+
+
+def _read_colliders(
+    stage, get, builder: SceneBuilder, index, frames, com_offsets, xforms, mpu, report
+) -> tuple[set[str], dict[str, str]]:
+    """CollisionAPI prims: a Plane without a rigid body is a ground; a Sphere, Capsule, Cube or Cylinder of a
+    rigid body, centred on its centre of mass with its axis (a cube's edges) along the body frame's z (edges),
+    is the body's collision shape (one per body), with its material's friction and restitution; a body's
+    FilteredPairsAPI targets never collide with it. Returns the colliders simulated, and the others, which do not
+    collide, with why (the reader warns once for them all, `_colliders_text`)."""
+    _, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
+    T = UsdPhysics.ObjectType
+    shaped: set[int] = set()
+    simulated: set[str] = set()
+    ignored: dict[str, str] = {}
+    kinds = (T.SphereShape, T.CapsuleShape, T.Capsule1Shape, T.CubeShape, T.CylinderShape, T.Cylinder1Shape,
+             T.PlaneShape, T.ConeShape, T.MeshShape, T.CustomShape, T.SpherePointsShape)  # fmt: skip
+    for t in kinds:
+        for p, desc in get(t):
+            path = str(p)
+            prim = stage.GetPrimAtPath(p)
+            if not desc.collisionEnabled:
+                continue
+            body_prim = _rigid_ancestor(prim, index)
+            friction, restitution = _material(stage, desc.materials, path)
+            if t == T.PlaneShape and body_prim is None:
+                sim = decompose(xforms.world(prim), path)
+                axis = str(prim.GetAttribute("axis").Get() or "Z")
+                normal = quat_rotate(sim.q, np.eye(3)["XYZ".index(axis)])
+                builder.add_ground(float(np.dot(normal, sim.t)) * mpu, normal, friction, restitution)
+                simulated.add(path)
+                continue
+            if t not in (T.SphereShape, T.CapsuleShape, T.CubeShape, T.CylinderShape) or body_prim is None:
+                ignored[path] = "a static collider that is not a plane" if body_prim is None else f"a {t.name}"
+                continue
+            b = index[str(body_prim.GetPath())]
+            if b in shaped:
+                ignored[path] = "a second collider on its body"
+                continue
+            shape, kind, axis, sim = _collider_shape(prim, xforms, report)
+            frame = frames[b]
+            centre = frame.t + quat_rotate(frame.q, com_offsets[b])
+            offset = quat_rotate(quat_conj(frame.q), sim.t - centre)
+            turn = quat_to_matrix(quat_mul(quat_conj(frame.q), sim.q))
+            along = np.abs(turn[:, axis]) if kind in ("capsule", "cylinder") else None
+            aligned = (kind == "sphere" or (kind == "box" and np.allclose(np.abs(turn), np.eye(3), atol=1e-6))
+                       or (along is not None and along[2] > 1.0 - 1e-6))  # fmt: skip
+            scale = max(shape.bounding_radius(), 1e-12)
+            if float(np.linalg.norm(offset)) > 1e-6 * scale or not aligned:
+                ignored[path] = "off its body's centre of mass or turned from its body frame"
+                continue
+            size = dict(
+                radius=shape.radius * mpu, length=shape.length * mpu, size=tuple(float(v) * mpu for v in shape.size)
+            )
+            body = builder.bodies[b]
+            try:
+                body.shape = Shape(kind, **size)
+                if body.shape.zero_size():
+                    raise SceneError(f"collision shape {kind} has zero size")
+                body.friction, body.restitution = checked_material(friction, restitution, path)
+            except (SceneError, ValueError) as exc:
+                raise UsdSceneError(f"{path}: {exc}") from None
+            shaped.add(b)
+            simulated.add(path)
+    for p, desc in get(T.RigidBody):
+        a = index.get(str(p))
+        for target in desc.filteredCollisions:
+            other = _rigid_ancestor(stage.GetPrimAtPath(target), index)
+            if a is not None and other is not None and index[str(other.GetPath())] != a:
+                builder.filter_collision(a, index[str(other.GetPath())])
+    return simulated, ignored
 
 
 def _rigid_ancestor(prim, index: dict[str, int]):

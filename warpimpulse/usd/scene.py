@@ -14,6 +14,7 @@ from ..builder import SceneBuilder, SceneError
 from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..model import Model
+from ..shapes import SHAPE_CODES, Shape
 from ..transforms import quat_rotate
 from ..types import DRIVE_MODES, WORLD, ConstraintKind
 
@@ -112,8 +113,9 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
 def builder_from_model(model: Model) -> SceneBuilder:
     """A SceneBuilder that finalizes to `model` again: the bodies at their initial state, each joint from its
     first constraint's build-time anchor and axes (the builder gives all of a joint's constraints the same
-    ones), the forces, the distance constraints. A model holds no shapes, so the bodies have none: the writer
-    draws each as a sphere of the same mean inertia (write the SceneBuilder itself to keep its shapes)."""
+    ones), the forces, the distance constraints, the collision shapes, materials, grounds and filters. Bodies
+    without a collision shape have none: the writer draws each as a sphere of the same mean inertia (write the
+    SceneBuilder itself to keep display shapes and colours)."""
     h = model.host
     builder = SceneBuilder(gravity=h.gravity)
     for i, name in enumerate(model.body_name):
@@ -135,6 +137,7 @@ def builder_from_model(model: Model) -> SceneBuilder:
     for body, force, torque, until in zip(h.force_body, h.force_force, h.force_torque, h.force_until):
         builder.add_force(int(body), force, torque, float(until))
     _mechanisms_from_model(builder, model)
+    _restore_colliders(builder, model)
     return builder
 
 
@@ -169,6 +172,30 @@ def _mechanisms_from_model(builder: SceneBuilder, model: Model) -> None:
             a if b is None else h.body_x[b] + quat_rotate(h.body_q[b], a) for b, a in zip(ends, (local0, local1))
         ]
         builder.add_distance(ends[0], ends[1], anchors[0], anchors[1], float(lower), float(upper), name)
+
+
+def _restore_colliders(builder: SceneBuilder, model: Model) -> None:
+    """The model's collision shapes (from their sizes), materials, grounds and filters, back on the builder."""
+    c = model.colliders
+    if c is None:
+        return
+    kinds = {code: kind for kind, code in SHAPE_CODES.items()}
+    for body, code, size, friction, restitution in zip(builder.bodies, c.shape_kind, c.shape_size, c.friction,
+                                                        c.restitution):  # fmt: skip
+        body.friction, body.restitution = float(friction), float(restitution)
+        if code >= 0:
+            kind = kinds[int(code)]
+            if kind == "box":
+                body.shape = Shape(kind, size=tuple(2.0 * float(v) for v in size))
+            else:
+                body.shape = Shape(kind, radius=float(size[0]), length=2.0 * float(size[1]))
+    for normal, offset, friction, restitution in zip(c.plane_normal, c.plane_offset, c.plane_friction,
+                                                      c.plane_restitution):  # fmt: skip
+        builder.add_ground(float(offset), normal, float(friction), float(restitution))
+    jointed = {(min(j.parent, j.child), max(j.parent, j.child)) for j in builder.joints}
+    for a, b in c.filter_pairs.tolist():
+        if (a, b) not in jointed:
+            builder.filter_collision(a, b)
 
 
 def as_scene(scene: UsdScene | SceneBuilder | Model) -> UsdScene:

@@ -25,7 +25,7 @@ from .. import __version__
 from ..builder import WORLD, SceneBuilder, SceneError
 from ..files import Interrupted, interrupts_deferred, same_file, write_atomically
 from ..shapes import Shape
-from ..transforms import quat_conj, quat_from_matrix, quat_mul, quat_rotate
+from ..transforms import quat_between, quat_conj, quat_from_matrix, quat_mul, quat_rotate
 from ..types import DRIVE_MODES
 from .scene import IDENTITY_QUAT, INSTANCER_PATH, MODE_KEY, UsdScene, as_scene, pxr, scene_from_builder
 
@@ -150,8 +150,9 @@ def _quat_text(q) -> str:
     return f"({_f(q[3])}, {_f(q[0])}, {_f(q[1])}, {_f(q[2])})"
 
 
-def _geometry_usda(name: str, shape: Shape, indent: str) -> str:
-    """One Capsule / Cube / Sphere / Cylinder prim (local z axis, centred) with a display colour, as usda."""
+def _geometry_usda(name: str, shape: Shape, indent: str, material: str | None = None) -> str:
+    """One Capsule / Cube / Sphere / Cylinder prim (local z axis, centred) with a display colour, as usda;
+    with `material` (a physics material's path), a collider (CollisionAPI) bound to it."""
     r, ln = shape.radius, shape.length
     if shape.kind in ("capsule", "cylinder"):
         cap = r if shape.kind == "capsule" else 0.0
@@ -168,8 +169,49 @@ def _geometry_usda(name: str, shape: Shape, indent: str) -> str:
         lo, hi = (-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)
     body.append(f"float3[] extent = [{_tup(lo)}, {_tup(hi)}]")
     body.append(f'color3f[] primvars:displayColor = [{_tup(shape.color)}] (interpolation = "constant")')
+    meta = ""
+    if material is not None:
+        body.append(f"rel material:binding:physics = <{material}>")
+        meta = f' (\n{indent}    prepend apiSchemas = ["PhysicsCollisionAPI", "MaterialBindingAPI"]\n{indent})'
     inner = "".join(f"{indent}    {line}\n" for line in body)
-    return f'{indent}def {type_name} "{name}"\n{indent}{{\n{inner}{indent}}}\n'
+    return f'{indent}def {type_name} "{name}"{meta}\n{indent}{{\n{inner}{indent}}}\n'
+
+
+def _materials_usda(builder: SceneBuilder) -> tuple[str, dict[tuple[float, float], str]]:
+    """One PhysicsMaterialAPI Material per (friction, restitution) of the colliding bodies and the grounds (the
+    same static and dynamic friction), under /World/PhysicsMaterials; returns the usda and the paths."""
+    pairs = [(b.friction, b.restitution) for b in builder.bodies if b.shape is not None and b.shape.collide]
+    pairs += [(g.friction, g.restitution) for g in builder.grounds]
+    paths = {pair: f"/World/PhysicsMaterials/material{k}" for k, pair in enumerate(dict.fromkeys(pairs))}
+    if not paths:
+        return "", paths
+    out = ['    def Scope "PhysicsMaterials"\n    {\n']
+    for (friction, restitution), path in paths.items():
+        out.append(f'        def Material "{path.rsplit("/", 1)[1]}" (\n            prepend apiSchemas = '
+                   f'["PhysicsMaterialAPI"]\n        )\n        {{\n'
+                   f"            float physics:staticFriction = {_f(friction)}\n"
+                   f"            float physics:dynamicFriction = {_f(friction)}\n"
+                   f"            float physics:restitution = {_f(restitution)}\n        }}\n")  # fmt: skip
+    out.append("    }\n")
+    return "".join(out), paths
+
+
+_ORDER = 'uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:orient"]'
+
+
+def _grounds_usda(builder: SceneBuilder, materials: dict[tuple[float, float], str]) -> str:
+    """Each ground as a static collider Plane prim (axis Z turned onto the normal, through normal * height)."""
+    out = []
+    for k, g in enumerate(builder.grounds):
+        q = quat_between([0.0, 0.0, 1.0], g.normal)
+        out.append(f'    def Plane "Ground{k}" (\n        prepend apiSchemas = ["PhysicsCollisionAPI", '
+                   f'"MaterialBindingAPI"]\n    )\n    {{\n'
+                   f'        uniform token axis = "Z"\n        double width = 20\n        double length = 20\n'
+                   f"        rel material:binding:physics = <{materials[(g.friction, g.restitution)]}>\n"
+                   f"        double3 xformOp:translate = {_tup(g.normal * g.height)}\n"
+                   f"        quatd xformOp:orient = {_quat_text(q)}\n"
+                   f"        {_ORDER}\n    }}\n")  # fmt: skip
+    return "".join(out)
 
 
 def _joint_frames(j) -> tuple[np.ndarray, np.ndarray, str, list[str], str]:
@@ -291,6 +333,12 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
     out.append('    def PhysicsScene "PhysicsScene"\n    {\n')
     out.append(f"        vector3f physics:gravityDirection = {_tup(g / mag if mag > 0 else (0.0, 0.0, -1.0))}\n")
     out.append(f"        float physics:gravityMagnitude = {_f(mag)}\n    }}\n")
+    materials_usda, materials = _materials_usda(builder)
+    out.append(materials_usda)
+    out.append(_grounds_usda(builder, materials))
+    filters: dict[int, list[int]] = {}
+    for a, b in sorted(builder.collision_filters):
+        filters.setdefault(a, []).append(b)
     forces: dict[int, list] = {}
     for f in builder.forces:
         forces.setdefault(f.body, []).append(f)
@@ -299,10 +347,11 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
     moments, axes = np.linalg.eigh(np.array([b.inertia for b in builder.bodies], dtype=np.float64).reshape(-1, 3, 3))
     axes[np.linalg.det(axes) < 0.0, :, 0] *= -1.0  # a proper rotation
     principal: dict[bytes, str] = {}
-    geometry: dict[Shape, str] = {}
+    geometry: dict[tuple[Shape, str | None], str] = {}
     for i, (b, path) in enumerate(zip(builder.bodies, scene.body_paths)):
         name = path.rsplit("/", 1)[1]
         schemas = '"PhysicsRigidBodyAPI"' + ("" if b.static else ', "PhysicsMassAPI"')
+        schemas += ', "PhysicsFilteredPairsAPI"' if i in filters else ""
         out.append(f'    def Xform "{name}" (\n        prepend apiSchemas = [{schemas}]\n    )\n    {{\n')
         lines = []
         if b.static:
@@ -319,6 +368,9 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
                 f"vector3f physics:velocity = {_tup(b.linear_velocity)}",
                 f"vector3f physics:angularVelocity = {_tup(np.degrees(b.angular_velocity))}",
             ]
+        if i in filters:
+            targets = ", ".join(f"<{scene.body_paths[j]}>" for j in filters[i])
+            lines.append(f"rel physics:filteredPairs = [{targets}]")
         if i in forces:
             fs = forces[i]
             lines += [
@@ -333,9 +385,10 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
         ]
         out.append("".join(f"        {line}\n" for line in lines))
         shape = _body_display_shape(b)
-        if shape not in geometry:
-            geometry[shape] = _geometry_usda("geom", shape, "        ")
-        out.append(geometry[shape])
+        material = materials[(b.friction, b.restitution)] if b.shape is not None and b.shape.collide else None
+        if (shape, material) not in geometry:
+            geometry[shape, material] = _geometry_usda("geom", shape, "        ", material)
+        out.append(geometry[shape, material])
         out.append("    }\n")
     if builder.joints or builder.distances:
         loops = _loop_joints(builder)

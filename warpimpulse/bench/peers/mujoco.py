@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...builder import WORLD, SceneBuilder
-from ...transforms import quat_conj, quat_mul, quat_rotate
+from ...transforms import quat_between, quat_conj, quat_mul, quat_rotate
 from ..runner import StepFailed
 from .reduced import joint_elements, parent_joints
 
@@ -36,8 +36,30 @@ def _wxyz(q_xyzw: np.ndarray) -> np.ndarray:
 _JOINT_TYPES = {"ball": "mjJNT_BALL", "hinge": "mjJNT_HINGE", "slide": "mjJNT_SLIDE"}
 
 
-def to_spec(builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK4", model_name: str = "warpimpulse"):
-    """The builder's scene as a `mujoco.MjSpec`: same bodies, masses, inertias, joints, gravity; contacts off.
+def _add_geom(el, shape, friction: float) -> None:
+    """A body's colliding shape as a MuJoCo geom at the body frame (our shapes are centred on it, axis z)."""
+    import mujoco
+
+    kind = {"sphere": "mjGEOM_SPHERE", "capsule": "mjGEOM_CAPSULE", "box": "mjGEOM_BOX",
+            "cylinder": "mjGEOM_CYLINDER"}[shape.kind]  # fmt: skip
+    el.add_geom(
+        type=getattr(mujoco.mjtGeom, kind),
+        size=np.array(shape.collision_size(), dtype=np.float64),
+        friction=np.array([friction, 0.005, 0.0001]),
+    )
+
+
+def to_spec(
+    builder: SceneBuilder,
+    timestep: float = 0.01,
+    integrator: str = "RK4",
+    model_name: str = "warpimpulse",
+    contacts: bool = False,
+):
+    """The builder's scene as a `mujoco.MjSpec`: same bodies, masses, inertias, joints, gravity. Contacts are
+    off unless `contacts`: then every colliding shape is a geom (with the body's friction; MuJoCo takes the
+    larger of two geoms' coefficients, we take their geometric mean, the same for equal ones), every ground a
+    plane, and MuJoCo's own filters apply (a body never collides with its parent).
 
     Built through MjSpec rather than MJCF text because MuJoCo's XML parser refuses documents nested more
     than a few hundred bodies deep (a long chain). Forces and initial velocities are not part of the
@@ -56,10 +78,22 @@ def to_spec(builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK
     spec.option.timestep = float(timestep)
     spec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{integrator.upper()}")
     spec.option.gravity = np.asarray(builder.gravity, dtype=np.float64)
-    spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    if not contacts:
+        spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    else:
+        for ground in builder.grounds:
+            spec.worldbody.add_geom(
+                type=mujoco.mjtGeom.mjGEOM_PLANE,
+                size=np.array([0.0, 0.0, 1.0]),
+                pos=ground.normal * ground.height,
+                quat=_wxyz(quat_between([0.0, 0.0, 1.0], ground.normal)),
+                friction=np.array([ground.friction, 0.005, 0.0001]),
+            )
     spec.option.enableflags |= int(mujoco.mjtEnableBit.mjENBL_ENERGY)
     if len(builder.bodies) > 1000:  # the default arena is too small for thousands of bodies
         spec.memory = max(64, len(builder.bodies) // 16) << 20
+    if contacts:  # and for the constraints of thousands of contacts (a 1,000-body pile needs over 64 MB)
+        spec.memory = max(spec.memory, len(builder.bodies) // 2 << 20)
 
     # Depth-first with an explicit stack: a chain of thousands of links nests thousands of bodies deep.
     stack = [(spec.worldbody, WORLD, b) for b in reversed(children.get(WORLD, []))]
@@ -73,6 +107,8 @@ def to_spec(builder: SceneBuilder, timestep: float = 0.01, integrator: str = "RK
             pos = quat_rotate(quat_conj(pb.orientation), body.position - pb.position)
             quat = quat_mul(quat_conj(pb.orientation), body.orientation)
         el = parent_el.add_body(name=body.name, pos=pos, quat=_wxyz(quat))
+        if contacts and body.shape is not None and body.shape.collide:
+            _add_geom(el, body.shape, body.friction)
         if not body.static:
             i = body.inertia
             el.explicitinertial = True
@@ -116,10 +152,12 @@ class MujocoScene:
     body_ids: np.ndarray  # MuJoCo body id of each builder body
 
     @classmethod
-    def from_builder(cls, builder: SceneBuilder, timestep: float, integrator: str = "RK4") -> MujocoScene:
+    def from_builder(
+        cls, builder: SceneBuilder, timestep: float, integrator: str = "RK4", contacts: bool = False
+    ) -> MujocoScene:
         import mujoco
 
-        model = to_spec(builder, timestep, integrator).compile()
+        model = to_spec(builder, timestep, integrator, contacts=contacts).compile()
         ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b.name) for b in builder.bodies]
         return cls(builder, model, np.array(ids, dtype=np.int64))
 

@@ -1,0 +1,251 @@
+"""Contacts: the 1,000-body pile against MuJoCo, the stages of a contact step, the contact solvers, and the cost
+of the contact stage to scenes without colliders.
+
+    python benchmarks/contacts.py [--bodies 1000] [--duration 3] [--json benchmarks/results/contacts.json]
+                                  [--baseline CHECKOUT]
+
+1. The pile (`scenes.pile`: spheres and capsules dropped into a box) in one run on both engines: median time
+   per step, the deepest penetration at the states of the last second, the kinetic energy at the end (at
+   rest: 0) and the total energy lost. MuJoCo gets the same bodies, shapes, friction and ground
+   (`bench.peers.mujoco.to_spec(contacts=True)`) and the implicitfast integrator, with its CG and PGS solvers
+   (its default Newton solver took 14-33 s a step once the pile had landed, 7,500 constraint rows, on the
+   shared 2-core machine). warpimpulse runs at `--tolerance` (m), and again at the smallest penetration
+   MuJoCo reached (the same accuracy).
+2. The stages of our step at the pile's final state, medians of repeated runs: broad phase (swept boxes, BVH
+   rebuild, pair query) against testing all pairs, narrow phase (pairs and planes), and the rest of the step
+   (the contact and joint solves, predictions, velocity phase).
+3. The contact solvers "pgs" and "paper" on the stack of 10 boxes and a 200-body pile: time per step, outer
+   iterations (predictions), sweeps, deepest penetration, at the same tolerance and iteration limit (100); a
+   step that does not reach the tolerance in it is counted (`steps_not_converged`), not redone smaller.
+4. tree127 (no colliders: no contact stage) time per step; with --baseline, the same in another checkout of
+   the project (its main branch), in turn, so the two share the machine's load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import statistics
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+from warpimpulse.kernels import contact_solve
+
+import warpimpulse as wi
+from warpimpulse import scenes
+from warpimpulse.bench.harness import quiet_warp
+from warpimpulse.transforms import quat_to_matrix
+
+TREE_SNIPPET = """
+import time, statistics, warp as wp
+import warpimpulse as wi
+from warpimpulse import scenes
+sim = wi.Simulator(scenes.binary_tree(127).finalize(), dt=1.0 / 30.0)
+for _ in range(30): sim.step()
+times = []
+for _ in range({steps}):
+    t = time.perf_counter(); sim.step(); times.append(time.perf_counter() - t)
+print(statistics.median(times) * 1e3)
+"""
+
+
+def kinetic(sim: wi.Simulator) -> float:
+    h = sim.model.host
+    v, w = sim.linear_velocities(), sim.angular_velocities()
+    r = quat_to_matrix(sim.orientations())
+    iw = np.einsum("nij,njk,nlk->nil", r, h.body_inertia, r)
+    return float(0.5 * np.sum(h.body_mass * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
+
+
+def run_ours(
+    builder, dt: float, duration: float, tolerance: float, solver: str = "pgs", **options
+) -> tuple[dict, wi.Simulator]:
+    sim = wi.Simulator(
+        builder.finalize(), dt=dt, tolerance=tolerance, contact_solver=solver, on_max_iterations="warn", **options
+    )
+    steps = int(round(duration / dt))
+    e0 = sim.energy()
+    times, iterations, sweeps, depth, failed = [], [], [], 0.0, 0
+    for k in range(steps):
+        t = time.perf_counter()
+        stats = sim.step()
+        times.append(time.perf_counter() - t)
+        iterations.append(stats.joint_iterations)
+        sweeps.append(stats.contact_sweeps)
+        failed += not stats.converged
+        if k >= steps - int(round(1.0 / dt)):
+            c = sim.contacts()
+            depth = max(depth, float(c.depth.max()) if len(c) else 0.0)  # depth > 0: penetration
+    return {
+        "ms_per_step": statistics.median(times) * 1e3,
+        "mean_ms_per_step": statistics.fmean(times) * 1e3,
+        "max_penetration_m": depth,
+        "kinetic_end_J": kinetic(sim),
+        "energy_change_J": sim.energy() - e0,
+        "outer_iterations_mean": statistics.fmean(iterations),
+        "sweeps_mean": statistics.fmean(sweeps),
+        "contacts_end": len(sim.contacts()),
+        "steps_not_converged": failed,
+    }, sim
+
+
+def run_mujoco(builder, dt: float, duration: float, solver: str) -> dict:
+    import mujoco
+
+    from warpimpulse.bench.peers.mujoco import MujocoScene
+
+    scene = MujocoScene.from_builder(builder, dt, integrator="implicitfast", contacts=True)
+    scene.model.opt.solver = getattr(mujoco.mjtSolver, f"mjSOL_{solver.upper()}")
+    scene.set_energy(True)
+    data = scene.make_data()
+    mujoco.mj_forward(scene.model, data)
+    e0 = scene.energy(data)
+    steps = int(round(duration / dt))
+    times, depth = [], 0.0
+    for k in range(steps):
+        t = time.perf_counter()
+        mujoco.mj_step(scene.model, data)
+        times.append(time.perf_counter() - t)
+        if k >= steps - int(round(1.0 / dt)) and data.ncon:
+            depth = max(depth, float(-data.contact.dist[: data.ncon].min()))
+    mujoco.mj_forward(scene.model, data)
+    return {
+        "ms_per_step": statistics.median(times) * 1e3,
+        "mean_ms_per_step": statistics.fmean(times) * 1e3,
+        "max_penetration_m": depth,
+        "kinetic_end_J": float(data.energy[1]),
+        "energy_change_J": scene.energy(data) - e0,
+        "contacts_end": int(data.ncon),
+        "solver": solver,
+        "integrator": "implicitfast",
+    }
+
+
+def median_ms(fn, rounds: int = 21) -> float:
+    times = []
+    for _ in range(rounds):
+        t = time.perf_counter()
+        fn()
+        wp.synchronize()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times) * 1e3
+
+
+def stages(sim: wi.Simulator) -> dict:
+    """Each detection stage on the simulator's current state (its last prediction is re-made first)."""
+    cs, h = sim.contact_stage, sim.dt
+    sim.pred.copy_from(sim.state)
+    sim._use_step_size(h)
+    sim._predict.launch()
+    run = cs._launches(h)
+    data = cs.data
+
+    def broad():
+        run.bounds.launch()
+        cs.bvh.rebuild()
+        data.pair_count.zero_()
+        run.broad.launch()
+
+    def narrow():
+        data.contact_count.zero_()
+        run.narrow.launch()
+        run.planes.launch()
+
+    all_pairs = cs._record(
+        contact_solve.all_pairs, cs.geometry.collider_count, lowers=cs.geometry.lowers, uppers=cs.geometry.uppers
+    )
+
+    def brute():
+        run.bounds.launch()
+        data.pair_count.zero_()
+        all_pairs.launch()
+
+    out = {"broad_bvh_ms": median_ms(broad), "pairs": int(data.pair_count.numpy()[0])}
+    out["broad_all_pairs_ms"] = median_ms(brute)
+    out["pairs_all_pairs"] = int(data.pair_count.numpy()[0])
+    broad()
+    out["narrow_ms"] = median_ms(narrow)
+    out["contacts"] = int(data.contact_count.numpy()[0])
+    return out
+
+
+def tree_ms(cwd: str | None, steps: int) -> float:
+    code = TREE_SNIPPET.format(steps=steps)
+    out = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, check=True)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bodies", type=int, default=1000)
+    parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds of the pile")
+    parser.add_argument("--dt", type=float, default=1.0 / 60.0)
+    parser.add_argument("--tolerance", type=float, default=1e-4, help="our contact (and joint) tolerance, m")
+    parser.add_argument(
+        "--mujoco-solvers",
+        default="CG,PGS",
+        help="MuJoCo's solvers to run (its default Newton took 14-33 s a step on the landed 1,000-body pile)",
+    )
+    parser.add_argument("--baseline", help="another checkout of the project to time tree127 in (its main)")
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    quiet_warp()
+    wp.init()
+    warnings.simplefilter("ignore", RuntimeWarning)  # steps that run out of iterations are counted instead
+    result = {"machine": platform.platform(), "processor": platform.processor(), "dt": args.dt}
+
+    print(f"pile of {args.bodies} bodies, {args.duration} s at dt = {args.dt:.4g} s", flush=True)
+    ours, sim = run_ours(scenes.pile(args.bodies), args.dt, args.duration, args.tolerance)
+    ours["tolerance_m"] = args.tolerance
+    print("  warpimpulse", json.dumps(ours), flush=True)
+    result["pile"] = {"bodies": args.bodies, "duration_s": args.duration, "warpimpulse": ours}
+    deepest = math.inf
+    for solver in args.mujoco_solvers.split(","):
+        theirs = run_mujoco(scenes.pile(args.bodies), args.dt, args.duration, solver)
+        print(f"  mujoco {solver:<6}", json.dumps(theirs), flush=True)
+        result["pile"][f"mujoco_{solver}"] = theirs
+        deepest = min(deepest, theirs["max_penetration_m"])
+    if math.isfinite(deepest) and deepest > args.tolerance:  # ours at MuJoCo's penetration: equal accuracy
+        matched, _ = run_ours(scenes.pile(args.bodies), args.dt, args.duration, deepest)
+        matched["tolerance_m"] = deepest
+        print("  warpimpulse at MuJoCo's penetration", json.dumps(matched), flush=True)
+        result["pile"]["warpimpulse_at_mujoco_penetration"] = matched
+
+    result["stages"] = stages(sim)
+    result["stages"]["step_ms"] = ours["ms_per_step"]
+    print("  stages", json.dumps(result["stages"]), flush=True)
+
+    solvers = {}
+    for name, builder, duration in (("box_stack10", lambda: scenes.box_stack(10), 1.0),
+                                    ("pile200", lambda: scenes.pile(200), 2.0)):  # fmt: skip
+        for solver in ("pgs", "paper"):  # a step that runs out of iterations is counted, not halved
+            r, _ = run_ours(builder(), args.dt, duration, args.tolerance, solver, max_substep_depth=0)
+            solvers[f"{name}/{solver}"] = r
+            print(f"  {name} {solver}", json.dumps(r), flush=True)
+    result["contact_solvers"] = solvers
+
+    steps = 300
+    trees = {"this_branch_ms": [], "baseline_ms": []}
+    for _ in range(3):
+        trees["this_branch_ms"].append(tree_ms(None, steps))
+        if args.baseline:
+            trees["baseline_ms"].append(tree_ms(args.baseline, steps))
+    if args.baseline:
+        head = subprocess.run(["git", "-C", args.baseline, "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True).stdout.strip()  # fmt: skip
+        trees["baseline_commit"] = head
+    result["tree127_no_colliders"] = trees
+    print("  tree127", json.dumps(trees), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

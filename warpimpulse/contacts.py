@@ -1,0 +1,253 @@
+"""The contact stage of a step: detection on the predicted state, push-only impulses in the loop with the joints,
+restitution and friction at t0+h (`kernels/contact_solve.py` has the maths, `kernels/collide.py` the geometry).
+
+The Simulator calls, per (sub)step of h: `detect` once on the first prediction, then `measure` and
+`solve_positions` in its correction loop (each time after predicting again), and `solve_velocities` after the
+joints' velocity correction. A scene where nothing collides has no ContactStage at all.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+import warp as wp
+
+from .kernels import contact_solve as kernels
+from .launch import record
+from .model import Model, State
+from .transforms import quat_rotate
+
+CONTACT_SOLVERS = ("pgs", "paper")
+"""How the position phase's linear problem is solved between two predictions: "pgs" sweeps it to the tolerance
+(projected Gauss-Seidel on the linearised contacts, the joints solved directly around it); "paper" takes one
+sweep and predicts again (the method paper's nonlinear iteration, each contact in turn)."""
+
+BROAD_PHASES = ("bvh", "all_pairs")
+"""`bvh`: Warp's BVH over the swept boxes of the colliders, rebuilt each step; `all_pairs`: every pair of boxes
+tested (the baseline `benchmarks/contacts.py` measures it against)."""
+
+
+@dataclass
+class Contacts:
+    """The contacts of the last step, numpy, world frame. k contacts.
+
+    body_a, body_b: (k,) bodies; body_a is -1 for a ground plane. The normal points from a to b.
+    point: (k, 3) the contact point on b's surface at the current state (m).
+    normal: (k, 3) unit. depth: (k,) penetration at the current state (m; negative: apart).
+    normal_impulse: (k,) N s, both phases of the step. friction_impulse: (k, 3) N s, on b, tangential.
+    """
+
+    body_a: np.ndarray
+    body_b: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    depth: np.ndarray
+    normal_impulse: np.ndarray
+    friction_impulse: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.body_a)
+
+
+def _array(values, dtype, device) -> wp.array:
+    return wp.array(np.ascontiguousarray(values), dtype=dtype, device=device)
+
+
+class ContactStage:
+    """Device arrays of the colliders and the contacts, and the recorded launches of the contact stage."""
+
+    def __init__(
+        self,
+        model: Model,
+        frames,
+        control,
+        state: State,
+        pred: State,
+        tolerance: float,
+        velocity_tolerance: float,
+        margin: float = 0.005,
+        solver: str = "pgs",
+        broad_phase: str = "bvh",
+        max_sweeps: int = 30,
+    ) -> None:
+        c, d = model.colliders, model.device
+        self.model, self.frames, self.control, self.state, self.pred = model, frames, control, state, pred
+        self.tolerance, self.velocity_tolerance = tolerance, velocity_tolerance
+        self.solver, self.broad = solver, broad_phase
+        self.sweeps = 1 if solver == "paper" else max_sweeps
+        self.max_sweeps = max_sweeps
+        colliders = np.flatnonzero(c.shape_kind >= 0)
+        n = model.body_count
+        self.geometry = SimpleNamespace(
+            collider_body=_array(colliders.astype(np.int32), wp.int32, d),
+            collider_count=len(colliders),
+            body_count=n,
+            body_shape=_array(c.shape_kind.astype(np.int32), wp.int32, d),
+            body_size=_array(c.shape_size, wp.vec3d, d),
+            body_bound=_array(c.bound, wp.float64, d),
+            body_friction=_array(c.friction, wp.float64, d),
+            body_restitution=_array(c.restitution, wp.float64, d),
+            plane_normal=_array(c.plane_normal, wp.vec3d, d),
+            plane_offset=_array(c.plane_offset, wp.float64, d),
+            plane_material=_array(
+                np.stack([c.plane_friction, c.plane_restitution], axis=1).reshape(-1, 2), wp.vec2d, d
+            ),  # fmt: skip
+            filter_keys=_array((c.filter_pairs[:, 0] * n + c.filter_pairs[:, 1]).astype(np.int64), wp.int64, d),
+            margin=float(margin),
+            lowers=wp.zeros(len(colliders), dtype=wp.vec3, device=d),
+            uppers=wp.zeros(len(colliders), dtype=wp.vec3, device=d),
+        )
+        self.plane_count = c.plane_count
+        self.bvh = wp.Bvh(self.geometry.lowers, self.geometry.uppers) if broad_phase == "bvh" else None
+        self.geometry.bvh = self.bvh.id if self.bvh is not None else 0
+        pairs = max(64, 16 * len(colliders))
+        contacts = max(64, 4 * pairs + 8 * len(colliders) * self.plane_count)
+        self._allocate(pairs, contacts)
+        self.count = 0
+        self.pair_total = 0
+        self.last_sweeps = (0, 0)
+
+    # ---------------------------------------------------------------- arrays and launches
+    def _allocate(self, pairs: int, contacts: int) -> None:
+        """Arrays for this many pairs and contacts."""
+        d = self.model.device
+        z = wp.zeros
+        self.data = SimpleNamespace(
+            pair_count=z(1, dtype=wp.int32, device=d),
+            pair_body=z(pairs, dtype=wp.vec2i, device=d),
+            contact_count=z(1, dtype=wp.int32, device=d),
+            contact_body=z(contacts, dtype=wp.vec2i, device=d),
+            contact_anchor_a=z(contacts, dtype=wp.vec3d, device=d),
+            contact_anchor_b=z(contacts, dtype=wp.vec3d, device=d),
+            contact_normal=z(contacts, dtype=wp.vec3d, device=d),
+            contact_material=z(contacts, dtype=wp.vec2d, device=d),
+            contact_impact=z(contacts, dtype=wp.float64, device=d),
+            contact_gap=z(contacts, dtype=wp.float64, device=d),
+            contact_arm_a=z(contacts, dtype=wp.vec3d, device=d),
+            contact_arm_b=z(contacts, dtype=wp.vec3d, device=d),
+            contact_slip=z(contacts, dtype=wp.vec3d, device=d),
+            contact_u0=z(contacts, dtype=wp.vec3d, device=d),
+            contact_mass=z(contacts, dtype=wp.vec2d, device=d),
+            contact_impulse=z(contacts, dtype=wp.vec3d, device=d),
+            contact_velocity_impulse=z(contacts, dtype=wp.vec3d, device=d),
+            contact_error=z(3, dtype=wp.float64, device=d),
+        )
+        self._launches_by_h: dict[float, SimpleNamespace] = {}
+
+    def _record(self, kernel, dim, **values):
+        sources = (self.data, self.geometry, self.model, self.frames, self.control)
+        p = self.pred
+        return record(kernel, dim, self.model.device, sources, self.state, self.state,
+                      pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, **values)  # fmt: skip
+
+    def _launches(self, h: float) -> SimpleNamespace:
+        if h not in self._launches_by_h:
+            g, data = self.geometry, self.data
+            ncol, cap = g.collider_count, len(data.contact_body)
+            broad = kernels.broad_phase if self.bvh is not None else kernels.all_pairs
+            bounce = 2.0 * float(np.linalg.norm(self.model.host.gravity)) * h
+            self._launches_by_h[h] = SimpleNamespace(
+                bounds=self._record(kernels.swept_bounds, ncol),
+                broad=self._record(broad, ncol, lowers=g.lowers, uppers=g.uppers),
+                narrow=self._record(kernels.narrow_phase, len(data.pair_body)),
+                planes=self._record(kernels.plane_phase, (ncol, self.plane_count)),
+                measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
+                positions=self._record(
+                    kernels.solve_positions, 1, h=h, sweeps=self.sweeps, tolerance=0.1 * self.tolerance
+                ),  # fmt: skip
+                velocities=[
+                    self._record(
+                        kernels.solve_velocities,
+                        1,
+                        sweeps=8 * self.max_sweeps,
+                        tolerance=0.1 * self.velocity_tolerance,
+                        bounce_speed=bounce,
+                        inv_h=1.0 / h,
+                        first=first,
+                    )
+                    for first in (1, 0)
+                ],  # fmt: skip
+            )
+        return self._launches_by_h[h]
+
+    # ---------------------------------------------------------------- the stage
+    def detect(self, h: float) -> int:
+        """Contacts of the current prediction (swept from the state at t0); returns their number. The arrays
+        grow and detection reruns when a scene has more pairs or contacts than they hold."""
+        while True:
+            run = self._launches(h)
+            run.bounds.launch()
+            if self.bvh is not None:
+                self.bvh.rebuild()
+            self.data.pair_count.zero_()
+            self.data.contact_count.zero_()
+            self.data.contact_impulse.zero_()
+            run.broad.launch()
+            run.narrow.launch()
+            if self.plane_count:
+                run.planes.launch()
+            pairs, count = int(self.data.pair_count.numpy()[0]), int(self.data.contact_count.numpy()[0])
+            if pairs <= len(self.data.pair_body) and count <= len(self.data.contact_body):
+                self.count, self.pair_total = count, pairs
+                return count
+            self._allocate(max(pairs, len(self.data.pair_body)) * 2, max(count, len(self.data.contact_body)) * 2)
+
+    def measure(self, h: float) -> float:
+        """The deepest penetration of the current prediction (m; 0 when none)."""
+        if not self.count:
+            return 0.0
+        self.data.contact_error.zero_()
+        self._launches(h).measure.launch()
+        return max(float(self.data.contact_error.numpy()[0]), 0.0)
+
+    def solve_positions(self, h: float) -> int:
+        """Impulses at t0 (into the state's velocities) that close the measured gaps; returns the sweeps taken."""
+        if not self.count:
+            return 0
+        self._launches(h).positions.launch()
+        return int(self.data.contact_error.numpy()[1])
+
+    def solve_velocities(self, h: float, first: bool = True) -> int:
+        """Restitution and friction at t0+h on the state; returns the sweeps taken. The `first` solve of a step
+        starts from the position phase's impulses, a later one (after the joints' velocity correction) goes on
+        from the last."""
+        if not self.count:
+            return 0
+        self._launches(h).velocities[0 if first else 1].launch()
+        return int(self.data.contact_error.numpy()[2])
+
+    def contacts(self) -> Contacts:
+        """The last step's contacts as numpy (`Contacts`), at the current state."""
+        k = self.count
+        data = self.data
+        body = data.contact_body.numpy()[:k]
+        a, b = body[:, 0], body[:, 1]
+        x, q = self.state.body_x.numpy(), self.state.body_q.numpy()
+        anchor_b = data.contact_anchor_b.numpy()[:k]
+        anchor_a = data.contact_anchor_a.numpy()[:k]
+        point = _world(b, anchor_b, x, q)
+        normal = data.contact_normal.numpy()[:k]
+        depth = -np.einsum("ij,ij->i", normal, point - _world(a, anchor_a, x, q))
+        impulse = data.contact_impulse.numpy()[:k] + data.contact_velocity_impulse.numpy()[:k]
+        t1, t2 = _tangents(normal)
+        friction = t1 * impulse[:, 1:2] + t2 * impulse[:, 2:3]
+        return Contacts(a.copy(), b.copy(), point, normal, depth, impulse[:, 0].copy(), friction)
+
+
+def _world(body: np.ndarray, anchor: np.ndarray, x: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Anchors in their bodies' frames to world points (world anchors where body < 0)."""
+    out = anchor.copy()
+    on = body >= 0
+    if np.any(on):
+        out[on] = x[body[on]] + quat_rotate(q[body[on]], anchor[on])
+    return out
+
+
+def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tangent basis `collide.any_perpendicular` builds on the device, for the same normals."""
+    t = np.where(np.abs(n[:, :1]) > 0.7, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(n, t)
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-300)
+    return t1, np.cross(n, t1)
