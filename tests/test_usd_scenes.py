@@ -778,3 +778,28 @@ def test_distance_constraints_are_not_replicated_yet():
         b.replicate(2)
     with pytest.raises(SceneError, match="distance 'rope': a replicated scene takes no additions"):
         plain.add_distance(None, 0, [0.0, 0.0, 0.0], [0.0, 0.0, -0.5], 0.0, 1.0, name="rope")
+
+
+def test_collision_groups_are_refused_by_default_and_dropped_with_a_warning(tmp_path, capsys):
+    """Modelled on usdPhysicsGroupFiltering.usda: a PhysicsCollisionGroup filtering its boxes from each other is
+    not simulated (they would collide): refused naming the group; --ignore-unsupported warns and runs."""
+    path = write(
+        tmp_path,
+        "groups.usda",
+        BOX_ON_BOX.replace(
+            '''        def Cube "Floor"''',
+            '''        def PhysicsCollisionGroup "Group" (
+            prepend apiSchemas = ["CollectionAPI:colliders"]
+        )
+        {
+            prepend rel collection:colliders:includes = [</World/Crate>]
+            prepend rel physics:filteredGroups = [</World/Group>]
+        }
+        def Cube "Floor"''',
+        ),
+    )
+    assert cli_main(["simulate", path, "--out", str(tmp_path / "o.usda"), "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "/World/Group: collision-group filtering (a PhysicsCollisionGroup) is not simulated" in err
+    _, _, err, _ = simulate(path, tmp_path, capsys, "--duration", "0.1", "--ignore-unsupported")
+    assert any("/World/Group: collision-group filtering" in w and "ignored" in w for w in warnings_of(err))

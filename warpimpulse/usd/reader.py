@@ -549,6 +549,8 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
         _read_forces(builder, prim, index[bpath], mpu, kpu)
     colliding, not_colliding = _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu, report)
+    for group, _ in get(T.CollisionGroup):  # bodies a group filters out of each other would still collide
+        report.unsupported(str(group), "collision-group filtering (a PhysicsCollisionGroup)")
     # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
     for i, (p, _desc) in enumerate(bodies):
         prim = stage.GetPrimAtPath(p)
