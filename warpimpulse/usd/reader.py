@@ -6,9 +6,9 @@ Rigid bodies, mass and joints come from `UsdPhysics.UsdPhysicsLoadStageFromPrimR
 targets a prim inside a body stands for that body (PhysX's rule); any other prim is the world at that prim's
 transform. Limits and drives on a joint with one DOF (revolute, prismatic, or D6 with one free axis) become
 motors, joint springs and limits; distance joints distance constraints. What is not simulated (cone limits,
-limits or drives on a joint with several free DOFs, break forces) is refused (or dropped with a warning when
-`ignore_unsupported`), never silently; colliders that do not collide (they still give mass) get one
-warning.
+limits or drives on a joint with several free DOFs, break forces, collision groups) is refused (or dropped
+with a warning when `ignore_unsupported`), never silently; colliders that do not collide (they still give
+mass) get one warning.
 
 Units: the simulator is SI. Inputs are converted with metersPerUnit / kilogramsPerUnit; angles in USD are
 degrees. USD stores quaternions real part first (`Gf.Quatd(w, x, y, z)`); here they are (x, y, z, w).
