@@ -24,6 +24,7 @@ mat33d = wp.mat33d
 f64 = wp.float64
 
 ANGLE_COORDINATE = wp.constant(0)  # revolute; 1 is a prismatic offset
+DISTANCE_COORDINATE = wp.constant(2)  # the distance between two anchors (`SceneBuilder.add_distance`)
 VELOCITY_MODE = wp.constant(1)
 
 
@@ -46,9 +47,16 @@ def joint_coordinate(
 
     Angle (rad): the rotation of q0^-1 q1 rest^-1 about axis0, in (-pi, pi]; rate = (w1 - w0) . axis.
     Offset (m): (B - A) . axis with A on body0 and B on body1; rate = (u_B - u_B0) . axis, the velocity of B
-    on body1 against the point of body0 at B, which makes (force x rate) the power of the pair."""
+    on body1 against the point of body0 at B, which makes (force x rate) the power of the pair.
+    Distance (m): |B - A|, an offset along the unit axis (B - A) / |B - A| (body0's axis0 while A and B meet).
+    A push along that axis acts on body0 with the same moment at B as at A, B - A being parallel to it."""
     a = wp.quat_rotate(q0, axis0)
     b = x1 + wp.quat_rotate(q1, anchor1)
+    if coordinate == DISTANCE_COORDINATE:
+        gap = b - (x0 + wp.quat_rotate(q0, anchor0))
+        length = wp.length(gap)
+        if length > f64(1.0e-12):
+            a = gap / length
     if coordinate == ANGLE_COORDINATE:
         d = wp.quat_inverse(q0) * q1 * wp.quat_inverse(rest_rotation)
         s = wp.dot(vec3d(d[0], d[1], d[2]), axis0)

@@ -156,7 +156,7 @@ def test_replicate_refuses_bad_input():
         builder.replicate(0)
     motorised = wi.scenes.chain(3)
     motorised.add_motor(0, "velocity", target=1.0)
-    with pytest.raises(SceneError, match="do not take springs, drives or limits yet"):
+    with pytest.raises(SceneError, match="do not take springs, drives, limits or distance constraints yet"):
         motorised.replicate(2)
     many = builder.replicate(2)
     with pytest.raises(SceneError, match="takes no additions"):

@@ -134,6 +134,21 @@ class Limit:
     upper: float
 
 
+@dataclass
+class Distance:
+    """lower <= |B - A| <= upper (m) between a point A of body0 and a point B of body1 (either may be WORLD): a
+    rope (upper) or a strut (lower), push-only like a joint limit, and no other constraint (a distance joint)."""
+
+    name: str
+    body0: int
+    body1: int
+    anchor0: np.ndarray  # body0 frame (world frame for WORLD)
+    anchor1: np.ndarray  # body1 frame
+    axis0: np.ndarray  # body0 frame: the push direction while A and B meet (the built one, else gravity's)
+    lower: float
+    upper: float
+
+
 _vec = checks.vector
 
 
@@ -183,6 +198,7 @@ class SceneBuilder:
         self.springs: list[Spring] = []
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
+        self.distances: list[Distance] = []
         self._body_names: dict[str, int] = {}
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
@@ -202,10 +218,11 @@ class SceneBuilder:
                 "replicate: the scene has colliding shapes or grounds; batched worlds do not take contacts yet "
                 "(Shape(..., collide=False) keeps a shape for display and mass)"
             )
-        if self.springs or self.drives or self.limits:  # the batched step has no force elements or limits yet
+        if self.springs or self.drives or self.limits or self.distances:  # the batched step has no such rows yet
             raise SceneError(
-                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives and "
-                f"{len(self.limits)} limits; batched worlds do not take springs, drives or limits yet"
+                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives, "
+                f"{len(self.limits)} limits and {len(self.distances)} distance constraints; batched worlds do not "
+                "take springs, drives, limits or distance constraints yet"
             )
         out = SceneBuilder(self.gravity)
         nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
@@ -618,6 +635,39 @@ class SceneBuilder:
         self.limits.append(Limit(j, lower, upper))
         return len(self.limits) - 1
 
+    def add_distance(
+        self, body0, body1, anchor0, anchor1, min_distance: float = 0.0, max_distance: float = math.inf, name=None
+    ) -> int:
+        """Keep the distance between `anchor0` on `body0` and `anchor1` on `body1` (world points at build time; a
+        body of None is the world) within [min_distance, max_distance] (m), by push-only impulses in the
+        correction loop (`kernels/limits.py`): a rope of length max_distance, a strut of min_distance, or both.
+        The built distance may lie outside; the first step brings it in. Returns its index."""
+        name = name or f"distance{len(self.distances)}"
+        what = f"distance {name!r}"
+        self._open(what)
+        b0 = self._body_index(body0, f"{what} body0")
+        b1 = self._body_index(body1, f"{what} body1")
+        if b0 == b1:
+            raise SceneError(f"{what}: both ends are on the same body")
+        if (b0 == WORLD or self.bodies[b0].static) and (b1 == WORLD or self.bodies[b1].static):
+            raise SceneError(f"{what}: both ends are static")
+        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
+        lower = _nonnegative(min_distance, f"{what}: min_distance")
+        upper = checks.real(max_distance, f"{what}: max_distance")
+        if math.isnan(upper) or upper < lower:
+            raise SceneError(f"{what}: max_distance {upper} must be >= min_distance {lower}")
+        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
+        # The push direction while A and B meet: B - A as built, else gravity's (B hangs below A), else x.
+        gap = a1 - a0
+        for direction in (gap, np.asarray(self.gravity, dtype=np.float64), np.array([1.0, 0.0, 0.0])):
+            if np.linalg.norm(direction) > 1e-12:
+                direction = direction / np.linalg.norm(direction)
+                break
+        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
+        self.distances.append(Distance(name, b0, b1, local0, local1, quat_rotate(quat_conj(q0), direction), lower,
+                                       upper))  # fmt: skip
+        return len(self.distances) - 1
+
     def _add_drive(self, drive: Drive) -> int:
         """Append a drive; its index among the drives of its kind (motors, or joint springs)."""
         self._open(f"joint {self.joints[drive.joint].name!r}: {'motor' if drive.motor else 'joint spring'}")
@@ -712,7 +762,7 @@ class SceneBuilder:
         )
 
     def _mechanism_arrays(self) -> dict:
-        """The springs, drives and limits as `Model` arguments."""
+        """The springs, drives, limits and distances as `Model` arguments."""
         springs, drives, limits = self.springs, self.drives, self.limits
         return dict(
             spring_name=[s.name for s in springs],
@@ -732,6 +782,10 @@ class SceneBuilder:
             limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
             limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
             joint_loop=np.array([j.loop for j in self.joints], dtype=bool),
+            distance_name=[x.name for x in self.distances],
+            distance_body=np.array([(x.body0, x.body1) for x in self.distances], dtype=np.int64).reshape(-1, 2),
+            distance_anchor=np.array([(x.anchor0, x.anchor1, x.axis0) for x in self.distances]).reshape(-1, 3, 3),
+            distance_bounds=np.array([(x.lower, x.upper) for x in self.distances]).reshape(-1, 2),
         )
 
     def _check_arrays(self) -> None:

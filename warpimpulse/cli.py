@@ -24,6 +24,9 @@ from .files import Interrupted, WriteError, same_file, signals_interrupt
 from .scenes import SCENES
 from .types import SOLVERS
 
+DEFAULT_DURATION = 10.0  # s, without --duration and without a time range in the scene file
+DEFAULT_FPS = 30.0  # without --fps, for built-in scenes
+
 
 def _positive(kind):
     def parse(text: str):
@@ -43,8 +46,10 @@ def _add_simulate(sub) -> None:
     p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc); or use --scene")
     p.add_argument("--scene", choices=sorted(SCENES), help="a built-in procedural scene (default: tree127)")
     p.add_argument("--out", "-o", type=Path, help="output USD file (default: out/<scene>.usdc)")
-    p.add_argument("--duration", type=_positive(float), default=10.0, help="seconds (default 10)")
-    p.add_argument("--fps", type=_positive(float), default=30.0, help="frames per second written (default 30)")
+    p.add_argument("--duration", type=_positive(float),
+                   help="seconds (default: a scene file's time range, else 10)")  # fmt: skip
+    p.add_argument("--fps", type=_positive(float),
+                   help="frames per second written (default: a scene file's timeCodesPerSecond, else 30)")  # fmt: skip
     p.add_argument("--dt", type=_positive(float),
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
     p.add_argument("--tolerance", type=_positive(float),
@@ -64,7 +69,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
     p.add_argument("--ignore-unsupported", action="store_true",
-                   help="drop drives, limits, unsupported joint types with a warning instead of stopping")  # fmt: skip
+                   help="drop what is not simulated (cone limits, break forces, ...) with a warning instead of "
+                   "stopping")  # fmt: skip
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")
@@ -144,6 +150,36 @@ def _sweep(args) -> int:
     return 1 if "error" in outcomes else 0
 
 
+def _timing(args, scene) -> tuple[float, float]:
+    """(duration s, fps) from the flags, else from the scene file's time (its range [startTimeCode,
+    endTimeCode] at its timeCodesPerSecond), else 10 s at 30 fps; what came from the file is said on stdout."""
+    if scene is None:
+        return args.duration or DEFAULT_DURATION, args.fps or DEFAULT_FPS
+    rate = scene.time_codes_per_second
+    fps = args.fps or rate
+    start, end = scene.time_range or (0.0, 0.0)
+    duration = args.duration or ((end - start) / rate if end > start else DEFAULT_DURATION)
+    chosen = []
+    if args.duration is None:
+        chosen.append(f"{duration:.6g} s (time codes {start:g}-{end:g} at {rate:g} per second, from the stage)"
+                      if end > start else f"{duration:g} s (the stage has no time range)")  # fmt: skip
+    if args.fps is None:
+        chosen.append(f"{fps:g} fps (the stage's timeCodesPerSecond)")
+    if chosen:
+        print(f"simulating {' at '.join(chosen)}; --duration / --fps override")
+    return duration, fps
+
+
+def _refuse_no_frame(duration: float, fps: float) -> None:
+    """SceneError when `duration` holds no frame at `fps` (`run.frame_count`)."""
+    from . import run
+
+    try:
+        run.frame_count(duration, fps)
+    except ValueError as err:
+        raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
+
+
 def _simulate(args) -> int:
     from . import checks, run, usd
     from .energy import EnergyWatch
@@ -156,10 +192,8 @@ def _simulate(args) -> int:
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
     checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
-    try:
-        run.frame_count(args.duration, args.fps)
-    except ValueError as err:
-        raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
+    if args.duration is not None and args.fps is not None:
+        _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
     if args.input:
         source = Path(args.input)
         if not source.is_file():
@@ -172,6 +206,8 @@ def _simulate(args) -> int:
         name = args.scene or "tree127"
         builder = SCENES[name]()
         scene = builder
+    args.duration, args.fps = _timing(args, scene if args.input else None)
+    _refuse_no_frame(args.duration, args.fps)
     file_dt = scene.dt if args.input else None  # a scene file may record the step size it needs
     dt = args.dt if args.dt is not None else (file_dt or 1.0 / args.fps)
     try:

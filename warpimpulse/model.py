@@ -17,7 +17,7 @@ import warp as wp
 from . import checks
 from .shapes import Colliders
 from .topology import Graph, Topology, analyze
-from .types import COORDINATES, ConstraintKind
+from .types import COORDINATES, DISTANCE_COORDINATE, ConstraintKind
 
 
 def _array(values, dtype, device) -> wp.array:
@@ -103,6 +103,10 @@ class Model:
         joint_loop: np.ndarray = (),
         limit_joint: np.ndarray = (),
         limit_bounds: np.ndarray = (),
+        distance_name: list[str] = (),
+        distance_body: np.ndarray = (),
+        distance_anchor: np.ndarray = (),
+        distance_bounds: np.ndarray = (),
         colliders: Colliders | None = None,
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
@@ -126,6 +130,8 @@ class Model:
         limit_*: the joint and its (lower, upper) bounds (rad or m) of revolute or prismatic joints.
         joint_loop: (k,) bool, the joints to close loops with where there is a choice (USD's
             excludeFromArticulation); empty: the spanning tree chooses.
+        distance_*: distance constraints: name, (body0, body1), anchors A, B and the direction used while they
+            meet ((d, 3, 3), body frames), and (lower, upper) bounds on |B - A| (m).
         """
         self.device = checks.device(device)  # the first call initialises Warp quietly
         self.colliders = colliders
@@ -210,16 +216,18 @@ class Model:
             spring_name, spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params,
             drive_name, drive_joint, drive_mode, drive_target, drive_gains, drive_max_force, drive_motor,
             drive_stiff, limit_joint, limit_bounds, joint_loop,
+            (distance_name, distance_body, distance_anchor, distance_bounds),
         )  # fmt: skip
 
     def _mechanisms(
         self, spring_name, spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params, drive_name,
         drive_joint, drive_mode, drive_target, drive_gains, drive_max_force, drive_motor, drive_stiff, limit_joint,
-        limit_bounds, joint_loop,
+        limit_bounds, joint_loop, distances,
     ) -> None:  # fmt: skip
         """Springs and drives (force elements, evaluated in every RK4 stage of the prediction: `kernels/forces.py`)
         and the rows of the correction loop on a coordinate, limits then stiff motors (`kernels/limits.py`), on
-        the table of joint coordinates (every revolute angle and prismatic offset, 0 as built)."""
+        the table of coordinates: every revolute angle and prismatic offset (0 as built), then the distance of
+        every distance constraint; a distance constraint is a limit row on its coordinate."""
         d, h = self.device, self.host
         h.spring_body0 = np.asarray(spring_body0, np.int64)
         h.spring_body1 = np.asarray(spring_body1, np.int64)
@@ -236,19 +244,8 @@ class Model:
         h.drive_stiff = np.asarray(drive_stiff, bool).reshape(-1)
         stiff = np.flatnonzero(h.drive_stiff)
         forced = np.flatnonzero(~h.drive_stiff)  # the drives that are force elements
-        # Rows on a coordinate in the correction loop: each limit, then each stiff motor (bounds unused).
-        limits = np.asarray(limit_joint, np.int64)
-        h.limit_joint = np.concatenate([limits, h.drive_joint[stiff]])
-        h.limit_bounds = np.concatenate(
-            [np.asarray(limit_bounds, np.float64).reshape(-1, 2), np.zeros((len(stiff), 2))]
-        )
-        h.limit_drive = np.concatenate([np.full(len(limits), -1), stiff]).astype(np.int64)  # -1: a limit
         self.spring_name, self.drive_name = list(spring_name), list(drive_name)
-        self.spring_count, self.drive_count, self.limit_count = (
-            len(self.spring_name),
-            len(self.drive_name),
-            len(h.limit_joint),
-        )
+        self.spring_count, self.drive_count = len(self.spring_name), len(self.drive_name)
         self.force_drive_count = len(forced)
         self.spring_body0 = _array(h.spring_body0, wp.int32, d)
         self.spring_body1 = _array(h.spring_body1, wp.int32, d)
@@ -258,19 +255,44 @@ class Model:
 
         # The coordinate of a revolute joint (constraints POINT, AXIS) or prismatic one (LINE, ROTATION): anchors
         # of its first constraint, the axis of the AXIS or LINE constraint in body0's frame, the rest rotation.
+        # A distance constraint's coordinate: its bodies, anchors, and the direction for when they meet.
+        distance_name, distance_body, distance_anchor, distance_bounds = distances
+        self.distance_name = list(distance_name)
+        self.distance_count = nd = len(self.distance_name)
+        h.distance_body = distance_body = np.asarray(distance_body, np.int64).reshape(-1, 2)
+        h.distance_anchor = distance_anchor = np.asarray(distance_anchor, np.float64).reshape(-1, 3, 3)
+        h.distance_bounds = np.asarray(distance_bounds, np.float64).reshape(-1, 2)
         self.coordinate_joint = [j for j, kind in enumerate(self.joint_type) if kind in COORDINATES]
         row_of = {j: r for r, j in enumerate(self.coordinate_joint)}
         first = h.joint_constraint_start[self.coordinate_joint]
         kind = np.array([COORDINATES[self.joint_type[j]] for j in self.coordinate_joint], dtype=np.int32)
         axis_constraint = first + (kind == COORDINATES["revolute"])
-        self.coordinate_count = len(self.coordinate_joint)
-        self.coordinate_kind = _array(kind, wp.int32, d)
-        self.coordinate_body0 = _array(h.joint_parent[self.coordinate_joint], wp.int32, d)
-        self.coordinate_body1 = _array(h.joint_child[self.coordinate_joint], wp.int32, d)
-        self.coordinate_anchor0 = _array(h.constraint_anchor0[first], wp.vec3d, d)
-        self.coordinate_anchor1 = _array(h.constraint_anchor1[first], wp.vec3d, d)
-        self.coordinate_axis0 = _array(h.constraint_axis0[axis_constraint], wp.vec3d, d)
-        self.coordinate_rest_rotation = _array(h.constraint_rest_rotation[first], wp.quatd, d)
+        self.coordinate_count = len(self.coordinate_joint) + nd
+        self.coordinate_kind = _array(np.concatenate([kind, np.full(nd, DISTANCE_COORDINATE)]), wp.int32, d)
+        body0 = np.concatenate([h.joint_parent[self.coordinate_joint], distance_body[:, 0]])
+        body1 = np.concatenate([h.joint_child[self.coordinate_joint], distance_body[:, 1]])
+        self.coordinate_body0 = _array(body0, wp.int32, d)
+        self.coordinate_body1 = _array(body1, wp.int32, d)
+        self.coordinate_anchor0 = _array(np.concatenate([h.constraint_anchor0[first], distance_anchor[:, 0]]),
+                                         wp.vec3d, d)  # fmt: skip
+        self.coordinate_anchor1 = _array(np.concatenate([h.constraint_anchor1[first], distance_anchor[:, 1]]),
+                                         wp.vec3d, d)  # fmt: skip
+        self.coordinate_axis0 = _array(np.concatenate([h.constraint_axis0[axis_constraint], distance_anchor[:, 2]]),
+                                       wp.vec3d, d)  # fmt: skip
+        rest = np.concatenate([h.constraint_rest_rotation[first], np.tile([0.0, 0.0, 0.0, 1.0], (nd, 1))])
+        self.coordinate_rest_rotation = _array(rest, wp.quatd, d)
+
+        # Rows on a coordinate in the correction loop: each limit, each distance constraint, then each stiff
+        # motor (bounds unused); limit_joint is each row's joint, -1 for a distance constraint.
+        limits = np.asarray(limit_joint, np.int64)
+        h.limit_joint = np.concatenate([limits, np.full(nd, -1), h.drive_joint[stiff]]).astype(np.int64)
+        h.limit_coordinate = np.concatenate([[row_of[j] for j in limits], len(self.coordinate_joint) + np.arange(nd),
+                                             [row_of[j] for j in h.drive_joint[stiff]]]).astype(np.int64)  # fmt: skip
+        h.limit_bounds = np.concatenate([np.asarray(limit_bounds, np.float64).reshape(-1, 2),
+                                         h.distance_bounds,
+                                         np.zeros((len(stiff), 2))])  # fmt: skip
+        h.limit_drive = np.concatenate([np.full(len(limits) + nd, -1), stiff]).astype(np.int64)  # -1: no motor
+        self.limit_count = len(h.limit_coordinate)
 
         mode = np.asarray(drive_mode, np.int32)
         gains = np.asarray(drive_gains, np.float64).reshape(-1, 3).copy()
@@ -283,7 +305,7 @@ class Model:
         self.drive_mode = _array(mode, wp.int32, d)
         self.drive_gains = _array(gains, wp.vec3d, d)
         self.drive_max_force = _array(np.asarray(drive_max_force, np.float64), wp.float64, d)
-        self.limit_coordinate = _array([row_of[j] for j in h.limit_joint], wp.int32, d)
+        self.limit_coordinate = _array(h.limit_coordinate, wp.int32, d)
         self.limit_bounds = _array(h.limit_bounds, wp.vec2d, d)
         self.limit_drive = _array(h.limit_drive, wp.int32, d)
 

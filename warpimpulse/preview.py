@@ -69,7 +69,7 @@ def draw(anim: Animation, pairs: np.ndarray, anchors: np.ndarray, out: Path, pan
         for axis, set_lim in enumerate((ax.set_xlim, ax.set_ylim, ax.set_zlim)):
             set_lim(centre[axis] - half, centre[axis] + half)
         ax.set_box_aspect((1.0, 1.0, 1.0))
-        ax.set_title(f"t = {anim.time_codes[k] / anim.fps:.3g} s", fontsize=9)
+        ax.set_title(f"t = {anim.seconds[k]:.3g} s", fontsize=9)
         ax.tick_params(labelsize=6)
 
     count = len(pos)
@@ -77,7 +77,7 @@ def draw(anim: Animation, pairs: np.ndarray, anchors: np.ndarray, out: Path, pan
         shown = np.unique(np.linspace(0, count - 1, min(gif_frames, count)).round().astype(int))
         fig = Figure(figsize=(5, 5))
         ax = fig.add_subplot(projection="3d")
-        seconds = (anim.time_codes[shown[-1]] - anim.time_codes[shown[0]]) / anim.fps
+        seconds = anim.seconds[shown[-1]] - anim.seconds[shown[0]]
         rate = max(1.0, (len(shown) - 1) / seconds) if seconds > 0 else 1.0  # plays in real time where it can
         FuncAnimation(fig, lambda k: paint(ax, int(k)), frames=shown).save(str(out), writer=PillowWriter(fps=rate))
         return len(shown)

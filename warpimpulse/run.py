@@ -22,8 +22,9 @@ class FrameWriter(Protocol):
 
     fps: float
 
-    def write_frame(self, time_code: int, positions: np.ndarray, orientations: np.ndarray) -> None:
-        """Centres of mass (N, 3) in metres and orientations (N, 4) as (x, y, z, w), world frame."""
+    def write_frame(self, frame: int, positions: np.ndarray, orientations: np.ndarray) -> None:
+        """Frame `frame` (t = frame / fps): centres of mass (N, 3) in metres and orientations (N, 4) as
+        (x, y, z, w), world frame. The writer decides its time code (`AnimationWriter.time_code`)."""
 
 
 def frame_steps(dt: float, fps: float) -> int:

@@ -169,11 +169,13 @@ class Simulator:
             show_warp_messages()
         if model.limit_count and checks.integer(order, "order", 2) > 2:
             raise ValueError(
-                "joint limits and stiff motors are not reversible (impacts, saturation): a composed step of order "
-                f"{order} would run them backwards in its negative substeps; use order 2"
+                "joint limits, stiff motors and distance constraints are not reversible (impacts, saturation): a "
+                f"composed step of order {order} would run them backwards in its negative substeps; use order 2"
             )
         if solver == "iterative" and model.limit_count:
-            raise ValueError("solver 'iterative' has no joint limits or stiff motors: use 'cholesky' or 'cg'")
+            raise ValueError(
+                "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
+            )
         if solver == "iterative" and model.element_count:
             raise ValueError(
                 "solver 'iterative' predicts each body alone with a constant force; the scene's springs, joint "
@@ -501,10 +503,12 @@ class Simulator:
         return arr
 
     def forces_active(self) -> bool:
-        """Whether an external force or torque acts in the coming step (the model's, before its `until`, or
-        one set with `set_external_forces`): energy is conserved only while none does."""
-        return bool(np.any(self.time < self.model.host.force_until) or np.any(self._user_force)
-                    or np.any(self._user_torque))  # fmt: skip
+        """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
+        an external force or torque (the model's, before its `until`, or one set with `set_external_forces`),
+        or a motor."""
+        m = self.model
+        return bool(np.any(m.host.drive_motor) or np.any(self.time < m.host.force_until)
+                    or np.any(self._user_force) or np.any(self._user_torque))  # fmt: skip
 
     def _update_forces(self) -> None:
         """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
@@ -754,6 +758,8 @@ class Simulator:
 
         if self.linear is None:
             vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
+            if self.model.limit_count:  # no constraints, only limits (distance constraints)
+                self._correct_limit_velocities.launch()
             self._velocity_errors.launch()
             vel_err = self._max_error("velocity")
         else:
@@ -815,7 +821,7 @@ class Simulator:
         """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
 
         ok is False when the correction failed and a smaller step may still succeed (not `final`)."""
-        if self.linear is None:
+        if self.linear is None and not self.model.limit_count:
             sweeps, err = self._sweep(self._sweep_positions, self.tolerance, "joint", final)
             wp.capture_launch(self._evaluate)
             err = self._max_error("joint")
@@ -833,8 +839,9 @@ class Simulator:
                 wp.capture_launch(self._iterate)
                 linear_iterations += 1
             else:
-                linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
-                self._apply.launch()
+                if self.linear is not None:  # else only limits and distance constraints: no system to solve
+                    linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
+                    self._apply.launch()
                 self._correct_limits.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1

@@ -87,6 +87,10 @@ COORDINATES = {"revolute": 0, "prismatic": 1}
 """The joint types with one coordinate, and its code in the kernels: 0 an angle (rad) about the axis, 1 an
 offset (m) along it. Drives (joint springs, motors) and limits act on it."""
 
+DISTANCE_COORDINATE = 2
+"""The kernels' code of a distance constraint's coordinate (`SceneBuilder.add_distance`): the distance (m)
+between two anchors, limited like a joint coordinate."""
+
 DRIVE_MODES = ("position", "velocity")
 """`SceneBuilder.add_motor(mode=...)`; the index is the code the kernels read."""
 

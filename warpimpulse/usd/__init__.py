@@ -44,8 +44,9 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Recording:
-    """What `record` wrote: the file, its frames (time codes 0 .. frames - 1 at `fps`), the simulator steps
-    taken and the wall-clock seconds, output included."""
+    """What `record` wrote: the file, its frames (frame f at t = f / fps s; time code f, or over a scene file
+    start + f * rate / fps in the file's own rate), the simulator steps taken and the wall-clock seconds,
+    output included."""
 
     path: str
     frames: int
@@ -70,7 +71,8 @@ def record(
         sim: a `Simulator`; 1/fps must be a whole multiple of `sim.dt`.
         path: the output file (.usd, .usda or .usdc); its folder is created; an existing file is replaced.
         duration: simulated seconds; frames 0 .. round(duration * fps) are written.
-        fps: frames (time codes) per second.
+        fps: frames per second (and time codes per second, unless `scene` is read from a file: the output then
+            keeps that file's timeCodesPerSecond and startTimeCode, `AnimationWriter`).
         scene: the `UsdScene` from `load_stage` when the simulation was read from a file, so the output
             is a layer of `over`s on the input's prims; or the `SceneBuilder` the model was built from, to
             keep its shapes. By default the model's bodies, joints and forces are written as a whole

@@ -4,6 +4,7 @@ errors (`validate`). The tests and `warpimpulse preview` see an output the way a
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,7 +18,8 @@ from .scene import INSTANCER_PATH, MODE_KEY, UsdScene, open_stage, pxr
 @dataclass
 class Animation:
     """Frames read back from an exported file: centres of mass (F, N, 3) in metres and orientations
-    (F, N, 4) as (x, y, z, w), both in the stage's world frame, whose vertical is `up_axis`."""
+    (F, N, 4) as (x, y, z, w), both in the stage's world frame, whose vertical is `up_axis`. `fps` is the
+    file's timeCodesPerSecond; its startTimeCode is t = 0."""
 
     time_codes: np.ndarray
     body_paths: list[str]
@@ -25,6 +27,12 @@ class Animation:
     orientations: np.ndarray
     fps: float
     up_axis: str = "Z"
+    start_time_code: float = 0.0
+
+    @property
+    def seconds(self) -> np.ndarray:
+        """The simulated time of each frame, s."""
+        return (self.time_codes - self.start_time_code) / self.fps
 
 
 def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> Animation:
@@ -34,6 +42,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
     stage = open_stage(path)
     layer = stage.GetRootLayer()
     fps = float(layer.timeCodesPerSecond)
+    start = float(layer.startTimeCode)
     up = str(UsdGeom.GetStageUpAxis(stage))
     mode = layer.customLayerData.get(MODE_KEY, "")
     if mode == "instancer":
@@ -42,8 +51,11 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
         pos = np.array([np.array(inst.GetPositionsAttr().Get(t), dtype=np.float64) for t in times])
         ori = np.array([np.array(inst.GetOrientationsAttr().Get(t), dtype=np.float64) for t in times])
         n = pos.shape[1] if len(times) else 0
-        return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps, up)
-    scene = scene or load_stage(path, ignore_unsupported=True)
+        return Animation(times, [f"{INSTANCER_PATH}[{i}]" for i in range(n)], pos, ori, fps, up, start)
+    if scene is None:
+        with warnings.catch_warnings():  # the run that wrote the file gave them (and its customLayerData has them)
+            warnings.simplefilter("ignore")
+            scene = load_stage(path, ignore_unsupported=True)
     prims = [stage.GetPrimAtPath(p) for p in scene.body_paths]
     times = sorted({t for p in prims for t in UsdGeom.Xformable(p).GetTimeSamples()})
     pos = np.zeros((len(times), len(prims), 3))
@@ -54,7 +66,7 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
             fr = decompose(cache.GetLocalToWorldTransform(prim), str(prim.GetPath()))
             pos[k, i] = (fr.t + quat_rotate(fr.q, scene.com_offsets[i])) * scene.meters_per_unit
             ori[k, i] = fr.q
-    return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps, up)
+    return Animation(np.array(times, dtype=np.float64), list(scene.body_paths), pos, ori, fps, up, start)
 
 
 def validate(path_or_stage: Any) -> list[str]:

@@ -1,10 +1,14 @@
 """USD in: a UsdPhysics scene to a SceneBuilder (`load_stage`).
 
 Rigid bodies, mass and joints come from `UsdPhysics.UsdPhysicsLoadStageFromPrimRange`; transforms come from
-`UsdGeom.XformCache` in double precision (the parser's poses are float). Generic (D6) joints map to the
-combined joint their locked axes describe, or to basic constraints. Revolute and prismatic joints' drives and
-limits become motors, joint springs and limits; other joints' drives and limits, and break forces, are
-refused (or dropped with a warning when `ignore_unsupported`), never silently.
+`UsdGeom.XformCache` in double precision (the parser's poses are float), at the stage's start time. Generic
+(D6) joints map to the combined joint their locked axes describe, or to basic constraints. A joint end that
+targets a prim inside a body stands for that body (PhysX's rule); any other prim is the world at that prim's
+transform. Limits and drives on a joint with one DOF (revolute, prismatic, or D6 with one free axis) become
+motors, joint springs and limits; distance joints distance constraints. What is not simulated (cone limits,
+limits or drives on a joint with several free DOFs, break forces, collision groups) is refused (or dropped
+with a warning when `ignore_unsupported`), never silently; colliders that do not collide (they still give
+mass) get one warning.
 
 Units: the simulator is SI. Inputs are converted with metersPerUnit / kilogramsPerUnit; angles in USD are
 degrees. USD stores quaternions real part first (`Gf.Quatd(w, x, y, z)`); here they are (x, y, z, w).
@@ -90,9 +94,10 @@ def _unit_quat(path: str, name: str, value: Any) -> np.ndarray:
 
 
 def _not_only_sampled(prim, attr) -> None:
-    """The scene is read at the default time: an attribute authored only as time samples has no value there
-    (an XformCache takes such an op as the identity, a schema attribute its fallback), so the body would
-    start in the wrong place, or at rest. Refuse it."""
+    """Schema attributes (and, on a stage without a time range, transforms) are read at the default time: an
+    attribute authored only as time samples has no value there (an XformCache takes such an op as the
+    identity, a schema attribute its fallback), so the body would start in the wrong place, or at rest.
+    Refuse it. (On a stage with a time range, transforms are read at its startTimeCode, `_Xforms`.)"""
     _, _, _, Usd, *_ = pxr()
     if attr.GetNumTimeSamples() and (
         attr.GetResolveInfo(Usd.TimeCode.Default()).GetSource() != Usd.ResolveInfoSourceDefault
@@ -105,18 +110,22 @@ def _not_only_sampled(prim, attr) -> None:
 
 
 def _check_defaults(prim) -> None:
-    """`_not_only_sampled` for every attribute of a body, joint or scene prim."""
+    """`_not_only_sampled` for every attribute of a body, joint or scene prim but its xformOps, which `_Xforms`
+    reads (and checks) at the scene's start time."""
     for attr in prim.GetAttributes():
-        _not_only_sampled(prim, attr)
+        if not attr.GetName().startswith("xformOp:"):
+            _not_only_sampled(prim, attr)
 
 
 class _Xforms:
-    """World matrices from an XformCache, after checking the xformOps of the prim and its ancestors (each
-    prim once): the cache reads a zero or NaN orient as the identity and drops a non-finite matrix op."""
+    """World matrices from an XformCache at `time` (the stage's start), after checking the xformOps of the prim
+    and its ancestors (each prim once): the cache reads a zero or NaN orient as the identity and drops a
+    non-finite matrix op."""
 
-    def __init__(self) -> None:
-        _, _, _, Usd, UsdGeom, *_ = pxr()
-        self._cache = UsdGeom.XformCache(Usd.TimeCode.Default())
+    def __init__(self, time) -> None:
+        _, _, _, _, UsdGeom, *_ = pxr()
+        self._time = time
+        self._cache = UsdGeom.XformCache(time)
         self._xformable = UsdGeom.Xformable
         self._orient = UsdGeom.XformOp.TypeOrient
         self._checked: set[str] = set()
@@ -126,7 +135,7 @@ class _Xforms:
             path = str(prim.GetPath())
             if prim.IsA(self._xformable):
                 for op in self._xformable(prim).GetOrderedXformOps():
-                    value = op.Get()
+                    value = op.Get(self._time)
                     if value is None:
                         _not_only_sampled(prim, op.GetAttr())
                         continue
@@ -151,9 +160,10 @@ class _Xforms:
 class _Reporter:
     """Unsupported features: an error naming the prim, or a warning when told to ignore them."""
 
-    def __init__(self, ignore: bool, notes: list[str]) -> None:
+    def __init__(self, ignore: bool, notes: list[str], warned: list[str] | None = None) -> None:
         self.ignore = ignore
         self.notes = notes
+        self.warned = [] if warned is None else warned  # the notes that were warnings
 
     def unsupported(self, prim: str, what: str) -> None:
         if not self.ignore:
@@ -161,13 +171,12 @@ class _Reporter:
                 f"{prim}: {what} is not simulated by warpimpulse (pass ignore_unsupported=True / "
                 f"--ignore-unsupported to drop it with a warning)"
             )
-        msg = f"{prim}: {what} is not simulated; ignored"
-        self.notes.append(msg)
-        warnings.warn(msg, stacklevel=4)
+        self.note(f"{prim}: {what} is not simulated; ignored", stacklevel=5)
 
-    def note(self, msg: str) -> None:
+    def note(self, msg: str, stacklevel: int = 4) -> None:
         self.notes.append(msg)
-        warnings.warn(msg, stacklevel=4)
+        self.warned.append(msg)
+        warnings.warn(msg, stacklevel=stacklevel)
 
 
 def _collider_shape(prim, xforms: _Xforms, report: _Reporter) -> tuple[Shape, str, int, Similarity]:
@@ -352,14 +361,16 @@ def _d6_plans(locked_t: set[int], locked_r: set[int], r0: np.ndarray, r1: np.nda
     return [p for p in (trans, rot) if p is not None]
 
 
-def _check_limits_drives(desc, path: str, report: _Reporter) -> tuple[set[int], set[int]]:
-    """Locked DOFs of a D6 joint; finite limits and drives are reported as unsupported."""
+def _d6_axes(desc, path: str, report: _Reporter) -> tuple[set[int], set[int], dict[int, tuple], dict[int, Any]]:
+    """A D6 joint's locked translations and rotations (axis indices), and its other limits (lower, upper) and
+    drives by DOF index (0-5 as `_DOFS`). Limits and drives of DOFs the schema's generic joint does not
+    index (the distance limit) are reported here."""
     _, _, _, _, _, UsdPhysics, _ = pxr()
     dof_index = {
         UsdPhysics.JointDOF.TransX: 0, UsdPhysics.JointDOF.TransY: 1, UsdPhysics.JointDOF.TransZ: 2,
         UsdPhysics.JointDOF.RotX: 3, UsdPhysics.JointDOF.RotY: 4, UsdPhysics.JointDOF.RotZ: 5,
     }  # fmt: skip
-    locked_t, locked_r = set(), set()
+    locked_t, locked_r, ranges, drives = set(), set(), {}, {}
     for pair in desc.jointLimits:
         dof, limit = pair.first, pair.second
         if not limit.enabled:
@@ -371,62 +382,94 @@ def _check_limits_drives(desc, path: str, report: _Reporter) -> tuple[set[int], 
         if limit.lower > limit.upper or (limit.lower == limit.upper == 0.0):
             (locked_t if i < 3 else locked_r).add(i % 3)
         else:
-            report.unsupported(path, f"a {_DOFS[i]} limit [{limit.lower}, {limit.upper}]")
+            ranges[i] = (limit.lower, limit.upper)
     for pair in desc.jointDrives:
         if pair.second.enabled:
-            report.unsupported(path, f"a {pair.first.name} drive")
-    return locked_t, locked_r
+            if pair.first not in dof_index:
+                report.unsupported(path, f"a {pair.first.name} drive")
+            else:
+                drives[dof_index[pair.first]] = pair.second
+    return locked_t, locked_r, ranges, drives
+
+
+def _usd_coordinate(angular: bool, k: int, a0: np.ndarray, q0: np.ndarray, a1: np.ndarray, q1: np.ndarray) -> float:
+    """The coordinate USD gives a joint with one DOF, about or along axis k of its frames: the angle (rad, in
+    (-pi, pi]) of joint frame 1 against frame 0 about it, or the offset (m) of frame 1's origin along it."""
+    if not angular:
+        return float(np.dot(a1 - a0, quat_rotate(q0, np.eye(3)[k])))
+    d = quat_mul(quat_conj(q0), q1)
+    sine, cosine = (d[k], d[3]) if d[3] >= 0.0 else (-d[k], -d[3])
+    return 2.0 * math.atan2(sine, cosine)
 
 
 def _limit_and_drive(
-    builder: SceneBuilder, joint: int, prim, desc, angular: bool, sign: float, mpu: float, kpu: float
-) -> None:
-    """A revolute or prismatic joint's limit (physics:lowerLimit / upperLimit) and its DriveAPI as warpimpulse
-    limits, motors and joint springs. Angular values are in degrees in USD (stiffness and damping per degree),
-    linear ones in stage units. A drive is kp (targetPosition - x) + kd (targetVelocity - dx/dt): with a
-    stiffness, a position motor (kp = stiffness, kd = damping, target = targetPosition); without, a velocity
-    motor (kp = damping, target = targetVelocity). warpimpulse's extras on the joint prim: warpimpulse:drive:ki
-    (per the unit of the coordinate and second), warpimpulse:drive:stiff (a stiff motor) and
-    warpimpulse:drive:jointSpring (a joint spring, not a motor)."""
+    builder: SceneBuilder, joint: int, prim, limit, drive, angular: bool, x0: float, sign: float, mpu: float,
+    kpu: float, report: _Reporter,
+) -> None:  # fmt: skip
+    """A USD limit (lower, upper) and DriveAPI on a joint's one DOF (a revolute or prismatic joint, or a D6 joint
+    with one free axis) as warpimpulse limits, motors and joint springs, on the coordinate sign (x - x0): x the
+    DOF as USD measures it (`_usd_coordinate`), x0 its value as built, sign -1 where the reader turned the joint
+    round (the world on body1's side).
+
+    Angular values are in degrees in USD (stiffness and damping per degree), linear ones in stage units. A drive
+    is stiffness (targetPosition - x) + damping (targetVelocity - dx/dt): with a stiffness, a position motor
+    (kp = stiffness, kd = damping); without, a velocity motor (kp = damping), which is stiff (it holds its
+    target velocity within maxForce, `SceneBuilder.add_motor(stiff=True)`) unless the file says otherwise: the
+    large damping of a velocity drive is beyond an explicit PID (kp h / I < 2) and PhysX's drives are implicit.
+    warpimpulse's extras on the joint prim: warpimpulse:drive:ki (per the unit of the coordinate and second),
+    warpimpulse:drive:stiff and warpimpulse:drive:jointSpring (a joint spring, not a motor)."""
+    jpath = str(prim.GetPath())
     unit = math.radians(1.0) if angular else mpu  # USD's unit of the coordinate, in rad or m
-    if desc.limit.enabled:
-        lower, upper = sorted((sign * desc.limit.lower * unit, sign * desc.limit.upper * unit))
+    if limit is not None:
+        lower, upper = sorted(sign * (v * unit - x0) for v in limit)
+        if lower > 1e-6 or upper < -1e-6:  # the engine's limits hold a built pose inside them
+            start = f"{math.degrees(x0):.6g} degrees" if angular else f"{x0 / mpu:.6g}"
+            raise UsdSceneError(f"{jpath}: the joint starts at {start}, outside its limits [{limit[0]}, {limit[1]}]")
         if math.isfinite(lower) or math.isfinite(upper):
-            builder.add_joint_limit(joint, lower, upper)
-    drive = desc.drive
-    if not drive.enabled:
+            builder.add_joint_limit(joint, min(lower, 0.0), max(upper, 0.0))  # round-off at a bound is on it
+    if drive is None:
         return
     force_unit = kpu * mpu * (mpu if angular else 1.0)  # USD's unit of force (torque) in N (N m)
     per = force_unit / unit  # a gain per USD unit, as one per rad or m
-    extra = {name: prim.GetAttribute(f"warpimpulse:drive:{name}").Get() for name in ("ki", "stiff", "jointSpring")}
+    attrs = {name: prim.GetAttribute(f"warpimpulse:drive:{name}") for name in ("ki", "stiff", "jointSpring")}
+    extra = {name: (a.Get() if a and a.HasAuthoredValue() else None) for name, a in attrs.items()}
+    ki = float(extra["ki"] or 0.0) * per
     max_force = drive.forceLimit * force_unit if math.isfinite(drive.forceLimit) else math.inf
-    if extra["jointSpring"]:
-        builder.add_joint_spring(joint, drive.stiffness * per, drive.damping * per, sign * drive.targetPosition * unit)
+    target = sign * (drive.targetPosition * unit - x0)
+    if drive.acceleration:
+        report.unsupported(jpath, "a drive of physics:type acceleration")
+    elif extra["jointSpring"]:
+        builder.add_joint_spring(joint, drive.stiffness * per, drive.damping * per, target)
     elif drive.stiffness > 0.0:
         if drive.targetVelocity != 0.0:
-            raise SceneError("a drive with a stiffness and a targetVelocity (tracking both) is not simulated")
-        builder.add_motor(joint, "position", sign * drive.targetPosition * unit, drive.stiffness * per,
-                          float(extra["ki"] or 0.0) * per, drive.damping * per, max_force,
+            report.unsupported(jpath, "a drive with a stiffness and a targetVelocity (tracking both)")
+            return
+        builder.add_motor(joint, "position", target, drive.stiffness * per, ki, drive.damping * per, max_force,
                           stiff=bool(extra["stiff"]))  # fmt: skip
     else:
-        builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per,
-                          float(extra["ki"] or 0.0) * per, 0.0, max_force, stiff=bool(extra["stiff"]))  # fmt: skip
+        stiff = drive.damping > 0.0 if extra["stiff"] is None else bool(extra["stiff"])
+        if not (stiff or drive.damping > 0.0 or ki > 0.0):
+            report.note(f"{jpath}: a drive with neither stiffness nor damping exerts nothing; ignored")
+            return
+        builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per, ki, 0.0,
+                          max_force, stiff=stiff)  # fmt: skip
 
 
 def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> UsdScene:
     """Read a UsdPhysics scene into a SceneBuilder (SI units) plus what export needs.
 
     Body and joint names in the builder are their prim paths. Raises `UsdSceneError` (a `SceneError`)
-    naming the prim for input that cannot be simulated. Revolute and prismatic joints' limits and drives
-    become limits, motors and joint springs (`_limit_and_drive`); physics:excludeFromArticulation marks the
-    joints that close loops. Limits and drives of other joint types, and break forces, raise
-    `UnsupportedFeatureError` unless `ignore_unsupported`, which warns and drops them.
+    naming the prim for input that cannot be simulated. Limits and drives on a joint with one DOF become
+    limits, motors and joint springs (`_limit_and_drive`); physics:excludeFromArticulation marks the joints that
+    close loops. Features not simulated (cone limits, break forces, ...) raise `UnsupportedFeatureError` unless
+    `ignore_unsupported`, which warns and drops them.
     """
     _, Sdf, _, _, UsdGeom, UsdPhysics, _ = pxr()
     path = os.fspath(path)
     stage = open_stage(path)
     notes: list[str] = []
-    report = _Reporter(ignore_unsupported, notes)
+    warned: list[str] = []
+    report = _Reporter(ignore_unsupported, notes, warned)
     mpu = float(UsdGeom.GetStageMetersPerUnit(stage))
     kpu = float(UsdPhysics.GetStageKilogramsPerUnit(stage))
     for key, value in (("metersPerUnit", mpu), ("kilogramsPerUnit", kpu)):
@@ -463,7 +506,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         notes.append(f"{path}: no PhysicsScene; gravity 9.81 m/s^2 down the up axis ({up})")
     builder = SceneBuilder(gravity=gravity)
 
-    xforms = _Xforms()
+    xforms = _Xforms(_start_time(stage))
     order = {str(p.GetPath()): k for k, p in enumerate(stage.Traverse())}  # bodies and joints in file order
     bodies = sorted(get(T.RigidBody), key=lambda pd: order.get(str(pd[0]), len(order)))
     index: dict[str, int] = {}
@@ -472,7 +515,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     parent_index = np.full(n, -1)
     parent_pos, parent_quat, parent_scale = np.zeros((n, 3)), np.tile(IDENTITY_QUAT, (n, 1)), np.ones(n)
     reset = np.zeros(n, dtype=bool)
-    xform_ops: list[tuple[str, str]] = []
+    xform_ops: list[tuple[str, str, str]] = []
     frames: list[Similarity] = []
     for i, (p, desc) in enumerate(bodies):
         bpath = str(p)
@@ -505,7 +548,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         except SceneError as exc:
             raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
         _read_forces(builder, prim, index[bpath], mpu, kpu)
-    _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu, report)
+    colliding, not_colliding = _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu, report)
+    for group, _ in get(T.CollisionGroup):  # bodies a group filters out of each other would still collide
+        report.unsupported(str(group), "collision-group filtering (a PhysicsCollisionGroup)")
     # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
     for i, (p, _desc) in enumerate(bodies):
         prim = stage.GetPrimAtPath(p)
@@ -530,8 +575,9 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         parent_pos[i], parent_quat[i], parent_scale[i] = rel.t, rel.q, rel.s[0]
 
     joint_paths: list[str] = []
+    distance_paths: list[str] = []
     loop_joints: list[str] = []
-    supported = {T.RevoluteJoint, T.PrismaticJoint, T.SphericalJoint, T.FixedJoint, T.D6Joint}
+    supported = {T.RevoluteJoint, T.PrismaticJoint, T.SphericalJoint, T.FixedJoint, T.D6Joint, T.DistanceJoint}
     all_joints = []
     for t, (paths, descs) in parsed.items():
         if "Joint" in t.name:
@@ -554,15 +600,16 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             if not target:
                 raise UsdSceneError(f"{jpath}: physics:body{side} targets {rel}, which does not exist")
             # Not the parser's body0/body1: it leaves out bodies with physics:rigidBodyEnabled = false (static here).
+            # A prim inside a body stands for that body; any other prim (a static collider, the default prim)
+            # is the world, at that prim's transform (`_joint_frame`), as in PhysX.
             body = _rigid_ancestor(target, index)
-            if body is None:
-                raise UsdSceneError(
-                    f"{jpath}: physics:body{side} targets {rel}, which is not a rigid body or inside one "
-                    f"(leave physics:body{side} empty to attach the joint to the world)"
-                )
-            ends.append(index[str(body.GetPath())])
+            ends.append(None if body is None else index[str(body.GetPath())])
         if ends[0] is None and ends[1] is None:
-            raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
+            if desc.rel0.isEmpty and desc.rel1.isEmpty:
+                raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
+            report.note(f"{jpath}: neither physics:body0 nor physics:body1 is a rigid body or inside one; the "
+                        f"joint holds only the world to itself; skipped")  # fmt: skip
+            continue
         for attr in jprim.GetAuthoredAttributes():  # the parser reads a NaN limit as no limit
             if attr.GetName().endswith(_JOINT_BOUNDS) and attr.Get() is not None:
                 _real(jpath, attr.GetName(), attr.Get(), infinite_ok=True)
@@ -571,63 +618,99 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         a0, q0 = _joint_frame(stage, jprim, 0, xforms, mpu)
         a1, q1 = _joint_frame(stage, jprim, 1, xforms, mpu)
         r0, r1 = quat_to_matrix(q0), quat_to_matrix(q1)
+        parent, child = ends
+        if t == T.DistanceJoint:
+            lower = desc.limit.lower * mpu if desc.minEnabled else 0.0
+            upper = desc.limit.upper * mpu if desc.maxEnabled else math.inf
+            if not (desc.minEnabled or desc.maxEnabled):
+                report.note(f"{jpath}: a distance joint with neither physics:minDistance nor maxDistance; skipped")
+                continue
+            try:
+                builder.add_distance(parent, child, a0, a1, lower, upper, jpath)
+                distance_paths.append(jpath)
+            except SceneError as exc:
+                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+            apart = float(np.linalg.norm(a1 - a0))
+            if not lower <= apart <= upper:  # the first step's impulse pulls them in, adding energy
+                report.note(f"{jpath}: its anchors start {apart / mpu:.6g} apart, outside [{lower / mpu:.6g}, "
+                            f"{upper / mpu:.6g}]: the first step brings them within, at that gap per step, which adds "
+                            "energy")  # fmt: skip
+            continue
+        dof, limit, drive = None, None, None  # the one DOF of a revolute or prismatic joint, its limit, its drive
         if t in (T.RevoluteJoint, T.PrismaticJoint):
             token = jprim.GetAttribute("physics:axis").Get()
             if token not in ("X", "Y", "Z"):  # the parser reads any other token as X
                 raise UsdSceneError(f"{jpath}: physics:axis must be X, Y or Z, got {token!r}")
             ax = r0[:, "XYZ".index(token)]
             plans = [_JointPlan("revolute" if t == T.RevoluteJoint else "prismatic", ax)]
+            free_t = [ax] if t == T.PrismaticJoint else []
+            dof = "XYZ".index(token) + 3 * (t == T.RevoluteJoint)
+            limit = (desc.limit.lower, desc.limit.upper) if desc.limit.enabled else None
+            drive = desc.drive if desc.drive.enabled else None
         elif t == T.SphericalJoint:
             if desc.limit.enabled:
                 report.unsupported(jpath, "a cone limit")
-            plans = [_JointPlan("ball")]
+            plans, free_t = [_JointPlan("ball")], []
         elif t == T.FixedJoint:
-            plans = [_JointPlan("fixed")]
+            plans, free_t = [_JointPlan("fixed")], []
         else:
-            locked_t, locked_r = _check_limits_drives(desc, jpath, report)
+            locked_t, locked_r, ranges, drives = _d6_axes(desc, jpath, report)
             plans = _d6_plans(locked_t, locked_r, r0, r1)
             if not plans:
                 notes.append(f"{jpath}: generic joint with no locked axis constrains nothing; skipped")
                 continue
-        gap, tolerance = float(np.linalg.norm(a0 - a1)), JOINT_GAP * max(1.0, float(np.abs(a0).max()))
+            free_t = [r0[:, k] for k in range(3) if k not in locked_t]
+            free = [i for i in range(6) if i % 3 not in (locked_t if i < 3 else locked_r)]
+            if len(free) == 1:  # a revolute or prismatic joint: its limit and drive act on its coordinate
+                dof, limit, drive = free[0], ranges.pop(free[0], None), drives.pop(free[0], None)
+            for i, (lo, hi) in sorted(ranges.items()):
+                report.unsupported(jpath, f"a {_DOFS[i]} limit [{lo}, {hi}] on a joint with {len(free)} free DOFs")
+            for i in sorted(drives):
+                report.unsupported(jpath, f"a {_DOFS[i]} drive on a joint with {len(free)} free DOFs")
+        # Apart along a free translation (a prismatic joint's axis) is where the joint starts; across, it is not.
+        offset = a1 - a0 - sum((np.dot(a1 - a0, d) * d for d in free_t), np.zeros(3))
+        gap, tolerance = float(np.linalg.norm(offset)), JOINT_GAP * max(1.0, float(np.abs(a0).max()))
         if gap > tolerance and ends[0] != ends[1]:  # it would take body0's frame and pull body1 across the gap
             raise UsdSceneError(
                 f"{jpath}: its frames on body0 and body1 (physics:localPos0, physics:localPos1) are {gap:.3g} m "
                 f"apart at the start; they must coincide (to {tolerance:.2g} m)"
             )
-        parent, child = ends
+        sign = 1.0
         if child is None:  # body1 empty: the world is on the child side; swap so the child is a body
-            parent, child = None, parent
+            parent, child, sign = None, parent, -1.0
             plans = [_JointPlan(p.kind, p.axis_child if p.axis_child is not None else p.axis,
                                 p.axis if p.axis_child is not None else None) for p in plans]  # fmt: skip
         if desc.excludeFromArticulation:
             loop_joints.append(jpath)
         first_joint = len(builder.joints)
-        for plan in plans:
-            try:
+        try:
+            for plan in plans:
                 if plan.kind in JOINT_TYPES:
                     builder.add_joint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
                 else:
                     builder.add_constraint(plan.kind, parent, child, a0, plan.axis, plan.axis_child, jpath)
-            except SceneError as exc:
-                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
-            joint_paths.append(jpath)
-        if desc.excludeFromArticulation:
-            for k in range(first_joint, len(builder.joints)):
-                builder.mark_loop_joint(k)
-        if t in (T.RevoluteJoint, T.PrismaticJoint):
-            # The coordinate is body1's against body0's: negated when the world was on body1's side.
-            sign = 1.0 if ends[1] is not None else -1.0
-            try:
-                _limit_and_drive(builder, first_joint, jprim, desc, t == T.RevoluteJoint, sign, mpu, kpu)
-            except SceneError as exc:
-                raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+                joint_paths.append(jpath)
+            if desc.excludeFromArticulation:
+                for k in range(first_joint, len(builder.joints)):
+                    builder.mark_loop_joint(k)
+            if limit is not None or drive is not None:
+                x0 = _usd_coordinate(dof >= 3, dof % 3, a0, q0, a1, q1)
+                _limit_and_drive(builder, first_joint, jprim, limit, drive, dof >= 3, x0, sign, mpu, kpu, report)
+        except UnsupportedFeatureError:
+            raise
+        except SceneError as exc:
+            raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
     parsed_joints = {j[0] for j in all_joints}
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
         if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:
             report.unsupported(str(prim.GetPath()), _joint_type_text(prim.GetTypeName()))
     if not bodies:
         raise UsdSceneError(f"{path}: no rigid bodies (UsdPhysics RigidBodyAPI) in the stage")
+    for prim_path, type_name in _unknown_physics_prims(stage):
+        report.note(_unknown_type_text(prim_path, type_name))
+    colliders = _ignored_colliders(stage, index, colliding, not_colliding)
+    if colliders:
+        report.note(_colliders_text(colliders))
     default_prim = stage.GetDefaultPrim()
     default_prim_name = default_prim.GetName() if default_prim else ""
     if not default_prim_name:  # give the output a default prim even if the input lacks one
@@ -638,8 +721,85 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
         parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
-        xform_ops=xform_ops, loop_joints=loop_joints, notes=notes, dt=_recorded_dt(stage, path),
+        xform_ops=xform_ops, loop_joints=loop_joints, distance_paths=distance_paths, notes=notes, warnings=warned,
+        colliders_ignored=len(colliders), dt=_recorded_dt(stage, path), time_codes_per_second=_rate(stage, path),
+        time_range=_time_range(stage, path),
     )  # fmt: skip
+
+
+def _ignored_colliders(
+    stage, index: dict[str, int], colliding: set[str], not_colliding: dict[str, str]
+) -> list[tuple[str, str]]:
+    """(path, why) of the enabled collision prims (CollisionAPI) that do not collide, static ones first: those
+    `_read_colliders` could not simulate, and those the parser did not take for colliders (not geometry)."""
+    _, _, _, _, _, UsdPhysics, _ = pxr()
+    static, moving = [], []
+    for prim in stage.Traverse():
+        if prim.HasAPI(UsdPhysics.CollisionAPI) and UsdPhysics.CollisionAPI(prim).GetCollisionEnabledAttr().Get():
+            path = str(prim.GetPath())
+            if path in colliding:
+                continue
+            why = not_colliding.get(path, "not a collision geometry")
+            (static if _rigid_ancestor(prim, index) is None else moving).append((path, why))
+    return static + moving
+
+
+def _unknown_physics_prims(stage) -> list[tuple[str, str]]:
+    """(path, type name) of prims whose type no schema defines but which author physics:* properties: USD
+    (and so every simulator) ignores them, which the author rarely means (OpenUSD's own distance joint
+    example is a `DistancePhysicsJoint`)."""
+    _, _, Tf, *_ = pxr()
+    unknown = Tf.Type.Unknown
+    return [
+        (str(prim.GetPath()), str(prim.GetTypeName()))
+        for prim in stage.Traverse()
+        if prim.GetTypeName()
+        and prim.GetPrimTypeInfo().GetSchemaType() == unknown
+        and any(name.startswith("physics:") for name in prim.GetAuthoredPropertyNames())
+    ]
+
+
+def _unknown_type_text(path: str, type_name: str) -> str:
+    _, _, _, Usd, *_ = pxr()
+    guess = "Physics" + type_name.replace("Physics", "")
+    hint = f" (did you mean {guess}?)" if Usd.SchemaRegistry().FindConcretePrimDefinition(guess) else ""
+    return f"{path}: no schema defines the prim type {type_name}{hint}; its physics:* properties are ignored"
+
+
+def _colliders_text(colliders: list[tuple[str, str]]) -> str:
+    """The one warning for colliders that do not collide, naming how many and the first (a static one when
+    there is one) with why."""
+    n = len(colliders)
+    path, why = colliders[0]
+    return (
+        f"{n} collider{'s do' if n > 1 else ' does'} not collide ({'e.g. ' if n > 1 else ''}{path}: {why}): bodies "
+        f"pass through {'them' if n > 1 else 'it'}; colliders still give their bodies mass"
+    )
+
+
+def _rate(stage, path: str) -> float:
+    """The stage's timeCodesPerSecond (24 where it authors none)."""
+    rate = float(stage.GetTimeCodesPerSecond())
+    if not (rate > 0.0 and math.isfinite(rate)):
+        raise UsdSceneError(f"{path}: the stage's timeCodesPerSecond must be positive and finite, got {rate}")
+    return rate
+
+
+def _time_range(stage, path: str) -> tuple[float, float] | None:
+    """[startTimeCode, endTimeCode] when the stage authors both, else None."""
+    if not stage.HasAuthoredTimeCodeRange():
+        return None
+    start, end = float(stage.GetStartTimeCode()), float(stage.GetEndTimeCode())
+    if not (math.isfinite(start) and math.isfinite(end) and end >= start):
+        raise UsdSceneError(f"{path}: the stage's time range [{start}, {end}] is not a finite interval")
+    return start, end
+
+
+def _start_time(stage):
+    """The time code at which the scene starts: the stage's startTimeCode when it authors one (a prim animated
+    in its layer stack is where it is then), else the default time."""
+    _, _, _, Usd, *_ = pxr()
+    return Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange() else Usd.TimeCode.Default()
 
 
 def _material(stage, paths, where: str) -> tuple[float, float]:
@@ -661,14 +821,19 @@ def _material(stage, paths, where: str) -> tuple[float, float]:
     return 0.5, 0.0
 
 
-def _read_colliders(stage, get, builder: SceneBuilder, index, frames, com_offsets, xforms, mpu, report) -> None:
+def _read_colliders(
+    stage, get, builder: SceneBuilder, index, frames, com_offsets, xforms, mpu, report
+) -> tuple[set[str], dict[str, str]]:
     """CollisionAPI prims: a Plane without a rigid body is a ground; a Sphere, Capsule, Cube or Cylinder of a
     rigid body, centred on its centre of mass with its axis (a cube's edges) along the body frame's z (edges),
     is the body's collision shape (one per body), with its material's friction and restitution; a body's
-    FilteredPairsAPI targets never collide with it. Other colliders do not collide, with a note saying so."""
+    FilteredPairsAPI targets never collide with it. Returns the colliders simulated, and the others, which do not
+    collide, with why (the reader warns once for them all, `_colliders_text`)."""
     _, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
     T = UsdPhysics.ObjectType
     shaped: set[int] = set()
+    simulated: set[str] = set()
+    ignored: dict[str, str] = {}
     kinds = (T.SphereShape, T.CapsuleShape, T.Capsule1Shape, T.CubeShape, T.CylinderShape, T.Cylinder1Shape,
              T.PlaneShape, T.ConeShape, T.MeshShape, T.CustomShape, T.SpherePointsShape)  # fmt: skip
     for t in kinds:
@@ -684,14 +849,14 @@ def _read_colliders(stage, get, builder: SceneBuilder, index, frames, com_offset
                 axis = str(prim.GetAttribute("axis").Get() or "Z")
                 normal = quat_rotate(sim.q, np.eye(3)["XYZ".index(axis)])
                 builder.add_ground(float(np.dot(normal, sim.t)) * mpu, normal, friction, restitution)
+                simulated.add(path)
                 continue
             if t not in (T.SphereShape, T.CapsuleShape, T.CubeShape, T.CylinderShape) or body_prim is None:
-                what = "a static collider that is not a plane" if body_prim is None else f"a {t.name} collider"
-                report.note(f"{path}: {what} does not collide in warpimpulse")
+                ignored[path] = "a static collider that is not a plane" if body_prim is None else f"a {t.name}"
                 continue
             b = index[str(body_prim.GetPath())]
             if b in shaped:
-                report.note(f"{path}: a second collider on a body does not collide in warpimpulse")
+                ignored[path] = "a second collider on its body"
                 continue
             shape, kind, axis, sim = _collider_shape(prim, xforms, report)
             frame = frames[b]
@@ -703,8 +868,7 @@ def _read_colliders(stage, get, builder: SceneBuilder, index, frames, com_offset
                        or (along is not None and along[2] > 1.0 - 1e-6))  # fmt: skip
             scale = max(shape.bounding_radius(), 1e-12)
             if float(np.linalg.norm(offset)) > 1e-6 * scale or not aligned:
-                report.note(f"{path}: a collider off its body's centre of mass or turned from its body frame does "
-                            "not collide in warpimpulse")  # fmt: skip
+                ignored[path] = "off its body's centre of mass or turned from its body frame"
                 continue
             size = dict(
                 radius=shape.radius * mpu, length=shape.length * mpu, size=tuple(float(v) * mpu for v in shape.size)
@@ -718,12 +882,14 @@ def _read_colliders(stage, get, builder: SceneBuilder, index, frames, com_offset
             except (SceneError, ValueError) as exc:
                 raise UsdSceneError(f"{path}: {exc}") from None
             shaped.add(b)
+            simulated.add(path)
     for p, desc in get(T.RigidBody):
         a = index.get(str(p))
         for target in desc.filteredCollisions:
             other = _rigid_ancestor(stage.GetPrimAtPath(target), index)
             if a is not None and other is not None and index[str(other.GetPath())] != a:
                 builder.filter_collision(a, index[str(other.GetPath())])
+    return simulated, ignored
 
 
 def _rigid_ancestor(prim, index: dict[str, int]):
@@ -746,18 +912,19 @@ def _recorded_dt(stage, path: str) -> float | None:
 
 
 def _joint_type_text(type_name: str) -> str:
-    return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed and generic D6 joints)"
+    return f"the joint type {type_name} (supported: revolute, prismatic, spherical, fixed, distance and D6 joints)"
 
 
-def _op_names(prim) -> tuple[str, str]:
-    """xformOp names for the exported pose: the plain ones unless the input gave them other value types
-    (an `over` of another type is a validation error), then ones with a `:warpimpulse` suffix."""
+def _op_names(prim) -> tuple[str, str, str]:
+    """xformOp names for the exported pose and scale: the plain ones unless the input gave them other value
+    types (an `over` of another type is a validation error; OpenUSD's examples scale with float3), then ones
+    with a `:warpimpulse` suffix."""
     ops = []
-    for op, type_name in (("xformOp:translate", "double3"), ("xformOp:orient", "quatd")):
+    for op, type_name in (("xformOp:translate", "double3"), ("xformOp:orient", "quatd"), ("xformOp:scale", "double3")):
         attr = prim.GetAttribute(op)
         clash = attr and attr.HasAuthoredValue() and str(attr.GetTypeName()) != type_name
         ops.append(f"{op}:warpimpulse" if clash else op)
-    return ops[0], ops[1]
+    return ops[0], ops[1], ops[2]
 
 
 def _read_forces(builder: SceneBuilder, prim, body: int, mpu: float, kpu: float) -> None:

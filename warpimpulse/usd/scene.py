@@ -63,10 +63,17 @@ class UsdScene:
     kilograms_per_unit: float = 1.0
     up_axis: str = "Z"
     default_prim: str = ""
-    xform_ops: list[tuple[str, str]] | None = None  # (translate, orient) op names per body; None: plain
+    xform_ops: list[tuple[str, str, str]] | None = None  # (translate, orient, scale) op names per body; None: plain
     loop_joints: list[str] = field(default_factory=list)
+    distance_paths: list[str] = field(default_factory=list)  # prims of the builder's distance constraints
     notes: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # the notes that were warned about (the output records them)
+    colliders_ignored: int = 0  # CollisionAPI prims that take no part in the motion
     dt: float | None = None  # the step size the file asks for (customLayerData warpimpulse:dt), if any
+    # The stage's time: time codes per second, and its [start, end] range (None when it authors none).
+    # An output over the input keeps its rate, so that time code c means the same instant in both.
+    time_codes_per_second: float | None = None
+    time_range: tuple[float, float] | None = None
 
     @property
     def body_count(self) -> int:
@@ -86,16 +93,17 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
         used.add(name)
         paths.append(f"{WORLD_PATH}/{name}")
     joint_paths, used = [], set()
-    for j in builder.joints:
+    for j in [*builder.joints, *builder.distances]:
         base = Tf.MakeValidIdentifier(j.name.strip("/").replace("/", "_") or "joint")
         name, k = base, 1
         while name in used:
             name, k = f"{base}_{k}", k + 1
         used.add(name)
         joint_paths.append(f"{WORLD_PATH}/Joints/{name}")
+    joint_paths, distance_paths = joint_paths[: len(builder.joints)], joint_paths[len(builder.joints) :]
     ident = np.tile(IDENTITY_QUAT, (n, 1))
     return UsdScene(
-        builder=builder, source_path=None, body_paths=paths, joint_paths=joint_paths,
+        builder=builder, source_path=None, body_paths=paths, joint_paths=joint_paths, distance_paths=distance_paths,
         com_offsets=np.zeros((n, 3)), body_scales=np.ones((n, 3)), parent_index=np.full(n, -1),
         parent_pos=np.zeros((n, 3)), parent_quat=ident, parent_scale=np.ones(n),
         reset_xform_stack=np.zeros(n, dtype=bool), default_prim="World",
@@ -105,9 +113,9 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
 def builder_from_model(model: Model) -> SceneBuilder:
     """A SceneBuilder that finalizes to `model` again: the bodies at their initial state, each joint from its
     first constraint's build-time anchor and axes (the builder gives all of a joint's constraints the same
-    ones), the forces, the collision shapes, materials, grounds and filters. Bodies without a collision shape
-    have none: the writer draws each as a sphere of the same mean inertia (write the SceneBuilder itself to
-    keep display shapes and colours)."""
+    ones), the forces, the distance constraints, the collision shapes, materials, grounds and filters. Bodies
+    without a collision shape have none: the writer draws each as a sphere of the same mean inertia (write the
+    SceneBuilder itself to keep display shapes and colours)."""
     h = model.host
     builder = SceneBuilder(gravity=h.gravity)
     for i, name in enumerate(model.body_name):
@@ -134,8 +142,8 @@ def builder_from_model(model: Model) -> SceneBuilder:
 
 
 def _mechanisms_from_model(builder: SceneBuilder, model: Model) -> None:
-    """The model's springs, drives, limits and loop marks back on `builder` (whose bodies and joints are the
-    model's, in order)."""
+    """The model's springs, drives, limits, distance constraints and loop marks back on `builder` (whose bodies
+    and joints are the model's, in order)."""
     h = model.host
     for k in np.flatnonzero(h.joint_loop).tolist():
         builder.mark_loop_joint(k)
@@ -154,8 +162,16 @@ def _mechanisms_from_model(builder: SceneBuilder, model: Model) -> None:
             builder.add_motor(joint, DRIVE_MODES[h.drive_mode[i]], h.drive_target[i], kp, ki, kd,
                               h.drive_max_force[i], stiff=bool(h.drive_stiff[i]))  # fmt: skip
     for joint, (lower, upper), drive in zip(h.limit_joint, h.limit_bounds, h.limit_drive):
-        if drive < 0:  # the stiff motors' rows come back with their motors
+        if drive < 0 and joint >= 0:  # the stiff motors' rows come back with their motors, distances below
             builder.add_joint_limit(int(joint), lower, upper)
+    for name, bodies, (local0, local1, _), (lower, upper) in zip(
+        model.distance_name, h.distance_body, h.distance_anchor, h.distance_bounds
+    ):
+        ends = [None if b == WORLD else int(b) for b in bodies]
+        anchors = [
+            a if b is None else h.body_x[b] + quat_rotate(h.body_q[b], a) for b, a in zip(ends, (local0, local1))
+        ]
+        builder.add_distance(ends[0], ends[1], anchors[0], anchors[1], float(lower), float(upper), name)
 
 
 def _restore_colliders(builder: SceneBuilder, model: Model) -> None:

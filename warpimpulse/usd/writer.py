@@ -42,6 +42,7 @@ INSTANCER_AUTO_BODIES = 5000
 # holds; the samples themselves live in the Sdf layer until it is written.
 CHUNK_BYTES = 32 * 2**20
 CHUNK_FRAMES = 512
+_PLAIN_OPS = ("xformOp:translate", "xformOp:orient", "xformOp:scale")
 
 
 def _frame_axes(axis: np.ndarray, second: np.ndarray | None = None) -> np.ndarray:
@@ -310,8 +311,8 @@ def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[
             lines.append(f"float drive:{kind}:physics:maxForce = {_f(drive.max_force)}")
         if drive.ki:
             lines.append(f"custom double warpimpulse:drive:ki = {_f(drive.ki * per)}")
-        if drive.stiff:
-            lines.append("custom bool warpimpulse:drive:stiff = 1")
+        if drive.stiff or (drive.motor and velocity):  # the reader takes a velocity drive without it as stiff
+            lines.append(f"custom bool warpimpulse:drive:stiff = {int(drive.stiff)}")
         if not drive.motor:
             lines.append("custom bool warpimpulse:drive:jointSpring = 1")
         limit_lines = out.get(drive.joint, ([], []))[1]
@@ -389,11 +390,22 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
             geometry[shape, material] = _geometry_usda("geom", shape, "        ", material)
         out.append(geometry[shape, material])
         out.append("    }\n")
-    if builder.joints:
+    if builder.joints or builder.distances:
         loops = _loop_joints(builder)
         out.append('    def Scope "Joints"\n    {\n')
         bodies = builder.bodies
         mechanisms = _joint_mechanisms(builder)
+        for dist, dpath in zip(builder.distances, scene.distance_paths):
+            lines = [f"rel physics:body{side} = <{scene.body_paths[bi]}>"
+                     for side, bi in ((0, dist.body0), (1, dist.body1)) if bi != WORLD]  # fmt: skip
+            lines += [
+                f"point3f physics:localPos{side} = {_tup(a)}" for side, a in enumerate((dist.anchor0, dist.anchor1))
+            ]
+            lines.append(f"float physics:minDistance = {_f(dist.lower)}")
+            if math.isfinite(dist.upper):
+                lines.append(f"float physics:maxDistance = {_f(dist.upper)}")
+            out.append(f'        def PhysicsDistanceJoint "{dpath.rsplit("/", 1)[1]}"\n        {{\n')
+            out.append("".join(f"            {line}\n" for line in lines) + "        }\n")
         for k, (j, jpath) in enumerate(zip(builder.joints, scene.joint_paths)):
             f0, f1, type_name, locked, axis = _joint_frames(j)
             drive_schema, drive_lines = mechanisms.get(k, ([], []))
@@ -436,6 +448,10 @@ class AnimationWriter:
     `INSTANCER_AUTO_BODIES` bodies for procedural scenes. Frames go into the Sdf layer in bounded chunks
     (`CHUNK_BYTES`); as a context manager, an exception or Ctrl-C still writes the frames done so far to a
     valid file.
+
+    Time: frame f (t = f / fps s) is time code start + f * rate / fps. A layered output keeps the input's
+    rate (timeCodesPerSecond) and starts at its startTimeCode, so that a time code means the same instant
+    in the output and in the input's layer stack; a procedural one has rate = fps and starts at 0.
     """
 
     def __init__(
@@ -469,9 +485,14 @@ class AnimationWriter:
                              "written as overs on its own body prims")  # fmt: skip
         self.instancer = bool(instancer)
         self.settings = dict(settings or {})
+        self.time_codes_per_second = self.fps
+        self.start_time_code = 0.0
+        if layered:
+            self.time_codes_per_second = self.scene.time_codes_per_second or self.fps
+            self.start_time_code = self.scene.time_range[0] if self.scene.time_range else 0.0
         self.frames_written = 0
-        self.first_time: int | None = None
-        self.last_time: int | None = None
+        self.first_time: float | None = None
+        self.last_time: float | None = None
         self.stopped_early: str | None = None
         self._closed = False
         self.saved = False  # True once close() has written the file
@@ -518,7 +539,7 @@ class AnimationWriter:
             tv, qv = Vt.Vec3dArray.FromNumpy(local_t), Vt.QuatdArray.FromNumpy(local_q)
             for i in self._moving.tolist():  # static and kinematic bodies keep the input's transform (and animation)
                 spec = h.prim(layer, scene.body_paths[i], specifier=Sdf.SpecifierOver)
-                t_op, q_op = scene.xform_ops[i] if scene.xform_ops else ("xformOp:translate", "xformOp:orient")
+                t_op, q_op, s_op = scene.xform_ops[i] if scene.xform_ops else _PLAIN_OPS
                 ops = [t_op, q_op]
                 ratio = scene.body_scales[i].copy()
                 if not scene.reset_xform_stack[i]:
@@ -526,8 +547,8 @@ class AnimationWriter:
                     if scene.parent_index[i] >= 0:
                         ratio /= scene.body_scales[scene.parent_index[i], 0]
                 if np.abs(ratio - 1.0).max() > 1e-12:
-                    h.attr(spec, "xformOp:scale", T.Double3, h.Gf.Vec3d(*ratio))
-                    ops.append("xformOp:scale")
+                    h.attr(spec, s_op, T.Double3, h.Gf.Vec3d(*ratio))
+                    ops.append(s_op)
                 if scene.reset_xform_stack[i]:
                     ops.insert(0, "!resetXformStack!")
                 h.attr(spec, "xformOpOrder", T.TokenArray, Vt.TokenArray(ops), uniform=True)
@@ -561,7 +582,7 @@ class AnimationWriter:
         root.SetInfo("upAxis", scene.up_axis)
         root.SetInfo("metersPerUnit", float(scene.meters_per_unit))
         root.SetInfo("kilogramsPerUnit", float(scene.kilograms_per_unit))
-        layer.timeCodesPerSecond = self.fps
+        layer.timeCodesPerSecond = self.time_codes_per_second
         layer.framesPerSecond = self.fps
         if scene.default_prim:
             layer.defaultPrim = scene.default_prim
@@ -575,6 +596,10 @@ class AnimationWriter:
             "warpimpulse:framesWritten": int(self.frames_written),
             "warpimpulse:complete": self.stopped_early is None,
         }
+        if self.scene.warnings:  # what the reader warned about: colliders ignored, features dropped
+            data["warpimpulse:warnings"] = self._Vt.StringArray(self.scene.warnings)
+        if self.scene.colliders_ignored:
+            data["warpimpulse:collidersIgnored"] = int(self.scene.colliders_ignored)
         if self.stopped_early:
             data["warpimpulse:stoppedEarly"] = self.stopped_early
         if self.scene.source_path:
@@ -584,8 +609,15 @@ class AnimationWriter:
         self.layer.customLayerData = data
 
     # ------------------------------------------------------------------ frames
-    def write_frame(self, time_code: int, positions, orientations) -> None:
-        """Add the state at `time_code` (= t * fps): centres of mass (N, 3) in metres, orientations (N, 4) xyzw."""
+    def time_code(self, frame: int) -> float:
+        """The time code of frame `frame` (t = frame / fps s)."""
+        if self.time_codes_per_second == self.fps:
+            return self.start_time_code + frame  # exact
+        return self.start_time_code + frame * self.time_codes_per_second / self.fps
+
+    def write_frame(self, frame: int, positions, orientations) -> None:
+        """Add frame `frame`, the state at t = frame / fps s (time code `time_code(frame)`): centres of mass
+        (N, 3) in metres, orientations (N, 4) xyzw."""
         if self._closed:
             raise RuntimeError("write_frame after close()")
         n = self.scene.body_count
@@ -593,7 +625,7 @@ class AnimationWriter:
         q = np.asarray(orientations, dtype=np.float64)
         if x.shape != (n, 3) or q.shape != (n, 4):
             raise ValueError(f"expected positions ({n}, 3) and orientations ({n}, 4), got {x.shape}, {q.shape}")
-        tc = float(time_code)
+        tc = float(self.time_code(frame))
         if self.instancer:
             Vt, layer = self._Vt, self.layer
             with self._Sdf.ChangeBlock():
@@ -612,8 +644,8 @@ class AnimationWriter:
             self._buf_times.append(tc)
             self._prev_q = local_q
         self.frames_written += 1
-        self.first_time = time_code if self.first_time is None else min(self.first_time, time_code)
-        self.last_time = time_code if self.last_time is None else max(self.last_time, time_code)
+        self.first_time = tc if self.first_time is None else min(self.first_time, tc)
+        self.last_time = tc if self.last_time is None else max(self.last_time, tc)
 
     def _flush(self) -> None:
         """Author the buffered frames into the layer, attribute by attribute."""
@@ -653,8 +685,8 @@ class AnimationWriter:
         if not self.instancer:
             self._flush()
         layer = self.layer
-        layer.startTimeCode = float(self.first_time if self.first_time is not None else 0)
-        layer.endTimeCode = float(self.last_time if self.last_time is not None else 0)
+        layer.startTimeCode = float(self.first_time if self.first_time is not None else self.start_time_code)
+        layer.endTimeCode = float(self.last_time if self.last_time is not None else self.start_time_code)
         self._write_layer_data()
 
         def export(tmp: str) -> bool:
