@@ -206,3 +206,40 @@ class DoublePendulumReference:
         u1 = np.stack([np.sin(t1), np.zeros_like(t1), -np.cos(t1)], axis=-1)
         u2 = np.stack([np.sin(t2), np.zeros_like(t2), -np.cos(t2)], axis=-1)
         return self.pivot + np.stack([self.c1 * u1, self.l1 * u1 + self.c2 * u2], axis=1)
+
+
+class Internals:
+    """The one place the tests read the engine's internals (their names change with refactors): the rows P_i
+    of every constraint at the current state, a solve with the simulator's own linear solver, and the K that
+    a CG solver assembles from the simulator's frames. Everything else goes through the public API."""
+
+    def __init__(self, sim) -> None:
+        self.sim = sim
+
+    def rows(self) -> np.ndarray:
+        """P_i (n_constraints, 3, 3) at the current state."""
+        return self.sim.frames.proj.numpy()
+
+    def formulation(self) -> str:
+        return self.sim.linear.pattern.formulation
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """lambda of K lambda = rhs (n_constraints, 3) with the simulator's factorization."""
+        b = wp.array(rhs, dtype=wp.vec3d)
+        out = wp.zeros_like(b)
+        self.sim.linear.solve(b, out)
+        return out.numpy()
+
+    def assembled_k(self) -> np.ndarray:
+        """The dense K that the engine's assembly kernel writes (CG's full block pattern)."""
+        from warpimpulse.solver import CGSolver
+
+        model = self.sim.model
+        cg = CGSolver(model, self.sim.frames)
+        cg.prepare()
+        csr = model.topology.csr()
+        n = model.constraint_count
+        k = np.zeros((3 * n, 3 * n))
+        for value, i, j in zip(cg.values.numpy(), csr.row, csr.col):
+            k[3 * i : 3 * i + 3, 3 * j : 3 * j + 3] = value
+        return k

@@ -213,3 +213,76 @@ class BallTree:
 def order(coarse: float, fine: float, ratio: float = 2.0) -> float:
     """The observed convergence order from errors at step sizes h and h / ratio."""
     return math.log(coarse / fine) / math.log(ratio)
+
+
+POINT, LINE, PLANE, ROTATION, AXIS, ANGLE = range(6)
+DIM = (3, 2, 1, 3, 2, 1)
+
+
+def check_rows(kind: int, rows: np.ndarray, n0: np.ndarray, n1: np.ndarray) -> None:
+    """Assert that `rows` (3x3, the engine's P_i) are the directions the constraint removes: the identity for a
+    point or rotation, two orthonormal rows across the axis for a line or common axis, the normal of a plane,
+    the normal of the two axes of an angle; unused rows zero. Only the basis of a plane of directions is the
+    engine's choice; everything else is checked."""
+    d = DIM[kind]
+    np.testing.assert_allclose(rows[d:], 0.0, atol=0)
+    used = rows[:d]
+    np.testing.assert_allclose(used @ used.T, np.eye(d), atol=1e-12)
+    if kind in (POINT, ROTATION):
+        np.testing.assert_allclose(used, np.eye(3), atol=1e-12)
+    elif kind in (LINE, AXIS):
+        np.testing.assert_allclose(used @ n0, 0.0, atol=1e-12)
+    elif kind == PLANE:
+        np.testing.assert_allclose(used[0], n0, atol=1e-12)
+    else:
+        n = np.cross(n0, n1)
+        np.testing.assert_allclose(used[0], n / np.linalg.norm(n), atol=1e-12)
+
+
+def numpy_jacobian(builder, x, q, rows) -> np.ndarray:
+    """J (3 n_constraints x 6 n_bodies) at poses (x, q): the rate of every constraint's error, c = A - B (or
+    its rotational analogue), in the directions `rows[i]` (the engine's P_i, checked by `check_rows`), for
+    generalized velocities (v_0, w_0, v_1, w_1, ...) in the world frame. A translational constraint's impulses
+    act at the joint point B on both bodies; the velocity of B as a point of body k is v_k + w_k x (B - x_k)."""
+    r = matrices(q)
+    jac = np.zeros((3 * len(builder.constraints), 6 * len(builder.bodies)))
+    for i, c in enumerate(builder.constraints):
+        kind = int(c.kind)
+        r0 = np.eye(3) if c.body0 < 0 else r[c.body0]
+        r1 = r[c.body1]
+        x1 = x[c.body1]
+        n0, n1 = r0 @ c.axis0, r1 @ c.axis1
+        check_rows(kind, rows[i], n0, n1)
+        p = rows[i]
+        b = x1 + r1 @ c.anchor1
+        for body, sign in ((c.body0, 1.0), (c.body1, -1.0)):
+            if body < 0 or builder.bodies[body].static:
+                continue
+            block = jac[3 * i : 3 * i + 3, 6 * body : 6 * body + 6]
+            if kind < ROTATION:
+                block[:, :3] = sign * p
+                block[:, 3:] = -sign * p @ skew(b - x[body])
+            else:
+                block[:, 3:] = sign * p
+    return jac
+
+
+def numpy_inverse_mass(builder, q) -> np.ndarray:
+    """M^-1 (6 n x 6 n): 1/m I and R I^-1 R^T per dynamic body, zero for static ones."""
+    r = matrices(q)
+    out = np.zeros((6 * len(builder.bodies),) * 2)
+    for k, body in enumerate(builder.bodies):
+        if not body.static:
+            out[6 * k : 6 * k + 3, 6 * k : 6 * k + 3] = np.eye(3) / body.mass
+            out[6 * k + 3 : 6 * k + 6, 6 * k + 3 : 6 * k + 6] = r[k] @ np.linalg.inv(body.inertia) @ r[k].T
+    return out
+
+
+def numpy_k(builder, x, q, rows) -> np.ndarray:
+    """K = J M^-1 J^T, with a unit diagonal in the unused rows of constraints of dimension < 3 (so it is SPD)."""
+    jac = numpy_jacobian(builder, x, q, rows)
+    k = jac @ numpy_inverse_mass(builder, q) @ jac.T
+    for i, c in enumerate(builder.constraints):
+        for row in range(DIM[int(c.kind)], 3):
+            k[3 * i + row, 3 * i + row] = 1.0
+    return k
