@@ -301,6 +301,31 @@ def pile(bodies: int = 1000, seed: int = 0) -> SceneBuilder:
     return builder
 
 
+def bent_chain(links: int = 6) -> SceneBuilder:
+    """A chain of stubby capsules (0.5 m long, 0.15 m radius) bent in 3D, each link turned 100 degrees about z
+    from the last and tilted down, on ball, universal and revolute joints in turn, the first hung from the world
+    origin; its tip pushed sideways for the first half second. Gravity and the push move it in 3D: the stored
+    MuJoCo reference trajectory of the tests (benchmarks/make_reference.py). Thin links would make a stiff
+    system (a fast twist of little inertia), on which even MuJoCo's RK4 at h = 1/3000 is not converged."""
+    builder = SceneBuilder()
+    length, radius = 0.5, 0.15
+    shape = Shape("capsule", radius=radius, length=length - 2.0 * radius, color=(0.3, 0.5, 0.8))
+    mass, inertia = shape.mass_properties(DENSITY)
+    top, parent = np.zeros(3), None
+    for i in range(links):
+        turn = math.radians(100.0) * i
+        direction = np.array([math.cos(turn), math.sin(turn), -0.4])
+        direction /= np.linalg.norm(direction)
+        q = quat_between([0.0, 0.0, 1.0], direction)
+        body = builder.add_body(mass, inertia, top + 0.5 * length * direction, q, name=f"link{i}", shape=shape)
+        across = np.cross(direction, [0.0, 0.0, 1.0])
+        kind = ("ball", "universal", "revolute")[i % 3]
+        builder.add_joint(kind, parent, body, top, across, np.cross(direction, across), f"j{i}")
+        parent, top = body, top + length * direction
+    builder.add_force(parent, force=(0.0, 100.0, 50.0), until=0.5)
+    return builder
+
+
 SCENES = {
     "tree31": lambda: binary_tree(31),
     "tree63": lambda: binary_tree(63),
