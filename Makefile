@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint stress soak bench clean
+.PHONY: run test lint stress soak bench mutants clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -16,6 +16,11 @@ run: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" tests
+
+# Break the engine on purpose, one curated mutation at a time (tests/mutants/mutations.toml), and list the
+# mutations the fast suite does not notice. Minutes per mutation; not part of `make test`.
+mutants: $(STAMP)
+	$(PY) tests/mutants/run.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .
