@@ -20,8 +20,7 @@ import mujoco
 import numpy as np
 
 from warpimpulse import scenes
-from warpimpulse.benchmark import MujocoRunner, mujoco_available
-from warpimpulse.mjcf import MujocoScene
+from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
 
 RATE, CHECK_RATE = 3000, 6000
 # name: (scene, probe bodies, times in s). The tree's probes: the root, a body of every level, leaves on both

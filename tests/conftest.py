@@ -1,7 +1,7 @@
 """Shared test set-up and independent numpy checks of the engine's state.
 
 The helpers here recompute joint errors, constraint velocities and momenta from the builder's constraint
-data and the simulator's numpy state, with scipy rotations: they share no code with the kernels, so a wrong
+data and the simulator's numpy state, with numpy rotation matrices: they share no code with the kernels, so a wrong
 kernel and a wrong check would have to be wrong in the same way to hide a bug.
 """
 
@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import warp as wp
+from reference import matrices
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation
 
@@ -24,8 +25,9 @@ POINT, LINE, PLANE, ROTATION, AXIS, ANGLE = ConstraintKind
 
 
 def rotations(q) -> np.ndarray:
-    """Rotation matrices of (N, 4) or (4,) quaternions (x, y, z, w)."""
-    return Rotation.from_quat(np.asarray(q, dtype=float)).as_matrix()
+    """R(q) of (N, 4) or (4,) quaternions (x, y, z, w), not normalised first (scipy's from_quat would be): a
+    quaternion off unit length gives a matrix off a rotation, which the checks built on it then see."""
+    return matrices(q)
 
 
 def _pose(b: int, x: np.ndarray, r: np.ndarray):
