@@ -12,27 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import assert_one_line_error, run
 
 from warpimpulse.cli import main
 
 SCENES = Path(__file__).parents[1] / "scenes"
-
-
-def run(argv: list[str], capsys) -> tuple[int, list[str]]:
-    """Exit status and the lines on stderr."""
-    try:
-        code = main(argv)
-    except SystemExit as exc:  # argparse exits by itself
-        code = exc.code
-    err = capsys.readouterr().err
-    assert "Traceback" not in err, err
-    return code, [line for line in err.splitlines() if line.strip()]
-
-
-def assert_one_line_error(argv: list[str], message: str, capsys, code: int = 2) -> None:
-    got, lines = run(argv, capsys)
-    assert got == code, (got, lines)
-    assert len(lines) == 1 and "error: " in lines[0] and message in lines[0], lines
 
 
 @pytest.mark.parametrize(

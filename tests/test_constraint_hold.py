@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import constraint_errors, constraint_velocity_errors, per_joint, sim_state
+from numpy_checks import constraint_errors, constraint_velocity_errors, per_joint, sim_state
 
 import warpimpulse
 from warpimpulse import JOINT_TYPES, scenes

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import rotations
+from numpy_checks import rotations
 
 import warpimpulse as wi
 from warpimpulse import scenes

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import DoublePendulumReference as Reference
+from numpy_checks import DoublePendulumReference as Reference
 
 import warpimpulse
 from warpimpulse import scenes

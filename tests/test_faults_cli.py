@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 import warp as wp
+from cli_helpers import assert_one_line_error, run
 from pxr import Sdf
-from test_cli import assert_one_line_error, run
 
 
 def _layer_data(path) -> dict:

@@ -12,10 +12,10 @@ import math
 import os
 
 import numpy as np
+from cli_helpers import run
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pxr import Sdf
-from test_cli import run
 
 SPECIAL = [0.0, -1.0, math.nan, math.inf, -math.inf, 1e30, -1e30, 1e-30, 3e38, 1e300]
 NUMBER = st.one_of(st.floats(-10.0, 10.0, allow_nan=False), st.floats(0.1, 10.0), st.sampled_from(SPECIAL))

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import momenta, sim_state
+from numpy_checks import momenta, sim_state
 from reference import BallTree, matrices, order
-from test_momentum import floating_body
-from test_rotation3d import ball_chain, run_against_reference
+from rigs import ball_chain, floating_body, run_against_reference
 
 import warpimpulse as wi
 

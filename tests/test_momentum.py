@@ -8,54 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import momenta, sim_state
-from scipy.spatial.transform import Rotation
+from numpy_checks import momenta, sim_state
+from rigs import floating_body
 
 import warpimpulse
 import warpimpulse as wi
-
-JOINTS = ("ball", "revolute", "universal", "cylindrical", "prismatic", "planar", "fixed")
-
-
-def floating_body(seed: int, consistent: bool) -> warpimpulse.SceneBuilder:
-    """A root with a branch of two bodies on every joint type; no joint to the world.
-
-    consistent: start every child moving with its parent as one rigid body plus a random spin about its own
-    joint axis, so no constraint is broken; otherwise random velocities that the first step repairs."""
-    rng = np.random.default_rng(seed)
-    b = warpimpulse.SceneBuilder(gravity=(0.0, 0.0, 0.0))
-    v_root, w_root = rng.normal(size=3), rng.normal(size=3)
-
-    def body(position, parent_motion=None, axis=None, anchor=None):
-        moments = rng.uniform(0.8, 1.5, 3)
-        r = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
-        q = Rotation.random(random_state=rng.integers(1 << 31)).as_quat()
-        if consistent:
-            v, w = parent_motion if parent_motion is not None else (v_root, w_root)
-        else:
-            v, w = rng.normal(size=3), rng.normal(size=3)
-        return b.add_body(rng.uniform(0.5, 3.0), r @ np.diag(moments) @ r.T, position, q, v, w)
-
-    root = body(np.zeros(3))
-    for k, joint in enumerate(JOINTS):
-        direction = np.array([np.cos(2 * np.pi * k / len(JOINTS)), np.sin(2 * np.pi * k / len(JOINTS)), 0.3])
-        parent, top = root, 0.5 * direction
-        for _ in range(2):
-            anchor = top
-            centre = anchor + 0.5 * direction + rng.normal(scale=0.1, size=3)
-            # Rigid motion of the root, at the child's centre.
-            motion = (v_root + np.cross(w_root, centre), w_root)
-            child = body(centre, motion)
-            axis = rng.normal(size=3)
-            if joint == "universal":
-                b.add_joint_universal(parent, child, anchor, axis, rng.normal(size=3))
-            elif joint in ("ball", "fixed"):
-                b.add_joint(joint, parent, child, anchor)
-            else:
-                b.add_joint(joint, parent, child, anchor, axis)
-            parent, top = child, anchor + direction
-    return b
-
 
 # Impulses act equal and opposite at one point (B), so no couple is added: angular momentum holds to round-off at any
 # tolerance. Applying body0's at A instead, as the paper does, drifted 9.5e-9 (rigid start) and 4.1e-8 (kicked)

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import DoublePendulumReference, constraint_errors, constraint_velocity_errors, sim_state
+from numpy_checks import DoublePendulumReference, constraint_errors, constraint_velocity_errors, sim_state
 
 import warpimpulse
 from warpimpulse import composition, scenes

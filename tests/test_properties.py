@@ -11,9 +11,9 @@ import math
 
 import numpy as np
 import pytest
-from conftest import constraint_errors
 from hypothesis import HealthCheck, Phase, assume, event, given, note, settings
 from hypothesis import strategies as st
+from numpy_checks import constraint_errors
 
 import warpimpulse as wi
 from warpimpulse import JOINT_TYPES

@@ -11,10 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import Internals
+from numpy_checks import Internals
 from reference import numpy_energy, numpy_k
-from test_momentum import floating_body
-from test_rotation3d import ball_chain
+from rigs import ball_chain, floating_body
 
 import warpimpulse as wi
 from warpimpulse import JOINT_TYPES, scenes

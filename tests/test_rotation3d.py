@@ -13,11 +13,10 @@ Every comparison reads the raw orientation quaternions and builds R(q) without n
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
-from reference import BallTree, FreeBody, matrices, numpy_energy, order
+from reference import FreeBody, matrices, numpy_energy, order
+from rigs import DURATION, ball_chain, run_against_reference
 
 import warpimpulse as wi
 
@@ -72,33 +71,6 @@ def test_free_body_convergence_order(free_body_errors):
 
 
 # ---------------------------------------------------------------- ball-joint systems in reduced coordinates
-def rod_orientation(direction) -> np.ndarray:
-    """The quaternion that turns +z onto `direction`."""
-    z, d = np.array([0.0, 0.0, 1.0]), np.asarray(direction, dtype=float) / np.linalg.norm(direction)
-    axis = np.cross(z, d)
-    angle = math.atan2(np.linalg.norm(axis), z @ d)
-    return np.array([*(axis / np.linalg.norm(axis) * math.sin(0.5 * angle)), math.cos(0.5 * angle)])
-
-
-def ball_chain(directions, lengths, masses, spins, gravity=(0.0, 0.0, -9.81)) -> tuple[wi.SceneBuilder, BallTree]:
-    """Rods on ball joints, each hung from the end of the previous one (the first from the world origin), with
-    asymmetric inertias (moments 1, 0.75, 0.3 of m L^2 / 12) and world angular velocities `spins`; every
-    linear velocity is set from the reference's kinematics, so the joints hold at the start."""
-    b = wi.SceneBuilder(gravity=gravity)
-    top, parent = np.zeros(3), None
-    for i, (d, length, mass, spin) in enumerate(zip(directions, lengths, masses, spins)):
-        d = np.asarray(d, dtype=float) / np.linalg.norm(d)
-        inertia = np.diag([1.0, 0.75, 0.3]) * (mass * length * length / 12.0)
-        body = b.add_body(mass, inertia, top + 0.5 * length * d, rod_orientation(d), angular_velocity=spin,
-                          name=f"rod{i}")  # fmt: skip
-        b.add_joint_ball(parent, body, top, name=f"ball{i}")
-        parent, top = body, top + length * d
-    ref = BallTree(b)
-    for body, v in zip(b.bodies, ref.velocities(ref.q0, ref.w0)):
-        body.linear_velocity = v
-    return b, ref
-
-
 SYSTEMS = {
     "spherical_pendulum": lambda: ball_chain([(1.0, 0.3, -1.0)], [1.0], [1.0], [(0.5, -1.0, 2.0)]),
     "chain3": lambda: ball_chain(
@@ -108,23 +80,6 @@ SYSTEMS = {
         [(0.3, 0.2, 1.0), (0.0, 0.0, 0.0), (1.0, -0.5, 0.0)],
     ),  # fmt: skip
 }
-DURATION = 1.0
-
-
-def run_against_reference(make, rate: int, duration: float = DURATION, tolerance: float = 1e-8):
-    """Max centre-of-mass distance (m) and max |R - R_ref| from the reference over the run."""
-    builder, ref = make()
-    n = int(round(duration * rate))
-    times = np.arange(n + 1) / rate
-    com, q_ref, _ = ref.solve(times)
-    np.testing.assert_allclose(com[0], [b.position for b in builder.bodies], atol=1e-12)
-    sim = wi.Simulator(builder.finalize(), 1.0 / rate, tolerance=tolerance)
-    x_err = r_err = 0.0
-    for k in range(1, n + 1):
-        sim.step()
-        x_err = max(x_err, float(np.linalg.norm(sim.positions() - com[k], axis=1).max()))
-        r_err = max(r_err, float(np.abs(matrices(sim.orientations()) - matrices(q_ref[k])).max()))
-    return x_err, r_err
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ and constraints (tests/reference.py, not the engine's assembly kernel); the iter
 import numpy as np
 import pytest
 import warp as wp
-from conftest import Internals
+from numpy_checks import Internals
 from reference import numpy_k
 
 import warpimpulse as wi

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import sim_state
-from test_joints import DT, JOINTS, TOL, Rig
+from numpy_checks import sim_state
+from rigs import DT, JOINTS, TOL, Rig
 from warpimpulse.kernels import constraints
 
 import warpimpulse

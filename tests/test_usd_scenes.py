@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import momenta, sim_state
+from numpy_checks import momenta, sim_state
 
 pytest.importorskip("pxr")
 from pxr import Sdf  # noqa: E402
