@@ -2,7 +2,7 @@
 velocity within the velocity tolerance (after the velocity correction).
 
 Checked three ways: the engine's StepStats, its joint_errors(), and an independent numpy evaluation of each
-basic constraint from the builder's data (conftest.py).
+basic constraint from the builder's data (numpy_checks.py).
 """
 
 from __future__ import annotations

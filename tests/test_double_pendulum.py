@@ -1,4 +1,4 @@
-"""The double pendulum against an independent reference in reduced coordinates (conftest.py).
+"""The double pendulum against an independent reference in reduced coordinates (numpy_checks.py).
 
 The reference: two uniform rods on parallel hinges (y axis), angles theta1, theta2 from the downward vertical,
 centres of mass at c1, c2 from their hinges, the second hinge L1 from the first. Lagrange's equations, M t'' = f:

@@ -1,6 +1,6 @@
 """Order 4 and 6 in time: symmetric compositions of the paper's step (warpimpulse/composition.py).
 
-Measured on the double pendulum against the reduced-coordinate reference (conftest.py), 1 s from both rods
+Measured on the double pendulum against the reduced-coordinate reference (numpy_checks.py), 1 s from both rods
 horizontal, tolerances by the default rule: the default order 4 (Suzuki) gives 3.4e-6, 2.1e-7, 1.3e-8 m at
 h = 1/50, 1/100, 1/200 (order 4.01, 4.00); the default order 6 (Kahan & Li) 1.0e-7, 1.5e-9, 2.4e-11 m
 (order 6.03, 6.01). The paper's step alone: 2.5e-3, 6.3e-4, 1.6e-4 m.
