@@ -38,6 +38,9 @@ from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
+ROWS_FALLBACK = "joint limits, stiff motors or distance rows (impacts and saturation are not reversible)"
+"""Why a scene with such rows takes its steps at order 2 whatever order was asked: a composed step would run
+them backwards in its negative substeps (`StepStats.fallback`)."""
 VELOCITY_ALTERNATIONS = 10
 """Rounds of (joint velocity correction, contact velocity sweeps) at t0+h before the last joint correction: the
 two blocks converge linearly into each other (a cart on its wheels: about 0.7 a round)."""
@@ -167,11 +170,6 @@ class Simulator:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
         if verbose:
             show_warp_messages()
-        if model.limit_count and checks.integer(order, "order", 2) > 2:
-            raise ValueError(
-                "joint limits, stiff motors and distance constraints are not reversible (impacts, saturation): a "
-                f"composed step of order {order} would run them backwards in its negative substeps; use order 2"
-            )
         if solver == "iterative" and model.limit_count:
             raise ValueError(
                 "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
@@ -682,6 +680,8 @@ class Simulator:
         stages, fallback = self.scheme.stages, self._fallback
         if fallback:  # a non-reversible event in this step: composing it would not raise the order
             stages, self._fallback = (1.0,), ""
+        elif len(stages) > 1 and self.model.limit_count:
+            stages, fallback = (1.0,), ROWS_FALLBACK
         elif len(stages) > 1 and self._contacts_ahead(stages):
             stages, fallback = (1.0,), "contacts"
         depth = self._spin_depth(max(abs(g) for g in stages))
