@@ -402,6 +402,34 @@ def apply_impulse(
 
 
 @wp.func
+def apply_pair(
+    a: int,
+    b: int,
+    p: vec3d,
+    ra: vec3d,
+    rb: vec3d,
+    ima: f64,
+    imb: f64,
+    ia: mat33d,
+    ib: mat33d,
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """A contact's impulse p on body b at arm rb, and -p on body a at arm ra."""
+    apply_impulse(b, p, rb, imb, ib, body_v, body_w)
+    apply_impulse(a, -p, ra, ima, ia, body_v, body_w)
+
+
+@wp.func
+def sweep_index(i: int, count: int, sweep: int) -> int:
+    """The i-th contact of a sweep: odd sweeps run backwards (symmetric Gauss-Seidel: a stack's support travels
+    both ways)."""
+    if sweep % 2 == 1:
+        return count - 1 - i
+    return i
+
+
+@wp.func
 def response(d: vec3d, e: vec3d, ra: vec3d, rb: vec3d, ima: f64, imb: f64, ia: mat33d, ib: mat33d) -> f64:
     """e . K d: the relative point velocity along e from a unit impulse along d (K: the contact's mass matrix)."""
     ad = wp.cross(ra, d)
@@ -480,8 +508,7 @@ def friction_step(
         new = new * (limit / size)
     d = new - old
     p = t1 * d[0] + t2 * d[1]
-    apply_impulse(b, p, rb, imb, ib, body_v, body_w)
-    apply_impulse(a, -p, ra, ima, ia, body_v, body_w)
+    apply_pair(a, b, p, ra, rb, ima, imb, ia, ib, body_v, body_w)
     return new
 
 
@@ -576,9 +603,7 @@ def solve_positions(
         taken += 1
         change = f64(0.0)
         for i in range(count):
-            k = i
-            if sweep % 2 == 1:
-                k = count - 1 - i  # symmetric Gauss-Seidel: a stack's support travels both ways
+            k = sweep_index(i, count, sweep)
             a = contact_body[k][0]
             b = contact_body[k][1]
             n = contact_normal[k]
@@ -595,8 +620,7 @@ def solve_positions(
             ln = wp.max(lam[0] - gap / (h * kn), f64(0.0))
             dn = ln - lam[0]
             change = wp.max(change, wp.abs(dn) * h * kn)
-            apply_impulse(b, n * dn, rb, imb, ib, body_v_out, body_w_out)
-            apply_impulse(a, -n * dn, ra, ima, ia, body_v_out, body_w_out)
+            apply_pair(a, b, n * dn, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
             du = relative_velocity(a, b, ra, rb, body_v_out, body_w_out) - contact_u0[k]
             slip = contact_slip[k] + du
             slip = slip - n * wp.dot(n, slip)
@@ -671,16 +695,15 @@ def solve_velocities(
             p = n * lam[0] + t1 * lam[1] + wp.cross(n, t1) * lam[2]
             ib = inverse_inertia(b, inv_inertia_world_in)
             ia = inverse_inertia(a, inv_inertia_world_in)
-            apply_impulse(b, p, rb, body_inv_mass_of(b, body_inv_mass), ib, body_v_out, body_w_out)
-            apply_impulse(a, -p, ra, body_inv_mass_of(a, body_inv_mass), ia, body_v_out, body_w_out)
+            ima = body_inv_mass_of(a, body_inv_mass)
+            imb = body_inv_mass_of(b, body_inv_mass)
+            apply_pair(a, b, p, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
     taken = int(0)
     for sweep in range(sweeps):
         taken += 1
         change = f64(0.0)
         for i in range(count):
-            k = i
-            if sweep % 2 == 1:
-                k = count - 1 - i  # symmetric Gauss-Seidel: a stack's support travels both ways
+            k = sweep_index(i, count, sweep)
             a = contact_body[k][0]
             b = contact_body[k][1]
             n = contact_normal[k]
@@ -700,8 +723,7 @@ def solve_velocities(
             ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, f64(0.0))
             dn = ln - lam[0]
             change = wp.max(change, wp.abs(dn) * kn)
-            apply_impulse(b, n * dn, rb, imb, ib, body_v_out, body_w_out)
-            apply_impulse(a, -n * dn, ra, ima, ia, body_v_out, body_w_out)
+            apply_pair(a, b, n * dn, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
             u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
             slip = u - n * wp.dot(n, u)
             old = vec2d(lam[1], lam[2])
