@@ -348,18 +348,47 @@ BOX_ON_BOX = """
 """
 
 
-def test_colliders_on_a_ground_box_give_one_warning_recorded_in_the_output(tmp_path, capsys):
-    """The crate's box collider collides; a static box does not yet (only a plane is a ground): the crate falls
-    through the floor, and the run says so once, naming the count and the floor with why; the output's layer data
-    records it. The crate's collider still gives its mass."""
+def test_a_crate_falls_onto_a_static_box_and_rests_on_it(tmp_path, capsys):
+    """OpenUSD's box-on-box: the floor is a Cube collider without a rigid body, scaled to 10 x 10 x 0.2 m (a
+    Cube's size is 2 unless authored): a static body. The crate (0.5 m, its mass from its collider) lands on the
+    floor's top at z = 0.1 and rests there, its centre at 0.35 m; nothing is ignored, nothing warned."""
     path = write(tmp_path, "box_on_box.usda", BOX_ON_BOX)
-    anim, _, err, layer = simulate(path, tmp_path, capsys, "--duration", "1", "--fps", "10")
+    anim, _, err, layer = simulate(path, tmp_path, capsys, "--duration", "2", "--fps", "10")
+    assert not warnings_of(err)
+    assert "warpimpulse:collidersIgnored" not in layer.customLayerData
+    assert load(path).builder.bodies[0].mass == pytest.approx(125.0)  # 1000 kg/m^3
+    assert anim.body_paths == ["/World/Crate", "/World/Floor"]
+    np.testing.assert_allclose(anim.positions[-5:, 0], [[0.0, 0.0, 0.35]] * 5, atol=1e-3)  # the last 0.5 s
+    np.testing.assert_allclose(anim.positions[:, 1], [[0.0, 0.0, 0.0]] * len(anim.time_codes), atol=1e-12)
+
+
+ROCK = """
+        def Mesh "Rock" (
+            prepend apiSchemas = ["PhysicsCollisionAPI"]
+        )
+        {
+            int[] faceVertexCounts = [3, 3, 3, 3]
+            int[] faceVertexIndices = [0, 1, 2, 0, 3, 1, 0, 2, 3, 1, 3, 2]
+            point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)]
+            float3[] extent = [(0, 0, 0), (1, 1, 1)]
+        }
+    }
+"""
+
+
+def test_a_mesh_collider_is_refused_or_with_the_flag_one_warning_recorded_in_the_output(tmp_path, capsys):
+    """warpimpulse collides no mesh: a Mesh collider is refused in one line naming the prim (exit 2);
+    --ignore-unsupported runs without it, saying so once, naming the count and the mesh with why, and the output's
+    layer data records it."""
+    path = write(tmp_path, "rock.usda", BOX_ON_BOX.rstrip()[:-1] + ROCK)
+    assert cli_main(["simulate", path, "--out", str(tmp_path / "o.usda"), "--duration", "0.1"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "/World/Rock: a Mesh collider" in line and "not simulated" in line
+    _, _, err, layer = simulate(path, tmp_path, capsys, "--duration", "0.2", "--fps", "10", "--ignore-unsupported")
     (warning,) = warnings_of(err)
-    assert "1 collider does not collide (/World/Floor: a static collider that is not a plane)" in warning
+    assert "1 collider does not collide (/World/Rock: a Mesh collider" in warning
     assert layer.customLayerData["warpimpulse:collidersIgnored"] == 1
     assert list(layer.customLayerData["warpimpulse:warnings"]) == [warning.split("warning: ", 1)[1]]
-    assert load(path).builder.bodies[0].mass == pytest.approx(125.0)  # 1000 kg/m^3
-    np.testing.assert_allclose(anim.positions[-1, 0], [0.0, 0.0, 2.0 - 0.5 * G], atol=1e-9)
 
 
 def test_a_prim_of_an_unknown_type_with_physics_properties_is_named(tmp_path, capsys):

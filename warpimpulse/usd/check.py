@@ -57,7 +57,10 @@ def read_animation(path: str | os.PathLike, scene: UsdScene | None = None) -> An
             warnings.simplefilter("ignore")
             scene = load_stage(path, ignore_unsupported=True)
     prims = [stage.GetPrimAtPath(p) for p in scene.body_paths]
-    times = sorted({t for p in prims for t in UsdGeom.Xformable(p).GetTimeSamples()})
+    # The frames are the moving bodies' samples: a static body keeps its prim as the input authors it (animated
+    # or not).
+    moving = [p for p, b in zip(prims, scene.builder.bodies) if not b.static] or prims
+    times = sorted({t for p in moving for t in UsdGeom.Xformable(p).GetTimeSamples()})
     pos = np.zeros((len(times), len(prims), 3))
     ori = np.zeros((len(times), len(prims), 4))
     for k, t in enumerate(times):

@@ -548,7 +548,8 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         except SceneError as exc:
             raise UsdSceneError(str(exc) if bpath in str(exc) else f"{bpath}: {exc}") from None
         _read_forces(builder, prim, index[bpath], mpu, kpu)
-    colliding, not_colliding = _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu, report)
+    colliding, not_colliding, statics = _read_colliders(stage, get, builder, index, frames, com_offsets, xforms, mpu,
+                                                        report)  # fmt: skip
     for group, _ in get(T.CollisionGroup):  # bodies a group filters out of each other would still collide
         report.unsupported(str(group), "collision-group filtering (a PhysicsCollisionGroup)")
     # Parent frames: the world, or the nearest ancestor rigid body (whose motion moves this prim).
@@ -591,7 +592,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         if t not in supported:
             report.unsupported(jpath, _joint_type_text(jprim.GetTypeName() or t.name))
             continue
-        ends = []
+        ends, held = [], []  # held: the static colliders at a joint end that is no rigid body
         for side, rel in ((0, desc.rel0), (1, desc.rel1)):
             if rel.isEmpty:
                 ends.append(None)
@@ -604,6 +605,12 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             # is the world, at that prim's transform (`_joint_frame`), as in PhysX.
             body = _rigid_ancestor(target, index)
             ends.append(None if body is None else index[str(body.GetPath())])
+            if body is None:
+                held.extend(_statics_at(str(target.GetPath()), statics))
+        if not desc.collisionEnabled:  # the schema's default: the bodies a joint holds do not collide
+            for static in held:
+                for end in {e for e in ends if e is not None}:
+                    builder.filter_collision(static, end)
         if ends[0] is None and ends[1] is None:
             if desc.rel0.isEmpty and desc.rel1.isEmpty:
                 raise UsdSceneError(f"{jpath}: both physics:body0 and physics:body1 are empty")
@@ -711,13 +718,28 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     colliders = _ignored_colliders(stage, index, colliding, not_colliding)
     if colliders:
         report.note(_colliders_text(colliders))
+    # The static colliders' bodies follow the rigid bodies: the world is their parent frame (the output never
+    # moves them; it keeps their prims as authored).
+    k = len(statics)
+    com_offsets, scales = np.vstack([com_offsets, np.zeros((k, 3))]), np.vstack([scales, *(c.frame.s for c in statics)])
+    parent_index, parent_scale = (
+        np.concatenate([parent_index, np.full(k, -1)]),
+        np.concatenate([parent_scale, np.ones(k)]),
+    )
+    parent_pos, parent_quat = (
+        np.vstack([parent_pos, np.zeros((k, 3))]),
+        np.vstack([parent_quat, np.tile(IDENTITY_QUAT, (k, 1))]),
+    )
+    reset = np.concatenate([reset, np.zeros(k, dtype=bool)])
+    body_paths = [*(str(p) for p, _ in bodies), *(c.path for c in statics)]
+    xform_ops += [_op_names(stage.GetPrimAtPath(c.path)) for c in statics]
     default_prim = stage.GetDefaultPrim()
     default_prim_name = default_prim.GetName() if default_prim else ""
     if not default_prim_name:  # give the output a default prim even if the input lacks one
         roots = [p for p in stage.GetPseudoRoot().GetChildren() if p.IsDefined()]
         default_prim_name = roots[0].GetName() if roots else ""
     return UsdScene(
-        builder=builder, source_path=os.path.abspath(path), body_paths=[str(p) for p, _ in bodies],
+        builder=builder, source_path=os.path.abspath(path), body_paths=body_paths,
         joint_paths=joint_paths, com_offsets=com_offsets, body_scales=scales, parent_index=parent_index,
         parent_pos=parent_pos, parent_quat=parent_quat, parent_scale=parent_scale, reset_xform_stack=reset,
         meters_per_unit=mpu, kilograms_per_unit=kpu, up_axis=up, default_prim=default_prim_name,
@@ -821,44 +843,89 @@ def _material(stage, paths, where: str) -> tuple[float, float]:
     return 0.5, 0.0
 
 
+@dataclass
+class _StaticCollider:
+    """A collision prim outside every rigid body, simulated as a static body: its prim path, its world
+    similarity (stage units) and its index in the builder."""
+
+    path: str
+    frame: Similarity
+    body: int
+
+
+_AXIS_TURN = {0: np.array([0.0, math.sqrt(0.5), 0.0, math.sqrt(0.5)]),  # +90 degrees about y: z onto x
+              1: np.array([-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)]),  # -90 degrees about x: z onto y
+              2: IDENTITY_QUAT}  # fmt: skip
+
+
+def _uneven(kind: str, axis: int, sim: Similarity) -> str | None:
+    """Why a collider's solid is not what the narrow phase collides (an ellipsoid, an elliptic capsule or
+    cylinder: a sphere scaled unevenly, or a capsule or cylinder across its radius), or None."""
+    radial = sim.s if kind == "sphere" else np.delete(sim.s, axis)
+    if kind in ("sphere", "capsule", "cylinder") and np.ptp(radial) > 1e-9 * float(radial.max()):
+        return f"a {kind} collider scaled unevenly across its radius (scale {np.round(sim.s, 9).tolist()})"
+    return None
+
+
+def _refuse(report: _Reporter, path: str, what: str) -> str:
+    """An unsupported collider: an error naming it, or (told to ignore such) `what`, for the one warning about
+    the colliders that do not collide."""
+    if not report.ignore:
+        report.unsupported(path, what)
+    return what
+
+
 def _read_colliders(
     stage, get, builder: SceneBuilder, index, frames, com_offsets, xforms, mpu, report
-) -> tuple[set[str], dict[str, str]]:
-    """CollisionAPI prims: a Plane without a rigid body is a ground; a Sphere, Capsule, Cube or Cylinder of a
-    rigid body, centred on its centre of mass with its axis (a cube's edges) along the body frame's z (edges),
-    is the body's collision shape (one per body), with its material's friction and restitution; a body's
-    FilteredPairsAPI targets never collide with it. Returns the colliders simulated, and the others, which do not
-    collide, with why (the reader warns once for them all, `_colliders_text`)."""
+) -> tuple[set[str], dict[str, str], list[_StaticCollider]]:
+    """CollisionAPI prims: a Plane without a rigid body is a ground; a Sphere, Capsule, Cube or Cylinder
+    without one is a static body of that shape at the prim's world transform (scale applied: a floor, a wall, a
+    ramp); one of a rigid body, centred on its centre of mass with its axis (a cube's edges) along the body
+    frame's z (edges), is the body's collision shape (one per body). Each takes its material's friction and
+    restitution; a body's FilteredPairsAPI targets never collide with it. A Mesh, Cone or other collider is
+    unsupported (refused, or dropped with a warning when told to ignore such). Returns the colliders
+    simulated, the others, which do not collide, with why (the reader warns once for them all,
+    `_colliders_text`), and the static colliders in builder order."""
     _, _, _, _, UsdGeom, UsdPhysics, _ = pxr()
     T = UsdPhysics.ObjectType
+    solids = (T.SphereShape, T.CapsuleShape, T.CubeShape, T.CylinderShape)
     shaped: set[int] = set()
     simulated: set[str] = set()
     ignored: dict[str, str] = {}
+    statics: list[_StaticCollider] = []
     kinds = (T.SphereShape, T.CapsuleShape, T.Capsule1Shape, T.CubeShape, T.CylinderShape, T.Cylinder1Shape,
              T.PlaneShape, T.ConeShape, T.MeshShape, T.CustomShape, T.SpherePointsShape)  # fmt: skip
-    for t in kinds:
-        for p, desc in get(t):
-            path = str(p)
-            prim = stage.GetPrimAtPath(p)
-            if not desc.collisionEnabled:
-                continue
-            body_prim = _rigid_ancestor(prim, index)
-            friction, restitution = _material(stage, desc.materials, path)
-            if t == T.PlaneShape and body_prim is None:
-                sim = decompose(xforms.world(prim), path)
-                axis = str(prim.GetAttribute("axis").Get() or "Z")
-                normal = quat_rotate(sim.q, np.eye(3)["XYZ".index(axis)])
-                builder.add_ground(float(np.dot(normal, sim.t)) * mpu, normal, friction, restitution)
-                simulated.add(path)
-                continue
-            if t not in (T.SphereShape, T.CapsuleShape, T.CubeShape, T.CylinderShape) or body_prim is None:
-                ignored[path] = "a static collider that is not a plane" if body_prim is None else f"a {t.name}"
-                continue
-            b = index[str(body_prim.GetPath())]
-            if b in shaped:
-                ignored[path] = "a second collider on its body"
-                continue
-            shape, kind, axis, sim = _collider_shape(prim, xforms, report)
+    found = [(p, t, desc) for t in kinds for p, desc in get(t) if desc.collisionEnabled]
+    order = {str(p.GetPath()): k for k, p in enumerate(stage.Traverse())}
+    for p, t, desc in sorted(found, key=lambda f: order.get(str(f[0]), len(order))):  # statics in file order
+        path = str(p)
+        prim = stage.GetPrimAtPath(p)
+        body_prim = _rigid_ancestor(prim, index)
+        friction, restitution = _material(stage, desc.materials, path)
+        if t == T.PlaneShape and body_prim is None:
+            sim = decompose(xforms.world(prim), path)
+            axis = str(prim.GetAttribute("axis").Get() or "Z")
+            normal = quat_rotate(sim.q, np.eye(3)["XYZ".index(axis)])
+            builder.add_ground(float(np.dot(normal, sim.t)) * mpu, normal, friction, restitution)
+            simulated.add(path)
+            continue
+        if t not in solids and t != T.PlaneShape:
+            what = f"a {prim.GetTypeName() or t.name} collider (warpimpulse collides spheres, capsules, boxes, "
+            ignored[path] = _refuse(report, path, what + "cylinders and planes)")
+            continue
+        if t not in solids:
+            ignored[path] = f"a {t.name} on a rigid body"
+            continue
+        b = None if body_prim is None else index[str(body_prim.GetPath())]
+        if b in shaped:
+            ignored[path] = "a second collider on its body"
+            continue
+        shape, kind, axis, sim = _collider_shape(prim, xforms, report)
+        uneven = _uneven(kind, axis, sim)
+        if uneven:
+            ignored[path] = _refuse(report, path, uneven)
+            continue
+        if b is not None:
             frame = frames[b]
             centre = frame.t + quat_rotate(frame.q, com_offsets[b])
             offset = quat_rotate(quat_conj(frame.q), sim.t - centre)
@@ -870,26 +937,38 @@ def _read_colliders(
             if float(np.linalg.norm(offset)) > 1e-6 * scale or not aligned:
                 ignored[path] = "off its body's centre of mass or turned from its body frame"
                 continue
-            size = dict(
-                radius=shape.radius * mpu, length=shape.length * mpu, size=tuple(float(v) * mpu for v in shape.size)
-            )
-            body = builder.bodies[b]
-            try:
-                body.shape = Shape(kind, **size)
-                if body.shape.zero_size():
-                    raise SceneError(f"collision shape {kind} has zero size")
-                body.friction, body.restitution = checked_material(friction, restitution, path)
-            except (SceneError, ValueError) as exc:
-                raise UsdSceneError(f"{path}: {exc}") from None
-            shaped.add(b)
-            simulated.add(path)
+        size = dict(
+            radius=shape.radius * mpu, length=shape.length * mpu, size=tuple(float(v) * mpu for v in shape.size)
+        )
+        try:
+            si = Shape(kind, **size)
+            if si.zero_size():
+                raise SceneError(f"collision shape {kind} has zero size")
+            friction, restitution = checked_material(friction, restitution, path)
+            if b is None:  # a static collider: its own static body, its shape's axis along the body's z
+                q = quat_mul(sim.q, _AXIS_TURN[axis if kind in ("capsule", "cylinder") else 2])
+                k = builder.add_static_body(sim.t * mpu, q, name=path, shape=si, friction=friction,
+                                            restitution=restitution)  # fmt: skip
+                statics.append(_StaticCollider(path, sim, k))
+            else:
+                body = builder.bodies[b]
+                body.shape, body.friction, body.restitution = si, friction, restitution
+                shaped.add(b)
+        except (SceneError, ValueError) as exc:
+            raise UsdSceneError(str(exc) if path in str(exc) else f"{path}: {exc}") from None
+        simulated.add(path)
     for p, desc in get(T.RigidBody):
         a = index.get(str(p))
         for target in desc.filteredCollisions:
             other = _rigid_ancestor(stage.GetPrimAtPath(target), index)
             if a is not None and other is not None and index[str(other.GetPath())] != a:
                 builder.filter_collision(a, index[str(other.GetPath())])
-    return simulated, ignored
+    return simulated, ignored, statics
+
+
+def _statics_at(target: str, statics: list[_StaticCollider]) -> list[int]:
+    """The static colliders' bodies at or under prim path `target` (a joint end that is no rigid body)."""
+    return [s.body for s in statics if s.path == target or s.path.startswith(target.rstrip("/") + "/")]
 
 
 def _rigid_ancestor(prim, index: dict[str, int]):
