@@ -177,6 +177,30 @@ def to_world(b: int, p: vec3d, xs: wp.array(dtype=vec3d), qs: wp.array(dtype=qua
 
 
 @wp.func
+def surface_points(
+    a: int,
+    b: int,
+    anchor_a: vec3d,
+    anchor_b: vec3d,
+    radius: wp.vec2d,
+    n: vec3d,
+    xs: wp.array(dtype=vec3d),
+    qs: wp.array(dtype=quatd),
+):
+    """A contact's points on a's and b's surfaces (world) at the poses xs, qs (`emit`: anchors and radii)."""
+    return to_world(a, anchor_a, xs, qs) + n * radius[0], to_world(b, anchor_b, xs, qs) - n * radius[1]
+
+
+@wp.func
+def rounding(kind: int, size: vec3d) -> f64:
+    """The radius about a shape's core of its surface near a contact: a sphere's or capsule's (the core: its
+    centre or axis), 0 for a box and for a cylinder's rim against a plane (points fixed in the body)."""
+    if kind == collide.SPHERE or kind == collide.CAPSULE:
+        return size[0]
+    return f64(0.0)
+
+
+@wp.func
 def emit(
     a: int,
     b: int,
@@ -184,6 +208,8 @@ def emit(
     n: vec3d,
     points: collide.mat83d,
     gaps: collide.vec8d,
+    radius_a: f64,
+    radius_b: f64,
     friction: f64,
     restitution: f64,
     body_inv_mass: wp.array(dtype=f64),
@@ -197,11 +223,15 @@ def emit(
     contact_body: wp.array(dtype=wp.vec2i),
     contact_anchor_a: wp.array(dtype=vec3d),
     contact_anchor_b: wp.array(dtype=vec3d),
+    contact_radius: wp.array(dtype=wp.vec2d),
     contact_normal: wp.array(dtype=vec3d),
     contact_material: wp.array(dtype=wp.vec2d),
     contact_impact: wp.array(dtype=f64),
 ):
-    """Store a manifold: anchors in the bodies' frames (world for a plane), the impact speed of each point."""
+    """Store a manifold: anchors in the bodies' frames (world for a plane), the impact speed of each point.
+    The anchor of a rounded side (a sphere, a capsule: `radius_a`, `radius_b` > 0) is the centre of its
+    rounding, the surface point `radius` from it along the normal (`surface_points`): a rolling ball's contact
+    stays under its centre while it turns, where a point fixed in the ball would turn away from the ground."""
     if count == 0:
         return
     first = wp.atomic_add(contact_count, 0, count)
@@ -215,8 +245,9 @@ def emit(
             g = gaps[i]
             pa = pb - n * g
             contact_body[k] = wp.vec2i(a, b)
-            contact_anchor_a[k] = to_local(a, pa, pred_x, pred_q)
-            contact_anchor_b[k] = to_local(b, pb, pred_x, pred_q)
+            contact_anchor_a[k] = to_local(a, pa - n * radius_a, pred_x, pred_q)
+            contact_anchor_b[k] = to_local(b, pb + n * radius_b, pred_x, pred_q)
+            contact_radius[k] = wp.vec2d(radius_a, radius_b)
             contact_normal[k] = n
             contact_material[k] = wp.vec2d(friction, restitution)
             vn = wp.dot(
@@ -266,6 +297,7 @@ def narrow_phase(
     contact_body_out: wp.array(dtype=wp.vec2i),
     contact_anchor_a_out: wp.array(dtype=vec3d),
     contact_anchor_b_out: wp.array(dtype=vec3d),
+    contact_radius_out: wp.array(dtype=wp.vec2d),
     contact_normal_out: wp.array(dtype=vec3d),
     contact_material_out: wp.array(dtype=wp.vec2d),
     contact_impact_out: wp.array(dtype=f64),
@@ -311,9 +343,9 @@ def narrow_phase(
             count, n, points, gaps = collide.box_box(ca, ra, sa, cb, rb, sb, margin)
     friction = wp.sqrt(body_friction[a] * body_friction[b])
     restitution = wp.max(body_restitution[a], body_restitution[b])
-    emit(a, b, count, n, points, gaps, friction, restitution, body_inv_mass, gravity, body_force_in,
-         pred_x, pred_q, pred_v, pred_w, contact_count_out, contact_body_out, contact_anchor_a_out,
-         contact_anchor_b_out, contact_normal_out, contact_material_out,
+    emit(a, b, count, n, points, gaps, rounding(ka, sa), rounding(kb, sb), friction, restitution, body_inv_mass,
+         gravity, body_force_in, pred_x, pred_q, pred_v, pred_w, contact_count_out, contact_body_out,
+         contact_anchor_a_out, contact_anchor_b_out, contact_radius_out, contact_normal_out, contact_material_out,
          contact_impact_out)  # fmt: skip
 
 
@@ -342,6 +374,7 @@ def plane_phase(
     contact_body_out: wp.array(dtype=wp.vec2i),
     contact_anchor_a_out: wp.array(dtype=vec3d),
     contact_anchor_b_out: wp.array(dtype=vec3d),
+    contact_radius_out: wp.array(dtype=wp.vec2d),
     contact_normal_out: wp.array(dtype=vec3d),
     contact_material_out: wp.array(dtype=wp.vec2d),
     contact_impact_out: wp.array(dtype=f64),
@@ -372,9 +405,9 @@ def plane_phase(
     mat = plane_material[p]
     friction = wp.sqrt(body_friction[b] * mat[0])
     restitution = wp.max(body_restitution[b], mat[1])
-    emit(-1, b, count, n, points, gaps, friction, restitution, body_inv_mass, gravity, body_force_in,
-         pred_x, pred_q, pred_v, pred_w, contact_count_out, contact_body_out, contact_anchor_a_out,
-         contact_anchor_b_out, contact_normal_out, contact_material_out,
+    emit(-1, b, count, n, points, gaps, f64(0.0), rounding(kind, s), friction, restitution, body_inv_mass, gravity,
+         body_force_in, pred_x, pred_q, pred_v, pred_w, contact_count_out, contact_body_out, contact_anchor_a_out,
+         contact_anchor_b_out, contact_radius_out, contact_normal_out, contact_material_out,
          contact_impact_out)  # fmt: skip
 
 
@@ -529,6 +562,7 @@ def measure(
     contact_body: wp.array(dtype=wp.vec2i),
     contact_anchor_a: wp.array(dtype=vec3d),
     contact_anchor_b: wp.array(dtype=vec3d),
+    contact_radius: wp.array(dtype=wp.vec2d),
     contact_normal: wp.array(dtype=vec3d),
     # Data out:
     contact_gap_out: wp.array(dtype=f64),
@@ -549,8 +583,7 @@ def measure(
     a = contact_body[k][0]
     b = contact_body[k][1]
     n = contact_normal[k]
-    pa = to_world(a, contact_anchor_a[k], pred_x, pred_q)
-    pb = to_world(b, contact_anchor_b[k], pred_x, pred_q)
+    pa, pb = surface_points(a, b, contact_anchor_a[k], contact_anchor_b[k], contact_radius[k], n, pred_x, pred_q)
     g = wp.dot(n, pb - pa)
     contact_gap_out[k] = g
     wp.atomic_max(contact_error_out, 0, -g)
@@ -651,6 +684,7 @@ def solve_velocities(
     contact_body: wp.array(dtype=wp.vec2i),
     contact_anchor_a: wp.array(dtype=vec3d),
     contact_anchor_b: wp.array(dtype=vec3d),
+    contact_radius: wp.array(dtype=wp.vec2d),
     contact_normal: wp.array(dtype=vec3d),
     contact_material: wp.array(dtype=wp.vec2d),
     contact_impact: wp.array(dtype=f64),
@@ -663,19 +697,22 @@ def solve_velocities(
     contact_arm_b_out: wp.array(dtype=vec3d),
     contact_velocity_impulse_out: wp.array(dtype=vec3d),
     contact_mass_out: wp.array(dtype=wp.vec2d),
+    contact_approach_out: wp.array(dtype=f64),
     contact_error_out: wp.array(dtype=f64),
 ):
     """The velocity phase at t0+h (module docstring). A contact apart by g > 0 may approach at up to g / h (it
-    closes in the next step, not further). The `first` solve of a step starts from the position phase's
-    impulses (applied here; the sweeps take back what is too much), later ones (alternating with the joints)
-    from where the last stopped. Sweeps until no impulse changes a velocity by more than `tolerance` (m/s).
-    contact_error[2] = the sweeps taken."""
+    closes in the next step, not further), unless it approaches faster than `bounce_speed`: then it is an
+    impact of the next step, whose prediction finds it with its impact speed, and this phase leaves it alone
+    (clamped here, a ball would land at g / h and not bounce). The `first` solve of a step starts from the
+    position phase's impulses (applied here; the sweeps take back what is too much), later ones (alternating
+    with the joints) from where the last stopped. Sweeps until no impulse changes a velocity by more than
+    `tolerance` (m/s). contact_error[2] = the sweeps taken."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     for k in range(count):
         a = contact_body[k][0]
         b = contact_body[k][1]
-        pa = to_world(a, contact_anchor_a[k], body_x_in, body_q_in)
-        pb = to_world(b, contact_anchor_b[k], body_x_in, body_q_in)
+        pa, pb = surface_points(a, b, contact_anchor_a[k], contact_anchor_b[k], contact_radius[k], contact_normal[k],
+                                body_x_in, body_q_in)  # fmt: skip
         contact_gap_out[k] = wp.dot(contact_normal[k], pb - pa)
         ra = vec3d()
         rb = vec3d()
@@ -698,6 +735,11 @@ def solve_velocities(
             ima = body_inv_mass_of(a, body_inv_mass)
             imb = body_inv_mass_of(b, body_inv_mass)
             apply_pair(a, b, p, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
+    if first != 0:  # the approach speeds once the position phase's impulses are all applied
+        for k in range(count):
+            u = relative_velocity(contact_body[k][0], contact_body[k][1], contact_arm_a_out[k], contact_arm_b_out[k],
+                                  body_v_out, body_w_out)  # fmt: skip
+            contact_approach_out[k] = -wp.dot(contact_normal[k], u)
     taken = int(0)
     for sweep in range(sweeps):
         taken += 1
@@ -714,10 +756,14 @@ def solve_velocities(
             ia = inverse_inertia(a, inv_inertia_world_in)
             ib = inverse_inertia(b, inv_inertia_world_in)
             lam = contact_velocity_impulse_out[k]
-            # Apart by g > 0: may close it over the next step, not more (a speculative contact).
-            target = -wp.max(contact_gap_out[k], f64(0.0)) * inv_h
+            # Apart by g > 0: may close it over the next step, not more (a speculative contact), unless it is an
+            # impact of the next step.
+            gap = contact_gap_out[k]
+            target = -wp.max(gap, f64(0.0)) * inv_h
             if contact_impact[k] > bounce_speed:
                 target = contact_material[k][1] * contact_impact[k]
+            elif gap > f64(0.0) and contact_approach_out[k] > bounce_speed:
+                target = f64(-1e300)
             u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
             kn = contact_mass_out[k][0]
             ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, f64(0.0))

@@ -116,6 +116,67 @@ def test_fast_small_sphere_does_not_tunnel_through_a_thin_box():
     assert sim.linear_velocities()[1, 2] >= -1e-6
 
 
+def _box_on(base: str) -> wi.Simulator:
+    """A 0.4 m box resting on a 1 m box: `base` "static" (a static body) or "dynamic" (on the ground)."""
+    b = wi.SceneBuilder()
+    big, small = wi.Shape("box", size=(1.0, 1.0, 1.0)), wi.Shape("box", size=(0.4, 0.4, 0.4))
+    if base == "static":
+        b.add_static_body((0.0, 0.0, 0.5), name="base", shape=big)
+    else:
+        b.add_body(*big.mass_properties(500.0), (0.0, 0.0, 0.5), shape=big, name="base")
+        b.add_ground()
+    b.add_body(*small.mass_properties(500.0), (0.1, -0.2, 1.2), quat_from_axis_angle([0, 0, 1], 0.3), shape=small,
+               name="top")  # fmt: skip
+    return wi.Simulator(b.finalize(), dt=1.0 / 60.0)
+
+
+def test_a_box_rests_on_a_static_box_on_four_points_without_creep():
+    """A static box holds a box as a dynamic one does: the same four corners, the box's weight over a step, and
+    no creep over 5 s; a static body is in no joint system (the scene has none)."""
+    sim = _box_on("static")
+    assert sim.model.joint_count == 0
+    x0 = sim.positions()[1].copy()
+    for stats in sim.simulate(5.0):
+        assert stats.max_penetration <= sim.tolerance
+    assert np.abs(sim.positions()[1] - x0).max() <= 1e-3
+    assert np.abs(sim.positions()[0] - [0.0, 0.0, 0.5]).max() == 0.0  # it does not move
+    c = sim.contacts()
+    dynamic = _box_on("dynamic")
+    dynamic.simulate(0.1)
+    d = dynamic.contacts()
+    on_base = d.body_a != -1
+    assert len(c) == 4 and on_base.sum() == 4 and set(c.body_a.tolist()) == {0} and set(c.body_b.tolist()) == {1}
+
+    def corners(points):
+        return points[np.lexsort(points[:, :2].T)]
+
+    np.testing.assert_allclose(corners(c.point), corners(d.point[on_base]), atol=1e-4)
+    np.testing.assert_allclose(c.normal, [[0.0, 0.0, 1.0]] * 4, atol=1e-12)
+    assert c.normal_impulse.sum() == pytest.approx(G * sim.model.host.body_mass[1] * sim.dt, rel=1e-3)
+
+
+def test_a_ball_bounces_on_a_tilted_static_box_to_e_squared_of_its_height():
+    """A ramp: a static 40 x 40 x 1 m box turned 20 degrees about y. A ball dropped 1 m above it (along its
+    normal) bounces to e^2 of the previous height along the normal, within 1%, as on a ground plane."""
+    theta, e = math.radians(20.0), 0.8
+    n = np.array([-math.sin(theta), 0.0, math.cos(theta)])
+    b = wi.SceneBuilder()
+    ramp = wi.Shape("box", size=(40.0, 40.0, 1.0))
+    b.add_static_body((0.0, 0.0, 0.0), quat_from_axis_angle([0, 1, 0], -theta), shape=ramp, restitution=e, name="ramp")
+    ball = wi.Shape("sphere", radius=0.1)
+    b.add_body(*ball.mass_properties(1000.0), n * 1.6, shape=ball, restitution=e, name="ball")
+    sim = wi.Simulator(b.finalize(), dt=1.0 / 240.0)
+    apex, v_prev = [1.0], 0.0
+    for _ in range(int(3.0 * 240)):
+        sim.step()
+        height, v = np.dot(n, sim.positions()[1]) - 0.6, np.dot(n, sim.linear_velocities()[1])
+        if v_prev > 0.0 >= v:
+            apex.append(height)
+        v_prev = v
+    assert len(apex) >= 4
+    np.testing.assert_allclose(np.array(apex[1:4]) / np.array(apex[0:3]), e * e, rtol=0.01)
+
+
 def test_contacts_report_the_resting_load():
     sim = _stack(2)
     sim.simulate(0.5)

@@ -121,6 +121,7 @@ class ContactStage:
             contact_body=z(contacts, dtype=wp.vec2i, device=d),
             contact_anchor_a=z(contacts, dtype=wp.vec3d, device=d),
             contact_anchor_b=z(contacts, dtype=wp.vec3d, device=d),
+            contact_radius=z(contacts, dtype=wp.vec2d, device=d),
             contact_normal=z(contacts, dtype=wp.vec3d, device=d),
             contact_material=z(contacts, dtype=wp.vec2d, device=d),
             contact_impact=z(contacts, dtype=wp.float64, device=d),
@@ -130,6 +131,7 @@ class ContactStage:
             contact_slip=z(contacts, dtype=wp.vec3d, device=d),
             contact_u0=z(contacts, dtype=wp.vec3d, device=d),
             contact_mass=z(contacts, dtype=wp.vec2d, device=d),
+            contact_approach=z(contacts, dtype=wp.float64, device=d),
             contact_impulse=z(contacts, dtype=wp.vec3d, device=d),
             contact_velocity_impulse=z(contacts, dtype=wp.vec3d, device=d),
             contact_error=z(3, dtype=wp.float64, device=d),
@@ -225,11 +227,11 @@ class ContactStage:
         body = data.contact_body.numpy()[:k]
         a, b = body[:, 0], body[:, 1]
         x, q = self.state.body_x.numpy(), self.state.body_q.numpy()
-        anchor_b = data.contact_anchor_b.numpy()[:k]
-        anchor_a = data.contact_anchor_a.numpy()[:k]
-        point = _world(b, anchor_b, x, q)
+        radius = data.contact_radius.numpy()[:k]
         normal = data.contact_normal.numpy()[:k]
-        depth = -np.einsum("ij,ij->i", normal, point - _world(a, anchor_a, x, q))
+        point = _world(b, data.contact_anchor_b.numpy()[:k], x, q) - normal * radius[:, 1:]
+        other = _world(a, data.contact_anchor_a.numpy()[:k], x, q) + normal * radius[:, :1]
+        depth = -np.einsum("ij,ij->i", normal, point - other)
         impulse = data.contact_impulse.numpy()[:k] + data.contact_velocity_impulse.numpy()[:k]
         t1, t2 = _tangents(normal)
         friction = t1 * impulse[:, 1:2] + t2 * impulse[:, 2:3]
@@ -237,7 +239,8 @@ class ContactStage:
 
 
 def _world(body: np.ndarray, anchor: np.ndarray, x: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Anchors in their bodies' frames to world points (world anchors where body < 0)."""
+    """Anchors in their bodies' frames to world points (world anchors where body < 0): the cores of the
+    contact points (`contact_solve.surface_points` adds the radii)."""
     out = anchor.copy()
     on = body >= 0
     if np.any(on):
