@@ -9,6 +9,7 @@ included) are motors and limits; distance joints are distance constraints (rows 
 
 from __future__ import annotations
 
+import os
 import textwrap
 import warnings
 
@@ -360,6 +361,31 @@ def test_a_crate_falls_onto_a_static_box_and_rests_on_it(tmp_path, capsys):
     assert anim.body_paths == ["/World/Crate", "/World/Floor"]
     np.testing.assert_allclose(anim.positions[-5:, 0], [[0.0, 0.0, 0.35]] * 5, atol=1e-3)  # the last 0.5 s
     np.testing.assert_allclose(anim.positions[:, 1], [[0.0, 0.0, 0.0]] * len(anim.time_codes), atol=1e-12)
+
+
+def test_the_static_colliders_scene_runs_as_authored(tmp_path, capsys):
+    """scenes/static_colliders.usda, written by hand as UsdPhysics authors static colliders (CollisionAPI, no
+    RigidBodyAPI): a Cube pedestal, a Cube ramp turned 20 degrees and scaled flat, a Cylinder log along y, a
+    ground Plane. Run by the plain command: the crate rests on the pedestal, the plank across the log, level;
+    the ball bounces on the ramp, rolls down it and along the ground into the pedestal's side, never
+    through anything."""
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenes", "static_colliders.usda")
+    anim, _, err, _ = simulate(path, tmp_path, capsys)
+    assert not warnings_of(err) and anim.seconds[-1] == pytest.approx(3.0)
+    crate, ball, plank = (anim.body_paths.index(f"/World/{name}") for name in ("Crate", "Ball", "Plank"))
+    last = anim.seconds >= 2.0
+    np.testing.assert_allclose(anim.positions[last, crate], [[0.1, 0.05, 0.7]] * last.sum(), atol=1e-3)
+    np.testing.assert_allclose(anim.positions[last, plank], [[-2.0, 0.0, 0.45]] * last.sum(), atol=1e-3)
+    np.testing.assert_allclose(np.abs(anim.orientations[-1, plank]), [0.0, np.sqrt(0.5), 0.0, np.sqrt(0.5)], atol=1e-3)
+    x, z = anim.positions[:, ball, 0], anim.positions[:, ball, 2]
+    # On the ramp (its top at 0.6 + 0.05 / cos 20deg + (x - 3) tan 20deg, the ball's centre 0.1 above it, along
+    # its normal) and then on the ground.
+    on_ramp = np.abs(x - 3.0) < 1.4
+    top = 0.6 + (0.05 + 0.1) / np.cos(np.radians(20.0)) + (x - 3.0) * np.tan(np.radians(20.0))
+    assert np.all(z[on_ramp] >= top[on_ramp] - 1e-3) and np.all(z >= 0.1 - 1e-3)
+    assert np.any(np.diff(z[x > 3.0]) > 0.0)  # it bounced on the ramp
+    assert x.min() >= 0.5 + 0.1 - 1e-3  # it rolls up to the pedestal's side (at x = 0.5) and back, not into it
+    assert x.min() < 0.7 and x[-1] < 2.0 and z[-1] == pytest.approx(0.1, abs=1e-3)
 
 
 ROCK = """
