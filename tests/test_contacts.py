@@ -367,6 +367,18 @@ def test_the_car_turns_left_when_it_steers():
     assert _yaw(sim) > math.radians(10.0) and sim.positions()[0, 1] > 0.5
 
 
+@pytest.mark.xfail(raises=wi.SimulationError, strict=True, reason="docs/contacts.md, 'The walking machine'")
+def test_the_walking_machine_walks_on_the_ground():
+    """Stood on its feet, its cranks at one turn a second, the walker must move its body along -x (the feet
+    push back while down) by a good part of its stride (about 0.6 m a turn) in 2 s, its joints holding. It
+    fails in its first step: the contact-joint alternation and the stiff motors' velocity pass (docs)."""
+    sim = wi.Simulator(scenes.walking_machine(ground=True).finalize(), dt=1.0 / 60.0)
+    x0 = sim.positions()[0].copy()
+    for stats in sim.simulate(2.0):
+        assert stats.converged and stats.max_joint_error <= sim.tolerance
+    assert x0[0] - sim.positions()[0, 0] > 0.5
+
+
 def test_batched_worlds_refuse_contacts():
     with pytest.raises(wi.SceneError, match="batched worlds do not take contacts yet"):
         scenes.box_stack(2).replicate(2)

@@ -9,7 +9,7 @@ import numpy as np
 
 from .builder import SceneBuilder
 from .shapes import Shape
-from .transforms import quat_between, quat_from_axis_angle, quat_rotate
+from .transforms import quat_between, quat_from_axis_angle, quat_rotate, quat_to_matrix
 
 DENSITY = 1000.0  # kg/m^3, equal for every body, as in the paper's trees
 ROOT_LENGTH, LEAF_LENGTH = 11.4, 1.0  # metres (method paper, section 5)
@@ -231,19 +231,20 @@ def walker_leg_points(phase: float, crank: float = 0.12, sleeve_height: float = 
     return o, p, s, p + foot * u
 
 
-def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
+def walking_machine(crank_speed: float = 2.0 * math.pi, ground: bool = False) -> SceneBuilder:
     """The paper's walking machine (section 5): per leg one servo motor (a stiff velocity motor on the crank's
     hinge), two hinges (crank to leg, body to sleeve) and one slider (the leg through the sleeve): one closed
     loop per leg, a crank-driven slotted lever whose foot traces a closed curve each crank turn. Four legs,
-    cranks half a turn apart on each side. Until it can walk on a ground the body is fixed to the world
-    ("hold"): on one, its feet pushed 2-3 cm into the ground within a step and the alternation of joints and
-    contacts diverged (docs/contacts.md)."""
+    cranks half a turn apart on each side. Without `ground` the body is fixed to the world ("hold"); with it
+    the body is free and the machine stands on its four feet on a ground (friction 1). It cannot walk yet: its
+    first step fails (docs/contacts.md, "The walking machine")."""
     builder = SceneBuilder()
     axis = np.array([0.0, -1.0, 0.0])  # angles grow from +x towards +z
     height = 1.0
     body = _solid(builder, Shape("box", size=(1.4, 0.5, 0.2), color=(0.3, 0.3, 0.7)), 500.0, (0.0, 0.0, height + 0.3),
                   (0.0, 0.0, 0.0, 1.0), "body")  # fmt: skip
-    builder.add_joint_fixed(None, body, (0.0, 0.0, height + 0.3), name="hold")
+    if not ground:
+        builder.add_joint_fixed(None, body, (0.0, 0.0, height + 0.3), name="hold")
     for i, (x, y, phase) in enumerate(WALKER_LEGS):
         origin = np.array([x, y, height])
         o, p, s, f = (origin + v for v in walker_leg_points(2.0 * math.pi * phase))
@@ -257,7 +258,16 @@ def walking_machine(crank_speed: float = 2.0 * math.pi) -> SceneBuilder:
         builder.add_joint_prismatic(sleeve, leg, s, u, name=f"leg{i}_slider")
         builder.add_motor(servo, "velocity", target=crank_speed, max_force=500.0, stiff=True)
         builder.filter_collision(body, leg)  # the leg slides through the sleeve, past the body
+    if ground:
+        feet = [b for b in builder.bodies if b.name.endswith("_leg")]
+        builder.add_ground(height=min(_lowest(b) for b in feet), friction=1.0)
     return builder
+
+
+def _lowest(body) -> float:
+    """The height of a box body's lowest corner (m)."""
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * 0.5 * body.shape.size
+    return float((body.position + corners @ quat_to_matrix(body.orientation).T)[:, 2].min())
 
 
 def box_stack(boxes: int = 10, size: float = 0.2, density: float = 500.0) -> SceneBuilder:
