@@ -718,20 +718,10 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
     colliders = _ignored_colliders(stage, index, colliding, not_colliding)
     if colliders:
         report.note(_colliders_text(colliders))
-    # The static colliders' bodies follow the rigid bodies: the world is their parent frame (the output never
-    # moves them; it keeps their prims as authored).
-    k = len(statics)
-    com_offsets, scales = np.vstack([com_offsets, np.zeros((k, 3))]), np.vstack([scales, *(c.frame.s for c in statics)])
-    parent_index, parent_scale = (
-        np.concatenate([parent_index, np.full(k, -1)]),
-        np.concatenate([parent_scale, np.ones(k)]),
-    )
-    parent_pos, parent_quat = (
-        np.vstack([parent_pos, np.zeros((k, 3))]),
-        np.vstack([parent_quat, np.tile(IDENTITY_QUAT, (k, 1))]),
-    )
-    reset = np.concatenate([reset, np.zeros(k, dtype=bool)])
     body_paths = [*(str(p) for p, _ in bodies), *(c.path for c in statics)]
+    com_offsets, scales, parent_index, parent_pos, parent_quat, parent_scale, reset = _with_statics(
+        statics, com_offsets, scales, parent_index, parent_pos, parent_quat, parent_scale, reset
+    )
     xform_ops += [_op_names(stage.GetPrimAtPath(c.path)) for c in statics]
     default_prim = stage.GetDefaultPrim()
     default_prim_name = default_prim.GetName() if default_prim else ""
@@ -964,6 +954,23 @@ def _read_colliders(
             if a is not None and other is not None and index[str(other.GetPath())] != a:
                 builder.filter_collision(a, index[str(other.GetPath())])
     return simulated, ignored, statics
+
+
+def _with_statics(statics: list[_StaticCollider], com_offsets, scales, parent_index, parent_pos, parent_quat,
+                  parent_scale, reset) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """The rigid bodies' per-body arrays (`UsdScene`) with the static colliders' bodies after them: no centre of
+    mass offset, the prim's world scale, the world as parent frame (the output never moves them; it keeps their
+    prims as authored)."""
+    k = len(statics)
+    return (
+        np.vstack([com_offsets, np.zeros((k, 3))]),
+        np.vstack([scales, *(c.frame.s for c in statics)]),
+        np.concatenate([parent_index, np.full(k, -1)]),
+        np.vstack([parent_pos, np.zeros((k, 3))]),
+        np.vstack([parent_quat, np.tile(IDENTITY_QUAT, (k, 1))]),
+        np.concatenate([parent_scale, np.ones(k)]),
+        np.concatenate([reset, np.zeros(k, dtype=bool)]),
+    )
 
 
 def _statics_at(target: str, statics: list[_StaticCollider]) -> list[int]:

@@ -45,7 +45,9 @@ class UsdScene:
 
     Per body (builder order): prim path, centre-of-mass offset in the prim's rigid frame (stage units),
     the prim's own scale, and its parent frame: relative to the world (`parent_index` -1) or to an
-    ancestor rigid body, as translation / rotation (x, y, z, w) / uniform scale.
+    ancestor rigid body, as translation / rotation (x, y, z, w) / uniform scale. Read from a file, the rigid
+    bodies come first, then the static colliders' bodies (collision prims without a rigid body: no offset,
+    their world scale, the world as parent; the output leaves their prims as authored).
     """
 
     builder: SceneBuilder
