@@ -47,7 +47,8 @@ STATUS_JOINT_ERROR = wp.constant(3)
 STATUS_VELOCITY_ERROR = wp.constant(4)
 STATUS_LINEAR_ITERATIONS = wp.constant(5)
 STATUS_SPIN = wp.constant(6)  # rad/s: the largest |w| of the step's last prediction (of t0 when not taken)
-STATUS_WIDTH = 7
+STATUS_FAILED_VELOCITY = wp.constant(7)  # the largest velocity error over the tolerance among the stages (VELOCITY)
+STATUS_WIDTH = 8
 # Status codes.
 OK = wp.constant(0)
 SPLIT = wp.constant(1)
@@ -60,6 +61,79 @@ VELOCITY = wp.constant(4)
 def turns_too_far(spin: f64, h: f64, max_rotation: f64) -> bool:
     """Whether a body spinning at `spin` turns further than max_rotation in a step of h (0: never split)."""
     return max_rotation > f64(0.0) and spin * wp.abs(h) > max_rotation
+
+
+@wp.func
+def save_start(
+    body_count: int,
+    stage_count: int,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    x0: wp.array(dtype=vec3d),
+    q0: wp.array(dtype=quatd),
+    v0: wp.array(dtype=vec3d),
+    w0: wp.array(dtype=vec3d),
+):
+    """Keep what a failed step must restore: the velocities of t0, and for a composed step (stage_count > 1),
+    whose later stages start from moved bodies, the poses too."""
+    for b in range(body_count):
+        v0[b] = body_v[b]
+        w0[b] = body_w[b]
+    if stage_count > 1:
+        for b in range(body_count):
+            x0[b] = body_x[b]
+            q0[b] = body_q[b]
+
+
+@wp.func
+def restore_start(
+    body_count: int,
+    stage: int,
+    x0: wp.array(dtype=vec3d),
+    q0: wp.array(dtype=quatd),
+    v0: wp.array(dtype=vec3d),
+    w0: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Undo a step that failed in its stage `stage`: the velocities of t0, and the poses after a first stage
+    (the frames then are those of the last stage taken: the host recomputes them)."""
+    for b in range(body_count):
+        body_v[b] = v0[b]
+        body_w[b] = w0[b]
+    if stage > 0:
+        for b in range(body_count):
+            body_x[b] = x0[b]
+            body_q[b] = q0[b]
+
+
+@wp.func
+def finish(
+    status_out: wp.array2d(dtype=f64),
+    k: int,
+    code: int,
+    joint_iterations: int,
+    velocity_iterations: int,
+    linear_iterations: int,
+    joint_error: f64,
+    velocity_error: f64,
+    failed_velocity: f64,
+    spin: f64,
+):
+    """Step k's status row, as `Simulator` combines a composed step's stages (`simulator._combined`): iterations
+    summed, the largest joint error, the last velocity error."""
+    status_out[k, STATUS_JOINT_ITERATIONS] = f64(joint_iterations)
+    status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(velocity_iterations)
+    status_out[k, STATUS_LINEAR_ITERATIONS] = f64(linear_iterations)
+    status_out[k, STATUS_JOINT_ERROR] = joint_error
+    status_out[k, STATUS_VELOCITY_ERROR] = velocity_error
+    status_out[k, STATUS_FAILED_VELOCITY] = failed_velocity
+    status_out[k, STATUS_SPIN] = spin
+    status_out[k, STATUS_CODE] = f64(code)
 
 
 @wp.func
@@ -326,6 +400,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         slot_ref: wp.array(dtype=int),
         # Settings:
         h: f64,
+        stages: wp.array(dtype=f64),
+        reach: f64,
         batch_in: wp.array(dtype=int),
         tolerance: f64,
         velocity_tolerance: f64,
@@ -340,6 +416,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         pred_q: wp.array(dtype=quatd),
         pred_v: wp.array(dtype=vec3d),
         pred_w: wp.array(dtype=vec3d),
+        x0: wp.array(dtype=vec3d),
+        q0: wp.array(dtype=quatd),
         v0: wp.array(dtype=vec3d),
         w0: wp.array(dtype=vec3d),
         errors: wp.array(dtype=f64),
@@ -364,119 +442,133 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         status_out: wp.array2d(dtype=f64),
     ):
         """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0] (rad/s), with the direct solver
-        (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule)."""
+        (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule). A
+        step is the base steps of stages[i] h in turn (a composition, `composition.py`; some run backwards);
+        reach is the largest |stages[i]|, which sizes the spin split."""
         spin = spin_in[0]
-        inv_h = f64(1.0) / h
+        stage_count = stages.shape[0]
         for k in range(batch_in[0]):
             status_out[k, STATUS_SPIN] = spin
-            if turns_too_far(spin, h, max_rotation):
+            if turns_too_far(spin, reach * h, max_rotation):
                 status_out[k, STATUS_CODE] = f64(SPLIT)
                 return
-            for b in range(body_count):
-                v0[b] = body_v_out[b]
-                w0[b] = body_w_out[b]
-            predict_all(
-                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
-                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+            save_start(
+                body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
             )  # fmt: skip
-            err = position_errors_all(
-                constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
-                constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
-            )  # fmt: skip
-            iterations = wp.int32(0)
-            best = err
-            ok = wp.bool(False)
-            while wp.isfinite(err):
-                best = wp.min(best, err)
-                if err <= tolerance:
-                    ok = True
-                    break
-                if iterations >= max_iterations or (iterations >= 3 and err > f64(1.0e3) * best):
-                    break
-                cholesky_solve(
-                    augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
-                    row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
-                )  # fmt: skip
-                apply_all(
-                    body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-                    impulse, body_v_out, body_w_out,
-                )  # fmt: skip
+            iterations = wp.int32(0)  # summed over the stages, as are the velocity iterations
+            velocity_iterations = wp.int32(0)
+            joint_error = f64(0.0)  # the largest over the stages
+            verr = f64(0.0)  # the last stage's
+            failed = f64(0.0)  # the largest velocity error over the tolerance
+            code = wp.int32(OK)
+            for stage in range(stage_count):
+                hs = stages[stage] * h
+                inv_h = f64(1.0) / hs
                 predict_all(
-                    body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
-                    body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+                    body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
+                    body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
+                    pred_w,
                 )  # fmt: skip
                 err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                     constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
                 )  # fmt: skip
-                iterations += 1
-            new_spin = spin
-            if ok:
-                bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
-                if bad > 0 or (final == 0 and turns_too_far(new_spin, h, max_rotation)):
-                    ok = wp.bool(False)
-            status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
-            status_out[k, STATUS_JOINT_ERROR] = err
-            if not ok:
-                for b in range(body_count):
-                    body_v_out[b] = v0[b]
-                    body_w_out[b] = w0[b]
-                status_out[k, STATUS_CODE] = f64(RETRY)
-                return
-            spin = new_spin
-            accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
-            frames_all(
-                body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
-                constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
-                inv_inertia_world, proj, jac_lin, jac_ang,
-            )  # fmt: skip
-            for s in range(slot_code.shape[0]):
-                augmented_slot(
-                    s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
-                    values,
+                tries = wp.int32(0)
+                best = err
+                ok = wp.bool(False)
+                while wp.isfinite(err):
+                    best = wp.min(best, err)
+                    if err <= tolerance:
+                        ok = True
+                        break
+                    if tries >= max_iterations or (tries >= 3 and err > f64(1.0e3) * best):
+                        break
+                    cholesky_solve(
+                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                        row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                    )  # fmt: skip
+                    apply_all(
+                        body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                        impulse, body_v_out, body_w_out,
+                    )  # fmt: skip
+                    predict_all(
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
+                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
+                        pred_w,
+                    )  # fmt: skip
+                    err = position_errors_all(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                        constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                        constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+                    )  # fmt: skip
+                    tries += 1
+                iterations += tries
+                new_spin = spin
+                if ok:
+                    bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                    if bad > 0 or (final == 0 and turns_too_far(new_spin, hs, max_rotation)):
+                        ok = wp.bool(False)
+                if not ok:
+                    restore_start(
+                        body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
+                    )  # fmt: skip
+                    status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
+                    status_out[k, STATUS_JOINT_ERROR] = err
+                    status_out[k, STATUS_CODE] = f64(RETRY)
+                    return
+                joint_error = wp.max(joint_error, err)
+                spin = new_spin
+                accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+                frames_all(
+                    body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
+                    constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
+                    body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang,
                 )  # fmt: skip
-            for s in range(slot_row.shape[0]):
-                assemble_slot(
-                    s, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
-                    slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
-                )  # fmt: skip
-            singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
-            for j in range(col_start.shape[0] - 1):
-                factor_column(
-                    j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
-                    pivot_tolerance, loop_tolerance, values, diag_inv, singular,
-                )  # fmt: skip
-            verr = velocity_errors_all(
-                constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
-                errors, rhs,
-            )  # fmt: skip
-            velocity_iterations = wp.int32(0)
-            if not (verr <= velocity_tolerance):
-                cholesky_solve(
-                    augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
-                    row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
-                )  # fmt: skip
-                apply_all(
-                    body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-                    impulse, body_v_out, body_w_out,
-                )  # fmt: skip
+                for s in range(slot_code.shape[0]):
+                    augmented_slot(
+                        s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
+                        values,
+                    )  # fmt: skip
+                for s in range(slot_row.shape[0]):
+                    assemble_slot(
+                        s, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
+                        slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                    )  # fmt: skip
+                singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
+                for j in range(col_start.shape[0] - 1):
+                    factor_column(
+                        j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
+                        col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
+                    )  # fmt: skip
                 verr = velocity_errors_all(
                     constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
                     errors, rhs,
                 )  # fmt: skip
-                velocity_iterations = 1
-            status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(velocity_iterations)
-            status_out[k, STATUS_VELOCITY_ERROR] = verr
-            status_out[k, STATUS_LINEAR_ITERATIONS] = f64(iterations + velocity_iterations)
-            status_out[k, STATUS_SPIN] = spin
-            code = wp.int32(OK)
-            if singular[0] != 0:
-                code = SINGULAR
-            elif not (verr <= velocity_tolerance):
-                code = VELOCITY
-            status_out[k, STATUS_CODE] = f64(code)
+                if not (verr <= velocity_tolerance):
+                    cholesky_solve(
+                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                        row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                    )  # fmt: skip
+                    apply_all(
+                        body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                        impulse, body_v_out, body_w_out,
+                    )  # fmt: skip
+                    verr = velocity_errors_all(
+                        constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
+                        body_w_out, errors, rhs,
+                    )  # fmt: skip
+                    velocity_iterations += 1
+                if singular[0] != 0:  # the host raises: no further stage
+                    code = SINGULAR
+                    break
+                if not (verr <= velocity_tolerance):  # the host raises or warns once the step is done
+                    code = VELOCITY
+                    failed = max_or_nan(failed, verr)
+            finish(
+                status_out, k, code, iterations, velocity_iterations, iterations + velocity_iterations,
+                joint_error, verr, failed, spin,
+            )  # fmt: skip
             if code != OK:
                 return
 
@@ -500,6 +592,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         constraint_rest_angle: wp.array(dtype=f64),
         # Settings:
         h: f64,
+        stages: wp.array(dtype=f64),
+        reach: f64,
         batch_in: wp.array(dtype=int),
         tolerance: f64,
         velocity_tolerance: f64,
@@ -514,6 +608,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         pred_q: wp.array(dtype=quatd),
         pred_v: wp.array(dtype=vec3d),
         pred_w: wp.array(dtype=vec3d),
+        x0: wp.array(dtype=vec3d),
+        q0: wp.array(dtype=quatd),
         v0: wp.array(dtype=vec3d),
         w0: wp.array(dtype=vec3d),
         errors: wp.array(dtype=f64),
@@ -532,96 +628,113 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
     ):
         """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0], with the paper's iterative
         baseline: joint sweeps until one meets every constraint within tolerance, the prediction, then velocity
-        sweeps (as `Simulator` without a system)."""
+        sweeps (as `Simulator` without a system); a step is the base steps of stages[i] h in turn, as in
+        `cholesky_steps`."""
         spin = spin_in[0]
-        inv_h = f64(1.0) / h
+        stage_count = stages.shape[0]
         for k in range(batch_in[0]):
             status_out[k, STATUS_SPIN] = spin
-            if turns_too_far(spin, h, max_rotation):
+            if turns_too_far(spin, reach * h, max_rotation):
                 status_out[k, STATUS_CODE] = f64(SPLIT)
                 return
-            for b in range(body_count):
-                v0[b] = body_v_out[b]
-                w0[b] = body_w_out[b]
-            sweeps = wp.int32(0)
-            best = f64(0.0)
-            ok = wp.bool(False)
-            while True:
-                err = sweep_positions_once(
+            save_start(
+                body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
+            )  # fmt: skip
+            iterations = wp.int32(0)
+            velocity_iterations = wp.int32(0)
+            joint_error = f64(0.0)
+            verr = f64(0.0)
+            failed = f64(0.0)
+            code = wp.int32(OK)
+            for stage in range(stage_count):
+                hs = stages[stage] * h
+                inv_h = f64(1.0) / hs
+                sweeps = wp.int32(0)
+                best = f64(0.0)
+                ok = wp.bool(False)
+                while True:
+                    err = sweep_positions_once(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                        constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                        constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
+                        tolerance, body_x_out, body_q_out, body_force_in, body_torque_in, inv_inertia_world, proj,
+                        jac_lin, jac_ang, body_v_out, body_w_out,
+                    )  # fmt: skip
+                    if not wp.isfinite(err):
+                        break
+                    if sweeps == 0:
+                        best = err
+                    best = wp.min(best, err)
+                    if err <= tolerance:
+                        ok = True
+                        break
+                    if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
+                        break
+                    sweeps += 1
+                iterations += sweeps
+                predict_all(
+                    body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
+                    body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
+                    pred_w,
+                )  # fmt: skip
+                err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                    constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, tolerance,
-                    body_x_out, body_q_out, body_force_in, body_torque_in, inv_inertia_world, proj, jac_lin,
-                    jac_ang, body_v_out, body_w_out,
+                    constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
                 )  # fmt: skip
-                if not wp.isfinite(err):
-                    break
-                if sweeps == 0:
-                    best = err
-                best = wp.min(best, err)
-                if err <= tolerance:
-                    ok = True
-                    break
-                if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
-                    break
-                sweeps += 1
-            predict_all(
-                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
-                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
-            )  # fmt: skip
-            err = position_errors_all(
-                constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
-                constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
-            )  # fmt: skip
-            new_spin = spin
-            if ok:
-                bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
-                if not (err <= tolerance) or bad > 0:
-                    ok = wp.bool(False)
-                elif final == 0 and turns_too_far(new_spin, h, max_rotation):
-                    ok = wp.bool(False)
-            status_out[k, STATUS_JOINT_ITERATIONS] = f64(sweeps)
-            status_out[k, STATUS_JOINT_ERROR] = err
-            if not ok:
-                for b in range(body_count):
-                    body_v_out[b] = v0[b]
-                    body_w_out[b] = w0[b]
-                status_out[k, STATUS_CODE] = f64(RETRY)
-                return
-            spin = new_spin
-            accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
-            frames_all(
-                body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
-                constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
-                inv_inertia_world, proj, jac_lin, jac_ang,
-            )  # fmt: skip
-            vsweeps = wp.int32(0)
-            vbest = f64(0.0)
-            code = wp.int32(OK)
-            while True:
-                verr = sweep_velocities_once(
-                    constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                    velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
+                new_spin = spin
+                if ok:
+                    bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                    if not (err <= tolerance) or bad > 0:
+                        ok = wp.bool(False)
+                    elif final == 0 and turns_too_far(new_spin, hs, max_rotation):
+                        ok = wp.bool(False)
+                if not ok:
+                    restore_start(
+                        body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
+                    )  # fmt: skip
+                    status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
+                    status_out[k, STATUS_JOINT_ERROR] = err
+                    status_out[k, STATUS_CODE] = f64(RETRY)
+                    return
+                joint_error = wp.max(joint_error, err)
+                spin = new_spin
+                accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+                frames_all(
+                    body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
+                    constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
+                    body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang,
                 )  # fmt: skip
-                if vsweeps == 0:
-                    vbest = verr
-                vbest = wp.min(vbest, verr)
-                if verr <= velocity_tolerance:
-                    break
-                if not wp.isfinite(verr) or vsweeps >= max_iterations or (vsweeps >= 3 and verr > f64(1.0e3) * vbest):
+                vsweeps = wp.int32(0)
+                vbest = f64(0.0)
+                converged = wp.bool(True)
+                while True:
+                    verr = sweep_velocities_once(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                        velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
+                    )  # fmt: skip
+                    if vsweeps == 0:
+                        vbest = verr
+                    vbest = wp.min(vbest, verr)
+                    if verr <= velocity_tolerance:
+                        break
+                    if (
+                        not wp.isfinite(verr)
+                        or vsweeps >= max_iterations
+                        or (vsweeps >= 3 and verr > f64(1.0e3) * vbest)
+                    ):
+                        converged = False
+                        break
+                    vsweeps += 1
+                velocity_iterations += vsweeps
+                verr = velocity_errors_all(
+                    constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
+                    errors, rhs,
+                )  # fmt: skip
+                if not converged:  # the host raises or warns once the step is done
                     code = VELOCITY
-                    break
-                vsweeps += 1
-            verr = velocity_errors_all(
-                constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
-                errors, rhs,
-            )  # fmt: skip
-            status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(vsweeps)
-            status_out[k, STATUS_VELOCITY_ERROR] = verr
-            status_out[k, STATUS_LINEAR_ITERATIONS] = f64(0.0)
-            status_out[k, STATUS_SPIN] = spin
-            status_out[k, STATUS_CODE] = f64(code)
+                    failed = max_or_nan(failed, verr)
+            finish(status_out, k, code, iterations, velocity_iterations, 0, joint_error, verr, failed, spin)
             if code != OK:
                 return
 

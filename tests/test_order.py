@@ -196,10 +196,11 @@ def test_backward_spin_is_substepped():
 @pytest.mark.parametrize("order", [4, 6])
 def test_joints_hold_after_every_substep(order):
     """Measured with the independent numpy checks after every base step of the composition, backward ones
-    included, on a chain mixing every joint type."""
+    included, on a chain mixing every joint type. The parallel schedule takes base steps one by one from the
+    host, where they can be looked at; the fused one takes the same steps bit for bit (test_schedules.py)."""
     builder = scenes.chain(7, joint=JOINTS)
     builder.gravity = np.array([2.0, 3.0, -9.81])
-    sim = warpimpulse.Simulator(builder.finalize(), 1 / 30, order=order)
+    sim = warpimpulse.Simulator(builder.finalize(), 1 / 30, order=order, schedule="parallel")
     seen = []
     base_step = sim._base_step
 

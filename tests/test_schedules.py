@@ -59,6 +59,25 @@ CASES = {
     "spin_split_iterative": (lambda: _spinning_pendulum(100.0), 1 / 60, 10, {"solver": "iterative"}),
     "loop_redundant_rows": (_welded_hinge, 1 / 60, 60, {}),
     "chain50_halved": (lambda: scenes.chain(50), 1 / 30, 60, {}),
+    # Compositions (order 4, 6): the stages of a step in the launch, backward ones too; spin splits and halvings
+    # of whole composed steps; a stage after the first that fails (yoshida3's -1.70 h at h = 1/15).
+    "chain10_order4": (lambda: scenes.chain(10), 1 / 60, 30, {"order": 4}),
+    "tree31_order6_torque_ends": (lambda: scenes.binary_tree(31), 1 / 30, 45, {"order": 6}),
+    "mixed_kinds_order4": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 20, {"order": 4}),
+    "star31_body_matrix_order4": (lambda: scenes.star(31), 1 / 60, 15, {"formulation": "body", "order": 4}),
+    "chain50_yoshida3_halved": (
+        lambda: scenes.chain(50),
+        1 / 15,
+        20,
+        {"order": 4, "scheme": "yoshida3", "tolerance": 1e-6},
+    ),
+    "spin_split_order4": (lambda: _spinning_pendulum(100.0), 1 / 60, 10, {"order": 4}),
+    "tree15_iterative_order4": (
+        lambda: scenes.binary_tree(15),
+        1 / 30,
+        20,
+        {"solver": "iterative", "tolerance": 1e-8, "order": 4},
+    ),
 }
 
 
@@ -86,6 +105,24 @@ def test_the_cases_reach_the_host_paths():
     """The cases above do exercise the hand-overs: splits, halvings, force changes within a batch."""
     assert max(s.substeps for s in _run("spin_split", "fused", True)[1]) == 4
     assert max(s.substeps for s in _run("chain50_halved", "fused", True)[1]) > 1
+    assert max(s.substeps for s in _run("spin_split_order4", "fused", True)[1]) == 4
+
+
+def test_a_composed_step_that_fails_in_a_later_stage_is_redone_from_its_start(monkeypatch):
+    """yoshida3 at h = 1/15 on chain50: a stage after the first fails, the fused kernel restores the start of the
+    composed step and the host its frames (they were the last stage's), then the parallel schedule halves it."""
+    make, dt, steps, options = CASES["chain50_yoshida3_halved"]
+    sim = wi.Simulator(make().finalize(), dt, **options)
+    redone, update = [], sim._update_frames
+
+    def update_frames():
+        before = sim.frames.jac_ang.numpy().copy()
+        update()
+        redone.append(not np.array_equal(before, sim.frames.jac_ang.numpy()))
+
+    monkeypatch.setattr(sim, "_update_frames", update_frames)
+    stats = sim.simulate(steps * dt)
+    assert any(redone) and max(s.substeps for s in stats) > 1 and all(s.order == 4 for s in stats)
 
 
 def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
@@ -205,7 +242,7 @@ def test_status_columns_are_distinct():
     columns = [
         step_kernels.STATUS_CODE, step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS,
         step_kernels.STATUS_JOINT_ERROR, step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
-        step_kernels.STATUS_SPIN,
+        step_kernels.STATUS_SPIN, step_kernels.STATUS_FAILED_VELOCITY,
     ]  # fmt: skip
     assert sorted(int(c) for c in columns) == list(range(step_kernels.STATUS_WIDTH))
 
@@ -226,17 +263,22 @@ def test_the_readme_step_time_block_is_the_committed_json():
     assert block.strip() == breakdown.table(result).strip()
 
 
-def test_order_and_fall_back_under_the_fused_schedule():
-    """Compositions (order 4, 6) run on the parallel schedule; a step recorded with fall_back() is taken there
-    too, with its reason, and the fused schedule goes on after it."""
+@pytest.mark.parametrize("order", [2, 4, 6])
+def test_order_and_fall_back_under_the_fused_schedule(order, monkeypatch):
+    """Composed steps (order 4, 6) run by the fused schedule, a batch a launch; a step recorded with fall_back()
+    is taken by the parallel one, at order 2 with its reason, and the fused schedule goes on after it."""
     model = scenes.chain(5).finalize()
-    composed = wi.Simulator(model, 1 / 60, order=4)
-    assert composed.schedule == "parallel" and "order 4" in composed.schedule_note
-    fused, parallel = (wi.Simulator(model, 1 / 60, schedule=s) for s in ("fused", "parallel"))
+    composed = wi.Simulator(model, 1 / 60, order=order)
+    counts = _count_launches(composed, monkeypatch)
+    stats = composed.step(20)
+    assert composed.schedule == "fused" and counts == {"launches": 1, "parallel_steps": 0}
+    assert stats.order == order and stats.converged
+    fused, parallel = (wi.Simulator(model, 1 / 60, schedule=s, order=order) for s in ("fused", "parallel"))
     results = []
     for sim in (fused, parallel):
         sim.step(3)
         sim.fall_back("an impact")
         results.append([sim.step(), *sim.simulate(5 / 60)])
     assert results[0] == results[1] and results[0][0].fallback == "an impact"
+    assert results[0][0].order == 2 and all(s.order == order for s in results[0][1:])
     np.testing.assert_array_equal(fused.positions(), parallel.positions())

@@ -538,8 +538,6 @@ class Simulator:
             return "parallel", "contacts are a stage the fused step does not have yet"
         if getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split":
             return "parallel", "the split systems iterate their velocity correction from the host"
-        if len(self.scheme.stages) > 1:
-            return "parallel", f"order {self.order} composes base steps; the fused kernel takes whole steps of dt"
         m = self.model
         mechanisms = [name for name, n in (("spring", m.spring_count), ("drive", m.drive_count),
                                            ("limit", m.limit_count)) if n]  # fmt: skip
@@ -555,6 +553,7 @@ class Simulator:
         self._spin_in = wp.zeros(1, dtype=wp.float64, device=self.model.device)
         # CPU arrays' memory, read and written without a copy
         self._views = None if cuda else (self._status.numpy(), self._batch.numpy(), self._spin_in.numpy())
+        self._stages = wp.array(self.scheme.stages, dtype=wp.float64, device=self.model.device)
         self._fused_by_h: dict[float, wp.Graph] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
@@ -570,9 +569,10 @@ class Simulator:
                 sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
             launch = record(
                 kernel, 1, self.model.device, sources, data_out=self.state,
-                h=h, batch_in=self._batch, max_rotation=self.max_rotation or 0.0,
-                final=int(self.max_substep_depth == 0), spin_in=self._spin_in, pred_x=p.body_x, pred_q=p.body_q,
-                pred_v=p.body_v, pred_w=p.body_w, v0=self._v0, w0=self._w0, status_out=self._status,
+                h=h, stages=self._stages, reach=self.scheme.reach, batch_in=self._batch,
+                max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
+                pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
+                q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status,
             )  # fmt: skip
             self._fused_by_h[h] = self._capture(launch)
         return self._fused_by_h[h]
@@ -614,6 +614,8 @@ class Simulator:
                 code = int(row[columns.STATUS_CODE])
                 self._spin = float(row[columns.STATUS_SPIN])
                 if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
+                    if code == columns.RETRY and len(self.scheme.stages) > 1:
+                        self._update_frames()  # of the restored start: a later stage may have failed
                     out.append(self._step_parallel())
                     break
                 if code == columns.SINGULAR:
@@ -621,10 +623,10 @@ class Simulator:
                 stats = StepStats(
                     int(row[columns.STATUS_JOINT_ITERATIONS]), int(row[columns.STATUS_VELOCITY_ITERATIONS]),
                     float(row[columns.STATUS_JOINT_ERROR]), float(row[columns.STATUS_VELOCITY_ERROR]), True,
-                    int(row[columns.STATUS_LINEAR_ITERATIONS]), 1,
+                    int(row[columns.STATUS_LINEAR_ITERATIONS]), 1, self.order,
                 )  # fmt: skip
                 if code == columns.VELOCITY:
-                    self._velocity_failed(stats.max_velocity_error)
+                    self._velocity_failed(float(row[columns.STATUS_FAILED_VELOCITY]))
                     stats.converged = False
                 out.append(stats)
                 self.step_count += 1
