@@ -12,8 +12,18 @@ f64 = wp.float64
 
 @wp.func
 def rotation_rate(q: quatd, w_body: vec3d) -> quatd:
-    """dq/dt = 1/2 q (w_body, 0): equation 3 with the angular velocity in body space."""
-    return f64(0.5) * (q * quatd(w_body[0], w_body[1], w_body[2], f64(0.0)))
+    """dq/dt = 1/2 q (w_body, 0): equation 3 with the angular velocity in body space. The product is spelled
+    out without the terms of the zero scalar part (Warp's quaternion product in that order, less 8 flops)."""
+    x = w_body[0]
+    y = w_body[1]
+    z = w_body[2]
+    h = f64(0.5)
+    return quatd(
+        h * (q[3] * x + q[1] * z - y * q[2]),
+        h * (q[3] * y + q[2] * x - z * q[0]),
+        h * (q[3] * z + q[0] * y - x * q[1]),
+        h * (-q[0] * x - q[1] * y - q[2] * z),
+    )
 
 
 @wp.func
@@ -97,7 +107,9 @@ def predict_body(
     wb = wp.quat_rotate_inv(q, w)
     n = wp.min(int(wp.ceil(wp.length(w) * wp.abs(h) / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)  # h < 0 runs backwards
     n = wp.max(n, 1)
-    hs = h / f64(n)
+    hs = h  # h / 1, without the division
+    if n > 1:
+        hs = h / f64(n)
     q1 = q
     diagonal = is_diagonal(inertia)
     for _ in range(n):

@@ -183,6 +183,44 @@ def apply_all(
 
 
 @wp.func
+def apply_and_predict_all(
+    body_count: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    body_rows_start: wp.array(dtype=int),
+    body_rows: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    impulse: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    body_force: wp.array(dtype=vec3d),
+    body_torque: wp.array(dtype=vec3d),
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    pred_v: wp.array(dtype=vec3d),
+    pred_w: wp.array(dtype=vec3d),
+):
+    """`apply_all` then `predict_all` in one pass over the bodies: a body's prediction reads only its own
+    velocities, which only its own impulses change, so the result is the two passes' bit for bit."""
+    for b in range(body_count):
+        apply_body(
+            b, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_v,
+            body_w,
+        )  # fmt: skip
+        predict_index(
+            b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
+            body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+        )  # fmt: skip
+
+
+@wp.func
 def velocity_errors_all(
     constraint_count: int,
     constraint_body0: wp.array(dtype=int),
@@ -488,14 +526,10 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
-                    apply_all(
-                        body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-                        impulse, body_v_out, body_w_out,
-                    )  # fmt: skip
-                    predict_all(
-                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
-                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                        pred_w,
+                    apply_and_predict_all(
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_rows_start,
+                        body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_x_out, body_q_out, body_v_out,
+                        body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
                     )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
