@@ -21,37 +21,37 @@ f64 = wp.float64
 
 @wp.func
 def cholesky3(a: mat33d, tiny: f64, fallback: f64):
-    """Lower Cholesky factor of an SPD 3x3 block, and how many of its pivots were not above `tiny` (each
-    replaced by `fallback`)."""
-    l = mat33d()
-    bad = int(0)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
-    for j in range(3):
-        s = a[j, j]
-        for k in range(j):
-            s -= l[j, k] * l[j, k]
-        if s <= tiny:
-            bad += 1
-            s = fallback
-        d = wp.sqrt(s)
-        l[j, j] = d
-        for i in range(j + 1, 3):
-            t = a[i, j]
-            for k in range(j):
-                t -= l[i, k] * l[j, k]
-            l[i, j] = t / d
-    return l, bad
-
-
-@wp.func
-def lower_inverse3(l: mat33d) -> mat33d:
+    """Lower Cholesky factor L of an SPD 3x3 block, its inverse, and how many of its pivots were not above
+    `tiny` (each replaced by `fallback`). Each pivot's reciprocal is taken once and serves both: three divisions
+    where dividing by the pivots would take six."""
     z = f64(0.0)
-    a = f64(1.0) / l[0, 0]
-    d = f64(1.0) / l[1, 1]
-    f = f64(1.0) / l[2, 2]
-    b = -l[1, 0] * a * d
-    e = -l[2, 1] * d * f
-    c = -(l[2, 0] * a + l[2, 1] * b) * f
-    return mat33d(a, z, z, b, d, z, c, e, f)
+    d0 = a[0, 0]
+    bad = int(0)  # noqa: UP018 (a Warp variable the branches change must not start as a constant)
+    if d0 <= tiny:
+        bad += 1
+        d0 = fallback
+    l00 = wp.sqrt(d0)
+    r0 = f64(1.0) / l00
+    l10 = a[1, 0] * r0
+    l20 = a[2, 0] * r0
+    d1 = a[1, 1] - l10 * l10
+    if d1 <= tiny:
+        bad += 1
+        d1 = fallback
+    l11 = wp.sqrt(d1)
+    r1 = f64(1.0) / l11
+    l21 = (a[2, 1] - l20 * l10) * r1
+    d2 = a[2, 2] - l20 * l20 - l21 * l21
+    if d2 <= tiny:
+        bad += 1
+        d2 = fallback
+    l22 = wp.sqrt(d2)
+    r2 = f64(1.0) / l22
+    l = mat33d(l00, z, z, l10, l11, z, l20, l21, l22)
+    b = -l10 * r0 * r1
+    e = -l21 * r1 * r2
+    c = -(l20 * r0 + l21 * b) * r2
+    return l, mat33d(r0, z, z, b, r1, z, c, e, r2), bad
 
 
 @wp.func
@@ -94,16 +94,16 @@ def factor_column(
     a = sign * values[d]
     scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
     l = mat33d()
+    li = mat33d()
     if col_loop[j] != 0:  # relative to the assembled diagonal: the reduced one may be all round-off
         full = wp.max(wp.max(assembled[0, 0], assembled[1, 1]), assembled[2, 2])
-        l, redundant = cholesky3(a, loop_tolerance * full, full)
+        l, li, redundant = cholesky3(a, loop_tolerance * full, full)
         singular[1] = singular[1] + redundant
     else:
-        l, bad = cholesky3(a, pivot_tolerance * scale, f64(1.0))
+        l, li, bad = cholesky3(a, pivot_tolerance * scale, f64(1.0))
         if bad != 0 and singular[0] == 0:
             singular[0] = j + 1
     values[d] = l
-    li = lower_inverse3(l)
     diag_inv[j] = li
     lit = sign * wp.transpose(li)
     for s in range(d + 1, col_start[j + 1]):
