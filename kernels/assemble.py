@@ -26,6 +26,61 @@ def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constrai
 
 
 @wp.func
+def row_products(inv_mass: f64, inv_inertia_world: mat33d, jac_lin: mat33d, jac_ang: mat33d):
+    """(m^-1 J_lin, J_ang J~^-1) of one side of a constraint: that side's factor of every block of K its body
+    is in, computed once a row instead of once a block."""
+    return inv_mass * jac_lin, jac_ang * inv_inertia_world
+
+
+@wp.func
+def row_block(mass_jac: mat33d, inertia_jac: mat33d, jac_lin: mat33d, jac_ang: mat33d) -> mat33d:
+    """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and row j's Jacobian."""
+    return mass_jac * wp.transpose(jac_lin) + inertia_jac * wp.transpose(jac_ang)
+
+
+@wp.func
+def row_products_of(
+    r: int,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    mass_jac_out: wp.array(dtype=mat33d),
+    inertia_jac_out: wp.array(dtype=mat33d),
+):
+    """`row_products` of Jacobian row r (constraint r // 2, side r % 2); none for the world's side."""
+    i = r // 2
+    b = side_body(i, r - 2 * i, constraint_body0, constraint_body1)
+    if b >= 0:
+        m, w = row_products(body_inv_mass[b], inv_inertia_world_in[b], jac_lin_in[r], jac_ang_in[r])
+        mass_jac_out[r] = m
+        inertia_jac_out[r] = w
+
+
+@wp.kernel
+def assemble_rows(
+    # Model:
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out:
+    mass_jac_out: wp.array(dtype=mat33d),
+    inertia_jac_out: wp.array(dtype=mat33d),
+):
+    """Every Jacobian row's products (`row_products_of`), before `assemble`."""
+    row_products_of(
+        wp.tid(), constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+        mass_jac_out, inertia_jac_out,
+    )  # fmt: skip
+
+
+@wp.func
 def shared_body_block(
     i: int,
     si: int,
@@ -38,13 +93,13 @@ def shared_body_block(
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
 ) -> mat33d:
-    """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share."""
+    """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share, without stored
+    row products (the iterative sweeps' blocks)."""
     b = side_body(i, si, constraint_body0, constraint_body1)
     ri = 2 * i + si
     rj = 2 * j + sj
-    return body_inv_mass[b] * jac_lin[ri] * wp.transpose(jac_lin[rj]) + jac_ang[ri] * inv_inertia_world[
-        b
-    ] * wp.transpose(jac_ang[rj])
+    m, w = row_products(body_inv_mass[b], inv_inertia_world[b], jac_lin[ri], jac_ang[ri])
+    return row_block(m, w, jac_lin[rj], jac_ang[rj])
 
 
 @wp.func
@@ -81,32 +136,29 @@ def diagonal_block(
 def assemble_slot(
     s: int,
     constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    body_inv_mass: wp.array(dtype=f64),
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    mass_jac_in: wp.array(dtype=mat33d),
+    inertia_jac_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     values_out: wp.array(dtype=mat33d),
 ):
-    """Slot s of K: the sum over the (at most two) bodies its row and column constraints share."""
+    """Slot s of K: the sum over the (at most two) bodies its row and column constraints share, from the rows'
+    products (`row_products_of`)."""
     i = slot_row[s]
     j = slot_col[s]
     sides = slot_sides[s]
     k = mat33d()
     if sides[0] >= 0:
-        k += shared_body_block(
-            i, sides[0], j, sides[1], constraint_body0, constraint_body1,
-            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
-        )  # fmt: skip
+        ri = 2 * i + sides[0]
+        rj = 2 * j + sides[1]
+        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], jac_lin_in[rj], jac_ang_in[rj])
     if sides[2] >= 0:
-        k += shared_body_block(
-            i, sides[2], j, sides[3], constraint_body0, constraint_body1,
-            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
-        )  # fmt: skip
+        ri = 2 * i + sides[2]
+        rj = 2 * j + sides[3]
+        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], jac_lin_in[rj], jac_ang_in[rj])
     if i == j:
         k = pad_unused_rows(k, constraint_kind[i])
     values_out[s] = k
@@ -116,24 +168,22 @@ def assemble_slot(
 def assemble(
     # Model:
     constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    body_inv_mass: wp.array(dtype=f64),
     # Pattern: the slots to fill
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    mass_jac_in: wp.array(dtype=mat33d),
+    inertia_jac_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
-    """Every slot of K (`assemble_slot`)."""
+    """Every slot of K (`assemble_slot`), after `assemble_rows`."""
     assemble_slot(
-        wp.tid(), constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col,
-        slot_sides, inv_inertia_world_in, jac_lin_in, jac_ang_in, values_out,
+        wp.tid(), constraint_kind, slot_row, slot_col, slot_sides, mass_jac_in, inertia_jac_in, jac_lin_in,
+        jac_ang_in, values_out,
     )  # fmt: skip
 
 

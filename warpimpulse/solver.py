@@ -18,7 +18,7 @@ from .diagnose import mass_ratio_note
 from .kernels import assemble as assemble_kernels
 from .kernels import cg as cg_kernels
 from .kernels import cholesky as cholesky_kernels
-from .launch import record
+from .launch import Launches, record
 from .model import Model
 from .topology import schedule
 
@@ -36,6 +36,10 @@ class Frames:
         self.jac_lin = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
         self.jac_ang = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
         self.inv_inertia_world = wp.zeros(nb, dtype=wp.mat33d, device=d)
+        # Each Jacobian row's m^-1 J_lin and J_ang J~^-1, computed once a step for the blocks of K
+        # (`assemble.row_products`).
+        self.mass_jac = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
+        self.inertia_jac = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
 
 
 def _int(values, device) -> wp.array:
@@ -55,11 +59,12 @@ def _slots(row, col, sides, device) -> SimpleNamespace:
     )
 
 
-def _assemble_launch(model: Model, frames: Frames, slots: SimpleNamespace, values) -> wp.Launch:
-    """K = J M^-1 J^T into the slots listed."""
-    return record(
-        assemble_kernels.assemble, len(slots.slot_row), model.device, (model, frames, slots), values_out=values
-    )
+def _assemble_launch(model: Model, frames: Frames, slots: SimpleNamespace, values) -> Launches:
+    """The rows' products, then the slots of K from them."""
+    sources = (model, frames, slots)
+    rows = record(assemble_kernels.assemble_rows, 2 * model.constraint_count, model.device, sources)
+    return Launches([rows, record(assemble_kernels.assemble, len(slots.slot_row), model.device, sources,
+                                  values_out=values)])  # fmt: skip
 
 
 class CholeskySolver:
