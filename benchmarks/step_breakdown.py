@@ -96,15 +96,15 @@ def _stage_kernels(ns):
             )  # fmt: skip
 
     @wp.kernel(module=module)
-    def apply(repeats: int, body_count: int, body_inv_mass: wp.array(dtype=f64),
+    def apply(repeats: int, body_count: int, constraint_kind: wp.array(dtype=int), body_inv_mass: wp.array(dtype=f64),
               body_rows_start: wp.array(dtype=int), body_rows: wp.array(dtype=int),
               inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
               jac_ang: wp.array(dtype=mat33d), impulse: wp.array(dtype=vec3d), pred_v: wp.array(dtype=vec3d),
               pred_w: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):  # into the scratch prediction: the state stays as it was
             step_kernels.apply_all(
-                body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-                impulse, pred_v, pred_w,
+                body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
+                jac_ang, impulse, pred_v, pred_w,
             )  # fmt: skip
 
     @wp.kernel(module=module)

@@ -9,7 +9,7 @@ Cholesky (fill slots share no body and assemble to zero) and the full pattern fo
 import warp as wp
 
 from ..types import Slot
-from .constraints import constraint_dim
+from .constraints import POINT, constraint_dim
 
 wp.set_module_options({"enable_backward": False})
 
@@ -33,9 +33,16 @@ def row_products(inv_mass: f64, inv_inertia_world: mat33d, jac_lin: mat33d, jac_
 
 
 @wp.func
-def row_block(mass_jac: mat33d, inertia_jac: mat33d, jac_lin: mat33d, jac_ang: mat33d) -> mat33d:
-    """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and row j's Jacobian."""
-    return mass_jac * wp.transpose(jac_lin) + inertia_jac * wp.transpose(jac_ang)
+def row_block(mass_jac: mat33d, inertia_jac: mat33d, kind: int, side: int, jac_lin: mat33d, jac_ang: mat33d) -> mat33d:
+    """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and row j's Jacobian (constraint j of `kind`, on
+    its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 (`constraints.constraint_frame`):
+    there the linear part is +-m^-1 J_lin of row i, the same value without the product."""
+    angular = inertia_jac * wp.transpose(jac_ang)
+    if kind == POINT:
+        if side == 0:
+            return mass_jac + angular
+        return angular - mass_jac
+    return mass_jac * wp.transpose(jac_lin) + angular
 
 
 @wp.func
@@ -86,6 +93,7 @@ def shared_body_block(
     si: int,
     j: int,
     sj: int,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
@@ -99,7 +107,7 @@ def shared_body_block(
     ri = 2 * i + si
     rj = 2 * j + sj
     m, w = row_products(body_inv_mass[b], inv_inertia_world[b], jac_lin[ri], jac_ang[ri])
-    return row_block(m, w, jac_lin[rj], jac_ang[rj])
+    return row_block(m, w, constraint_kind[j], sj, jac_lin[rj], jac_ang[rj])
 
 
 @wp.func
@@ -126,7 +134,7 @@ def diagonal_block(
     for side in range(2):
         if side_body(i, side, constraint_body0, constraint_body1) >= 0:
             k += shared_body_block(
-                i, side, i, side, constraint_body0, constraint_body1,
+                i, side, i, side, constraint_kind, constraint_body0, constraint_body1,
                 body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
             )  # fmt: skip
     return pad_unused_rows(k, constraint_kind[i])
@@ -150,15 +158,16 @@ def assemble_slot(
     i = slot_row[s]
     j = slot_col[s]
     sides = slot_sides[s]
+    kind = constraint_kind[j]
     k = mat33d()
     if sides[0] >= 0:
         ri = 2 * i + sides[0]
         rj = 2 * j + sides[1]
-        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], jac_lin_in[rj], jac_ang_in[rj])
+        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], kind, sides[1], jac_lin_in[rj], jac_ang_in[rj])
     if sides[2] >= 0:
         ri = 2 * i + sides[2]
         rj = 2 * j + sides[3]
-        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], jac_lin_in[rj], jac_ang_in[rj])
+        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], kind, sides[3], jac_lin_in[rj], jac_ang_in[rj])
     if i == j:
         k = pad_unused_rows(k, constraint_kind[i])
     values_out[s] = k

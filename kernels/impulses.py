@@ -5,6 +5,8 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 
 import warp as wp
 
+from .constraints import POINT
+
 wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
@@ -15,6 +17,7 @@ f64 = wp.float64
 @wp.func
 def apply_body(
     b: int,
+    constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
@@ -25,13 +28,22 @@ def apply_body(
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows."""
+    """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows. A point
+    constraint's J_lin is +-I (`constraints.constraint_frame`), so its J_lin^T lambda is +-lambda, the same
+    value without the product."""
     dv = vec3d()
     dl = vec3d()
     for k in range(body_rows_start[b], body_rows_start[b + 1]):
         r = body_rows[k]
-        lam = impulse_in[r // 2]
-        dv += wp.transpose(jac_lin_in[r]) * lam
+        i = r // 2
+        lam = impulse_in[i]
+        if constraint_kind[i] == POINT:
+            if r == 2 * i:
+                dv += lam
+            else:
+                dv -= lam
+        else:
+            dv += wp.transpose(jac_lin_in[r]) * lam
         dl += wp.transpose(jac_ang_in[r]) * lam
     body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
     body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl
@@ -40,6 +52,7 @@ def apply_body(
 @wp.kernel
 def apply_impulses(
     # Model:
+    constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
@@ -54,6 +67,6 @@ def apply_impulses(
 ):
     """Every body's impulses (`apply_body`)."""
     apply_body(
-        wp.tid(), body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in, jac_ang_in,
-        impulse_in, body_v_out, body_w_out,
+        wp.tid(), constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in,
+        jac_ang_in, impulse_in, body_v_out, body_w_out,
     )  # fmt: skip

@@ -165,6 +165,7 @@ def predict_all(
 @wp.func
 def apply_all(
     body_count: int,
+    constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
@@ -177,14 +178,15 @@ def apply_all(
 ):
     for b in range(body_count):
         apply_body(
-            b, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_v,
-            body_w,
+            b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+            impulse, body_v, body_w,
         )  # fmt: skip
 
 
 @wp.func
 def apply_and_predict_all(
     body_count: int,
+    constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
@@ -211,8 +213,8 @@ def apply_and_predict_all(
     velocities, which only its own impulses change, so the result is the two passes' bit for bit."""
     for b in range(body_count):
         apply_body(
-            b, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_v,
-            body_w,
+            b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+            impulse, body_v, body_w,
         )  # fmt: skip
         predict_index(
             b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
@@ -529,9 +531,10 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                         row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     apply_and_predict_all(
-                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_rows_start,
-                        body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_x_out, body_q_out, body_v_out,
-                        body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+                        body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
+                        body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_x_out,
+                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
+                        pred_w,
                     )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
@@ -593,8 +596,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                         row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     apply_all(
-                        body_count, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-                        impulse, body_v_out, body_w_out,
+                        body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
+                        jac_lin, jac_ang, impulse, body_v_out, body_w_out,
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
