@@ -163,15 +163,16 @@ def _stage_kernels(ns):
                     )  # fmt: skip
 
     @wp.kernel(module=module)
-    def velocity_errors(repeats: int, constraint_count: int, constraint_body0: wp.array(dtype=int),
+    def velocity_errors(repeats: int, constraint_count: int, constraint_kind: wp.array(dtype=int),
+                        constraint_body0: wp.array(dtype=int),
                         constraint_body1: wp.array(dtype=int), jac_lin: wp.array(dtype=mat33d),
                         jac_ang: wp.array(dtype=mat33d), body_v_out: wp.array(dtype=vec3d),
                         body_w_out: wp.array(dtype=vec3d), errors: wp.array(dtype=f64),
                         rhs: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             step_kernels.velocity_errors_all(
-                constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
-                errors, rhs,
+                constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
+                body_w_out, errors, rhs,
             )  # fmt: skip
 
     @wp.kernel(module=module)

@@ -153,6 +153,8 @@ def projected_error(kind: int, p: mat33d, d: vec3d) -> vec3d:
     constraint's direction a0 x a1 turns within the step, so its projection could shrink while the angle
     error does not: its right-hand side is the signed angle error itself.
     """
+    if kind == POINT or kind == ROTATION:  # P = I (`projection`): the same value without the product
+        return d
     pd = p * d
     if kind == ANGLE:
         s = f64(1.0)
@@ -191,11 +193,15 @@ def constraint_frame(
     if is_translational(kind):
         a, b = joint_points(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i])
         jac_lin[2 * i] = p
+        jac_lin[2 * i + 1] = -p
         # Both impulses act at B, equal and opposite, so they add no couple and angular momentum is kept
         # exactly; the paper's A is within the tolerance of B (section 4.2).
-        jac_ang[2 * i] = -p * wp.skew(b - x0)
-        jac_lin[2 * i + 1] = -p
-        jac_ang[2 * i + 1] = p * wp.skew(b - x1)
+        if kind == POINT:  # P = I: the same values without the products
+            jac_ang[2 * i] = -wp.skew(b - x0)
+            jac_ang[2 * i + 1] = wp.skew(b - x1)
+        else:
+            jac_ang[2 * i] = -p * wp.skew(b - x0)
+            jac_ang[2 * i + 1] = p * wp.skew(b - x1)
     else:
         jac_lin[2 * i] = mat33d()
         jac_ang[2 * i] = p
@@ -238,6 +244,7 @@ def position_error(
 @wp.func
 def constraint_velocity(
     i: int,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     jac_lin: wp.array(dtype=mat33d),
@@ -245,20 +252,29 @@ def constraint_velocity(
     body_lin_v: wp.array(dtype=vec3d),
     body_ang_v: wp.array(dtype=vec3d),
 ) -> vec3d:
-    """J_i v: the rate of change of the constraint's error."""
+    """J_i v: the rate of change of the constraint's error. A point constraint's J_lin is I on body0 and -I on
+    body1 (`constraint_frame`): its linear part is the velocities themselves, the same value without the product."""
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
+    point = constraint_kind[i] == POINT
     jv = vec3d()
     if b0 >= 0:
-        jv += jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
+        if point:
+            jv += body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
+        else:
+            jv += jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
     if b1 >= 0:
-        jv += jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
+        if point:
+            jv += jac_ang[2 * i + 1] * body_ang_v[b1] - body_lin_v[b1]
+        else:
+            jv += jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
     return jv
 
 
 @wp.func
 def velocity_error(
     i: int,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     jac_lin_in: wp.array(dtype=mat33d),
@@ -269,7 +285,9 @@ def velocity_error(
     rhs_out: wp.array(dtype=vec3d),
 ):
     """|J_i v|, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
-    jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in)
+    jv = constraint_velocity(
+        i, constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in
+    )
     errors_out[i] = wp.length(jv)
     rhs_out[i] = -jv
 
@@ -401,6 +419,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
     @wp.kernel(module=module)
     def velocity_errors(
         # Model:
+        constraint_kind: wp.array(dtype=int),
         constraint_body0: wp.array(dtype=int),
         constraint_body1: wp.array(dtype=int),
         # Data in:
@@ -414,8 +433,8 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
     ):
         """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
         velocity_error(
-            wp.tid(), constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in, errors_out,
-            rhs_out,
+            wp.tid(), constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in,
+            body_w_in, errors_out, rhs_out,
         )  # fmt: skip
 
     return SimpleNamespace(

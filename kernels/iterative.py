@@ -188,7 +188,9 @@ def sweep_velocities_once(
     """One velocity-correction sweep; returns the largest |J_i v| met before its correction."""
     worst = f64(0.0)
     for i in range(constraint_count):
-        jv = constraint_velocity(i, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_out, body_w_out)
+        jv = constraint_velocity(
+            i, constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_out, body_w_out
+        )
         e = wp.length(jv)
         worst = wp.max(worst, e)
         if e > velocity_tolerance:

@@ -225,6 +225,7 @@ def apply_and_predict_all(
 @wp.func
 def velocity_errors_all(
     constraint_count: int,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     jac_lin: wp.array(dtype=mat33d),
@@ -237,7 +238,9 @@ def velocity_errors_all(
     """|J_i v| and -J_i v of every constraint; returns the largest (NaN if any is)."""
     worst = f64(0.0)
     for i in range(constraint_count):
-        velocity_error(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs)
+        velocity_error(
+            i, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs
+        )
         worst = max_or_nan(worst, errors[i])
     return worst
 
@@ -587,8 +590,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                         col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
                     )  # fmt: skip
                 verr = velocity_errors_all(
-                    constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
-                    errors, rhs,
+                    constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                    body_v_out, body_w_out, errors, rhs,
                 )  # fmt: skip
                 if not (verr <= velocity_tolerance):
                     cholesky_solve(
@@ -600,8 +603,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                         jac_lin, jac_ang, impulse, body_v_out, body_w_out,
                     )  # fmt: skip
                     verr = velocity_errors_all(
-                        constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
-                        body_w_out, errors, rhs,
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                        body_v_out, body_w_out, errors, rhs,
                     )  # fmt: skip
                     velocity_iterations += 1
                 if singular[0] != 0:  # the host raises: no further stage
@@ -773,8 +776,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                     vsweeps += 1
                 velocity_iterations += vsweeps
                 verr = velocity_errors_all(
-                    constraint_count, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
-                    errors, rhs,
+                    constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                    body_v_out, body_w_out, errors, rhs,
                 )  # fmt: skip
                 if not converged:  # the host raises or warns once the step is done
                     code = VELOCITY
