@@ -55,6 +55,29 @@ def cholesky3(a: mat33d, tiny: f64, fallback: f64):
 
 
 @wp.func
+def lower_times(l: mat33d, v: vec3d) -> vec3d:
+    """l v for a lower triangular l, its zeros skipped."""
+    return vec3d(l[0, 0] * v[0], l[1, 0] * v[0] + l[1, 1] * v[1], l[2, 0] * v[0] + l[2, 1] * v[1] + l[2, 2] * v[2])
+
+
+@wp.func
+def lower_transpose_times(l: mat33d, v: vec3d) -> vec3d:
+    """l^T v for a lower triangular l, its zeros skipped."""
+    return vec3d(l[0, 0] * v[0] + l[1, 0] * v[1] + l[2, 0] * v[2], l[1, 1] * v[1] + l[2, 1] * v[2], l[2, 2] * v[2])
+
+
+@wp.func
+def times_lower_transpose(a: mat33d, l: mat33d) -> mat33d:
+    """a l^T for a lower triangular l, its zeros skipped."""
+    out = mat33d()
+    for r in range(3):
+        out[r, 0] = a[r, 0] * l[0, 0]
+        out[r, 1] = a[r, 0] * l[1, 0] + a[r, 1] * l[1, 1]
+        out[r, 2] = a[r, 0] * l[2, 0] + a[r, 1] * l[2, 1] + a[r, 2] * l[2, 2]
+    return out
+
+
+@wp.func
 def factor_column(
     j: int,
     col_start: wp.array(dtype=int),
@@ -105,9 +128,9 @@ def factor_column(
             singular[0] = j + 1
     values[d] = l
     diag_inv[j] = li
-    lit = sign * wp.transpose(li)
+    lis = sign * li
     for s in range(d + 1, col_start[j + 1]):
-        values[s] = values[s] * lit
+        values[s] = times_lower_transpose(values[s], lis)
 
 
 @wp.kernel
@@ -154,7 +177,7 @@ def forward_row(
     s = rhs[perm[j]]
     for k in range(row_start[j], row_start[j + 1]):
         s -= values[row_slot[k]] * y[row_col[k]]
-    y[j] = diag_inv[j] * s
+    y[j] = lower_times(diag_inv[j], s)
 
 
 @wp.kernel
@@ -195,7 +218,7 @@ def backward_column(
     s = col_sign[j] * y[j]
     for k in range(col_start[j] + 1, col_start[j + 1]):
         s -= wp.transpose(values[k]) * y[col_row[k]]
-    z = wp.transpose(diag_inv[j]) * s
+    z = lower_transpose_times(diag_inv[j], s)
     y[j] = z
     x[perm[j]] = z
 
