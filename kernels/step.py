@@ -2,22 +2,25 @@
 
 A Warp CPU launch runs on one thread anyway, so on a CPU the step's many launches (and the host's reading of
 errors between them) buy nothing: here the same per-element stage funcs the parallel kernels call
-(`rigid.predict_index`, the constraint funcs of `constraints.specialized`, `assemble.row_products_of` / `assemble_slot`,
-`cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps of
-`iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
+(`rigid.predict_index`, the constraint funcs of `constraints.specialized`, `assemble.row_products_of` /
+`assemble_slot`, `cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps
+of `iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
 apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
-summary) is decided on the device, for up to `batch_in[0]` steps a launch: the batch and the starting spin are
-read from arrays, so the launch is fixed and replays as a captured graph (a 71-argument launch costs ~15 us to
-pack on a CPU; a replay ~1 us).
+summary) is decided on the device, for up to `batch_in[0]` steps a launch. A step is the base steps of a
+composition in turn (`composition.py`: stages g_i h, some negative; one stage of h at order 2). The batch and the
+starting spin are read from arrays, so the launch is fixed and replays as a captured graph (a 71-argument launch
+costs ~15 us to pack on a CPU; a replay ~1 us).
 
 Each step writes one status row (`STATUS_*` columns). A step the fused schedule does not finish itself stops the
 launch with a code, and the host takes that step by the parallel schedule, which splits, halves, raises or
 warns exactly as it always has:
 - SPLIT: a body spins so fast that the step must be split (nothing was changed);
-- RETRY: the joint correction failed (iteration limit, divergence, NaN/Inf, or a body turned further than
-  max_rotation): the velocities of t0 are restored and nothing else was changed;
-- SINGULAR / VELOCITY: the step was taken, but the factor lost a pivot or the velocity correction left more
-  than the tolerance: the host raises or warns as the parallel schedule does.
+- RETRY: the joint correction of a stage failed (iteration limit, divergence, NaN/Inf, or a body turned further
+  than max_rotation): the state of the step's start is restored (after a first stage, the host recomputes its
+  frames);
+- SINGULAR / VELOCITY: the step was taken, but the factor lost a pivot (no further stage is taken) or a velocity
+  correction left more than the tolerance (the step is finished): the host raises or warns as the parallel
+  schedule does, once a step.
 """
 
 import functools
