@@ -470,6 +470,8 @@ def main(argv: list[str] | None = None) -> None:
         results["meta"] = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "seconds":
                            time.perf_counter() - start, "machine": f"{platform.machine()} {platform.processor()}",
                            "python": platform.python_version(), "warp": wp.__version__}  # fmt: skip
+        if args.out.exists() and "scan" in (old := json.loads(args.out.read_text())):
+            results["scan"] = old["scan"]  # the --scan study, kept: it is run apart
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=1))
         if args.quick:
