@@ -610,9 +610,9 @@ class Simulator:
                 status, batch_view, spin_view = self._views
                 batch_view[0], spin_view[0] = batch, self._spin
                 wp.capture_launch(graph)
-            for row in status[:batch]:  # the one read-back of the batch
+            for row in status[:batch].tolist():  # the one read-back of the batch
                 code = int(row[columns.STATUS_CODE])
-                self._spin = float(row[columns.STATUS_SPIN])
+                self._spin = row[columns.STATUS_SPIN]
                 if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
                     if code == columns.RETRY and len(self.scheme.stages) > 1:
                         self._update_frames()  # of the restored start: a later stage may have failed
@@ -622,11 +622,11 @@ class Simulator:
                     self.linear.check()
                 stats = StepStats(
                     int(row[columns.STATUS_JOINT_ITERATIONS]), int(row[columns.STATUS_VELOCITY_ITERATIONS]),
-                    float(row[columns.STATUS_JOINT_ERROR]), float(row[columns.STATUS_VELOCITY_ERROR]), True,
+                    row[columns.STATUS_JOINT_ERROR], row[columns.STATUS_VELOCITY_ERROR], True,
                     int(row[columns.STATUS_LINEAR_ITERATIONS]), 1, self.order,
                 )  # fmt: skip
                 if code == columns.VELOCITY:
-                    self._velocity_failed(float(row[columns.STATUS_FAILED_VELOCITY]))
+                    self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
                     stats.converged = False
                 out.append(stats)
                 self.step_count += 1

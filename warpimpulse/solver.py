@@ -92,6 +92,7 @@ class CholeskySolver:
         self.values = wp.zeros(len(pat.col_row), dtype=wp.mat33d, device=d)
         self.diag_inv = wp.zeros(n, dtype=wp.mat33d, device=d)
         self.singular = wp.zeros(2, dtype=wp.int32, device=d)  # first degenerate column + 1, redundant rows
+        self._singular_host = None if d.is_cuda else self.singular.numpy()  # CPU memory, read without a copy
         self.redundant_rows = 0
         self._augmented = pat.formulation == "body"
         group_start, levels = schedule(pat, parallel=d.is_cuda)
@@ -176,7 +177,9 @@ class CholeskySolver:
     def check(self) -> None:
         """Raise SingularSystemError naming the joint (or body) whose pivot the last factorization lost; note
         the rows of loop joints found redundant (`redundant_rows`)."""
-        col, self.redundant_rows = (int(x) for x in self.singular.numpy())
+        col, self.redundant_rows = (
+            self._singular_host.tolist() if self._singular_host is not None else (int(x) for x in self.singular.numpy())
+        )
         if self.redundant_rows:
             self.singular.zero_()
         if col:
