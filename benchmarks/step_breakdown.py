@@ -36,7 +36,10 @@ from warpimpulse.launch import record
 ROOT = Path(__file__).resolve().parent.parent
 REPEATS = 200  # stage calls a launch
 ROUNDS = 7
-STEPS = 600  # steps a timed block
+# Steps a timed block, each timed after an untimed run of the same block: timed right after the other engines,
+# its first steps met cold caches (the double pendulum measured 5.1 µs a step in blocks of 60, 2.9 in blocks of
+# 600; longer blocks are no cure: over 10 s the chains whip into split steps and MuJoCo diverges).
+STEPS = 60
 SCENES = {  # name: (builder, dt, tolerance)
     "tree127": (lambda: scenes.binary_tree(127), 1 / 60, 1e-6),
     "double_pendulum": (scenes.double_pendulum, 1 / 120, 1e-6),
@@ -305,6 +308,8 @@ def scene_point(name: str, steps: int) -> dict:
     times: dict = {key: [] for key in engines}
     for _ in range(ROUNDS):
         for key, engine in engines.items():
+            engine.restore()  # the block once untimed, so that it is timed with the caches its own run leaves
+            engine.run(steps)
             engine.restore()
             times[key].append(_median_time(lambda engine=engine: engine.run(steps), rounds=1) / steps * 1e6)
     out: dict = {"scene": name, "dt": dt, "tolerance": tolerance, "steps": steps}
@@ -380,7 +385,8 @@ def table(result: dict) -> str:
                     f"{p['fused_per_call_us']:.1f} | {p['parallel_us']:.1f} | {cells[0]} | {cells[1]} |")  # fmt: skip
     n = result["scenes"][0]["steps"]
     lines = [f"µs a step (CPU time), medians of interleaved blocks of n = {n} steps from the same state (the scene",
-             "at 1.1 s); MuJoCo: `mj_step(nstep=n)` / one `mj_step` a call.", "", *rows, ""]  # fmt: skip
+             "at 1.1 s), each block timed after an untimed run of itself; MuJoCo: `mj_step(nstep=n)` / one `mj_step`",
+             "a call.", "", *rows, ""]  # fmt: skip
     stages = list(result["scenes"][0]["stages"])
     lines += ["The fused step by stage (µs a step: one call's time x calls a step):", "",
               "| scene | " + " | ".join(stages) + " | other |", "|---|" + "---:|" * (len(stages) + 1)]  # fmt: skip
@@ -418,8 +424,6 @@ def main(argv: list[str] | None = None) -> int:
         result = json.loads(Path(args.json).read_text())
     else:
         wp.config.quiet = True
-        # Blocks long enough that a block's first steps, run with the caches the other engines left, do not
-        # weigh: 60 steps of a 3 µs step measured 5.1 µs (MuJoCo RK4 5.5), 600 steps 2.9 µs (MuJoCo RK4 4.5).
         steps = 30 if args.quick else STEPS
         result = {"meta": metadata(sys.argv[1:]), "scenes": [], "big": []}
         for name in SCENES:
