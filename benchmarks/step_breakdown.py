@@ -36,9 +36,9 @@ from warpimpulse.launch import record
 ROOT = Path(__file__).resolve().parent.parent
 REPEATS = 200  # stage calls a launch
 ROUNDS = 7
-# Steps a timed block, each timed after an untimed run of the same block: timed right after the other engines,
-# its first steps met cold caches (the double pendulum measured 5.1 µs a step in blocks of 60, 2.9 in blocks of
-# 600; longer blocks are no cure: over 10 s the chains whip into split steps and MuJoCo diverges).
+# Steps a timed block, each timed after an untimed run of the same block (blocks of 600 ran the chains into
+# split steps and MuJoCo into divergence). Timed beside the other engines, the double pendulum's fused step
+# measures 5.0 µs, alone in a process 2.3-2.9 µs (not explained yet).
 STEPS = 60
 SCENES = {  # name: (builder, dt, tolerance)
     "tree127": (lambda: scenes.binary_tree(127), 1 / 60, 1e-6),
