@@ -36,9 +36,8 @@ from warpimpulse.launch import record
 ROOT = Path(__file__).resolve().parent.parent
 REPEATS = 200  # stage calls a launch
 ROUNDS = 7
-# Steps a timed block, each timed after an untimed run of the same block (blocks of 600 ran the chains into
-# split steps and MuJoCo into divergence). Timed beside the other engines, the double pendulum's fused step
-# measures 5.0 µs, alone in a process 2.3-2.9 µs (not explained yet).
+# Steps a timed block, each timed after an untimed run of the same block (`_median_time`'s `prepare`; blocks of
+# 600 ran the chains into split steps and MuJoCo into divergence).
 STEPS = 60
 SCENES = {  # name: (builder, dt, tolerance)
     "tree127": (lambda: scenes.binary_tree(127), 1 / 60, 1e-6),
@@ -190,12 +189,17 @@ def _stage_kernels(ns):
                 assemble_factor=assemble_factor, velocity_errors=velocity_errors, summary=summary)  # fmt: skip
 
 
-def _median_time(fn, rounds: int = ROUNDS) -> float:
+def _median_time(fn, rounds: int = ROUNDS, prepare=None) -> float:
+    """The median CPU time of `fn()`, the garbage collector run before each call and held off during it;
+    `prepare()`, untimed, between the collection and the call (a collection walks every object and leaves the
+    caches cold: the double pendulum's 60 steps took 3.8 us a step right after one, 2.4 without)."""
     times = []
     for _ in range(rounds):
         gc.collect()
         gc.disable()
         try:
+            if prepare is not None:
+                prepare()
             start = time.process_time()
             fn()
             times.append(time.process_time() - start)
@@ -308,10 +312,13 @@ def scene_point(name: str, steps: int) -> dict:
     times: dict = {key: [] for key in engines}
     for _ in range(ROUNDS):
         for key, engine in engines.items():
-            engine.restore()  # the block once untimed, so that it is timed with the caches its own run leaves
-            engine.run(steps)
             engine.restore()
-            times[key].append(_median_time(lambda engine=engine: engine.run(steps), rounds=1) / steps * 1e6)
+
+            def warm(engine=engine) -> None:  # the block once untimed, then timed from the same state
+                engine.run(steps)
+                engine.restore()
+
+            times[key].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
     out: dict = {"scene": name, "dt": dt, "tolerance": tolerance, "steps": steps}
     out.update({f"{key}_us": statistics.median(t) for key, t in times.items()})
     out["mujoco_diverged"] = sorted(k for k, e in engines.items() if isinstance(e, _MuJoCo) and e.diverged())
@@ -335,7 +342,8 @@ def specialization(name: str, steps: int) -> dict:
     times: dict = {True: [], False: []}
     for _ in range(ROUNDS):
         for flag, sim in sims.items():
-            times[flag].append(_median_time(lambda sim=sim: sim._steps(steps), rounds=1) / steps * 1e6)
+            run = lambda sim=sim: sim._steps(steps)  # noqa: E731
+            times[flag].append(_median_time(run, rounds=1, prepare=run) / steps * 1e6)
     return {"scene": name, "kinds": list(sims[True]._fused.kinds), "specialized_us": statistics.median(times[True]),
             "all_kinds_us": statistics.median(times[False])}  # fmt: skip
 
