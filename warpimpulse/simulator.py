@@ -30,7 +30,7 @@ from .kernels import step as step_kernels
 from .kernels import worlds as world_kernels
 from .launch import Launches, capture, record
 from .model import Model, State
-from .solver import CGSolver, CholeskySolver, Frames
+from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
 from .steps import SimulationError, StepStats
 from .transforms import quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, SCHEDULES, SOLVERS
@@ -212,7 +212,9 @@ class Simulator:
         if nc == 0:  # free bodies only: nothing to solve
             pass
         elif self.solver_name == "cholesky":
-            self.linear = CholeskySolver(model, self.frames, formulation=formulation)
+            self.linear = CholeskySolver(
+                model, self.frames, formulation=formulation, loop_tolerance=loop_tolerance_for(tolerance)
+            )
         elif self.solver_name == "cg":
             self.linear = CGSolver(model, self.frames)
         self._counts = (model.body_count, nc)

@@ -23,6 +23,26 @@ from .model import Model
 from .topology import schedule
 
 
+LOOP_TOLERANCE_FLOOR = 1e-9
+"""The smallest `loop_tolerance`: a loop row's pivot below this fraction of its diagonal is redundant at any
+joint tolerance (round-off)."""
+
+MISALIGNMENT_LENGTH = 0.03
+"""m: the shortest lever a joint tolerance is read over (`loop_tolerance_for`)."""
+
+
+def loop_tolerance_for(tolerance: float) -> float:
+    """The pivot fraction below which a loop joint's row counts as redundant when the joints hold to `tolerance`
+    (m or rad): max(1e-9, (tolerance / 0.03 m)^2).
+
+    A planar loop's out-of-plane rows repeat the tree's only while its axes are parallel; joints left within the
+    tolerance tilt them by up to eps ~ tolerance / lever, and the rows' pivot is then ~eps^2 of its diagonal,
+    not round-off. Unregularised, such a pivot turns the tilt's inconsistent errors into impulses of 1/eps times
+    the consistent ones: the free walking machine at tolerance 1e-3 (pivots ~1e-7) threw its cranks to
+    hundreds of rad/s within three steps under a 300 N push (tests/test_mechanisms.py)."""
+    return max(LOOP_TOLERANCE_FLOOR, (tolerance / MISALIGNMENT_LENGTH) ** 2)
+
+
 class SingularSystemError(RuntimeError):
     """K is singular: redundant or degenerate constraints."""
 
@@ -79,7 +99,7 @@ class CholeskySolver:
         frames: Frames,
         pivot_tolerance: float = 1e-14,
         formulation: str = "auto",
-        loop_tolerance: float = 1e-9,
+        loop_tolerance: float = LOOP_TOLERANCE_FLOOR,
     ) -> None:
         """`loop_tolerance`: a pivot of a loop-closing joint's column below this times its diagonal is a row
         redundant with the tree (a planar four-bar's out-of-plane rows) and is regularised, not an error;
