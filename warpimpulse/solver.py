@@ -22,7 +22,6 @@ from .launch import Launches, record
 from .model import Model
 from .topology import schedule
 
-
 LOOP_TOLERANCE_FLOOR = 1e-9
 """The smallest `loop_tolerance`: a loop row's pivot below this fraction of its diagonal is redundant at any
 joint tolerance (round-off)."""
