@@ -622,6 +622,7 @@ def solve_positions(
     contact_slip: wp.array(dtype=vec3d),
     contact_u0: wp.array(dtype=vec3d),
     contact_mass: wp.array(dtype=wp.vec2d),
+    contact_row: wp.array(dtype=int),
     # Data out (updated in place): the velocities at t0 and the impulses of this step's position phase
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -629,7 +630,8 @@ def solve_positions(
     contact_error_out: wp.array(dtype=f64),
 ):
     """Up to `sweeps` projected Gauss-Seidel sweeps of the linearised position phase (module docstring), until
-    no impulse changes a gap or a slip by more than `tolerance` (m). contact_error[1] = the sweeps taken."""
+    no impulse changes a gap or a slip by more than `tolerance` (m). contact_error[1] = the sweeps taken.
+    Contacts with rows (`contact_row` >= 0) are solved with the joints (`contact_rows.py`) and skipped here."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     taken = int(0)
     for sweep in range(sweeps):
@@ -637,6 +639,8 @@ def solve_positions(
         change = f64(0.0)
         for i in range(count):
             k = sweep_index(i, count, sweep)
+            if contact_row[k] >= 0:
+                continue
             a = contact_body[k][0]
             b = contact_body[k][1]
             n = contact_normal[k]

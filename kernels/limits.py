@@ -426,6 +426,113 @@ def apply_fixed(
     )  # fmt: skip
 
 
+@wp.func
+def row_setup(
+    velocity: int,
+    lam: f64,
+    current: f64,
+    motor: int,
+    bounds: wp.vec2d,
+    drive_mode: wp.array(dtype=int),
+    drive_max_force: wp.array(dtype=f64),
+    drive_target: wp.array(dtype=f64),
+    h: f64,
+):
+    """(active, rate change wanted, low, high) of a limit or motor row whose total impulse so far this step is
+    `lam` and whose coordinate (position pass, `velocity` 0: predicted, m or rad) or rate (velocity pass) is
+    `current`; the bounds are on the row's total impulse (N s or N m s). `correct_rows` says what each pass
+    wants."""
+    active = int(0)  # noqa: UP018
+    goal = f64(0.0)
+    if motor >= 0:
+        if velocity == 0 or drive_mode[motor] == VELOCITY_MODE:
+            active = 1
+            if velocity != 0:
+                goal = drive_target[motor]
+        elif wp.abs(lam) < drive_max_force[motor] * h:
+            active = 1  # a position motor holding its target: hold it still
+    elif velocity == 0:
+        if lam > f64(0.0) or (lam == f64(0.0) and current < bounds[0]):
+            active = 1
+            goal = bounds[0]
+        elif lam < f64(0.0) or current > bounds[1]:
+            active = 1
+            goal = bounds[1]
+    elif lam != f64(0.0):
+        active = 1
+    # Bounds on the row's total impulse: a motor's max_force h either way; a limit pushes only (the velocity
+    # pass adds to the step's push, never takes from it).
+    low = f64(-1.0e300)
+    high = f64(1.0e300)
+    if motor >= 0:
+        low = -drive_max_force[motor] * h
+        high = drive_max_force[motor] * h
+    elif lam > f64(0.0) or (velocity == 0 and lam == f64(0.0) and goal == bounds[0]):
+        low = wp.where(velocity == 0, f64(0.0), lam)
+    else:
+        high = wp.where(velocity == 0, f64(0.0), lam)
+    want = goal - current
+    if velocity == 0:
+        want = want / h
+    return active, want, low, high
+
+
+@wp.func
+def box_pivot(
+    n: int,
+    matrix: wp.array(dtype=f64),
+    mask: wp.array(dtype=int),
+    goal: wp.array(dtype=f64),
+    before: wp.array(dtype=f64),
+    low: wp.array(dtype=f64),
+    high: wp.array(dtype=f64),
+    delta: wp.array(dtype=f64),
+    rhs: wp.array(dtype=f64),
+    work: wp.array(dtype=f64),
+    scratch: wp.array(dtype=f64),
+):
+    """delta with matrix_AA delta_A = goal_A on the rows A with mask 1, the totals before + delta within
+    [low, high], by block pivoting on the box: mask 1 free (solved), 2 at its low bound, 3 at its high bound,
+    0 inactive. Each round solves the free rows with the fixed rows' impulses moved to the right-hand side,
+    then fixes the free row furthest out of its bounds, or else frees the fixed row whose demand points
+    inwards the most, until neither happens."""
+    for _round in range(4 * n + 4):
+        for i in range(n):
+            want = goal[i]
+            for j in range(n):
+                if mask[j] >= 2:
+                    want -= matrix[i * n + j] * delta[j]
+            rhs[i] = want
+        solve_masked(n, matrix, mask, rhs, work, scratch, delta)
+        pick = int(-1)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
+        worst = f64(0.0)
+        for i in range(n):
+            if mask[i] == 1:
+                total = before[i] + delta[i]
+                over = wp.max(low[i] - total, total - high[i]) * matrix[i * n + i]
+                if over > worst:
+                    worst = over
+                    pick = i
+        if pick >= 0:
+            total = before[pick] + delta[pick]
+            mask[pick] = wp.where(total < low[pick], 2, 3)
+            delta[pick] = wp.clamp(total, low[pick], high[pick]) - before[pick]
+        else:
+            for i in range(n):
+                if mask[i] >= 2:
+                    demand = rhs[i]  # the rate change still wanted at fixed row i, all impulses counted
+                    for j in range(n):
+                        if mask[j] == 1:
+                            demand -= matrix[i * n + j] * delta[j]
+                    inward = wp.where(mask[i] == 2, demand, -demand)  # towards the inside of its bounds
+                    if inward > worst:
+                        worst = inward
+                        pick = i
+            if pick < 0:
+                break
+            mask[pick] = 1
+
+
 @wp.kernel
 def correct_rows(
     # Model:
@@ -491,89 +598,25 @@ def correct_rows(
             r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
             coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v, body_w,
         )  # fmt: skip
-        lam = limit_impulse[i]
-        motor = limit_drive[i]
-        bounds = limit_bounds[i]
-        active = int(0)  # noqa: UP018
-        goal = f64(0.0)
         current = rate
         if velocity == 0:
             current = limit_value_in[i] + h * (rate - limit_rate_in[i])
-        if motor >= 0:
-            if velocity == 0 or drive_mode[motor] == VELOCITY_MODE:
-                active = 1
-                if velocity != 0:
-                    goal = drive_target[motor]
-            elif wp.abs(lam) < drive_max_force[motor] * h:
-                active = 1  # a position motor holding its target: hold it still
-        elif velocity == 0:
-            if lam > f64(0.0) or (lam == f64(0.0) and current < bounds[0]):
-                active = 1
-                goal = bounds[0]
-            elif lam < f64(0.0) or current > bounds[1]:
-                active = 1
-                goal = bounds[1]
-        elif lam != f64(0.0):
-            active = 1
-        # Bounds on the row's total impulse: a motor's max_force h either way; a limit pushes only (the
-        # velocity pass adds to the step's push, never takes from it).
-        low = f64(-1.0e300)
-        high = f64(1.0e300)
-        if motor >= 0:
-            low = -drive_max_force[motor] * h
-            high = drive_max_force[motor] * h
-        elif lam > f64(0.0) or (velocity == 0 and lam == f64(0.0) and goal == bounds[0]):
-            low = wp.where(velocity == 0, f64(0.0), lam)
-        else:
-            high = wp.where(velocity == 0, f64(0.0), lam)
+        active, goal, low, high = row_setup(
+            velocity, limit_impulse[i], current, limit_drive[i], limit_bounds[i], drive_mode, drive_max_force,
+            drive_target, h,
+        )  # fmt: skip
         limit_low[i] = low
         limit_high[i] = high
         limit_mask[i] = active
-        limit_goal[i] = goal - current
-        if velocity == 0:
-            limit_goal[i] = (goal - current) / h
+        limit_goal[i] = goal
         limit_delta[i] = f64(0.0)
-        limit_before[i] = lam  # the row's total before this pass
+        limit_before[i] = limit_impulse[i]  # the row's total before this pass
         if velocity != 0:
             limit_velocity_impulse[i] = f64(0.0)
-    # Block pivoting on the box: mask 1 free (solved), 2 at its low bound, 3 at its high bound, 0 inactive.
-    # Each round solves the free rows with the fixed rows' impulses moved to the right-hand side, then fixes the
-    # free row furthest out of its bounds, or else frees the fixed row whose demand points inwards the most.
-    for _round in range(4 * n + 4):
-        for i in range(n):
-            want = limit_goal[i]
-            for j in range(n):
-                if limit_mask[j] >= 2:
-                    want -= limit_matrix_in[i * n + j] * limit_delta[j]
-            limit_rhs[i] = want
-        solve_masked(n, limit_matrix_in, limit_mask, limit_rhs, limit_work, limit_scratch, limit_delta)
-        pick = int(-1)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
-        worst = f64(0.0)
-        for i in range(n):
-            if limit_mask[i] == 1:
-                total = limit_before[i] + limit_delta[i]
-                over = wp.max(limit_low[i] - total, total - limit_high[i]) * limit_matrix_in[i * n + i]
-                if over > worst:
-                    worst = over
-                    pick = i
-        if pick >= 0:
-            total = limit_before[pick] + limit_delta[pick]
-            limit_mask[pick] = wp.where(total < limit_low[pick], 2, 3)
-            limit_delta[pick] = wp.clamp(total, limit_low[pick], limit_high[pick]) - limit_before[pick]
-        else:
-            for i in range(n):
-                if limit_mask[i] >= 2:
-                    demand = limit_rhs[i]  # the rate change still wanted at fixed row i, all impulses counted
-                    for j in range(n):
-                        if limit_mask[j] == 1:
-                            demand -= limit_matrix_in[i * n + j] * limit_delta[j]
-                    inward = wp.where(limit_mask[i] == 2, demand, -demand)  # towards the inside of its bounds
-                    if inward > worst:
-                        worst = inward
-                        pick = i
-            if pick < 0:
-                break
-            limit_mask[pick] = 1
+    box_pivot(
+        n, limit_matrix_in, limit_mask, limit_goal, limit_before, limit_low, limit_high, limit_delta, limit_rhs,
+        limit_work, limit_scratch,
+    )  # fmt: skip
     for i in range(n):
         if limit_mask[i] != 0:
             d = limit_delta[i]

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from .kernels import contact_rows as row_kernels
 from .kernels import contact_solve as kernels
 from .launch import record
 from .model import Model, State
@@ -23,6 +24,10 @@ CONTACT_SOLVERS = ("pgs", "paper")
 """How the position phase's linear problem is solved between two predictions: "pgs" sweeps it to the tolerance
 (projected Gauss-Seidel on the linearised contacts, the joints solved directly around it); "paper" takes one
 sweep and predicts again (the method paper's nonlinear iteration, each contact in turn)."""
+
+CONTACT_ROW_SLOTS = 32
+"""Contacts on jointed bodies solved as rows with the joints, limits and motors (`kernels/contact_rows.py`), at
+most this many a step (3 rows each, one solve with K's factor per row); further ones are swept alone."""
 
 BROAD_PHASES = ("bvh", "all_pairs")
 """`bvh`: Warp's BVH over the swept boxes of the colliders, rebuilt each step; `all_pairs`: every pair of boxes
@@ -71,7 +76,10 @@ class ContactStage:
         solver: str = "pgs",
         broad_phase: str = "bvh",
         max_sweeps: int = 30,
+        joints=None,
     ) -> None:
+        """`joints`: the Simulator when it solves its joints directly (a factor of K to reuse): contacts on its
+        jointed bodies are then rows solved with the joints, limits and motors (`kernels/contact_rows.py`)."""
         c, d = model.colliders, model.device
         self.model, self.frames, self.control, self.state, self.pred = model, frames, control, state, pred
         self.tolerance, self.velocity_tolerance = tolerance, velocity_tolerance
@@ -108,13 +116,50 @@ class ContactStage:
         self.count = 0
         self.pair_total = 0
         self.last_sweeps = (0, 0)
+        self.row_total = 0  # the rows of the step's coupled solve (limits' and contacts'); 0: none
+        self.joints, self.rows = None, None
+        jointed = np.zeros(n, dtype=np.int32)
+        if joints is not None:
+            h = model.host
+            jointed[h.constraint_body0[h.constraint_body0 >= 0]] = 1
+            jointed[h.constraint_body1[h.constraint_body1 >= 0]] = 1
+        if np.any(jointed[colliders]):
+            self.joints = joints
+            self._allocate_rows(jointed)
 
     # ---------------------------------------------------------------- arrays and launches
+    def _allocate_rows(self, jointed: np.ndarray) -> None:
+        """The coupled solve's arrays: rows for the limits and for CONTACT_ROW_SLOTS contacts."""
+        d, m = self.model.device, self.model
+        rows = m.limit_count + 3 * CONTACT_ROW_SLOTS
+        nc = m.constraint_count
+        z = wp.zeros
+        self.rows = SimpleNamespace(
+            body_jointed=_array(jointed, wp.int32, d),
+            row_contact=z(CONTACT_ROW_SLOTS, dtype=wp.int32, device=d),
+            row_count=z(1, dtype=wp.int32, device=d),
+            row_body=z(rows, dtype=wp.vec2i, device=d),
+            **{f"row_{name}": z(rows, dtype=wp.vec3d, device=d) for name in ("lin0", "ang0", "lin1", "ang1")},
+            row_direction=z(rows, dtype=wp.vec3d, device=d),
+            row_coupling=z(rows * nc, dtype=wp.vec3d, device=d),
+            row_response=z(rows * nc, dtype=wp.vec3d, device=d),
+            row_matrix=z(rows * rows, dtype=wp.float64, device=d),
+            row_work=z(rows * rows, dtype=wp.float64, device=d),
+            row_mask=z(rows, dtype=wp.int32, device=d),
+            **{f"row_{name}": z(rows, dtype=wp.float64, device=d)
+               for name in ("goal", "before", "low", "high", "delta", "rhs", "scratch")},
+        )  # fmt: skip
+        self._row_slices = [
+            (self.rows.row_coupling[r * nc : (r + 1) * nc], self.rows.row_response[r * nc : (r + 1) * nc])
+            for r in range(rows)
+        ]
+
     def _allocate(self, pairs: int, contacts: int) -> None:
         """Arrays for this many pairs and contacts."""
         d = self.model.device
         z = wp.zeros
         self.data = SimpleNamespace(
+            contact_row=wp.full(contacts, -1, dtype=wp.int32, device=d),
             pair_count=z(1, dtype=wp.int32, device=d),
             pair_body=z(pairs, dtype=wp.vec2i, device=d),
             contact_count=z(1, dtype=wp.int32, device=d),
@@ -139,7 +184,7 @@ class ContactStage:
         self._launches_by_h: dict[float, SimpleNamespace] = {}
 
     def _record(self, kernel, dim, **values):
-        sources = (self.data, self.geometry, self.model, self.frames, self.control)
+        sources = (self.data, self.geometry, self.model, self.frames, self.control, self.rows, self.joints)
         p = self.pred
         return record(kernel, dim, self.model.device, sources, self.state, self.state,
                       pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, **values)  # fmt: skip
@@ -150,7 +195,20 @@ class ContactStage:
             ncol, cap = g.collider_count, len(data.contact_body)
             broad = kernels.broad_phase if self.bvh is not None else kernels.all_pairs
             bounce = 2.0 * float(np.linalg.norm(self.model.host.gravity)) * h
+            rows = None
+            if self.rows is not None:
+                nl, nr, nc = self.model.limit_count, len(self.rows.row_mask), self.model.constraint_count
+                st = self.state
+                rows = SimpleNamespace(
+                    assign=self._record(row_kernels.assign_rows, 1),
+                    jacobians=self._record(row_kernels.row_jacobians, nr),
+                    coupling=self._record(row_kernels.row_coupling, (nr, nc)),
+                    matrix=self._record(row_kernels.row_matrix, (nr, nr)),
+                    solve=self._record(row_kernels.solve_rows, 1, h=h, body_v=st.body_v, body_w=st.body_w,
+                                       limit_impulse=self.joints.limit_impulse),
+                )  # fmt: skip
             self._launches_by_h[h] = SimpleNamespace(
+                rows=rows,
                 bounds=self._record(kernels.swept_bounds, ncol),
                 broad=self._record(broad, ncol, lowers=g.lowers, uppers=g.uppers),
                 narrow=self._record(kernels.narrow_phase, len(data.pair_body)),
@@ -204,10 +262,39 @@ class ContactStage:
         self._launches(h).measure.launch()
         return max(float(self.data.contact_error.numpy()[0]), 0.0)
 
+    def couple(self, h: float) -> int:
+        """After `detect`: the rows of this step's contacts on jointed bodies, solved with the joints, limits and
+        motors in `solve_positions` (`kernels/contact_rows.py`): their Jacobians at the prediction's contact
+        points, one solve with K's factor each, the rows' system S. Returns the rows (0: none)."""
+        self.row_total = 0
+        if self.rows is None or not self.count:
+            return 0
+        self.measure(h)
+        run = self._launches(h).rows
+        run.assign.launch()
+        nl, nc = self.model.limit_count, self.model.constraint_count
+        total = int(self.rows.row_count.numpy()[0])
+        if total == nl:
+            return 0
+        run.jacobians.launch()
+        run.coupling.launch()
+        if nl:  # the limits' rows: their K^-1 c of this step (the Simulator's)
+            wp.copy(self.rows.row_response, self.joints.limit_response, count=nl * nc)
+        linear = self.joints.linear
+        for r in range(nl, total):
+            for launch in linear.solve_launches(*self._row_slices[r]):
+                launch.launch()
+        run.matrix.launch()
+        self.row_total = total
+        return total
+
     def solve_positions(self, h: float) -> int:
-        """Impulses at t0 (into the state's velocities) that close the measured gaps; returns the sweeps taken."""
+        """Impulses at t0 (into the state's velocities) that close the measured gaps; returns the sweeps taken.
+        With rows (`couple`), the contacts on jointed bodies, the limits and the motors first, all at once."""
         if not self.count:
             return 0
+        if self.row_total:
+            self._launches(h).rows.solve.launch()
         self._launches(h).positions.launch()
         return int(self.data.contact_error.numpy()[1])
 

@@ -269,7 +269,7 @@ class Simulator:
         if model.colliders is not None:
             self.contact_stage = ContactStage(
                 model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
-                contact_margin, contact_solver, broad_phase, contact_sweeps,
+                contact_margin, contact_solver, broad_phase, contact_sweeps, self if self._direct else None,
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
@@ -878,6 +878,7 @@ class Simulator:
         if not ok:
             return joint_it, math.inf, linear_iterations, False
         cs.detect(h)
+        cs.couple(h)  # contacts on jointed bodies: rows solved with the joints, limits and motors
         self._contact_sweeps = 0
         iterations, best = joint_it, math.inf
         joints = self.model.constraint_count > 0
