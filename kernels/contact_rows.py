@@ -23,7 +23,7 @@ import warp as wp
 from . import collide
 from .contact_solve import relative_velocity
 from .forces import coordinate_row
-from .limits import box_pivot, compensate, limit_side, row_setup
+from .limits import compensate, limit_side, row_setup
 
 wp.set_module_options({"enable_backward": False})
 
@@ -32,10 +32,6 @@ quatd = wp.quatd
 mat33d = wp.mat33d
 vec2d = wp.vec2d
 f64 = wp.float64
-
-FRICTION_PASSES = wp.constant(4)
-"""Block-pivoting solves of a position pass, each with the friction bounds of the last one's normal impulses."""
-
 
 @wp.kernel
 def assign_rows(
@@ -77,6 +73,7 @@ def contact_tangent(n: vec3d, slip: vec3d) -> vec3d:
 @wp.kernel
 def row_jacobians(
     # Model:
+    velocity: int,
     limit_count: int,
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
@@ -108,7 +105,8 @@ def row_jacobians(
 ):
     """Row r's Jacobian: d(rate_r) = lin0 . v_body0 + ang0 . w_body0 + lin1 . v_body1 + ang1 . w_body1. A limit's
     as `limit_side` gives it; a contact's along its normal or a tangent d at the arms of the last measurement
-    (relative velocity of b's point against a's: +d on b, -d on a)."""
+    (relative velocity of b's point against a's: +d on b, -d on a), the first tangent along the slip over the
+    step (position pass, `velocity` 0) or the tangential velocity at t0 + h (velocity pass)."""
     r = wp.tid()
     if r >= row_count[0]:
         return
@@ -133,14 +131,18 @@ def row_jacobians(
     axis = (r - limit_count) - 3 * slot
     k = row_contact[slot]
     n = contact_normal[k]
-    t1 = contact_tangent(n, contact_slip[k])
+    ra = contact_arm_a[k]
+    rb = contact_arm_b[k]
+    slip = contact_slip[k]
+    if velocity != 0:  # the tangential velocity at t0 + h
+        u = relative_velocity(contact_body[k][0], contact_body[k][1], ra, rb, body_v_in, body_w_in)
+        slip = u - n * wp.dot(n, u)
+    t1 = contact_tangent(n, slip)
     d = n
     if axis == 1:
         d = t1
     elif axis == 2:
         d = wp.cross(n, t1)
-    ra = contact_arm_a[k]
-    rb = contact_arm_b[k]
     row_body_out[r] = contact_body[k]
     row_direction_out[r] = d
     row_lin0_out[r] = -d
@@ -266,6 +268,66 @@ def push_row(
             body_w[b] = body_w[b] + inv_inertia_world[b] * (g_ang * amount)
 
 
+@wp.func
+def pgs_row(
+    r: int,
+    n: int,
+    matrix: wp.array(dtype=f64),
+    goal: wp.array(dtype=f64),
+    before: wp.array(dtype=f64),
+    low: f64,
+    high: f64,
+    delta: wp.array(dtype=f64),
+    y: wp.array(dtype=f64),
+) -> f64:
+    """One projected Gauss-Seidel update of row r (y = S delta kept up to date); returns the rate change it made
+    (m/s or rad/s)."""
+    diag = matrix[r * n + r]
+    total = wp.clamp(before[r] + delta[r] + (goal[r] - y[r]) / diag, low, high)
+    step = total - before[r] - delta[r]
+    delta[r] = delta[r] + step
+    for i in range(n):
+        y[i] = y[i] + matrix[i * n + r] * step
+    return wp.abs(step) * diag
+
+
+@wp.func
+def pgs_friction(
+    r: int,
+    n: int,
+    limit: f64,
+    matrix: wp.array(dtype=f64),
+    goal: wp.array(dtype=f64),
+    before: wp.array(dtype=f64),
+    delta: wp.array(dtype=f64),
+    y: wp.array(dtype=f64),
+) -> f64:
+    """A contact's two friction rows r, r + 1 at once: the 2x2 block's solve, its total projected onto the disc
+    of radius `limit`; returns the rate change it made."""
+    a = matrix[r * n + r]
+    b = matrix[r * n + r + 1]
+    d = matrix[(r + 1) * n + r + 1]
+    e0 = goal[r] - y[r]
+    e1 = goal[r + 1] - y[r + 1]
+    det = a * d - b * b
+    s0 = e0 / a
+    s1 = e1 / d
+    if det > f64(1.0e-12) * a * d:
+        s0 = (d * e0 - b * e1) / det
+        s1 = (a * e1 - b * e0) / det
+    t = vec2d(before[r] + delta[r] + s0, before[r + 1] + delta[r + 1] + s1)
+    size = wp.length(t)
+    if size > limit:
+        t = t * (limit / size)
+    step0 = t[0] - before[r] - delta[r]
+    step1 = t[1] - before[r + 1] - delta[r + 1]
+    delta[r] = delta[r] + step0
+    delta[r + 1] = delta[r + 1] + step1
+    for i in range(n):
+        y[i] = y[i] + matrix[i * n + r] * step0 + matrix[i * n + r + 1] * step1
+    return wp.max(wp.abs(step0) * a, wp.abs(step1) * d)
+
+
 @wp.kernel
 def solve_rows(
     # Model:
@@ -286,6 +348,10 @@ def solve_rows(
     limit_drive: wp.array(dtype=int),
     drive_mode: wp.array(dtype=int),
     drive_max_force: wp.array(dtype=f64),
+    velocity: int,
+    sweeps: int,
+    tolerance: f64,
+    bounce_speed: f64,
     # Data in:
     drive_target: wp.array(dtype=f64),
     inv_inertia_world_in: wp.array(dtype=mat33d),
@@ -313,11 +379,15 @@ def solve_rows(
     contact_arm_a: wp.array(dtype=vec3d),
     contact_arm_b: wp.array(dtype=vec3d),
     contact_u0: wp.array(dtype=vec3d),
-    # Data in/out: the velocities at t0, the impulses of the step, scratch
+    contact_impact: wp.array(dtype=f64),
+    contact_approach: wp.array(dtype=f64),
+    # Data in/out: the velocities at t0 (t0 + h), the impulses of the step, scratch
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
     limit_impulse: wp.array(dtype=f64),
+    limit_velocity_impulse: wp.array(dtype=f64),
     contact_impulse: wp.array(dtype=vec3d),
+    contact_velocity_impulse: wp.array(dtype=vec3d),
     row_mask: wp.array(dtype=int),
     row_goal: wp.array(dtype=f64),
     row_before: wp.array(dtype=f64),
@@ -325,13 +395,18 @@ def solve_rows(
     row_high: wp.array(dtype=f64),
     row_delta: wp.array(dtype=f64),
     row_rhs: wp.array(dtype=f64),
-    row_work: wp.array(dtype=f64),
-    row_scratch: wp.array(dtype=f64),
+    contact_error: wp.array(dtype=f64),
 ):
-    """The position pass of every row at once (one thread), on the prediction just measured: a limit or motor
-    as `limits.correct_rows` wants it; a contact's gap g' = g + h n . du >= 0, pushing only, an equality where it
-    pushes; its slip over the step (the slip measured + du_t) stopped within the friction bounds. The impulses
-    go to the bodies with the joints' reaction, and into the step's totals."""
+    """Every row at once (one thread), by projected Gauss-Seidel on the rows' system S, until no row moves its
+    coordinate by more than `tolerance` over the step; contact_error[1 + velocity] = the sweeps taken.
+
+    Position pass (`velocity` 0, at t0, on the prediction just measured): a limit or motor as
+    `limits.correct_rows` wants it; a contact's gap g' = g + h n . du >= 0, pushing only; its slip over the step
+    (the slip measured + du_t) stopped within mu lambda_n. Velocity pass (1, at t0 + h, after
+    `contact_solve.solve_velocities` measured the gaps and arms there): a limit or motor as `correct_rows`
+    wants it, a contact's normal velocity as `solve_velocities` wants it, its tangential velocity stopped within
+    mu times this phase's normal impulse. The impulses go to the bodies with the joints' reaction, and into
+    the step's totals of their phase."""
     n = row_count[0]
     nl = limit_count
     for i in range(nl):
@@ -339,67 +414,80 @@ def solve_rows(
             limit_coordinate[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
             coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v, body_w,
         )  # fmt: skip
-        current = limit_value_in[i] + h * (rate - limit_rate_in[i])
+        current = rate
+        pushed = limit_impulse[i]
+        if velocity == 0:
+            current = limit_value_in[i] + h * (rate - limit_rate_in[i])
         active, goal, low, high = row_setup(
-            0, limit_impulse[i], current, limit_drive[i], limit_bounds[i], drive_mode, drive_max_force,
-            drive_target, h,
+            velocity, pushed, current, limit_drive[i], limit_bounds[i], drive_mode, drive_max_force, drive_target,
+            h,
         )  # fmt: skip
         row_mask[i] = active
         row_goal[i] = goal
         row_low[i] = low
         row_high[i] = high
-        row_before[i] = limit_impulse[i]
+        row_before[i] = pushed
+        if velocity != 0:
+            row_before[i] = pushed + limit_velocity_impulse[i]
         row_delta[i] = f64(0.0)
     for r in range(nl, n, 3):
         k = row_contact[(r - nl) // 3]
         a = contact_body[k][0]
         b = contact_body[k][1]
         nrm = contact_normal[k]
-        lam = contact_impulse[k]
-        du = relative_velocity(a, b, contact_arm_a[k], contact_arm_b[k], body_v, body_w) - contact_u0[k]
-        slip = contact_slip[k] + du
+        u = relative_velocity(a, b, contact_arm_a[k], contact_arm_b[k], body_v, body_w)
+        lam = vec3d(contact_impulse[k])
+        active = int(1)  # noqa: UP018
+        if velocity == 0:
+            du = u - contact_u0[k]
+            slip = contact_slip[k] + du
+            row_goal[r] = -(contact_gap[k] + h * wp.dot(nrm, du)) / h
+        else:  # as `contact_solve.solve_velocities` wants it
+            lam = vec3d(contact_velocity_impulse[k])
+            slip = u
+            gap = contact_gap[k]
+            target = -wp.max(gap, f64(0.0)) / h
+            if contact_impact[k] > bounce_speed:
+                target = contact_material[k][1] * contact_impact[k]
+            elif gap > f64(0.0) and contact_approach[k] > bounce_speed:
+                active = 0  # an impact of the next step
+            row_goal[r] = target - wp.dot(nrm, u)
         s1 = collide.any_perpendicular(nrm)  # the basis the step's totals are kept in
         total = s1 * lam[1] + wp.cross(nrm, s1) * lam[2]
-        mu_n = contact_material[k][0] * lam[0]
+        row_before[r] = lam[0]
         for axis in range(3):
-            d = row_direction[r + axis]
-            row_mask[r + axis] = 1
+            row_mask[r + axis] = active
             row_delta[r + axis] = f64(0.0)
-            if axis == 0:
-                row_goal[r] = -(contact_gap[k] + h * wp.dot(nrm, du)) / h
-                row_before[r] = lam[0]
-                row_low[r] = f64(0.0)
-                row_high[r] = f64(1.0e300)
-            else:
+            if axis > 0:
+                d = row_direction[r + axis]
                 row_goal[r + axis] = -wp.dot(d, slip)
                 row_before[r + axis] = wp.dot(d, total)
-                row_low[r + axis] = -mu_n
-                row_high[r + axis] = mu_n
-    # Friction bounds from the normal impulses: solve, bound by the new normals, solve again.
-    for _pass in range(FRICTION_PASSES):
-        box_pivot(n, row_matrix, row_mask, row_goal, row_before, row_low, row_high, row_delta, row_rhs, row_work,
-                  row_scratch)  # fmt: skip
-        moved = f64(0.0)
-        for r in range(nl, n, 3):
-            k = row_contact[(r - nl) // 3]
-            mu_n = contact_material[k][0] * (row_before[r] + row_delta[r])
-            moved = wp.max(moved, wp.abs(mu_n - row_high[r + 1]))
-            for axis in range(1, 3):
-                row_low[r + axis] = -mu_n
-                row_high[r + axis] = mu_n
-                row_mask[r + axis] = 1
-        if moved <= f64(1.0e-12) * (f64(1.0) + wp.abs(row_high[nl + 1])):
+    # y = S delta, kept up to date row by row.
+    for i in range(n):
+        row_rhs[i] = f64(0.0)
+    taken = int(0)
+    for sweep in range(sweeps):
+        taken += 1
+        change = f64(0.0)
+        for i in range(n):
+            r = i
+            if sweep % 2 == 1:
+                r = n - 1 - i  # symmetric Gauss-Seidel
+            if r < nl:
+                if row_mask[r] != 0:
+                    change = wp.max(change, pgs_row(r, n, row_matrix, row_goal, row_before, row_low[r],
+                                                    row_high[r], row_delta, row_rhs))  # fmt: skip
+            else:
+                base = r - (r - nl) % 3
+                if r == base and row_mask[r] != 0:  # a contact: its normal, then its friction as a 2x2 block within the disc
+                    k = row_contact[(base - nl) // 3]
+                    change = wp.max(change, pgs_row(base, n, row_matrix, row_goal, row_before, f64(0.0),
+                                                    f64(1.0e300), row_delta, row_rhs))  # fmt: skip
+                    mu_n = contact_material[k][0] * (row_before[base] + row_delta[base])
+                    change = wp.max(change, pgs_friction(base + 1, n, mu_n, row_matrix, row_goal, row_before,
+                                                         row_delta, row_rhs))  # fmt: skip
+        if change * h <= tolerance:
             break
-    # Onto the cone's disc.
-    for r in range(nl, n, 3):
-        k = row_contact[(r - nl) // 3]
-        mu_n = contact_material[k][0] * (row_before[r] + row_delta[r])
-        t = vec2d(row_before[r + 1] + row_delta[r + 1], row_before[r + 2] + row_delta[r + 2])
-        size = wp.length(t)
-        if size > mu_n:
-            t = t * (mu_n / size)
-            row_delta[r + 1] = t[0] - row_before[r + 1]
-            row_delta[r + 2] = t[1] - row_before[r + 2]
     for r in range(n):
         amount = row_delta[r]
         if amount != f64(0.0):
@@ -408,7 +496,11 @@ def solve_rows(
             compensate(r, amount, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
                        jac_ang_in, row_response, body_v, body_w)  # fmt: skip
     for i in range(nl):
-        limit_impulse[i] = limit_impulse[i] + row_delta[i]
+        if velocity == 0:
+            limit_impulse[i] = limit_impulse[i] + row_delta[i]
+        else:
+            limit_velocity_impulse[i] = limit_velocity_impulse[i] + row_delta[i]
+    contact_error[1 + velocity] = f64(taken)
     for r in range(nl, n, 3):
         k = row_contact[(r - nl) // 3]
         nrm = contact_normal[k]
@@ -416,4 +508,8 @@ def solve_rows(
         friction = row_direction[r + 1] * (row_before[r + 1] + row_delta[r + 1]) + row_direction[r + 2] * (
             row_before[r + 2] + row_delta[r + 2]
         )
-        contact_impulse[k] = vec3d(row_before[r] + row_delta[r], wp.dot(friction, s1), wp.dot(friction, wp.cross(nrm, s1)))
+        lam = vec3d(row_before[r] + row_delta[r], wp.dot(friction, s1), wp.dot(friction, wp.cross(nrm, s1)))
+        if velocity == 0:
+            contact_impulse[k] = lam
+        else:
+            contact_velocity_impulse[k] = lam

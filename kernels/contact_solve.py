@@ -693,6 +693,7 @@ def solve_velocities(
     contact_material: wp.array(dtype=wp.vec2d),
     contact_impact: wp.array(dtype=f64),
     contact_impulse: wp.array(dtype=vec3d),
+    contact_row: wp.array(dtype=int),
     # Data out (updated in place):
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -710,7 +711,8 @@ def solve_velocities(
     (clamped here, a ball would land at g / h and not bounce). The `first` solve of a step starts from the
     position phase's impulses (applied here; the sweeps take back what is too much), later ones (alternating
     with the joints) from where the last stopped. Sweeps until no impulse changes a velocity by more than
-    `tolerance` (m/s). contact_error[2] = the sweeps taken."""
+    `tolerance` (m/s). contact_error[2] = the sweeps taken. Contacts with rows (`contact_row` >= 0) are left to
+    `contact_rows.solve_rows`: here they only get their gaps, arms and approach speeds."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     for k in range(count):
         a = contact_body[k][0]
@@ -727,7 +729,9 @@ def solve_velocities(
         contact_arm_a_out[k] = ra
         contact_arm_b_out[k] = rb
         contact_mass_out[k] = contact_masses(a, b, contact_normal[k], ra, rb, body_inv_mass, inv_inertia_world_in)
-        if first != 0:
+        if first != 0 and contact_row[k] >= 0:
+            contact_velocity_impulse_out[k] = vec3d()  # solved with the joints (`contact_rows.py`), from 0
+        elif first != 0:
             # Start from the position phase's impulses: a resting contact takes the same in both phases.
             lam = contact_impulse[k]
             contact_velocity_impulse_out[k] = lam
@@ -750,6 +754,8 @@ def solve_velocities(
         change = f64(0.0)
         for i in range(count):
             k = sweep_index(i, count, sweep)
+            if contact_row[k] >= 0:
+                continue
             a = contact_body[k][0]
             b = contact_body[k][1]
             n = contact_normal[k]

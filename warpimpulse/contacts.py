@@ -29,6 +29,10 @@ CONTACT_ROW_SLOTS = 32
 """Contacts on jointed bodies solved as rows with the joints, limits and motors (`kernels/contact_rows.py`), at
 most this many a step (3 rows each, one solve with K's factor per row); further ones are swept alone."""
 
+ROW_SWEEPS = 1000
+"""Projected Gauss-Seidel sweeps at most over those rows per solve (each O(rows^2)), until no row's impulse moves
+a coordinate by more than a tenth of the tolerance over the step."""
+
 BROAD_PHASES = ("bvh", "all_pairs")
 """`bvh`: Warp's BVH over the swept boxes of the colliders, rebuilt each step; `all_pairs`: every pair of boxes
 tested (the baseline `benchmarks/contacts.py` measures it against)."""
@@ -144,10 +148,9 @@ class ContactStage:
             row_coupling=z(rows * nc, dtype=wp.vec3d, device=d),
             row_response=z(rows * nc, dtype=wp.vec3d, device=d),
             row_matrix=z(rows * rows, dtype=wp.float64, device=d),
-            row_work=z(rows * rows, dtype=wp.float64, device=d),
             row_mask=z(rows, dtype=wp.int32, device=d),
             **{f"row_{name}": z(rows, dtype=wp.float64, device=d)
-               for name in ("goal", "before", "low", "high", "delta", "rhs", "scratch")},
+               for name in ("goal", "before", "low", "high", "delta", "rhs")},
         )  # fmt: skip
         self._row_slices = [
             (self.rows.row_coupling[r * nc : (r + 1) * nc], self.rows.row_response[r * nc : (r + 1) * nc])
@@ -199,13 +202,18 @@ class ContactStage:
             if self.rows is not None:
                 nl, nr, nc = self.model.limit_count, len(self.rows.row_mask), self.model.constraint_count
                 st = self.state
+                bounce = 2.0 * float(np.linalg.norm(self.model.host.gravity)) * h
                 rows = SimpleNamespace(
                     assign=self._record(row_kernels.assign_rows, 1),
-                    jacobians=self._record(row_kernels.row_jacobians, nr),
+                    jacobians=[self._record(row_kernels.row_jacobians, nr, velocity=v) for v in (0, 1)],
                     coupling=self._record(row_kernels.row_coupling, (nr, nc)),
                     matrix=self._record(row_kernels.row_matrix, (nr, nr)),
-                    solve=self._record(row_kernels.solve_rows, 1, h=h, body_v=st.body_v, body_w=st.body_w,
-                                       limit_impulse=self.joints.limit_impulse),
+                    solve=[
+                        self._record(row_kernels.solve_rows, 1, h=h, body_v=st.body_v, body_w=st.body_w, velocity=v,
+                                     limit_impulse=self.joints.limit_impulse, sweeps=ROW_SWEEPS, bounce_speed=bounce,
+                                     tolerance=0.1 * (self.tolerance if v == 0 else self.velocity_tolerance * h))
+                        for v in (0, 1)
+                    ],
                 )  # fmt: skip
             self._launches_by_h[h] = SimpleNamespace(
                 rows=rows,
@@ -262,21 +270,23 @@ class ContactStage:
         self._launches(h).measure.launch()
         return max(float(self.data.contact_error.numpy()[0]), 0.0)
 
-    def couple(self, h: float) -> int:
-        """After `detect`: the rows of this step's contacts on jointed bodies, solved with the joints, limits and
-        motors in `solve_positions` (`kernels/contact_rows.py`): their Jacobians at the prediction's contact
-        points, one solve with K's factor each, the rows' system S. Returns the rows (0: none)."""
+    def couple(self, h: float, velocity: int = 0) -> int:
+        """After `detect` (position pass) or the velocity phase's measurement (`velocity` 1): the rows of this
+        step's contacts on jointed bodies, solved with the joints, limits and motors
+        (`kernels/contact_rows.py`): their Jacobians at the contact points, one solve with K's factor each, the
+        rows' system S. Returns the rows (0: none)."""
         self.row_total = 0
         if self.rows is None or not self.count:
             return 0
-        self.measure(h)
         run = self._launches(h).rows
-        run.assign.launch()
+        if velocity == 0:
+            self.measure(h)
+            run.assign.launch()
         nl, nc = self.model.limit_count, self.model.constraint_count
         total = int(self.rows.row_count.numpy()[0])
         if total == nl:
             return 0
-        run.jacobians.launch()
+        run.jacobians[velocity].launch()
         run.coupling.launch()
         if nl:  # the limits' rows: their K^-1 c of this step (the Simulator's)
             wp.copy(self.rows.row_response, self.joints.limit_response, count=nl * nc)
@@ -294,7 +304,7 @@ class ContactStage:
         if not self.count:
             return 0
         if self.row_total:
-            self._launches(h).rows.solve.launch()
+            self._launches(h).rows.solve[0].launch()
         self._launches(h).positions.launch()
         return int(self.data.contact_error.numpy()[1])
 
@@ -305,7 +315,13 @@ class ContactStage:
         if not self.count:
             return 0
         self._launches(h).velocities[0 if first else 1].launch()
-        return int(self.data.contact_error.numpy()[2])
+        sweeps = int(self.data.contact_error.numpy()[2])
+        if first and self.rows is not None:
+            self.couple(h, velocity=1)  # at t0 + h
+        if self.row_total:
+            self._launches(h).rows.solve[1].launch()
+            sweeps += int(self.data.contact_error.numpy()[2])
+        return sweeps
 
     def contacts(self) -> Contacts:
         """The last step's contacts as numpy (`Contacts`), at the current state."""
