@@ -13,9 +13,9 @@ friction within mu times the normal impulse) moves every row at once; each row's
 with the joints' linear reaction -K^-1 c, so the joints stay as they were to first order.
 
 Friction is a box on two tangents, the first along the contact's slip when the rows are built (a sliding
-contact slides along its first tangent, at mu lambda_n against its slip), its bounds mu lambda_n updated from
-the normal impulses and solved again (a few passes); the tangential total is then projected onto the cone's
-disc.
+contact slides along its first tangent, at mu lambda_n against its slip): the first bounded by mu lambda_n, the
+second by what the cone's disc leaves beside the first, both updated from the last solve and solved again (a
+few passes); the tangential total is then projected onto the disc.
 """
 
 import warp as wp
@@ -23,7 +23,7 @@ import warp as wp
 from . import collide
 from .contact_solve import relative_velocity
 from .forces import coordinate_row
-from .limits import compensate, limit_side, row_setup
+from .limits import compensate, factor_masked, limit_side, row_setup, solve_factored
 
 wp.set_module_options({"enable_backward": False})
 
@@ -32,6 +32,11 @@ quatd = wp.quatd
 mat33d = wp.mat33d
 vec2d = wp.vec2d
 f64 = wp.float64
+
+REGULARIZATION = wp.constant(f64(1.0e-8))
+"""Added to each diagonal of S as a fraction of its free value: contacts repeat each other (four corners of a
+box, two points of a wheel's rim) and S is singular; with it S is positive definite and a row's rate misses
+its goal by 1e-8 of its free mobility times its impulse (for a 5 kg foot pushed with 10 N s, 2e-8 m/s)."""
 
 @wp.kernel
 def assign_rows(
@@ -242,7 +247,7 @@ def row_matrix(
     for i in range(nc):
         held -= wp.dot(row_coupling[k * nc + i], row_response[l * nc + i])
     if k == l:
-        held = wp.max(held, f64(1.0e-9) * free)
+        held = wp.max(held, f64(1.0e-9) * free) + REGULARIZATION * free
     row_matrix_out[k * n + l] = held
 
 
@@ -269,63 +274,79 @@ def push_row(
 
 
 @wp.func
-def pgs_row(
-    r: int,
-    n: int,
-    matrix: wp.array(dtype=f64),
-    goal: wp.array(dtype=f64),
-    before: wp.array(dtype=f64),
-    low: f64,
-    high: f64,
-    delta: wp.array(dtype=f64),
-    y: wp.array(dtype=f64),
-) -> f64:
-    """One projected Gauss-Seidel update of row r (y = S delta kept up to date); returns the rate change it made
-    (m/s or rad/s)."""
-    diag = matrix[r * n + r]
-    total = wp.clamp(before[r] + delta[r] + (goal[r] - y[r]) / diag, low, high)
-    step = total - before[r] - delta[r]
-    delta[r] = delta[r] + step
-    for i in range(n):
-        y[i] = y[i] + matrix[i * n + r] * step
-    return wp.abs(step) * diag
+def contact_row_of(r: int, limit_count: int, row_contact: wp.array(dtype=int)) -> int:
+    """The contact of row r (a contact's row)."""
+    return row_contact[(r - limit_count) // 3]
 
 
 @wp.func
-def pgs_friction(
-    r: int,
-    n: int,
-    limit: f64,
+def contact_sweeps(
+    nr: int,
+    nl: int,
+    h: f64,
+    tolerance: f64,
+    max_sweeps: int,
     matrix: wp.array(dtype=f64),
     goal: wp.array(dtype=f64),
     before: wp.array(dtype=f64),
     delta: wp.array(dtype=f64),
+    mask: wp.array(dtype=int),
+    row_contact: wp.array(dtype=int),
+    contact_material: wp.array(dtype=wp.vec2d),
     y: wp.array(dtype=f64),
-) -> f64:
-    """A contact's two friction rows r, r + 1 at once: the 2x2 block's solve, its total projected onto the disc
-    of radius `limit`; returns the rate change it made."""
-    a = matrix[r * n + r]
-    b = matrix[r * n + r + 1]
-    d = matrix[(r + 1) * n + r + 1]
-    e0 = goal[r] - y[r]
-    e1 = goal[r + 1] - y[r + 1]
-    det = a * d - b * b
-    s0 = e0 / a
-    s1 = e1 / d
-    if det > f64(1.0e-12) * a * d:
-        s0 = (d * e0 - b * e1) / det
-        s1 = (a * e1 - b * e0) / det
-    t = vec2d(before[r] + delta[r] + s0, before[r + 1] + delta[r + 1] + s1)
-    size = wp.length(t)
-    if size > limit:
-        t = t * (limit / size)
-    step0 = t[0] - before[r] - delta[r]
-    step1 = t[1] - before[r + 1] - delta[r + 1]
-    delta[r] = delta[r] + step0
-    delta[r + 1] = delta[r + 1] + step1
-    for i in range(n):
-        y[i] = y[i] + matrix[i * n + r] * step0 + matrix[i * n + r + 1] * step1
-    return wp.max(wp.abs(step0) * a, wp.abs(step1) * d)
+) -> int:
+    """Projected Gauss-Seidel sweeps over the contacts' rows nl.. nl + nr on their system `matrix` (nr x nr, the
+    limits and motors that hold eliminated) from the current deltas, until no row moves by more than `tolerance`
+    (m) over the step: a normal pushes only, the two tangents as one 2x2 block within the disc of mu lambda_n.
+    Returns the sweeps taken."""
+    for c in range(nr):
+        v = f64(0.0)
+        for e in range(nr):
+            v += matrix[c * nr + e] * delta[nl + e]
+        y[c] = v
+    taken = int(0)
+    for sweep in range(max_sweeps):
+        taken += 1
+        change = f64(0.0)
+        for i in range(0, nr, 3):
+            c = i
+            if sweep % 2 == 1:
+                c = nr - 3 - i  # symmetric Gauss-Seidel
+            if mask[nl + c] != 0:
+                diag = matrix[c * nr + c]
+                total = wp.max(before[nl + c] + delta[nl + c] + (goal[c] - y[c]) / diag, f64(0.0))
+                step = total - before[nl + c] - delta[nl + c]
+                delta[nl + c] = delta[nl + c] + step
+                for e in range(nr):
+                    y[e] = y[e] + matrix[e * nr + c] * step
+                change = wp.max(change, wp.abs(step) * diag)
+                limit = contact_material[row_contact[c // 3]][0] * total
+                f = c + 1
+                a = matrix[f * nr + f]
+                b = matrix[f * nr + f + 1]
+                d = matrix[(f + 1) * nr + f + 1]
+                e0 = goal[f] - y[f]
+                e1 = goal[f + 1] - y[f + 1]
+                det = a * d - b * b
+                s0 = e0 / a
+                s1 = e1 / d
+                if det > f64(1.0e-12) * a * d:
+                    s0 = (d * e0 - b * e1) / det
+                    s1 = (a * e1 - b * e0) / det
+                t = vec2d(before[nl + f] + delta[nl + f] + s0, before[nl + f + 1] + delta[nl + f + 1] + s1)
+                size = wp.length(t)
+                if size > limit:
+                    t = t * (limit / size)
+                step0 = t[0] - before[nl + f] - delta[nl + f]
+                step1 = t[1] - before[nl + f + 1] - delta[nl + f + 1]
+                delta[nl + f] = delta[nl + f] + step0
+                delta[nl + f + 1] = delta[nl + f + 1] + step1
+                for e in range(nr):
+                    y[e] = y[e] + matrix[e * nr + f] * step0 + matrix[e * nr + f + 1] * step1
+                change = wp.max(change, wp.max(wp.abs(step0) * a, wp.abs(step1) * d))
+        if change * h <= tolerance:
+            break
+    return taken
 
 
 @wp.kernel
@@ -349,8 +370,8 @@ def solve_rows(
     drive_mode: wp.array(dtype=int),
     drive_max_force: wp.array(dtype=f64),
     velocity: int,
-    sweeps: int,
     tolerance: f64,
+    max_sweeps: int,
     bounce_speed: f64,
     # Data in:
     drive_target: wp.array(dtype=f64),
@@ -394,11 +415,19 @@ def solve_rows(
     row_low: wp.array(dtype=f64),
     row_high: wp.array(dtype=f64),
     row_delta: wp.array(dtype=f64),
-    row_rhs: wp.array(dtype=f64),
+    row_work: wp.array(dtype=f64),
+    row_scratch: wp.array(dtype=f64),
+    row_free: wp.array(dtype=int),
+    row_column: wp.array(dtype=f64),
+    row_y: wp.array(dtype=f64),
+    row_solved: wp.array(dtype=f64),
+    row_reduced: wp.array(dtype=f64),
+    row_reduced_goal: wp.array(dtype=f64),
     contact_error: wp.array(dtype=f64),
 ):
-    """Every row at once (one thread), by projected Gauss-Seidel on the rows' system S, until no row moves its
-    coordinate by more than `tolerance` over the step; contact_error[1 + velocity] = the sweeps taken.
+    """Every row at once (one thread), by block pivoting on the rows' system S (`limits.box_pivot`), the friction
+    bounds mu lambda_n from the last solve's normal impulses, solved again until they move no row by more than
+    `tolerance` (m) over the step; contact_error[1 + velocity] = the solves taken.
 
     Position pass (`velocity` 0, at t0, on the prediction just measured): a limit or motor as
     `limits.correct_rows` wants it; a contact's gap g' = g + h n . du >= 0, pushing only; its slip over the step
@@ -453,41 +482,92 @@ def solve_rows(
                 active = 0  # an impact of the next step
             row_goal[r] = target - wp.dot(nrm, u)
         s1 = collide.any_perpendicular(nrm)  # the basis the step's totals are kept in
-        total = s1 * lam[1] + wp.cross(nrm, s1) * lam[2]
+        tangential = s1 * lam[1] + wp.cross(nrm, s1) * lam[2]
         row_before[r] = lam[0]
+        row_low[r] = f64(0.0)
+        row_high[r] = f64(1.0e300)
+        mu_n = contact_material[k][0] * lam[0]
         for axis in range(3):
             row_mask[r + axis] = active
             row_delta[r + axis] = f64(0.0)
             if axis > 0:
                 d = row_direction[r + axis]
                 row_goal[r + axis] = -wp.dot(d, slip)
-                row_before[r + axis] = wp.dot(d, total)
-    # y = S delta, kept up to date row by row.
-    for i in range(n):
-        row_rhs[i] = f64(0.0)
-    taken = int(0)
-    for sweep in range(sweeps):
-        taken += 1
-        change = f64(0.0)
-        for i in range(n):
-            r = i
-            if sweep % 2 == 1:
-                r = n - 1 - i  # symmetric Gauss-Seidel
-            if r < nl:
-                if row_mask[r] != 0:
-                    change = wp.max(change, pgs_row(r, n, row_matrix, row_goal, row_before, row_low[r],
-                                                    row_high[r], row_delta, row_rhs))  # fmt: skip
-            else:
-                base = r - (r - nl) % 3
-                if r == base and row_mask[r] != 0:  # a contact: its normal, then its friction as a 2x2 block within the disc
-                    k = row_contact[(base - nl) // 3]
-                    change = wp.max(change, pgs_row(base, n, row_matrix, row_goal, row_before, f64(0.0),
-                                                    f64(1.0e300), row_delta, row_rhs))  # fmt: skip
-                    mu_n = contact_material[k][0] * (row_before[base] + row_delta[base])
-                    change = wp.max(change, pgs_friction(base + 1, n, mu_n, row_matrix, row_goal, row_before,
-                                                         row_delta, row_rhs))  # fmt: skip
-        if change * h <= tolerance:
-            break
+                row_before[r + axis] = wp.dot(d, tangential)
+                row_low[r + axis] = -mu_n
+                row_high[r + axis] = mu_n
+    # The limits and motors that hold (mask 1) eliminated exactly, the contacts by projected Gauss-Seidel on
+    # what is left; then a limit or motor out of its bounds is fixed at them, or a fixed one freed, and again.
+    nr = n - nl
+    sweeps = int(0)
+    for _round in range(2 * nl + 2):
+        for i in range(nl):
+            row_free[i] = wp.where(row_mask[i] == 1, 1, 0)
+        factor_masked(nl, n, row_matrix, row_free, row_work)
+        for c in range(nr):  # X_c = S_mm^-1 S_mc
+            for i in range(nl):
+                row_column[i] = row_matrix[i * n + nl + c]
+                row_solved[c * nl + i] = f64(0.0)
+            solve_factored(nl, row_work, row_free, row_column, row_scratch, row_solved, c * nl)
+        for i in range(nl):  # the free rows' own solution, the fixed rows' impulses counted
+            want = row_goal[i]
+            for j in range(nl):
+                if row_mask[j] >= 2:
+                    want -= row_matrix[i * n + j] * row_delta[j]
+            row_column[i] = want
+            row_y[i] = f64(0.0)
+        solve_factored(nl, row_work, row_free, row_column, row_scratch, row_y, 0)
+        for c in range(nr):  # the contacts' system with the free rows holding
+            want = row_goal[nl + c]
+            for j in range(nl):
+                if row_mask[j] >= 2:
+                    want -= row_matrix[(nl + c) * n + j] * row_delta[j]
+                elif row_free[j] == 1:
+                    want -= row_matrix[(nl + c) * n + j] * row_y[j]
+            row_reduced_goal[c] = want
+            for e in range(nr):
+                v = row_matrix[(nl + c) * n + nl + e]
+                for i in range(nl):
+                    if row_free[i] == 1:
+                        v -= row_matrix[(nl + c) * n + i] * row_solved[e * nl + i]
+                row_reduced[c * nr + e] = v
+        sweeps += contact_sweeps(
+            nr, nl, h, tolerance, max_sweeps, row_reduced, row_reduced_goal, row_before, row_delta, row_mask,
+            row_contact, contact_material, row_column,
+        )  # fmt: skip
+        for i in range(nl):
+            if row_free[i] == 1:
+                held = row_y[i]
+                for c in range(nr):
+                    held -= row_solved[c * nl + i] * row_delta[nl + c]
+                row_delta[i] = held
+        pick = int(-1)  # noqa: UP018
+        worst = tolerance / h  # a rate the contacts' sweeps may leave: no pivot on less
+        for i in range(nl):
+            if row_mask[i] == 1:
+                total = row_before[i] + row_delta[i]
+                over = wp.max(row_low[i] - total, total - row_high[i]) * row_matrix[i * n + i]
+                if over > worst:
+                    worst = over
+                    pick = i
+        if pick >= 0:
+            total = row_before[pick] + row_delta[pick]
+            row_mask[pick] = wp.where(total < row_low[pick], 2, 3)
+            row_delta[pick] = wp.clamp(total, row_low[pick], row_high[pick]) - row_before[pick]
+        else:
+            for i in range(nl):
+                if row_mask[i] >= 2:
+                    demand = row_goal[i]  # the rate change still wanted at fixed row i, all impulses counted
+                    for j in range(n):
+                        if row_mask[j] != 0:
+                            demand -= row_matrix[i * n + j] * row_delta[j]
+                    inward = wp.where(row_mask[i] == 2, demand, -demand)
+                    if inward > worst:
+                        worst = inward
+                        pick = i
+            if pick < 0:
+                break
+            row_mask[pick] = 1
     for r in range(n):
         amount = row_delta[r]
         if amount != f64(0.0):
@@ -500,7 +580,7 @@ def solve_rows(
             limit_impulse[i] = limit_impulse[i] + row_delta[i]
         else:
             limit_velocity_impulse[i] = limit_velocity_impulse[i] + row_delta[i]
-    contact_error[1 + velocity] = f64(taken)
+    contact_error[1 + velocity] = f64(sweeps)
     for r in range(nl, n, 3):
         k = row_contact[(r - nl) // 3]
         nrm = contact_normal[k]

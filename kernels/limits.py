@@ -241,23 +241,17 @@ def limit_matrix(
 
 
 @wp.func
-def solve_masked(
-    n: int,
-    matrix: wp.array(dtype=f64),
-    mask: wp.array(dtype=int),
-    rhs: wp.array(dtype=f64),
-    work: wp.array(dtype=f64),
-    scratch: wp.array(dtype=f64),
-    out: wp.array(dtype=f64),
+def factor_masked(
+    n: int, stride: int, matrix: wp.array(dtype=f64), mask: wp.array(dtype=int), work: wp.array(dtype=f64)
 ):
-    """out = S_AA^-1 rhs_A on the rows with mask 1 (other rows keep their out), by a dense Cholesky in `work`
-    (`scratch`: n more); a pivot below 1e-12 of its diagonal (rows that repeat each other) is regularised to
-    that diagonal."""
+    """The dense Cholesky factor (in `work`, n x n) of the leading n x n block of `matrix` (row stride `stride`)
+    on the rows with mask 1, unit rows and columns elsewhere; a pivot below 1e-12 of its diagonal (rows that
+    repeat each other) is regularised to that diagonal."""
     for i in range(n):
         for j in range(n):
             v = f64(0.0)
             if mask[i] == 1 and mask[j] == 1:
-                v = matrix[i * n + j]
+                v = matrix[i * stride + j]
             elif i == j:
                 v = f64(1.0)
             work[i * n + j] = v
@@ -275,6 +269,20 @@ def solve_masked(
             for k in range(j):
                 u -= work[i * n + k] * work[j * n + k]
             work[i * n + j] = u / d
+
+
+@wp.func
+def solve_factored(
+    n: int,
+    work: wp.array(dtype=f64),
+    mask: wp.array(dtype=int),
+    rhs: wp.array(dtype=f64),
+    scratch: wp.array(dtype=f64),
+    out: wp.array(dtype=f64),
+    out_offset: int,
+):
+    """out[out_offset + i] = (S_AA^-1 rhs_A)_i on the rows i with mask 1 (others keep theirs) from
+    `factor_masked`'s factor (`scratch`: n more)."""
     # The unit rows and columns outside A keep those rows out of the solve (their scratch entries are 0).
     for i in range(n):
         y = f64(0.0)
@@ -291,7 +299,23 @@ def solve_masked(
         scratch[i] = x / work[i * n + i]
     for i in range(n):
         if mask[i] == 1:
-            out[i] = scratch[i]
+            out[out_offset + i] = scratch[i]
+
+
+@wp.func
+def solve_masked(
+    n: int,
+    matrix: wp.array(dtype=f64),
+    mask: wp.array(dtype=int),
+    rhs: wp.array(dtype=f64),
+    work: wp.array(dtype=f64),
+    scratch: wp.array(dtype=f64),
+    out: wp.array(dtype=f64),
+):
+    """out = S_AA^-1 rhs_A on the rows with mask 1 (other rows keep their out), by a dense Cholesky in `work`
+    (`scratch`: n more)."""
+    factor_masked(n, n, matrix, mask, work)
+    solve_factored(n, work, mask, rhs, scratch, out, 0)
 
 
 @wp.func

@@ -29,9 +29,9 @@ CONTACT_ROW_SLOTS = 32
 """Contacts on jointed bodies solved as rows with the joints, limits and motors (`kernels/contact_rows.py`), at
 most this many a step (3 rows each, one solve with K's factor per row); further ones are swept alone."""
 
-ROW_SWEEPS = 1000
-"""Projected Gauss-Seidel sweeps at most over those rows per solve (each O(rows^2)), until no row's impulse moves
-a coordinate by more than a tenth of the tolerance over the step."""
+ROW_SWEEPS = 500
+"""Projected Gauss-Seidel sweeps at most over those contacts' rows per solve (the limits and motors that hold
+eliminated exactly), until no row moves a coordinate by more than a tenth of the tolerance over the step."""
 
 BROAD_PHASES = ("bvh", "all_pairs")
 """`bvh`: Warp's BVH over the swept boxes of the colliders, rebuilt each step; `all_pairs`: every pair of boxes
@@ -148,9 +148,13 @@ class ContactStage:
             row_coupling=z(rows * nc, dtype=wp.vec3d, device=d),
             row_response=z(rows * nc, dtype=wp.vec3d, device=d),
             row_matrix=z(rows * rows, dtype=wp.float64, device=d),
+            row_work=z(rows * rows, dtype=wp.float64, device=d),
             row_mask=z(rows, dtype=wp.int32, device=d),
+            row_free=z(rows, dtype=wp.int32, device=d),
+            **{f"row_{name}": z(rows * rows, dtype=wp.float64, device=d) for name in ("solved", "reduced")},
             **{f"row_{name}": z(rows, dtype=wp.float64, device=d)
-               for name in ("goal", "before", "low", "high", "delta", "rhs")},
+               for name in ("goal", "before", "low", "high", "delta", "scratch", "column", "y",
+                                                                "reduced_goal")},
         )  # fmt: skip
         self._row_slices = [
             (self.rows.row_coupling[r * nc : (r + 1) * nc], self.rows.row_response[r * nc : (r + 1) * nc])
@@ -210,7 +214,7 @@ class ContactStage:
                     matrix=self._record(row_kernels.row_matrix, (nr, nr)),
                     solve=[
                         self._record(row_kernels.solve_rows, 1, h=h, body_v=st.body_v, body_w=st.body_w, velocity=v,
-                                     limit_impulse=self.joints.limit_impulse, sweeps=ROW_SWEEPS, bounce_speed=bounce,
+                                     limit_impulse=self.joints.limit_impulse, max_sweeps=ROW_SWEEPS, bounce_speed=bounce,
                                      tolerance=0.1 * (self.tolerance if v == 0 else self.velocity_tolerance * h))
                         for v in (0, 1)
                     ],
