@@ -297,7 +297,7 @@ def contact_sweeps(
 ) -> int:
     """Projected Gauss-Seidel sweeps over the contacts' rows nl.. nl + nr on their system `matrix` (nr x nr, the
     limits and motors that hold eliminated) from the current deltas, until no row moves by more than `tolerance`
-    (m) over the step: a normal pushes only, the two tangents as one 2x2 block within the disc of mu lambda_n.
+    (m) over the step: a normal pushes only, the two tangents as one block within the disc of mu lambda_n.
     Returns the sweeps taken."""
     for c in range(nr):
         v = f64(0.0)
@@ -327,16 +327,21 @@ def contact_sweeps(
                 d = matrix[(f + 1) * nr + f + 1]
                 e0 = goal[f] - y[f]
                 e1 = goal[f + 1] - y[f + 1]
+                # The block's own solve where it sticks (inside the disc); else a step of the block's largest
+                # eigenvalue along the slip left, onto the disc: at convergence a sliding contact's impulse
+                # points against its slip (the block's solve, projected, would turn it).
+                old = vec2d(before[nl + f] + delta[nl + f], before[nl + f + 1] + delta[nl + f + 1])
                 det = a * d - b * b
-                s0 = e0 / a
-                s1 = e1 / d
+                t = old + vec2d(e0 / a, e1 / d)
                 if det > f64(1.0e-12) * a * d:
-                    s0 = (d * e0 - b * e1) / det
-                    s1 = (a * e1 - b * e0) / det
-                t = vec2d(before[nl + f] + delta[nl + f] + s0, before[nl + f + 1] + delta[nl + f + 1] + s1)
-                size = wp.length(t)
-                if size > limit:
-                    t = t * (limit / size)
+                    t = old + vec2d(d * e0 - b * e1, a * e1 - b * e0) / det
+                if wp.length(t) > limit:
+                    half = f64(0.5) * (a - d)
+                    top = f64(0.5) * (a + d) + wp.sqrt(half * half + b * b)
+                    t = old + vec2d(e0, e1) / top
+                    size = wp.length(t)
+                    if size > limit:
+                        t = t * (limit / size)
                 step0 = t[0] - before[nl + f] - delta[nl + f]
                 step1 = t[1] - before[nl + f + 1] - delta[nl + f + 1]
                 delta[nl + f] = delta[nl + f] + step0
@@ -484,9 +489,6 @@ def solve_rows(
         s1 = collide.any_perpendicular(nrm)  # the basis the step's totals are kept in
         tangential = s1 * lam[1] + wp.cross(nrm, s1) * lam[2]
         row_before[r] = lam[0]
-        row_low[r] = f64(0.0)
-        row_high[r] = f64(1.0e300)
-        mu_n = contact_material[k][0] * lam[0]
         for axis in range(3):
             row_mask[r + axis] = active
             row_delta[r + axis] = f64(0.0)
@@ -494,8 +496,6 @@ def solve_rows(
                 d = row_direction[r + axis]
                 row_goal[r + axis] = -wp.dot(d, slip)
                 row_before[r + axis] = wp.dot(d, tangential)
-                row_low[r + axis] = -mu_n
-                row_high[r + axis] = mu_n
     # The limits and motors that hold (mask 1) eliminated exactly, the contacts by projected Gauss-Seidel on
     # what is left; then a limit or motor out of its bounds is fixed at them, or a fixed one freed, and again.
     nr = n - nl

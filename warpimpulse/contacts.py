@@ -215,7 +215,7 @@ class ContactStage:
                     solve=[
                         self._record(row_kernels.solve_rows, 1, h=h, body_v=st.body_v, body_w=st.body_w, velocity=v,
                                      limit_impulse=self.joints.limit_impulse, max_sweeps=ROW_SWEEPS, bounce_speed=bounce,
-                                     tolerance=0.1 * (self.tolerance if v == 0 else self.velocity_tolerance * h))
+                                     tolerance=self.tolerance if v == 0 else self.velocity_tolerance * h)
                         for v in (0, 1)
                     ],
                 )  # fmt: skip
