@@ -220,6 +220,18 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, gr
 WALKER_LEGS = ((0.5, 0.35, 0.0), (-0.5, 0.35, 0.5), (0.5, -0.35, 0.5), (-0.5, -0.35, 0.0))
 """(x, y, crank phase in turns) of each leg of the walking machine."""
 
+WALKER_TRIPODS = ((0.5, 0.35, 0.0), (0.0, 0.5, 0.5), (-0.5, 0.35, 0.0), (0.5, -0.35, 0.5), (0.0, -0.5, 0.0),
+                  (-0.5, -0.35, 0.5))
+"""(x, y, crank phase in turns) of the six legs of the walking machine on the ground: two tripods (front and rear
+of one side with the middle of the other) half a turn apart, the middle legs 15 cm further out than their
+neighbours, whose feet pass them."""
+
+WALKER_FOOT = Shape("box", size=(0.24, 0.12, 0.02), color=(0.3, 0.3, 0.3))
+"""The walking machine's foot plates on the ground: two diagonal feet carry it at a time (a trot), and on points
+it would tip about the diagonal; plates 24 cm long keep its centre of mass 11 cm inside their support."""
+
+ALUMINIUM = 2700.0  # kg/m^3
+
 
 def walker_leg_points(phase: float, crank: float = 0.12, sleeve_height: float = 0.35, foot: float = 0.55):
     """Crank pivot O (origin), crank tip P, sleeve pivot S and foot F of one leg in its x-z plane for a crank
@@ -236,8 +248,8 @@ def walking_machine(crank_speed: float = 2.0 * math.pi, ground: bool = False) ->
     hinge), two hinges (crank to leg, body to sleeve) and one slider (the leg through the sleeve): one closed
     loop per leg, a crank-driven slotted lever whose foot traces a closed curve each crank turn. Four legs,
     cranks half a turn apart on each side. Without `ground` the body is fixed to the world ("hold"); with it
-    the body is free and the machine stands on its four feet on a ground (friction 1). It cannot walk yet: its
-    first step fails (docs/contacts.md, "The walking machine")."""
+    the body is free, each leg ends in a foot plate on an ankle hinge (`WALKER_FOOT`), and the machine stands on
+    its four feet on a ground (friction 1) and walks along -x (docs/contacts.md, "The walking machine")."""
     builder = SceneBuilder()
     axis = np.array([0.0, -1.0, 0.0])  # angles grow from +x towards +z
     height = 1.0
@@ -245,7 +257,7 @@ def walking_machine(crank_speed: float = 2.0 * math.pi, ground: bool = False) ->
                   (0.0, 0.0, 0.0, 1.0), "body")  # fmt: skip
     if not ground:
         builder.add_joint_fixed(None, body, (0.0, 0.0, height + 0.3), name="hold")
-    for i, (x, y, phase) in enumerate(WALKER_LEGS):
+    for i, (x, y, phase) in enumerate(WALKER_TRIPODS if ground else WALKER_LEGS):
         origin = np.array([x, y, height])
         o, p, s, f = (origin + v for v in walker_leg_points(2.0 * math.pi * phase))
         u = (p - s) / np.linalg.norm(p - s)
@@ -258,8 +270,12 @@ def walking_machine(crank_speed: float = 2.0 * math.pi, ground: bool = False) ->
         builder.add_joint_prismatic(sleeve, leg, s, u, name=f"leg{i}_slider")
         builder.add_motor(servo, "velocity", target=crank_speed, max_force=500.0, stiff=True)
         builder.filter_collision(body, leg)  # the leg slides through the sleeve, past the body
+        if ground:  # a foot plate on an ankle hinge at the foot, which lies flat while it carries
+            plate = _solid(builder, WALKER_FOOT, ALUMINIUM, f - np.array([0.0, 0.0, 0.5 * WALKER_FOOT.size[2]]),
+                           (0.0, 0.0, 0.0, 1.0), f"leg{i}_foot")  # fmt: skip
+            builder.add_joint_revolute(leg, plate, f, axis, name=f"leg{i}_ankle")
     if ground:
-        feet = [b for b in builder.bodies if b.name.endswith("_leg")]
+        feet = [b for b in builder.bodies if b.name.endswith("_foot")]
         builder.add_ground(height=min(_lowest(b) for b in feet), friction=1.0)
     return builder
 
