@@ -339,7 +339,8 @@ def test_energy_counts_the_springs_and_is_conserved():
 
 
 def free_walker_without_colliders() -> wi.SceneBuilder:
-    """The walking machine with its body free (no "hold"), no ground and no colliding shape: no contact stage."""
+    """The walking machine with its body free (no "hold"; six legs with foot plates), no ground and no colliding
+    shape: no contact stage."""
     import dataclasses
 
     from warpimpulse import scenes
@@ -366,7 +367,8 @@ def test_free_walker_pushed_on_a_leg_keeps_its_motors_and_its_energy_balance():
     force = np.zeros((sim.model.body_count, 3))
     force[leg] = push
     sim.set_external_forces(force=force)
-    servos = [f"leg{i}_servo" for i in range(4)]
+    servos = [name for name in sim.model.joint_name if name.endswith("_servo")]
+    assert len(servos) == sim.model.limit_count == 6
     e0, work = sim.energy(), 0.0
     for _ in range(480):
         v0, r0 = sim.linear_velocities()[leg], np.array([sim.joint_velocities(s)[0] for s in servos])
