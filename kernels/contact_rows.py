@@ -38,6 +38,7 @@ REGULARIZATION = wp.constant(f64(1.0e-8))
 box, two points of a wheel's rim) and S is singular; with it S is positive definite and a row's rate misses
 its goal by 1e-8 of its free mobility times its impulse (for a 5 kg foot pushed with 10 N s, 2e-8 m/s)."""
 
+
 @wp.kernel
 def assign_rows(
     # Model:

@@ -84,11 +84,12 @@ SCENES = {
     "box_stack": lambda: scenes.box_stack(10),
     "pile": lambda: scenes.pile(1000),
     "car_on_ground": lambda: scenes.car(ground=True),
+    "walking_machine_on_ground": lambda: scenes.walking_machine(crank_speed=1.0, ground=True),
 }
 # Step sizes recorded in the files, where the default 1/fps is too coarse: the chain falling from the
 # horizontal whips its last links and diverges at t = 6.9 s with h = 1/30 (runs to 10 s with h = 1/120).
 DT = {"chain": 1.0 / 120.0, "four_bar": 1.0 / 60.0, "car": 1.0 / 60.0, "walking_machine": 1.0 / 60.0,
-      "car_on_ground": 1.0 / 60.0}  # fmt: skip
+      "car_on_ground": 1.0 / 60.0, "walking_machine_on_ground": 1.0 / 60.0}  # fmt: skip
 
 
 def main() -> None:

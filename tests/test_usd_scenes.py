@@ -388,6 +388,23 @@ def test_the_static_colliders_scene_runs_as_authored(tmp_path, capsys):
     assert x.min() < 0.7 and x[-1] < 2.0 and z[-1] == pytest.approx(0.1, abs=1e-3)
 
 
+def test_the_walking_machine_walks_in_its_scene_file(tmp_path, capsys):
+    """scenes/walking_machine_on_ground.usda (`scenes.walking_machine(crank_speed=1, ground=True)` written by
+    scenes/make_scenes.py) through the plain command for 2 s: the body moves along -x by at least 80% of what
+    its feet sweep (`walker_stride`, m per radian of crank), straight and level; the redundant loop rows are
+    noted only."""
+    from test_contacts import walker_stride
+
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenes",
+                        "walking_machine_on_ground.usda")  # fmt: skip
+    anim, _, err, _ = simulate(path, tmp_path, capsys, "--duration", "2")
+    assert not warnings_of(err)
+    body = next(i for i, p in enumerate(anim.body_paths) if p.endswith("/body"))
+    moved = anim.positions[0, body] - anim.positions[-1, body]
+    assert moved[0] >= 0.8 * walker_stride() * 2.0 and abs(moved[1]) < 0.01
+    assert np.all(np.abs(anim.orientations[:, body, :2]) < np.sin(np.radians(0.5)))  # level: no roll or pitch
+
+
 ROCK = """
         def Mesh "Rock" (
             prepend apiSchemas = ["PhysicsCollisionAPI"]

@@ -204,7 +204,7 @@ class ContactStage:
             bounce = 2.0 * float(np.linalg.norm(self.model.host.gravity)) * h
             rows = None
             if self.rows is not None:
-                nl, nr, nc = self.model.limit_count, len(self.rows.row_mask), self.model.constraint_count
+                nr, nc = len(self.rows.row_mask), self.model.constraint_count
                 st = self.state
                 bounce = 2.0 * float(np.linalg.norm(self.model.host.gravity)) * h
                 rows = SimpleNamespace(
@@ -214,7 +214,8 @@ class ContactStage:
                     matrix=self._record(row_kernels.row_matrix, (nr, nr)),
                     solve=[
                         self._record(row_kernels.solve_rows, 1, h=h, body_v=st.body_v, body_w=st.body_w, velocity=v,
-                                     limit_impulse=self.joints.limit_impulse, max_sweeps=ROW_SWEEPS, bounce_speed=bounce,
+                                     limit_impulse=self.joints.limit_impulse, max_sweeps=ROW_SWEEPS,
+                                     bounce_speed=bounce,
                                      tolerance=self.tolerance if v == 0 else self.velocity_tolerance * h)
                         for v in (0, 1)
                     ],

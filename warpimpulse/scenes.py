@@ -220,8 +220,14 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, gr
 WALKER_LEGS = ((0.5, 0.35, 0.0), (-0.5, 0.35, 0.5), (0.5, -0.35, 0.5), (-0.5, -0.35, 0.0))
 """(x, y, crank phase in turns) of each leg of the walking machine."""
 
-WALKER_TRIPODS = ((0.5, 0.35, 0.0), (0.0, 0.5, 0.5), (-0.5, 0.35, 0.0), (0.5, -0.35, 0.5), (0.0, -0.5, 0.0),
-                  (-0.5, -0.35, 0.5))
+WALKER_TRIPODS = (
+    (0.5, 0.35, 0.0),
+    (0.0, 0.5, 0.5),
+    (-0.5, 0.35, 0.0),
+    (0.5, -0.35, 0.5),
+    (0.0, -0.5, 0.0),
+    (-0.5, -0.35, 0.5),
+)
 """(x, y, crank phase in turns) of the six legs of the walking machine on the ground: two tripods (front and rear
 of one side with the middle of the other) half a turn apart, the middle legs 15 cm further out than their
 neighbours, whose feet pass them."""
