@@ -3,6 +3,7 @@ of the contact stage to scenes without colliders.
 
     python benchmarks/contacts.py [--bodies 1000] [--duration 3] [--json benchmarks/results/contacts.json]
                                   [--baseline CHECKOUT]
+    python benchmarks/contacts.py --grounded [--baseline CHECKOUT] [--json benchmarks/results/grounded.json]
 
 1. The pile (`scenes.pile`: spheres and capsules dropped into a box) in one run on both engines: median time
    per step, the deepest penetration at the states of the last second, the kinetic energy at the end (at
@@ -19,6 +20,10 @@ of the contact stage to scenes without colliders.
    step that does not reach the tolerance in it is counted (`steps_not_converged`), not redone smaller.
 4. tree127 (no colliders: no contact stage) time per step; with --baseline, the same in another checkout of
    the project (its main branch), in turn, so the two share the machine's load.
+5. Contacts on jointed bodies (`--grounded`): the car on the ground driving straight (tolerance 1e-6, 1 s) and
+   steering (1e-4, 2 s), the 10-box stack (1e-4, 1 s: no joints, the same path as before), the walking machine
+   on its six feet at 1 rad/s (1e-6, 4 s): joint-loop iterations (predictions) a step, substeps, steps not
+   converged, ms a step, and where the run stopped; with --baseline, the same in the other checkout.
 """
 
 from __future__ import annotations
@@ -42,6 +47,40 @@ import warpimpulse as wi
 from warpimpulse import scenes
 from warpimpulse.bench.harness import quiet_warp
 from warpimpulse.transforms import quat_to_matrix
+
+GROUNDED_SNIPPET = """
+import json, math, time, warnings, numpy as np, warp as wp
+import warpimpulse as wi
+from warpimpulse import scenes
+wp.config.quiet = True
+warnings.simplefilter("ignore")
+cases = {{"car_straight": (lambda: scenes.car(steering=0.0, ground=True), 1e-6, 1.0),
+         "car_steering": (lambda: scenes.car(ground=True), 1e-4, 2.0),
+         "box_stack10": (lambda: scenes.box_stack(10), 1e-4, 1.0),
+         "walking_machine": (lambda: scenes.walking_machine(crank_speed=1.0, ground=True), 1e-6, 4.0)}}
+out = {{}}
+for name, (make, tol, seconds) in cases.items():
+    try:
+        builder = make()
+    except Exception as e:  # a scene this checkout does not have
+        out[name] = {{"error": repr(e)[:200]}}
+        continue
+    sim = wi.Simulator(builder.finalize(), dt=1.0 / 60.0, tolerance=tol, on_max_iterations="warn")
+    stats, error, t0 = [], "", time.perf_counter()
+    try:
+        for _ in range(round(seconds * 60)):
+            stats.append(sim.step())
+    except Exception as e:
+        error = repr(e)[:200]
+    wall = time.perf_counter() - t0
+    n = max(len(stats), 1)
+    out[name] = {{"steps": len(stats), "iterations_per_step": sum(s.joint_iterations for s in stats) / n,
+                 "substeps_per_step": sum(s.substeps for s in stats) / n,
+                 "steps_not_converged": sum(not s.converged for s in stats), "ms_per_step": 1e3 * wall / n,
+                 "body_moved_m": (sim.positions()[0] - builder.bodies[0].position).round(4).tolist(),
+                 "error": error}}
+print(json.dumps(out))
+"""
 
 TREE_SNIPPET = """
 import time, statistics, warp as wp
@@ -176,6 +215,13 @@ def stages(sim: wi.Simulator) -> dict:
     return out
 
 
+def grounded(cwd: str | None) -> dict:
+    """Section 5 in the checkout `cwd` (None: this one), in a fresh process."""
+    out = subprocess.run([sys.executable, "-c", GROUNDED_SNIPPET.format()], cwd=cwd, capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def tree_ms(cwd: str | None, steps: int) -> float:
     code = TREE_SNIPPET.format(steps=steps)
     out = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, check=True)
@@ -195,11 +241,21 @@ def main() -> None:
     )
     parser.add_argument("--baseline", help="another checkout of the project to time tree127 in (its main)")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--grounded", action="store_true", help="only section 5: contacts on jointed bodies")
     args = parser.parse_args()
     quiet_warp()
     wp.init()
     warnings.simplefilter("ignore", RuntimeWarning)  # steps that run out of iterations are counted instead
     result = {"machine": platform.platform(), "processor": platform.processor(), "dt": args.dt}
+    if args.grounded:
+        result["grounded"] = {"this_branch": grounded(None)}
+        print("  grounded, this branch", json.dumps(result["grounded"]["this_branch"]), flush=True)
+        if args.baseline:
+            result["grounded"]["baseline"] = grounded(args.baseline)
+            print("  grounded, baseline", json.dumps(result["grounded"]["baseline"]), flush=True)
+        if args.json:
+            args.json.write_text(json.dumps(result, indent=2) + "\n")
+        return
 
     print(f"pile of {args.bodies} bodies, {args.duration} s at dt = {args.dt:.4g} s", flush=True)
     ours, sim = run_ours(scenes.pile(args.bodies), args.dt, args.duration, args.tolerance)
