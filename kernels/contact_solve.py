@@ -453,6 +453,35 @@ def apply_pair(
     apply_impulse(a, -p, ra, ima, ia, body_v, body_w)
 
 
+@wp.kernel
+def contact_keys(
+    # Model:
+    gravity: wp.vec3d,
+    # Data in: the prediction
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    contact_count: wp.array(dtype=int),
+    contact_body: wp.array(dtype=wp.vec2i),
+    contact_anchor_b: wp.array(dtype=vec3d),
+    # Data out: the sort's keys and values (2 x the contacts each)
+    contact_key_out: wp.array(dtype=wp.float32),
+    contact_order_out: wp.array(dtype=int),
+):
+    """Each contact's height against gravity (its point on b), to sweep the contacts from the bottom up (and back):
+    a stack's or a pile's support then travels its height in one sweep."""
+    k = wp.tid()
+    key = wp.float32(0.0)
+    if k < wp.min(contact_count[0], contact_body.shape[0]):
+        up = -gravity
+        if wp.length(up) > f64(0.0):
+            up = wp.normalize(up)
+        else:
+            up = vec3d(f64(0.0), f64(0.0), f64(1.0))
+        key = wp.float32(wp.dot(up, to_world(contact_body[k][1], contact_anchor_b[k], pred_x, pred_q)))
+    contact_key_out[k] = key
+    contact_order_out[k] = k
+
+
 @wp.func
 def sweep_index(i: int, count: int, sweep: int) -> int:
     """The i-th contact of a sweep: odd sweeps run backwards (symmetric Gauss-Seidel: a stack's support travels
@@ -623,6 +652,7 @@ def solve_positions(
     contact_u0: wp.array(dtype=vec3d),
     contact_mass: wp.array(dtype=wp.vec2d),
     contact_row: wp.array(dtype=int),
+    contact_order: wp.array(dtype=int),
     # Data out (updated in place): the velocities at t0 and the impulses of this step's position phase
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -638,7 +668,7 @@ def solve_positions(
         taken += 1
         change = f64(0.0)
         for i in range(count):
-            k = sweep_index(i, count, sweep)
+            k = contact_order[sweep_index(i, count, sweep)]
             if contact_row[k] >= 0:
                 continue
             a = contact_body[k][0]
@@ -694,6 +724,7 @@ def solve_velocities(
     contact_impact: wp.array(dtype=f64),
     contact_impulse: wp.array(dtype=vec3d),
     contact_row: wp.array(dtype=int),
+    contact_order: wp.array(dtype=int),
     # Data out (updated in place):
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -753,7 +784,7 @@ def solve_velocities(
         taken += 1
         change = f64(0.0)
         for i in range(count):
-            k = sweep_index(i, count, sweep)
+            k = contact_order[sweep_index(i, count, sweep)]
             if contact_row[k] >= 0:
                 continue
             a = contact_body[k][0]

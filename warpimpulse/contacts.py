@@ -167,6 +167,8 @@ class ContactStage:
         z = wp.zeros
         self.data = SimpleNamespace(
             contact_row=wp.full(contacts, -1, dtype=wp.int32, device=d),
+            contact_key=z(2 * contacts, dtype=wp.float32, device=d),
+            contact_order=z(2 * contacts, dtype=wp.int32, device=d),
             pair_count=z(1, dtype=wp.int32, device=d),
             pair_body=z(pairs, dtype=wp.vec2i, device=d),
             contact_count=z(1, dtype=wp.int32, device=d),
@@ -226,6 +228,7 @@ class ContactStage:
                 broad=self._record(broad, ncol, lowers=g.lowers, uppers=g.uppers),
                 narrow=self._record(kernels.narrow_phase, len(data.pair_body)),
                 planes=self._record(kernels.plane_phase, (ncol, self.plane_count)),
+                keys=self._record(kernels.contact_keys, cap, gravity=wp.vec3d(*self.model.host.gravity)),
                 measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
                 positions=self._record(
                     kernels.solve_positions, 1, h=h, sweeps=self.sweeps, tolerance=0.1 * self.tolerance
@@ -234,7 +237,7 @@ class ContactStage:
                     self._record(
                         kernels.solve_velocities,
                         1,
-                        sweeps=8 * self.max_sweeps,
+                        sweeps=2 * self.max_sweeps,
                         tolerance=0.1 * self.velocity_tolerance,
                         bounce_speed=bounce,
                         inv_h=1.0 / h,
@@ -264,6 +267,9 @@ class ContactStage:
             pairs, count = int(self.data.pair_count.numpy()[0]), int(self.data.contact_count.numpy()[0])
             if pairs <= len(self.data.pair_body) and count <= len(self.data.contact_body):
                 self.count, self.pair_total = count, pairs
+                run.keys.launch()  # the sweeps' order: from the bottom up
+                if count > 1:
+                    wp.utils.radix_sort_pairs(self.data.contact_key, self.data.contact_order, count)
                 return count
             self._allocate(max(pairs, len(self.data.pair_body)) * 2, max(count, len(self.data.contact_body)) * 2)
 
