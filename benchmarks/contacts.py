@@ -4,6 +4,7 @@ of the contact stage to scenes without colliders.
     python benchmarks/contacts.py [--bodies 1000] [--duration 3] [--json benchmarks/results/contacts.json]
                                   [--baseline CHECKOUT]
     python benchmarks/contacts.py --grounded [--baseline CHECKOUT] [--json benchmarks/results/grounded.json]
+    python benchmarks/contacts.py --solvers [--json benchmarks/results/contact_solvers.json]
 
 1. The pile (`scenes.pile`: spheres and capsules dropped into a box) in one run on both engines: median time
    per step, the deepest penetration at the states of the last second, the kinetic energy at the end (at
@@ -215,6 +216,18 @@ def stages(sim: wi.Simulator) -> dict:
     return out
 
 
+def contact_solvers(dt: float, tolerance: float) -> dict:
+    """Section 3: "pgs" and "paper" on the 10-box stack and a 200-body pile."""
+    solvers = {}
+    for name, builder, duration in (("box_stack10", lambda: scenes.box_stack(10), 1.0),
+                                    ("pile200", lambda: scenes.pile(200), 2.0)):  # fmt: skip
+        for solver in ("pgs", "paper"):  # a step that runs out of iterations is counted, not halved
+            r, _ = run_ours(builder(), dt, duration, tolerance, solver, max_substep_depth=0)
+            solvers[f"{name}/{solver}"] = r
+            print(f"  {name} {solver}", json.dumps(r), flush=True)
+    return solvers
+
+
 def grounded(cwd: str | None) -> dict:
     """Section 5 in the checkout `cwd` (None: this one), in a fresh process."""
     out = subprocess.run([sys.executable, "-c", GROUNDED_SNIPPET.format()], cwd=cwd, capture_output=True, text=True,
@@ -242,11 +255,17 @@ def main() -> None:
     parser.add_argument("--baseline", help="another checkout of the project to time tree127 in (its main)")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--grounded", action="store_true", help="only section 5: contacts on jointed bodies")
+    parser.add_argument("--solvers", action="store_true", help="only section 3: the contact solvers")
     args = parser.parse_args()
     quiet_warp()
     wp.init()
     warnings.simplefilter("ignore", RuntimeWarning)  # steps that run out of iterations are counted instead
     result = {"machine": platform.platform(), "processor": platform.processor(), "dt": args.dt}
+    if args.solvers:
+        result["contact_solvers"] = contact_solvers(args.dt, args.tolerance)
+        if args.json:
+            args.json.write_text(json.dumps(result, indent=2) + "\n")
+        return
     if args.grounded:
         result["grounded"] = {"this_branch": grounded(None)}
         print("  grounded, this branch", json.dumps(result["grounded"]["this_branch"]), flush=True)
@@ -278,14 +297,7 @@ def main() -> None:
     result["stages"]["step_ms"] = ours["ms_per_step"]
     print("  stages", json.dumps(result["stages"]), flush=True)
 
-    solvers = {}
-    for name, builder, duration in (("box_stack10", lambda: scenes.box_stack(10), 1.0),
-                                    ("pile200", lambda: scenes.pile(200), 2.0)):  # fmt: skip
-        for solver in ("pgs", "paper"):  # a step that runs out of iterations is counted, not halved
-            r, _ = run_ours(builder(), args.dt, duration, args.tolerance, solver, max_substep_depth=0)
-            solvers[f"{name}/{solver}"] = r
-            print(f"  {name} {solver}", json.dumps(r), flush=True)
-    result["contact_solvers"] = solvers
+    result["contact_solvers"] = contact_solvers(args.dt, args.tolerance)
 
     steps = 300
     trees = {"this_branch_ms": [], "baseline_ms": []}

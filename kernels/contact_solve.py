@@ -639,6 +639,7 @@ def solve_positions(
     h: f64,
     sweeps: int,
     tolerance: f64,
+    parity: int,
     # Data in:
     inv_inertia_world_in: wp.array(dtype=mat33d),
     contact_count: wp.array(dtype=int),
@@ -660,7 +661,9 @@ def solve_positions(
     contact_error_out: wp.array(dtype=f64),
 ):
     """Up to `sweeps` projected Gauss-Seidel sweeps of the linearised position phase (module docstring), until
-    no impulse changes a gap or a slip by more than `tolerance` (m). contact_error[1] = the sweeps taken.
+    no impulse changes a gap or a slip by more than `tolerance` (m). contact_error[1] = the sweeps taken. The
+    first sweep runs up the contacts' order (`contact_keys`) for `parity` 0, down for 1: the caller alternates it,
+    so that one sweep a call ("paper") is symmetric too.
     Contacts with rows (`contact_row` >= 0) are solved with the joints (`contact_rows.py`) and skipped here."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     taken = int(0)
@@ -668,7 +671,7 @@ def solve_positions(
         taken += 1
         change = f64(0.0)
         for i in range(count):
-            k = contact_order[sweep_index(i, count, sweep)]
+            k = contact_order[sweep_index(i, count, sweep + parity)]
             if contact_row[k] >= 0:
                 continue
             a = contact_body[k][0]

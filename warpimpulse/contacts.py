@@ -121,6 +121,7 @@ class ContactStage:
         self.pair_total = 0
         self.last_sweeps = (0, 0)
         self.row_total = 0  # the rows of the step's coupled solve (limits' and contacts'); 0: none
+        self._parity = 1  # the direction of the position sweeps' first sweep, alternated call by call
         self.joints, self.rows = None, None
         jointed = np.zeros(n, dtype=np.int32)
         if joints is not None:
@@ -230,9 +231,11 @@ class ContactStage:
                 planes=self._record(kernels.plane_phase, (ncol, self.plane_count)),
                 keys=self._record(kernels.contact_keys, cap, gravity=wp.vec3d(*self.model.host.gravity)),
                 measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
-                positions=self._record(
-                    kernels.solve_positions, 1, h=h, sweeps=self.sweeps, tolerance=0.1 * self.tolerance
-                ),  # fmt: skip
+                positions=[
+                    self._record(kernels.solve_positions, 1, h=h, sweeps=self.sweeps, tolerance=0.1 * self.tolerance,
+                                 parity=parity)
+                    for parity in (0, 1)
+                ],  # fmt: skip
                 velocities=[
                     self._record(
                         kernels.solve_velocities,
@@ -316,7 +319,8 @@ class ContactStage:
             return 0
         if self.row_total:
             self._launches(h).rows.solve[0].launch()
-        self._launches(h).positions.launch()
+        self._parity ^= 1
+        self._launches(h).positions[self._parity].launch()
         return int(self.data.contact_error.numpy()[1])
 
     def solve_velocities(self, h: float, first: bool = True) -> int:
