@@ -232,8 +232,14 @@ class ContactStage:
                 keys=self._record(kernels.contact_keys, cap, gravity=wp.vec3d(*self.model.host.gravity)),
                 measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
                 positions=[
-                    self._record(kernels.solve_positions, 1, h=h, sweeps=self.sweeps, tolerance=0.1 * self.tolerance,
-                                 parity=parity)
+                    self._record(
+                        kernels.solve_positions,
+                        1,
+                        h=h,
+                        sweeps=self.sweeps,
+                        tolerance=0.1 * self.tolerance,
+                        parity=parity,
+                    )
                     for parity in (0, 1)
                 ],  # fmt: skip
                 velocities=[
