@@ -139,7 +139,8 @@ class Simulator:
         broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
         contact_sweeps: Gauss-Seidel sweeps over the contacts at most per position solve ("pgs"), between two
             predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
-            impulses settle to a tenth of `velocity_tolerance`, at most 8 times as many.
+            impulses settle to a tenth of `velocity_tolerance`, at most `contacts.VELOCITY_SWEEPS` (2) times as
+            many.
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
