@@ -7,15 +7,16 @@ gap with the leg's mobility, and the joints' solve, which holds the leg to the b
 undoes about 90% of it; the two alternate at 4-8% a prediction (docs/contacts.md). Here every row r (a limit's
 or motor's coordinate, or a contact's normal or one of its two tangents) is a Jacobian g_r on at most two
 bodies, and the rows' system is S = G M^-1 G^T - C^T K^-1 C with C = J M^-1 G^T: the rows' mobility with the
-joints holding, K^-1 C from one solve with K's factor per row and step (limits' rows reuse theirs). One solve
-of S with block pivoting on the bounds (limits push only, motors within max_force h, contacts push only,
-friction within mu times the normal impulse) moves every row at once; each row's impulse goes to its bodies
-with the joints' linear reaction -K^-1 c, so the joints stay as they were to first order.
+joints holding, K^-1 C from one solve with K's factor per row and step (limits' rows reuse theirs). In S the
+limits and motors that hold are eliminated exactly (their block is small and stiffly coupled to the contacts:
+a crank's motor and the foot it drives), the contacts' rows are swept by projected Gauss-Seidel on what is
+left (normals push only, friction within mu times the normal impulse), and a limit or motor out of its bounds
+(push only; max_force h) is fixed at them, or a fixed one freed, and again. Each row's impulse goes to its
+bodies with the joints' linear reaction -K^-1 c, so the joints stay as they were to first order.
 
-Friction is a box on two tangents, the first along the contact's slip when the rows are built (a sliding
-contact slides along its first tangent, at mu lambda_n against its slip): the first bounded by mu lambda_n, the
-second by what the cone's disc leaves beside the first, both updated from the last solve and solved again (a
-few passes); the tangential total is then projected onto the disc.
+Friction: both tangents of a contact as a block, the first along its slip when the rows are built; where the
+block's own solve lies in the cone's disc it sticks, else a step of the block's largest eigenvalue against
+the slip left, projected onto the disc, so that a sliding contact's impulse points against its slip.
 """
 
 import warp as wp
@@ -431,9 +432,9 @@ def solve_rows(
     row_reduced_goal: wp.array(dtype=f64),
     contact_error: wp.array(dtype=f64),
 ):
-    """Every row at once (one thread), by block pivoting on the rows' system S (`limits.box_pivot`), the friction
-    bounds mu lambda_n from the last solve's normal impulses, solved again until they move no row by more than
-    `tolerance` (m) over the step; contact_error[1 + velocity] = the solves taken.
+    """Every row at once (one thread) on the rows' system S (module docstring): the limits and motors that hold
+    eliminated, the contacts swept until no row moves by more than `tolerance` (m) over the step or
+    `max_sweeps` (a round), then the limits' and motors' bounds; contact_error[1 + velocity] = the sweeps.
 
     Position pass (`velocity` 0, at t0, on the prediction just measured): a limit or motor as
     `limits.correct_rows` wants it; a contact's gap g' = g + h n . du >= 0, pushing only; its slip over the step

@@ -329,11 +329,13 @@ class ContactStage:
         With rows (`couple`), the contacts on jointed bodies, the limits and the motors first, all at once."""
         if not self.count:
             return 0
+        sweeps = 0
         if self.row_total:
             self._launches(h).rows.solve[0].launch()
+            sweeps = int(self.data.contact_error.numpy()[1])
         self._parity ^= 1
         self._launches(h).positions[self._parity].launch()
-        return int(self.data.contact_error.numpy()[1])
+        return sweeps + int(self.data.contact_error.numpy()[1])
 
     def solve_velocities(self, h: float, first: bool = True) -> int:
         """Restitution and friction at t0+h on the state; returns the sweeps taken. The `first` solve of a step
