@@ -482,6 +482,159 @@ def contact_keys(
     contact_order_out[k] = k
 
 
+# ------------------------------------------------------------------------------------------ warm start
+@wp.func
+def pair_key(body: wp.vec2i, body_count: int) -> int:
+    """A contact's pair of bodies as one sortable key (a is -1 for a ground plane)."""
+    return (body[0] + 1) * (body_count + 1) + body[1]
+
+
+@wp.kernel
+def keep_contacts(
+    # Model:
+    body_count: int,
+    # Data in: the step's contacts, solved
+    contact_count: wp.array(dtype=int),
+    contact_body: wp.array(dtype=wp.vec2i),
+    contact_anchor_b: wp.array(dtype=vec3d),
+    contact_normal: wp.array(dtype=vec3d),
+    contact_impulse: wp.array(dtype=vec3d),
+    contact_velocity_impulse: wp.array(dtype=vec3d),
+    # Data out: the same, kept for the next step's match, and the sort's keys and values
+    kept_body_out: wp.array(dtype=wp.vec2i),
+    kept_anchor_b_out: wp.array(dtype=vec3d),
+    kept_normal_out: wp.array(dtype=vec3d),
+    kept_impulse_out: wp.array(dtype=vec3d),
+    kept_velocity_impulse_out: wp.array(dtype=vec3d),
+    kept_key_out: wp.array(dtype=int),
+    kept_order_out: wp.array(dtype=int),
+):
+    """A step's contacts and their impulses (both phases), to start the next step's from (`match_contacts`)."""
+    k = wp.tid()
+    key = int(2147483647)
+    if k < wp.min(contact_count[0], contact_body.shape[0]):
+        key = pair_key(contact_body[k], body_count)
+        kept_body_out[k] = contact_body[k]
+        kept_anchor_b_out[k] = contact_anchor_b[k]
+        kept_normal_out[k] = contact_normal[k]
+        kept_impulse_out[k] = contact_impulse[k]
+        kept_velocity_impulse_out[k] = contact_velocity_impulse[k]
+    kept_key_out[k] = key
+    kept_order_out[k] = k
+
+
+@wp.func
+def carried(old: vec3d, n_old: vec3d, n: vec3d, scale: f64, mu: f64) -> vec3d:
+    """A kept impulse (normal, two tangents about n_old) for a contact of normal n: the normal part scaled by
+    the ratio of the step sizes, the friction turned onto n's tangents and kept inside the cone."""
+    t1 = collide.any_perpendicular(n_old)
+    p = t1 * old[1] + wp.cross(n_old, t1) * old[2]
+    ln = wp.max(old[0], f64(0.0)) * scale
+    s1 = collide.any_perpendicular(n)
+    lt = vec2d(wp.dot(p, s1), wp.dot(p, wp.cross(n, s1))) * scale
+    size = wp.length(lt)
+    if size > mu * ln:
+        lt = lt * (mu * ln / size)
+    return vec3d(ln, lt[0], lt[1])
+
+
+@wp.kernel
+def match_contacts(
+    # Model:
+    body_count: int,
+    distance: f64,
+    scale: f64,
+    kept_count: int,
+    # Data in: this step's contacts and the last step's, sorted by pair
+    contact_count: wp.array(dtype=int),
+    contact_body: wp.array(dtype=wp.vec2i),
+    contact_anchor_b: wp.array(dtype=vec3d),
+    contact_normal: wp.array(dtype=vec3d),
+    contact_material: wp.array(dtype=wp.vec2d),
+    kept_body: wp.array(dtype=wp.vec2i),
+    kept_anchor_b: wp.array(dtype=vec3d),
+    kept_normal: wp.array(dtype=vec3d),
+    kept_impulse: wp.array(dtype=vec3d),
+    kept_velocity_impulse: wp.array(dtype=vec3d),
+    kept_key: wp.array(dtype=int),
+    kept_order: wp.array(dtype=int),
+    # Data out: each contact's match (-1: none) and the impulses its phases start from
+    contact_match_out: wp.array(dtype=int),
+    contact_warm_out: wp.array(dtype=vec3d),
+    contact_warm_velocity_out: wp.array(dtype=vec3d),
+):
+    """The last step's contact that this one continues: the same bodies, a normal within 18 degrees, and the
+    nearest anchor on b within `distance` (m, in b's frame). Its impulses, carried (`carried`), start this
+    contact's position and velocity phases: a resting pile then needs few sweeps."""
+    k = wp.tid()
+    if k >= wp.min(contact_count[0], contact_body.shape[0]):
+        return
+    key = pair_key(contact_body[k], body_count)
+    lo = int(0)
+    hi = kept_count
+    while lo < hi:  # the first kept contact of the pair
+        mid = (lo + hi) // 2
+        if kept_key[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    n = contact_normal[k]
+    best = int(-1)
+    nearest = distance
+    while lo < kept_count and kept_key[lo] == key:
+        j = kept_order[lo]
+        d = wp.length(kept_anchor_b[j] - contact_anchor_b[k])
+        if wp.dot(kept_normal[j], n) > f64(0.95) and d <= nearest:
+            best = j
+            nearest = d
+        lo += 1
+    contact_match_out[k] = best
+    if best < 0:
+        contact_warm_out[k] = vec3d()
+        contact_warm_velocity_out[k] = vec3d()
+        return
+    mu = contact_material[k][0]
+    contact_warm_out[k] = carried(kept_impulse[best], kept_normal[best], n, scale, mu)
+    contact_warm_velocity_out[k] = carried(kept_velocity_impulse[best], kept_normal[best], n, scale, mu)
+
+
+@wp.kernel
+def warm_positions(
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    contact_count: wp.array(dtype=int),
+    contact_body: wp.array(dtype=wp.vec2i),
+    contact_normal: wp.array(dtype=vec3d),
+    contact_arm_a: wp.array(dtype=vec3d),
+    contact_arm_b: wp.array(dtype=vec3d),
+    contact_row: wp.array(dtype=int),
+    contact_warm: wp.array(dtype=vec3d),
+    # Data out (updated in place): the velocities at t0 and the position phase's impulses
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+    contact_impulse_out: wp.array(dtype=vec3d),
+):
+    """The position phase's first iterate: each matched contact's carried impulse, applied at t0 (one thread:
+    contacts share bodies). The sweeps that follow take back what is too much: they solve the same problem
+    from here, to the same tolerance (`measure`'s linearisation counts these impulses)."""
+    count = wp.min(contact_count[0], contact_body.shape[0])
+    for k in range(count):
+        if contact_row[k] >= 0:
+            continue
+        a = contact_body[k][0]
+        b = contact_body[k][1]
+        n = contact_normal[k]
+        lam = contact_warm[k]
+        contact_impulse_out[k] = lam
+        t1 = collide.any_perpendicular(n)
+        p = n * lam[0] + t1 * lam[1] + wp.cross(n, t1) * lam[2]
+        apply_pair(a, b, p, contact_arm_a[k], contact_arm_b[k], body_inv_mass_of(a, body_inv_mass),
+                   body_inv_mass_of(b, body_inv_mass), inverse_inertia(a, inv_inertia_world_in),
+                   inverse_inertia(b, inv_inertia_world_in), body_v_out, body_w_out)  # fmt: skip
+
+
 @wp.func
 def sweep_index(i: int, count: int, sweep: int) -> int:
     """The i-th contact of a sweep: odd sweeps run backwards (symmetric Gauss-Seidel: a stack's support travels
@@ -726,6 +879,8 @@ def solve_velocities(
     contact_material: wp.array(dtype=wp.vec2d),
     contact_impact: wp.array(dtype=f64),
     contact_impulse: wp.array(dtype=vec3d),
+    contact_match: wp.array(dtype=int),
+    contact_warm_velocity: wp.array(dtype=vec3d),
     contact_row: wp.array(dtype=int),
     contact_order: wp.array(dtype=int),
     # Data out (updated in place):
@@ -766,8 +921,11 @@ def solve_velocities(
         if first != 0 and contact_row[k] >= 0:
             contact_velocity_impulse_out[k] = vec3d()  # solved with the joints (`contact_rows.py`), from 0
         elif first != 0:
-            # Start from the position phase's impulses: a resting contact takes the same in both phases.
+            # Start from the last step's impulses where the contact goes on (`match_contacts`), else from the
+            # position phase's: a resting contact takes the same in both phases.
             lam = contact_impulse[k]
+            if contact_match[k] >= 0:
+                lam = contact_warm_velocity[k]
             contact_velocity_impulse_out[k] = lam
             n = contact_normal[k]
             t1 = collide.any_perpendicular(n)
@@ -810,15 +968,18 @@ def solve_velocities(
                 target = f64(-1e300)
             u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
             kn = contact_mass_out[k][0]
-            ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, f64(0.0))
+            # Push-only over the step: this phase may take back what the position phase pushed (its push
+            # closed a gap; the speed it left would carry the bodies apart, a pile's jitter at a coarse tolerance).
+            ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, -contact_impulse[k][0])
             dn = ln - lam[0]
             change = wp.max(change, wp.abs(dn) * kn)
             apply_pair(a, b, n * dn, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
             u = relative_velocity(a, b, ra, rb, body_v_out, body_w_out)
             slip = u - n * wp.dot(n, u)
             old = vec2d(lam[1], lam[2])
-            lt = friction_step(slip, n, contact_mass_out[k][1], contact_material[k][0] * ln, old, a, b, ra, rb, ima,
-                               imb, ia, ib, body_v_out, body_w_out)  # fmt: skip
+            limit = contact_material[k][0] * wp.max(ln, f64(0.0))
+            lt = friction_step(slip, n, contact_mass_out[k][1], limit, old, a, b, ra, rb, ima, imb, ia, ib, body_v_out,
+                               body_w_out)  # fmt: skip
             change = wp.max(change, wp.length(lt - old) * (ima + imb))
             contact_velocity_impulse_out[k] = vec3d(ln, lt[0], lt[1])
         if change <= tolerance:

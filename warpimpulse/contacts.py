@@ -16,6 +16,7 @@ import warp as wp
 
 from .kernels import contact_rows as row_kernels
 from .kernels import contact_solve as kernels
+from .launch import arguments as kernels_arguments
 from .launch import record
 from .model import Model, State
 from .transforms import quat_rotate
@@ -38,6 +39,10 @@ VELOCITY_SWEEPS = 2
 before the contacts were ordered from the bottom up). On the 1,000-body pile at 1e-4 m over 4 s (docs/contacts.md,
 "Where the time goes"): ordered, 75 sweeps a step and a mean kinetic energy of 0.017 J over the last second,
 where the unordered 240 took 285 sweeps and left 0.024 J."""
+
+WARM_DISTANCE = 0.01
+"""How far (m, in the second body's frame) a contact's anchor may have moved since the last step for it to be
+the same contact, whose impulses then start this step's sweeps (`contact_solve.match_contacts`)."""
 
 BROAD_PHASES = ("bvh", "all_pairs")
 """`bvh`: Warp's BVH over the swept boxes of the colliders, rebuilt each step; `all_pairs`: every pair of boxes
@@ -128,6 +133,12 @@ class ContactStage:
         self.last_sweeps = (0, 0)
         self.row_total = 0  # the rows of the step's coupled solve (limits' and contacts'); 0: none
         self._parity = 1  # the direction of the position sweeps' first sweep, alternated call by call
+        self.warm_start = (n + 1) ** 2 < 2**31  # the pair keys fit in an int32
+        """Start each step's sweeps from the last step's impulses of the contacts that go on (same bodies,
+        anchor within WARM_DISTANCE): a resting stack or pile then settles in few sweeps. False: from zero."""
+        self._kept, self._kept_h = 0, 0.0  # the last step's solved contacts (kept in `data.kept_*`), its h
+        self._solved = False  # the last step's velocity phase ran on its contacts: the next detection keeps them
+        self._warm_pending = False  # the position phase's first solve of the step starts from the kept impulses
         self.joints, self.rows = None, None
         jointed = np.zeros(n, dtype=np.int32)
         if joints is not None:
@@ -196,7 +207,18 @@ class ContactStage:
             contact_impulse=z(contacts, dtype=wp.vec3d, device=d),
             contact_velocity_impulse=z(contacts, dtype=wp.vec3d, device=d),
             contact_error=z(3, dtype=wp.float64, device=d),
+            contact_match=wp.full(contacts, -1, dtype=wp.int32, device=d),
+            contact_warm=z(contacts, dtype=wp.vec3d, device=d),
+            contact_warm_velocity=z(contacts, dtype=wp.vec3d, device=d),
+            kept_body=z(contacts, dtype=wp.vec2i, device=d),
+            kept_anchor_b=z(contacts, dtype=wp.vec3d, device=d),
+            kept_normal=z(contacts, dtype=wp.vec3d, device=d),
+            kept_impulse=z(contacts, dtype=wp.vec3d, device=d),
+            kept_velocity_impulse=z(contacts, dtype=wp.vec3d, device=d),
+            kept_key=z(2 * contacts, dtype=wp.int32, device=d),
+            kept_order=z(2 * contacts, dtype=wp.int32, device=d),
         )
+        self._kept = 0  # new arrays: nothing kept
         self._launches_by_h: dict[float, SimpleNamespace] = {}
 
     def _record(self, kernel, dim, **values):
@@ -236,6 +258,8 @@ class ContactStage:
                 narrow=self._record(kernels.narrow_phase, len(data.pair_body)),
                 planes=self._record(kernels.plane_phase, (ncol, self.plane_count)),
                 keys=self._record(kernels.contact_keys, cap, gravity=wp.vec3d(*self.model.host.gravity)),
+                keep=self._record(kernels.keep_contacts, cap, body_count=g.body_count),
+                warm=self._record(kernels.warm_positions, 1),
                 measure=self._record(kernels.measure, cap, inv_h=1.0 / h),
                 positions=[
                     self._record(
@@ -266,7 +290,15 @@ class ContactStage:
     # ---------------------------------------------------------------- the stage
     def detect(self, h: float) -> int:
         """Contacts of the current prediction (swept from the state at t0); returns their number. The arrays
-        grow and detection reruns when a scene has more pairs or contacts than they hold."""
+        grow and detection reruns when a scene has more pairs or contacts than they hold. The last step's
+        contacts, once solved, are kept first, and each new one is matched to the one it continues (its
+        impulses start this step's sweeps, `warm_start`)."""
+        if self._solved:  # the last step's contacts, solved: kept for the match
+            self._launches(h).keep.launch()
+            self._kept, self._solved = self.count, False
+            if self._kept > 1:
+                wp.utils.radix_sort_pairs(self.data.kept_key, self.data.kept_order, self._kept)
+        self._warm_pending = False
         while True:
             run = self._launches(h)
             run.bounds.launch()
@@ -285,8 +317,21 @@ class ContactStage:
                 run.keys.launch()  # the sweeps' order: from the bottom up
                 if count > 1:
                     wp.utils.radix_sort_pairs(self.data.contact_key, self.data.contact_order, count)
+                self._match(h)
                 return count
             self._allocate(max(pairs, len(self.data.pair_body)) * 2, max(count, len(self.data.contact_body)) * 2)
+
+    def _match(self, h: float) -> None:
+        """Each new contact's match among the kept ones and the impulses its phases start from."""
+        self.data.contact_match.fill_(-1)
+        if not (self.warm_start and self._kept and self.count):
+            self._kept = 0
+            return
+        values = dict(body_count=self.geometry.body_count, distance=WARM_DISTANCE, scale=h / self._kept_h,
+                      kept_count=self._kept)  # fmt: skip
+        inputs = kernels_arguments(kernels.match_contacts, (self.data,), **values)
+        wp.launch(kernels.match_contacts, dim=self.count, inputs=inputs, device=self.model.device)
+        self._warm_pending = True
 
     def measure(self, h: float) -> float:
         """The deepest penetration of the current prediction (m; 0 when none)."""
@@ -330,6 +375,9 @@ class ContactStage:
         if not self.count:
             return 0
         sweeps = 0
+        if self._warm_pending:  # the first solve of the step: from the kept impulses
+            self._launches(h).warm.launch()
+            self._warm_pending = False
         if self.row_total:
             self._launches(h).rows.solve[0].launch()
             sweeps = int(self.data.contact_error.numpy()[1])
@@ -341,6 +389,9 @@ class ContactStage:
         """Restitution and friction at t0+h on the state; returns the sweeps taken. The `first` solve of a step
         starts from the position phase's impulses, a later one (after the joints' velocity correction) goes on
         from the last."""
+        if first:  # the step's contacts are solved: the next detection keeps them
+            self._solved, self._kept_h = self.count > 0, h
+            self._kept = self._kept if self.count else 0
         if not self.count:
             return 0
         self._launches(h).velocities[0 if first else 1].launch()
