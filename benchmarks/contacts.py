@@ -104,15 +104,23 @@ def kinetic(sim: wi.Simulator) -> float:
     return float(0.5 * np.sum(h.body_mass * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, iw, w))
 
 
+VARIANTS = {"now": {}, "before": {"take_back": False, "position_slop": 0.0}, "warm_start": {"warm_start": True}}
+"""The contact stage's switches (`ContactStage.take_back`, `position_slop`, `warm_start`) per variant: "before"
+is main before the position phase left half the tolerance and the velocity phase could take back its push."""
+
+
 def run_ours(
-    builder, dt: float, duration: float, tolerance: float, solver: str = "pgs", **options
+    builder, dt: float, duration: float, tolerance: float, solver: str = "pgs", variant: str = "now", **options
 ) -> tuple[dict, wi.Simulator]:
     sim = wi.Simulator(
         builder.finalize(), dt=dt, tolerance=tolerance, contact_solver=solver, on_max_iterations="warn", **options
     )
+    for name, value in VARIANTS[variant].items():
+        setattr(sim.contact_stage, name, value)
     steps = int(round(duration / dt))
+    last = steps - int(round(1.0 / dt))
     e0 = sim.energy()
-    times, iterations, sweeps, depth, failed = [], [], [], 0.0, 0
+    times, iterations, sweeps, depth, failed, energies = [], [], [], 0.0, 0, []
     for k in range(steps):
         t = time.perf_counter()
         stats = sim.step()
@@ -120,14 +128,18 @@ def run_ours(
         iterations.append(stats.joint_iterations)
         sweeps.append(stats.contact_sweeps)
         failed += not stats.converged
-        if k >= steps - int(round(1.0 / dt)):
+        if k >= last:
             c = sim.contacts()
             depth = max(depth, float(c.depth.max()) if len(c) else 0.0)  # depth > 0: penetration
+            energies.append(kinetic(sim))
     return {
+        "variant": variant,
         "ms_per_step": statistics.median(times) * 1e3,
         "mean_ms_per_step": statistics.fmean(times) * 1e3,
         "max_penetration_m": depth,
         "kinetic_end_J": kinetic(sim),
+        "kinetic_last_second_mean_J": statistics.fmean(energies),
+        "kinetic_last_second_max_J": max(energies),
         "energy_change_J": sim.energy() - e0,
         "outer_iterations_mean": statistics.fmean(iterations),
         "sweeps_mean": statistics.fmean(sweeps),
@@ -148,19 +160,25 @@ def run_mujoco(builder, dt: float, duration: float, solver: str) -> dict:
     mujoco.mj_forward(scene.model, data)
     e0 = scene.energy(data)
     steps = int(round(duration / dt))
-    times, depth = [], 0.0
+    times, depth, energies = [], 0.0, []
     for k in range(steps):
         t = time.perf_counter()
         mujoco.mj_step(scene.model, data)
         times.append(time.perf_counter() - t)
-        if k >= steps - int(round(1.0 / dt)) and data.ncon:
-            depth = max(depth, float(-data.contact.dist[: data.ncon].min()))
+        if k >= steps - int(round(1.0 / dt)):
+            if data.ncon:
+                depth = max(depth, float(-data.contact.dist[: data.ncon].min()))
+            mujoco.mj_energyPos(scene.model, data)
+            mujoco.mj_energyVel(scene.model, data)
+            energies.append(float(data.energy[1]))
     mujoco.mj_forward(scene.model, data)
     return {
         "ms_per_step": statistics.median(times) * 1e3,
         "mean_ms_per_step": statistics.fmean(times) * 1e3,
         "max_penetration_m": depth,
         "kinetic_end_J": float(data.energy[1]),
+        "kinetic_last_second_mean_J": statistics.fmean(energies),
+        "kinetic_last_second_max_J": max(energies),
         "energy_change_J": scene.energy(data) - e0,
         "contacts_end": int(data.ncon),
         "solver": solver,
@@ -244,7 +262,7 @@ def tree_ms(cwd: str | None, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bodies", type=int, default=1000)
-    parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds of the pile")
+    parser.add_argument("--duration", type=float, default=4.0, help="simulated seconds of the pile and the stack")
     parser.add_argument("--dt", type=float, default=1.0 / 60.0)
     parser.add_argument("--tolerance", type=float, default=1e-4, help="our contact (and joint) tolerance, m")
     parser.add_argument(
@@ -276,25 +294,31 @@ def main() -> None:
             args.json.write_text(json.dumps(result, indent=2) + "\n")
         return
 
-    print(f"pile of {args.bodies} bodies, {args.duration} s at dt = {args.dt:.4g} s", flush=True)
-    ours, sim = run_ours(scenes.pile(args.bodies), args.dt, args.duration, args.tolerance)
-    ours["tolerance_m"] = args.tolerance
-    print("  warpimpulse", json.dumps(ours), flush=True)
-    result["pile"] = {"bodies": args.bodies, "duration_s": args.duration, "warpimpulse": ours}
-    deepest = math.inf
-    for solver in args.mujoco_solvers.split(","):
-        theirs = run_mujoco(scenes.pile(args.bodies), args.dt, args.duration, solver)
-        print(f"  mujoco {solver:<6}", json.dumps(theirs), flush=True)
-        result["pile"][f"mujoco_{solver}"] = theirs
-        deepest = min(deepest, theirs["max_penetration_m"])
-    if math.isfinite(deepest) and deepest > args.tolerance:  # ours at MuJoCo's penetration: equal accuracy
-        matched, _ = run_ours(scenes.pile(args.bodies), args.dt, args.duration, deepest)
-        matched["tolerance_m"] = deepest
-        print("  warpimpulse at MuJoCo's penetration", json.dumps(matched), flush=True)
-        result["pile"]["warpimpulse_at_mujoco_penetration"] = matched
+    sim = None
+    for name, make in (("pile", lambda: scenes.pile(args.bodies)), ("box_stack10", lambda: scenes.box_stack(10))):
+        print(f"{name}, {args.duration} s at dt = {args.dt:.4g} s", flush=True)
+        result[name] = {"bodies": len(make().bodies), "duration_s": args.duration}
+        for variant in VARIANTS:
+            ours, last = run_ours(make(), args.dt, args.duration, args.tolerance, variant=variant)
+            sim = last if name == "pile" and variant == "now" else sim
+            ours["tolerance_m"] = args.tolerance
+            print(f"  warpimpulse {variant}", json.dumps(ours), flush=True)
+            result[name][f"warpimpulse_{variant}"] = ours
+        deepest = math.inf
+        for solver in args.mujoco_solvers.split(","):
+            theirs = run_mujoco(make(), args.dt, args.duration, solver)
+            print(f"  mujoco {solver:<6}", json.dumps(theirs), flush=True)
+            result[name][f"mujoco_{solver}"] = theirs
+            deepest = min(deepest, theirs["max_penetration_m"])
+        if math.isfinite(deepest) and deepest > args.tolerance:  # ours at MuJoCo's penetration: equal accuracy
+            for variant in VARIANTS:
+                matched, _ = run_ours(make(), args.dt, args.duration, deepest, variant=variant)
+                matched["tolerance_m"] = deepest
+                print(f"  warpimpulse {variant} at MuJoCo's penetration", json.dumps(matched), flush=True)
+                result[name][f"warpimpulse_{variant}_at_mujoco_penetration"] = matched
 
     result["stages"] = stages(sim)
-    result["stages"]["step_ms"] = ours["ms_per_step"]
+    result["stages"]["step_ms"] = result["pile"]["warpimpulse_now"]["ms_per_step"]
     print("  stages", json.dumps(result["stages"]), flush=True)
 
     result["contact_solvers"] = contact_solvers(args.dt, args.tolerance)

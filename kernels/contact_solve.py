@@ -792,6 +792,7 @@ def solve_positions(
     h: f64,
     sweeps: int,
     tolerance: f64,
+    slop: f64,
     parity: int,
     # Data in:
     inv_inertia_world_in: wp.array(dtype=mat33d),
@@ -814,7 +815,9 @@ def solve_positions(
     contact_error_out: wp.array(dtype=f64),
 ):
     """Up to `sweeps` projected Gauss-Seidel sweeps of the linearised position phase (module docstring), until
-    no impulse changes a gap or a slip by more than `tolerance` (m). contact_error[1] = the sweeps taken. The
+    no impulse changes a gap or a slip by more than `tolerance` (m). A pushing contact is closed to `slop` (m)
+    of penetration, not to touching: the loop runs when a contact is deeper than the step's tolerance, and
+    closing every contact to 0 then kicked a resting pile apart (docs/contacts.md, "Coming to rest"). contact_error[1] = the sweeps taken. The
     first sweep runs up the contacts' order (`contact_keys`) for `parity` 0, down for 1: the caller alternates it,
     so that one sweep a call ("paper") is symmetric too.
     Contacts with rows (`contact_row` >= 0) are solved with the joints (`contact_rows.py`) and skipped here."""
@@ -838,7 +841,7 @@ def solve_positions(
             ib = inverse_inertia(b, inv_inertia_world_in)
             lam = contact_impulse_out[k]
             du = relative_velocity(a, b, ra, rb, body_v_out, body_w_out) - contact_u0[k]
-            gap = contact_gap[k] + h * wp.dot(n, du)
+            gap = contact_gap[k] + h * wp.dot(n, du) + slop
             kn = contact_mass[k][0]
             ln = wp.max(lam[0] - gap / (h * kn), f64(0.0))
             dn = ln - lam[0]
@@ -866,6 +869,7 @@ def solve_velocities(
     bounce_speed: f64,
     inv_h: f64,
     first: int,
+    take_back: f64,
     # Data in:
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
@@ -900,7 +904,9 @@ def solve_velocities(
     (clamped here, a ball would land at g / h and not bounce). The `first` solve of a step starts from the
     position phase's impulses (applied here; the sweeps take back what is too much), later ones (alternating
     with the joints) from where the last stopped. Sweeps until no impulse changes a velocity by more than
-    `tolerance` (m/s). contact_error[2] = the sweeps taken. Contacts with rows (`contact_row` >= 0) are left to
+    `tolerance` (m/s). `take_back` 1: a contact's impulse here may go down to minus its position phase's, so
+    that its total over the step pushes (0: this phase's alone pushes, the speed a position correction left is
+    kept). contact_error[2] = the sweeps taken. Contacts with rows (`contact_row` >= 0) are left to
     `contact_rows.solve_rows`: here they only get their gaps, arms and approach speeds."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     for k in range(count):
@@ -970,7 +976,7 @@ def solve_velocities(
             kn = contact_mass_out[k][0]
             # Push-only over the step: this phase may take back what the position phase pushed (its push
             # closed a gap; the speed it left would carry the bodies apart, a pile's jitter at a coarse tolerance).
-            ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, -contact_impulse[k][0])
+            ln = wp.max(lam[0] + (target - wp.dot(n, u)) / kn, -take_back * contact_impulse[k][0])
             dn = ln - lam[0]
             change = wp.max(change, wp.abs(dn) * kn)
             apply_pair(a, b, n * dn, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)

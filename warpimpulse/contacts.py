@@ -40,6 +40,11 @@ before the contacts were ordered from the bottom up). On the 1,000-body pile at 
 "Where the time goes"): ordered, 75 sweeps a step and a mean kinetic energy of 0.017 J over the last second,
 where the unordered 240 took 285 sweeps and left 0.024 J."""
 
+POSITION_SLOP = 0.5
+"""The penetration (in tolerances) the position phase leaves where it pushes: it runs when a contact is deeper
+than the tolerance and closes it to half of it, so that a body resting within the tolerance is corrected less
+often and by less (closed to 0, a 1,000-body pile at 6 mm kept 0.7 J of kinetic energy; docs/contacts.md)."""
+
 WARM_DISTANCE = 0.01
 """How far (m, in the second body's frame) a contact's anchor may have moved since the last step for it to be
 the same contact, whose impulses then start this step's sweeps (`contact_solve.match_contacts`)."""
@@ -133,9 +138,18 @@ class ContactStage:
         self.last_sweeps = (0, 0)
         self.row_total = 0  # the rows of the step's coupled solve (limits' and contacts'); 0: none
         self._parity = 1  # the direction of the position sweeps' first sweep, alternated call by call
-        self.warm_start = (n + 1) ** 2 < 2**31  # the pair keys fit in an int32
+        self.warm_start = False
         """Start each step's sweeps from the last step's impulses of the contacts that go on (same bodies,
-        anchor within WARM_DISTANCE): a resting stack or pile then settles in few sweeps. False: from zero."""
+        anchor within WARM_DISTANCE): a box resting alone then takes 2 sweeps a step instead of 60, but a
+        stack of 10 boxes, whose sweeps stop short, gathers kinetic energy (docs/contacts.md, "Warm starting"),
+        so it is off by default. Needs (bodies + 1)^2 < 2^31 (the pairs' keys are int32)."""
+        self._keys_fit = (n + 1) ** 2 < 2**31
+        self.position_slop = POSITION_SLOP
+        """`POSITION_SLOP`; 0 closes pushing contacts to touching (as before). Set before the first step."""
+        self.take_back = True
+        """The velocity phase may take back what the position phase pushed (the contact's total impulse over the
+        step pushes): a position correction then leaves no speed apart. False: each phase pushes alone (the
+        pile jitters at a coarse tolerance, docs/contacts.md). Set before the first step."""
         self._kept, self._kept_h = 0, 0.0  # the last step's solved contacts (kept in `data.kept_*`), its h
         self._solved = False  # the last step's velocity phase ran on its contacts: the next detection keeps them
         self._warm_pending = False  # the position phase's first solve of the step starts from the kept impulses
@@ -268,6 +282,7 @@ class ContactStage:
                         h=h,
                         sweeps=self.sweeps,
                         tolerance=0.1 * self.tolerance,
+                        slop=self.position_slop * self.tolerance,
                         parity=parity,
                     )
                     for parity in (0, 1)
@@ -281,6 +296,7 @@ class ContactStage:
                         bounce_speed=bounce,
                         inv_h=1.0 / h,
                         first=first,
+                        take_back=1.0 if self.take_back else 0.0,
                     )
                     for first in (1, 0)
                 ],  # fmt: skip
@@ -293,7 +309,7 @@ class ContactStage:
         grow and detection reruns when a scene has more pairs or contacts than they hold. The last step's
         contacts, once solved, are kept first, and each new one is matched to the one it continues (its
         impulses start this step's sweeps, `warm_start`)."""
-        if self._solved:  # the last step's contacts, solved: kept for the match
+        if self._solved and self.warm_start:  # the last step's contacts, solved: kept for the match
             self._launches(h).keep.launch()
             self._kept, self._solved = self.count, False
             if self._kept > 1:
@@ -324,7 +340,7 @@ class ContactStage:
     def _match(self, h: float) -> None:
         """Each new contact's match among the kept ones and the impulses its phases start from."""
         self.data.contact_match.fill_(-1)
-        if not (self.warm_start and self._kept and self.count):
+        if not (self.warm_start and self._keys_fit and self._kept and self.count):
             self._kept = 0
             return
         values = dict(body_count=self.geometry.body_count, distance=WARM_DISTANCE, scale=h / self._kept_h,
