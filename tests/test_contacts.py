@@ -11,7 +11,7 @@ from numpy_checks import rotations
 
 import warpimpulse as wi
 from warpimpulse import scenes
-from warpimpulse.transforms import quat_from_axis_angle
+from warpimpulse.transforms import quat_from_axis_angle, quat_to_matrix
 
 G = 9.81
 
@@ -102,6 +102,44 @@ def test_short_stack_rests():
 @pytest.mark.slow
 def test_stack_of_ten_rests_ten_seconds():
     _rests(_stack(10), 10.0)
+
+
+def _kinetic(sim: wi.Simulator) -> float:
+    h = sim.model.host
+    v, w = sim.linear_velocities(), sim.angular_velocities()
+    r = quat_to_matrix(sim.orientations())
+    inertia = np.einsum("nij,njk,nlk->nil", r, h.body_inertia, r)
+    return float(0.5 * np.sum(h.body_mass * np.sum(v * v, axis=1)) + 0.5 * np.einsum("ni,nij,nj->", w, inertia, w))
+
+
+def test_a_pile_comes_to_rest_at_a_coarse_tolerance():
+    """100 spheres and capsules dropped 15 cm, at 5 mm: over the last 0.5 s of 3 s the kinetic energy stays below
+    0.03 J (0.014 J measured; with the position phase closing contacts to 0 and each phase pushing alone, as
+    before, the pile jittered: a mean of 0.10 J, up to 0.35 J)."""
+    sim = wi.Simulator(scenes.pile(100).finalize(), dt=1.0 / 60.0, tolerance=5e-3)
+    energies = []
+    for _ in range(180):
+        stats = sim.step()
+        assert stats.max_penetration <= sim.tolerance
+        energies.append(_kinetic(sim))
+    assert np.mean(energies[-30:]) < 0.03
+    assert max(energies[-30:]) < 0.06
+
+
+def test_warm_start_takes_fewer_sweeps_to_the_same_rest():
+    """Two boxes stacked, 1 s: starting each step from the last step's matched impulses takes under half the
+    sweeps (1,490 against 5,016 measured) and ends at the same heights to the tolerance, gaining no energy."""
+    runs = []
+    for warm in (False, True):
+        sim = wi.Simulator(scenes.box_stack(2).finalize(), dt=1.0 / 60.0, tolerance=1e-4)
+        sim.contact_stage.warm_start = warm
+        e0 = sim.energy()
+        sweeps = sum(sim.step().contact_sweeps for _ in range(60))
+        assert sim.energy() - e0 <= 1e-6 * abs(e0)
+        runs.append((sweeps, sim.positions()))
+    (cold, x_cold), (warm, x_warm) = runs
+    assert warm < 0.5 * cold
+    assert np.abs(x_warm - x_cold).max() <= 1e-4
 
 
 def test_fast_small_sphere_does_not_tunnel_through_a_thin_box():
