@@ -1,14 +1,16 @@
 """Contacts: the 1,000-body pile against MuJoCo, the stages of a contact step, the contact solvers, and the cost
 of the contact stage to scenes without colliders.
 
-    python benchmarks/contacts.py [--bodies 1000] [--duration 3] [--json benchmarks/results/contacts.json]
+    python benchmarks/contacts.py [--bodies 1000] [--duration 4] [--json benchmarks/results/contacts.json]
                                   [--baseline CHECKOUT]
     python benchmarks/contacts.py --grounded [--baseline CHECKOUT] [--json benchmarks/results/grounded.json]
     python benchmarks/contacts.py --solvers [--json benchmarks/results/contact_solvers.json]
 
-1. The pile (`scenes.pile`: spheres and capsules dropped into a box) in one run on both engines: median time
-   per step, the deepest penetration at the states of the last second, the kinetic energy at the end (at
-   rest: 0) and the total energy lost. MuJoCo gets the same bodies, shapes, friction and ground
+1. The pile (`scenes.pile`: spheres and capsules dropped into a box) and the stack of 10 boxes, each in one run
+   on both engines: median time per step, the deepest penetration at the states of the last second, the
+   kinetic energy at the end and its mean and largest over the last second (at rest: 0), and the total energy
+   lost. Ours in three variants (`VARIANTS`): as now, as before (the position phase closing contacts to 0,
+   each phase pushing alone), and with the warm start. MuJoCo gets the same bodies, shapes, friction and ground
    (`bench.peers.mujoco.to_spec(contacts=True)`) and the implicitfast integrator, with its CG and PGS solvers
    (its default Newton solver took 14-33 s a step once the pile had landed, 7,500 constraint rows, on the
    shared 2-core machine). warpimpulse runs at `--tolerance` (m), and again at the smallest penetration

@@ -817,9 +817,9 @@ def solve_positions(
     """Up to `sweeps` projected Gauss-Seidel sweeps of the linearised position phase (module docstring), until
     no impulse changes a gap or a slip by more than `tolerance` (m). A pushing contact is closed to `slop` (m)
     of penetration, not to touching: the loop runs when a contact is deeper than the step's tolerance, and
-    closing every contact to 0 then kicked a resting pile apart (docs/contacts.md, "Coming to rest"). contact_error[1] = the sweeps taken. The
-    first sweep runs up the contacts' order (`contact_keys`) for `parity` 0, down for 1: the caller alternates it,
-    so that one sweep a call ("paper") is symmetric too.
+    closing every contact to 0 then kicked a resting pile apart (docs/contacts.md, "Coming to rest").
+    contact_error[1] = the sweeps taken. The first sweep runs up the contacts' order (`contact_keys`) for
+    `parity` 0, down for 1: the caller alternates it, so that one sweep a call ("paper") is symmetric too.
     Contacts with rows (`contact_row` >= 0) are solved with the joints (`contact_rows.py`) and skipped here."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     taken = int(0)

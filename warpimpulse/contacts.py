@@ -140,7 +140,7 @@ class ContactStage:
         self._parity = 1  # the direction of the position sweeps' first sweep, alternated call by call
         self.warm_start = False
         """Start each step's sweeps from the last step's impulses of the contacts that go on (same bodies,
-        anchor within WARM_DISTANCE): a box resting alone then takes 2 sweeps a step instead of 60, but a
+        anchor within WARM_DISTANCE): a box resting alone then takes 2 sweeps a step instead of 16-18, but a
         stack of 10 boxes, whose sweeps stop short, gathers kinetic energy (docs/contacts.md, "Warm starting"),
         so it is off by default. Needs (bodies + 1)^2 < 2^31 (the pairs' keys are int32)."""
         self._keys_fit = (n + 1) ** 2 < 2**31
