@@ -603,16 +603,7 @@ class Simulator:
         while len(out) < n:
             self._update_forces()
             batch = self._steps_alike(min(n - len(out), self.FUSED_BATCH))
-            graph = self._fused_launch(self.dt)
-            if self._views is None:
-                self._batch.fill_(batch)
-                self._spin_in.fill_(self._spin)
-                wp.capture_launch(graph)
-                status = self._status.numpy()
-            else:
-                status, batch_view, spin_view = self._views
-                batch_view[0], spin_view[0] = batch, self._spin
-                wp.capture_launch(graph)
+            status = self._run_fused(batch)
             for row in status[:batch].tolist():  # the one read-back of the batch
                 code = int(row[columns.STATUS_CODE])
                 self._spin = row[columns.STATUS_SPIN]
@@ -639,6 +630,20 @@ class Simulator:
             if self.linear is not None:
                 self.linear.check()  # and the redundant loop rows of the last factorization
         return out
+
+    def _run_fused(self, batch: int) -> np.ndarray:
+        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows
+        (`warpimpulse/split.py` runs them on several threads instead)."""
+        graph = self._fused_launch(self.dt)
+        if self._views is None:
+            self._batch.fill_(batch)
+            self._spin_in.fill_(self._spin)
+            wp.capture_launch(graph)
+            return self._status.numpy()
+        status, batch_view, spin_view = self._views
+        batch_view[0], spin_view[0] = batch, self._spin
+        wp.capture_launch(graph)
+        return status
 
     def _velocity_failed(self, error: float) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy."""

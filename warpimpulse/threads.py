@@ -1,5 +1,6 @@
 """Batched worlds on every core: the worlds split into shares, one per thread, each share a Simulator of its
-own (`Model.worlds`), stepped at once.
+own (`Model.worlds`), stepped at once. One world alone is one tree cut at its root instead, a part of it per
+thread (`split.SplitSimulator`).
 
 A Warp CPU launch runs on one thread but releases the GIL, so Python threads launching on disjoint arrays use
 separate cores (docs/architecture.md, "Warp on a CPU"). Graph capture on a CPU is one record for the whole
@@ -21,13 +22,15 @@ import numpy as np
 
 from .model import Model
 from .simulator import SimulationError, Simulator, StepStats
+from .split import SplitSimulator
 from .worlds import WorldStats
 
 
 class ThreadedSimulator:
     """Steps the worlds of a batched Model (`SceneBuilder.replicate`) on `threads` threads (default: one per
     core, at most one per world). Accessors, setters and stats are those of a batched Simulator: per world with
-    `world=`, or with a leading world dimension."""
+    `world=`, or with a leading world dimension. A Model of one world is stepped by a `SplitSimulator`: its
+    tree cut at the root, a part per thread (`split_note` says why where it runs on one thread)."""
 
     def __init__(self, model: Model, dt: float, threads: int | None = None, **settings) -> None:
         """Args: model, dt and `settings` as for `Simulator`; threads: how many (>= 1)."""
@@ -35,20 +38,29 @@ class ThreadedSimulator:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
         self.model = model
-        self.threads = min(threads, model.world_count)
-        bounds = np.linspace(0, model.world_count, self.threads + 1).round().astype(int)
-        self.starts = bounds[:-1]
-        self.parts = [Simulator(model.worlds(a, b), dt, **settings) for a, b in zip(bounds[:-1], bounds[1:])]
+        self.split_note = ""
+        if model.world_count == 1:
+            split = SplitSimulator(model, dt, threads=threads, **settings)
+            self.threads, self.split_note, self.parts = split.threads, split.split_note, [split]
+            self.starts = np.zeros(1, dtype=int)
+        else:
+            self.threads = min(threads, model.world_count)
+            bounds = np.linspace(0, model.world_count, self.threads + 1).round().astype(int)
+            self.starts = bounds[:-1]
+            self.parts = [Simulator(model.worlds(a, b), dt, **settings) for a, b in zip(bounds[:-1], bounds[1:])]
         for part in self.parts:
             part.prepare_substeps()
         self.dt = self.parts[0].dt
         self._last: list[StepStats] | None = None
         self._starts_of_step = [part.model.state() if part.batch is None else None for part in self.parts]
         self._stopped: dict[int, str] = {}  # worlds of one-world shares that stopped
-        self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="warpimpulse")
+        self._pool = ThreadPoolExecutor(len(self.parts), thread_name_prefix="warpimpulse")
 
     def close(self) -> None:
         self._pool.shutdown()
+        for part in self.parts:
+            if isinstance(part, SplitSimulator):
+                part.close()
 
     def __enter__(self) -> ThreadedSimulator:
         return self
@@ -89,7 +101,10 @@ class ThreadedSimulator:
     def step(self) -> StepStats:
         """One step of dt for every world; the StepStats over all worlds (per world in `world_stats`)."""
         known = set(self._stopped)
-        results = list(self._pool.map(self._batched, range(len(self.parts))))
+        if len(self.parts) == 1:  # one world (its own threads), or one share
+            results = [self._batched(0)]
+        else:
+            results = list(self._pool.map(self._batched, range(len(self.parts))))
         for w in sorted(set(self._stopped) - known):
             warnings.warn(f"{self._stopped[w]}; the world stops, the others go on", RuntimeWarning, stacklevel=2)
         stats = [part.batch.finish() if part.batch is not None else r for part, r in zip(self.parts, results)]

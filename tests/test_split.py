@@ -1,0 +1,124 @@
+"""One tree on several threads (`warpimpulse/split.py`): the cut, and the split step against the fused step on
+one thread, bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+from warpimpulse.simulator import Simulator
+from warpimpulse.split import SEPARATOR, CutError, SplitSimulator, cut
+
+DT = 1.0 / 60.0
+
+
+def state_of(sim) -> list[np.ndarray]:
+    return [sim.positions(), sim.orientations(), sim.linear_velocities(), sim.angular_velocities()]
+
+
+def run_both(model, steps: int, threads: int = 2, **settings):
+    one = Simulator(model, DT, **settings)
+    split = SplitSimulator(model, DT, threads=threads, **settings)
+    return one, [one.step() for _ in range(steps)], split, [split.step() for _ in range(steps)]
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_split_step_is_the_fused_step_bit_for_bit(threads):
+    """127-body tree, 90 steps (the start torque, then free swinging): every body's state and every step's
+    stats as the fused step on one thread gives them."""
+    model = wi.scenes.binary_tree(127).finalize()
+    one, a, split, b = run_both(model, 90, threads)
+    assert one.schedule == "fused" and split.threads == threads, split.split_note
+    assert a == b
+    for x, y in zip(state_of(one), state_of(split)):
+        assert np.array_equal(x, y)
+    assert sum(s.joint_iterations for s in b) > 90  # the correction iterated: the solve was exercised
+    assert all(s.velocity_iterations == 1 for s in b)  # so was the velocity correction's
+    split.close()
+
+
+def test_split_hands_hard_steps_to_the_parallel_schedule_as_the_fused_step_does():
+    """A leaf spinning fast: its steps split into substeps (handed back, taken by the parallel schedule), then
+    go on in the split step; still the fused run bit for bit."""
+    model = wi.scenes.binary_tree(63).finalize()
+    spin = np.zeros((63, 3))
+    spin[-1] = (0.0, 0.0, 80.0)
+    one, split = Simulator(model, DT), SplitSimulator(model, DT, threads=2)
+    for sim in (one, split):
+        sim.set_state(angular_velocities=spin)
+    a = [one.step() for _ in range(40)]
+    b = [split.step() for _ in range(40)]
+    assert any(s.substeps > 1 for s in b)
+    assert a == b
+    for x, y in zip(state_of(one), state_of(split)):
+        assert np.array_equal(x, y)
+    split.close()
+
+
+def test_cut_takes_the_root_out_and_halves_the_tree():
+    model = wi.scenes.binary_tree(255).finalize()
+    sim = Simulator(model, DT)
+    parts = cut(model, sim.linear.pattern, 2)
+    assert parts.separator["part_bodies"].tolist() == [0]  # the root
+    assert [len(p["part_bodies"]) for p in parts.parts] == [127, 127]
+    # Every column is a part's or the separator's once; the separator's are the root's joints.
+    columns = np.sort(np.concatenate([parts.separator["part_columns"], *(p["part_columns"] for p in parts.parts)]))
+    assert np.array_equal(columns, np.arange(model.constraint_count))
+    assert sorted(sim.linear.pattern.perm[parts.separator["part_columns"]].tolist()) == [0, 1, 2]
+    # A part's bodies are one subtree: the parts own the two halves below the root.
+    assert set(np.flatnonzero(parts.owner == SEPARATOR).tolist()) == {0}
+
+
+def test_cut_deals_many_subtrees_to_fewer_threads():
+    """Three threads on a binary tree: the cut goes below the root until the subtrees deal out evenly."""
+    model = wi.scenes.binary_tree(255).finalize()
+    parts = cut(model, Simulator(model, DT).linear.pattern, 3)
+    sizes = [len(p["part_bodies"]) for p in parts.parts]
+    assert sum(sizes) + len(parts.separator["part_bodies"]) == 255
+    assert max(sizes) <= 1.1 * 255 / 3
+
+
+def test_a_chain_runs_on_one_thread_and_says_why():
+    model = wi.scenes.chain(40).finalize()
+    sim = SplitSimulator(model, DT, threads=2)
+    assert sim.threads == 1 and "does not split" in sim.split_note
+    one = Simulator(model, DT)
+    sim.step(5)
+    one.step(5)
+    assert np.array_equal(sim.positions(), one.positions())
+
+
+def test_a_scene_off_the_fused_schedule_runs_on_one_thread_and_says_why():
+    model = wi.scenes.car().finalize()
+    sim = SplitSimulator(model, DT, threads=2)
+    assert sim.threads == 1 and sim.split_note.startswith("the fused schedule does not run: ")
+
+
+def test_a_loop_is_not_cut():
+    model = wi.scenes.four_bar().finalize()
+    with pytest.raises(CutError, match="closes a loop"):
+        cut(model, Simulator(model, DT).linear.pattern, 2)
+
+
+def test_the_augmented_matrix_is_not_cut():
+    model = wi.scenes.star(31).finalize()
+    with pytest.raises(CutError, match="'body' formulation"):
+        cut(model, Simulator(model, DT, formulation="body").linear.pattern, 2)
+
+
+def test_threaded_simulator_of_one_world_splits_its_tree():
+    model = wi.scenes.binary_tree(127).finalize()
+    one = Simulator(model, DT)
+    with wi.ThreadedSimulator(model, DT, threads=2) as sim:
+        assert sim.threads == 2 and sim.split_note == ""
+        for _ in range(20):
+            assert sim.step() == one.step()
+        assert np.array_equal(sim.positions(0), one.positions())
+        assert np.array_equal(sim.angular_velocities()[0], one.angular_velocities())
+
+
+def test_threads_must_be_a_positive_integer():
+    model = wi.scenes.binary_tree(7).finalize()
+    with pytest.raises(ValueError, match="threads must be an integer >= 1"):
+        SplitSimulator(model, DT, threads=0)
