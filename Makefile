@@ -40,7 +40,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/paper_tables.py
 	$(PY) benchmarks/skips.py
 	$(PY) benchmarks/step_breakdown.py --readme README.md > /dev/null
-	$(PY) benchmarks/worlds.py
+	$(PY) benchmarks/worlds.py --readme README.md > /dev/null
 	$(PY) benchmarks/run_vs_error.py --json $(RESULTS)/run_vs_error.json > /dev/null
 	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
 	$(PY) benchmarks/orders.py > /dev/null  # orders in time: orders.json, docs/time-order.md, README's orders block

@@ -1,6 +1,7 @@
 """Many worlds, every core: batched worlds against separate simulators, and the speed-up per thread count.
 
     python benchmarks/worlds.py [--worlds 256] [--bodies 31] [--rounds 7] [--json benchmarks/results/worlds.json]
+                                [--readme README.md] [--from-json]
 
 1. Batched: `worlds` copies of the binary tree (`scenes.binary_tree(bodies)`) as one Model
    (`SceneBuilder.replicate`) on one thread, against `worlds` separate Simulators stepped in a loop: world-steps
@@ -11,7 +12,11 @@
    host work, which holds the GIL): world-steps per second and the speed-up over one thread, with the
    process's CPU time over wall time (near the thread count when the threads really run at once; well under
    it when the machine is busy with other work).
-3. A hard world: one world spinning fast takes its steps alone, as substeps; the others' joint iterations are
+3. One tree on every core: `ThreadedSimulator` of one world (`split.SplitSimulator`: the tree cut at its root, a
+   part a thread) on 1, 2, ... threads for the binary trees of 16,383 and 65,535 bodies: ms per step, the
+   speed-up over one thread (which is the fused step itself), CPU time over wall time, and whether every thread
+   count ends bit for bit where one thread does.
+4. A hard world: one world spinning fast takes its steps alone, as substeps; the others' joint iterations are
    counted against a run without it (they should be equal).
 Variants are timed in turn, round after round, so load on the machine hits them alike; figures are medians
 over the rounds. The machine's load average is recorded with the results, and a control: the speed-up the
@@ -134,6 +139,41 @@ def threads_scaling(worlds: int, bodies: int, rounds: int, cores: list[int]) -> 
     return {"worlds": worlds, "bodies": bodies, "by_threads": out, "bit_identical": same}
 
 
+def split_scaling(bodies: int, rounds: int, cores: list[int], seconds: float = 0.3) -> dict:
+    """One tree of `bodies` on 1, 2, ... threads (see the module docstring)."""
+    model = wi.scenes.binary_tree(bodies).finalize()
+    sims = {n: ThreadedSimulator(model, DT, threads=n) for n in cores}
+    for sim in sims.values():
+        sim.step()
+    first = sims[cores[0]]
+    block = max(1, round(seconds / timed(first.step, 1)[0]))
+    for sim in sims.values():
+        if sim is not first:
+            sim.step()
+    walls: dict[int, list[float]] = {n: [] for n in cores}
+    usage: dict[int, list[float]] = {n: [] for n in cores}
+    for _ in range(rounds):
+        for n, sim in sims.items():
+            wall, cpu = timed(sim.step, block)
+            walls[n].append(wall / block)
+            usage[n].append(cpu / (wall or 1.0))
+    base = statistics.median(walls[cores[0]])
+    out = {
+        str(n): {
+            "threads_used": sims[n].threads,
+            "ms_per_step": 1e3 * statistics.median(walls[n]),
+            "speedup": base / statistics.median(walls[n]),
+            "cpu_over_wall": statistics.median(usage[n]),
+        }
+        for n in cores
+    }
+    same = all(np.array_equal(first.positions(), sim.positions()) for sim in sims.values())
+    same &= all(np.array_equal(first.angular_velocities(), sim.angular_velocities()) for sim in sims.values())
+    for sim in sims.values():
+        sim.close()
+    return {"bodies": bodies, "steps_per_block": block, "by_threads": out, "bit_identical": same}
+
+
 def hard_world(worlds: int, bodies: int, steps: int = 10) -> dict:
     def run(spin: float) -> Simulator:
         sim = Simulator(wi.scenes.binary_tree(bodies).replicate(worlds).finalize(), DT)
@@ -161,49 +201,101 @@ def hard_world(worlds: int, bodies: int, steps: int = 10) -> dict:
     }
 
 
+def markdown(results: dict) -> str:
+    """The README's block of these results: tables per thread count, with the load they were measured under."""
+    m, b = results["machine"], results["batched"]
+    load = f"load average {m['load_average_before'][0]:.2f} before, {m['load_average_after'][0]:.2f} after"
+    control = ", ".join(f"{n} threads {v:.2f}x" for n, v in results["control_speedup"].items())
+    cores = list(results["control_speedup"])
+    lines = [
+        "<!-- generated from benchmarks/results/worlds.json by `python benchmarks/worlds.py --from-json "
+        "--readme README.md` -->",
+        "",
+        f"`python benchmarks/worlds.py` on {m['cpus']} cores ({load}; Warp {m['warp']}), medians over rounds that "
+        "time the variants in turn. Batched: "
+        f"{b['worlds']} worlds of tree{b['bodies']} as one Model run {b['ratio']:.2f}x the world-steps per second of "
+        f"{b['worlds']} separate simulators stepped in a loop ({b['batched_world_steps_per_s']:.0f} against "
+        f"{b['separate_world_steps_per_s']:.0f}; bit for bit the same: {b['bit_identical']}).",
+        "",
+        "| workload | " + " | ".join(f"{n} thread{'s' if n != '1' else ''}" for n in cores) + " | bit for bit |",
+        "|---|" + "---:|" * len(cores) + "---|",
+    ]
+
+    def cells(by: dict, key: str, unit: str) -> str:
+        return " | ".join(
+            f"{v[key]:.4g} {unit}, {v['speedup']:.2f}x (cpu/wall {v['cpu_over_wall']:.2f})" for v in by.values()
+        )
+
+    rows = [(f"{t['worlds']} worlds of tree{t['bodies']}", t, "world_steps_per_s", "world-steps/s")
+            for t in results["threads"]]  # fmt: skip
+    rows += [(f"one tree{t['bodies']}, cut at its root", t, "ms_per_step", "ms/step") for t in results.get("split", [])]
+    for name, t, key, unit in rows:
+        lines.append(f"| {name} | {cells(t['by_threads'], key, unit)} | {t['bit_identical']} |")
+    h = results["hard_world"]
+    lines += [
+        "",
+        f"The control, SHA-256 on threads that release the GIL, gave {control}: what the machine allowed while "
+        "these ran (cpu/wall is the process's CPU time over wall time: near the thread count when the threads "
+        "really ran at once). A hard world (spinning fast) took "
+        f"{h['hard_world_steps_alone']} of {h['steps']} steps alone; the others' iterations were unchanged: "
+        f"{h['others_iterations_equal']}.",
+    ]
+    return "\n".join(lines)
+
+
+def write_readme(path: Path, text: str) -> None:
+    """Replace README's worlds block (between its markers) with `text`."""
+    readme = path.read_text()
+    begin, end = "<!-- worlds:begin -->", "<!-- worlds:end -->"
+    if begin not in readme or end not in readme:
+        raise SystemExit(f"{path} has no {begin} ... {end} block")
+    head, rest = readme.split(begin, 1)
+    path.write_text(f"{head}{begin}\n{text}\n{end}{rest.split(end, 1)[1]}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--worlds", type=int, default=256)
     parser.add_argument("--bodies", type=int, default=31)
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--json", type=Path, default=Path(__file__).parent / "results" / "worlds.json")
+    parser.add_argument("--readme", type=Path, default=None, help="rewrite README.md's worlds block")
+    parser.add_argument("--from-json", action="store_true", help="only regenerate the README block from --json")
     args = parser.parse_args()
+    if args.from_json:
+        results = json.loads(args.json.read_text())
+    else:
+        results = measure(args)
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+    text = markdown(results)
+    print(text)
+    if args.readme:
+        write_readme(args.readme, text)
+
+
+def measure(args) -> dict:
     quiet_warp()
     cores = list(range(1, (os.cpu_count() or 1) + 1))
     started = time.perf_counter()
-    load_before = os.getloadavg()
     results = {
         "machine": {
             "platform": platform.platform(),
             "cpus": os.cpu_count(),
             "warp": wp.config.version,
-            "load_average_before": load_before,
+            "load_average_before": os.getloadavg(),
         },  # fmt: skip
         "batched": batched_vs_separate(args.worlds, args.bodies, args.rounds),
         "threads": [
             threads_scaling(w, b, args.rounds, cores) for w, b in ((2, 4095), (16, 255), (args.worlds, args.bodies))
         ],
+        "split": [split_scaling(b, args.rounds, cores) for b in (16383, 65535)],
         "control_speedup": control(args.rounds, cores),
         "hard_world": hard_world(8, args.bodies),
     }
     results["machine"]["load_average_after"] = os.getloadavg()
     results["seconds"] = time.perf_counter() - started
-    b = results["batched"]
-    rates = f"batched {b['batched_world_steps_per_s']:.0f}, separate {b['separate_world_steps_per_s']:.0f}"
-    print(f"{b['worlds']} worlds of {b['bodies']} bodies, world-steps/s: {rates}: {b['ratio']:.2f}x "
-          f"(bit identical: {b['bit_identical']})")  # fmt: skip
-    for t in results["threads"]:
-        line = ", ".join(f"{n} threads {v['speedup']:.2f}x (cpu/wall {v['cpu_over_wall']:.2f})"
-                         for n, v in t["by_threads"].items())  # fmt: skip
-        print(f"{t['worlds']} worlds of {t['bodies']} bodies: {line}")
-    print("control (SHA-256, GIL released): " + ", ".join(f"{n} threads {v:.2f}x"
-                                                          for n, v in results["control_speedup"].items()))  # fmt: skip
-    h = results["hard_world"]
-    print(f"hard world: taken alone in {h['hard_world_steps_alone']} of {h['steps']} steps; the others' iterations "
-          f"unchanged: {h['others_iterations_equal']}")  # fmt: skip
-    print(f"load average {load_before} -> {results['machine']['load_average_after']}")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(results, indent=2) + "\n")
+    return results
 
 
 if __name__ == "__main__":
