@@ -154,10 +154,14 @@ def test_replicate_refuses_bad_input():
     builder = wi.scenes.binary_tree(BODIES)
     with pytest.raises(SceneError, match="count must be an integer >= 1"):
         builder.replicate(0)
-    motorised = wi.scenes.chain(3)
-    motorised.add_motor(0, "velocity", target=1.0)
-    with pytest.raises(SceneError, match="do not take springs, drives, limits or distance constraints yet"):
-        motorised.replicate(2)
+    limited = wi.scenes.chain(3)
+    limited.add_joint_limit(1, -0.5, 0.5)
+    with pytest.raises(SceneError, match="the scene has 1 limits; batched worlds do not take limits yet"):
+        limited.replicate(2)
+    stiff = wi.scenes.chain(3)
+    stiff.add_motor(0, "velocity", target=1.0, max_force=50.0, stiff=True)
+    with pytest.raises(SceneError, match="1 stiff motors; batched worlds do not take stiff motors yet"):
+        stiff.replicate(2)
     many = builder.replicate(2)
     with pytest.raises(SceneError, match="takes no additions"):
         wi.scenes.chain(3).replicate(2).add_joint_limit(0, -1.0, 1.0)
@@ -241,3 +245,79 @@ def test_threads_with_split_steps_give_the_batched_run():
             assert np.array_equal(a, b)
         assert np.array_equal(sim.world_stats.substeps, ref_stats[-1].substeps)
         assert np.array_equal(sim.world_stats.joint_iterations, ref_stats[-1].joint_iterations)
+
+
+def mechanism_scene() -> wi.SceneBuilder:
+    """A hinged chain with a PID motor (an integral term), a joint spring and a spring to the world."""
+    builder = wi.scenes.chain(4)
+    builder.add_motor(0, "velocity", target=1.5, kp=40.0, ki=20.0, max_force=200.0)
+    builder.add_joint_spring(2, stiffness=30.0, damping=2.0)
+    builder.add_spring(None, 3, (4.0, 0.0, -1.0), (0.5, 0.0, 0.0), stiffness=50.0, damping=1.0)
+    return builder
+
+
+def test_batched_worlds_with_a_motor_and_springs_match_each_world_alone_bit_for_bit():
+    """Per-world masses, motor targets and spins; world 0 spins fast enough to take its steps alone as substeps
+    (its motor's integral goes with it and comes back)."""
+    count, steps = 3, 40
+    bodies = len(mechanism_scene().bodies)
+    base = mechanism_scene().finalize().host
+    mass = np.stack([base.body_mass * (1.0 + 0.3 * w) for w in range(count)])
+    spin = np.zeros((count, bodies, 3))
+    spin[0, -1] = (0.0, 80.0, 0.0)  # alone in steps 1-5, 14, 25 and 28, in the batch between
+    targets = [1.5, -2.0, 0.5]
+    sim = Simulator(mechanism_scene().replicate(count).finalize(), DT)
+    sim.set_masses(mass=mass)
+    sim.set_state(angular_velocities=spin)
+    for w, target in enumerate(targets):
+        sim.set_motor_target(w, target)
+    alone_steps = 0
+    for _ in range(steps):
+        sim.step()
+        alone_steps += int(sim.world_stats.alone[0])
+    assert 0 < alone_steps < steps and not sim.stopped
+    for w in range(count):
+        one = Simulator(mechanism_scene().finalize(), DT)
+        one.set_masses(mass=mass[w])
+        one.set_state(angular_velocities=spin[w])
+        one.set_motor_target(0, targets[w])
+        for _ in range(steps):
+            one.step()
+        for a, b in zip(state_of(one), state_of(sim, w)):
+            assert np.array_equal(a, b), f"world {w} differs from its run alone"
+        assert one.energy() == sim.energy(w) == sim.energy()[w]  # gravity, the springs' and the joint spring's
+        drives = one.model.drive_count  # the motor and the joint spring, world-major
+        assert np.array_equal(one.drive_integral.numpy(), sim.drive_integral.numpy()[w * drives : (w + 1) * drives])
+        assert one.drive_integral.numpy()[0] != 0.0  # the motor's integral term worked
+    assert not np.array_equal(sim.positions(1), sim.positions(2))
+
+
+def test_a_stopped_world_keeps_its_motor_integral():
+    """The batch integrates every world's drives; a world that leaves the step gets its integral back."""
+    sim = Simulator(mechanism_scene().replicate(2).finalize(), DT, max_iterations=10)
+    force = np.zeros((2, len(mechanism_scene().bodies), 3))
+    force[1, -1] = (0.0, 0.0, 1e13)
+    sim.step(3)
+    before = sim.drive_integral.numpy().copy()
+    sim.set_external_forces(force=force)
+    with pytest.warns(RuntimeWarning, match="world 1: "):
+        sim.step(3)
+    assert list(sim.stopped) == [1]
+    after = sim.drive_integral.numpy()
+    assert np.array_equal(after[2:], before[2:]) and not np.array_equal(after[:2], before[:2])
+
+
+def test_threads_share_worlds_with_a_motor_and_springs():
+    """Shares of worlds with springs and motors (`Model.worlds` takes their rows): the batched run."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    model = mechanism_scene().replicate(3).finalize()
+    ref = Simulator(model, DT)
+    with ThreadedSimulator(model, DT, threads=2) as sim:
+        assert [p.model.spring_count for p in sim.parts] == [2, 1]
+        assert [p.model.drive_name[0] for p in sim.parts] == ["world0/j0.motor", "world2/j0.motor"]
+        for _ in range(20):
+            ref.step()
+            sim.step()
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)

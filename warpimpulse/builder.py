@@ -218,12 +218,13 @@ class SceneBuilder:
                 "replicate: the scene has colliding shapes or grounds; batched worlds do not take contacts yet "
                 "(Shape(..., collide=False) keeps a shape for display and mass)"
             )
-        if self.springs or self.drives or self.limits or self.distances:  # the batched step has no such rows yet
-            raise SceneError(
-                f"replicate: the scene has {len(self.springs)} springs, {len(self.drives)} drives, "
-                f"{len(self.limits)} limits and {len(self.distances)} distance constraints; batched worlds do not "
-                "take springs, drives, limits or distance constraints yet"
-            )
+        # Limits, distance constraints and stiff motors are rows of one dense system over the whole model
+        # (`kernels/limits.py`): batched, the worlds would share it, so they are refused.
+        rows = [(len(self.limits), "limits"), (len(self.distances), "distance constraints"),
+                (sum(d.stiff for d in self.drives), "stiff motors")]  # fmt: skip
+        for n, what in rows:
+            if n:
+                raise SceneError(f"replicate: the scene has {n} {what}; batched worlds do not take {what} yet")
         out = SceneBuilder(self.gravity)
         nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
         prefix = count > 1
@@ -248,6 +249,14 @@ class SceneBuilder:
             for f in forces:
                 f.body = body(f.body, w)
                 out.forces.append(f)
+            for spring in copy.deepcopy(self.springs):
+                spring.name = f"world{w}/{spring.name}" if prefix else spring.name
+                spring.body0, spring.body1 = body(spring.body0, w), body(spring.body1, w)
+                out.springs.append(spring)
+            for drive in copy.deepcopy(self.drives):
+                drive.name = f"world{w}/{drive.name}" if prefix else drive.name
+                drive.joint += w * nj
+                out.drives.append(drive)
         out.world_count = int(count)
         return out
 

@@ -356,8 +356,8 @@ class Model:
         simulator steps a world alone this way, and a thread steps its share of the worlds."""
         if not 0 <= start < stop <= self.world_count:
             raise ValueError(f"worlds [{start}, {stop}) do not exist ({self.world_count} worlds)")
-        if self.spring_count or self.drive_count or self.limit_count:
-            raise ValueError("a model with springs, drives or limits does not split into worlds")
+        if self.limit_count:
+            raise ValueError("a model with limits, distance constraints or stiff motors does not split into worlds")
         h, count = self.host, stop - start
 
         def rows(values, per_world: int):
@@ -369,6 +369,7 @@ class Model:
 
         nb, nc, nj = self.world_body_count, self.world_constraint_count, self.world_joint_count
         nf = len(h.force_body) // self.world_count
+        ns, nd = self.spring_count // self.world_count, self.drive_count // self.world_count
         return Model(
             self.device,
             gravity=h.gravity,
@@ -396,6 +397,16 @@ class Model:
             force_until=rows(h.force_until, nf),
             world_count=count,
             joint_loop=rows(h.joint_loop, nj) if len(h.joint_loop) else (),
+            spring_name=rows(self.spring_name, ns),
+            spring_body0=shifted(h.spring_body0, ns),
+            spring_body1=shifted(h.spring_body1, ns),
+            **{f"spring_{k}": rows(getattr(h, f"spring_{k}"), ns) for k in ("anchor0", "anchor1", "params")},
+            drive_name=rows(self.drive_name, nd),
+            drive_joint=rows(h.drive_joint, nd) - start * nj,
+            **{
+                f"drive_{k}": rows(getattr(h, f"drive_{k}"), nd)
+                for k in ("mode", "target", "gains", "max_force", "motor", "stiff")
+            },  # fmt: skip
         )
 
     def joint_constraints(self, joint: int) -> range:

@@ -245,12 +245,11 @@ class Simulator:
         self.limit_response = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # K^-1 J M^-1 g^T
         self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
         if model.world_count > 1:
-            mechanisms = model.spring_count + model.drive_count + model.limit_count
-            if self.solver_name != "cholesky" or nc == 0 or self.order != 2 or mechanisms:
+            if self.solver_name != "cholesky" or nc == 0 or self.order != 2 or model.limit_count:
                 raise ValueError(
                     f"batched worlds ({model.world_count}) are stepped at order 2 with the cholesky solver and need "
-                    f"joints and no springs, drives or limits yet; got order {self.order}, solver {solver!r}, "
-                    f"{nc} constraints and {mechanisms} springs, drives and limits"
+                    f"joints and no limits, distance constraints or stiff motors yet; got order {self.order}, solver "
+                    f"{solver!r}, {nc} constraints and {model.limit_count} limit rows"
                 )
             self.world_summary = wp.zeros((model.world_count, 2), dtype=wp.float64, device=d)
             self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
@@ -1307,13 +1306,11 @@ class Simulator:
     def potential_energy(self, world: int | None = None) -> float | np.ndarray:
         """Gravity's potential energy plus the elastic energy of the springs and joint springs, J (zero for
         gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
-        and store none. With batched worlds (which have no springs or drives) (W,) or one `world`'s."""
-        h = self.model.host
+        and store none. With batched worlds (W,) or one `world`'s."""
+        h, m = self.model.host, self.model
         x = self.state.body_x.numpy()
-        gravity = self._per_world_sum(-h.body_mass * (x @ h.gravity), world)
-        if self.model.world_count > 1:
-            return gravity
-        energy = gravity
+        gravity = np.atleast_1d(self._per_world_sum(-h.body_mass * (x @ h.gravity), None))
+        springs = np.zeros(0)
         if len(h.spring_params):
             q = self.state.body_q.numpy()
             ends = []
@@ -1323,11 +1320,21 @@ class Simulator:
                 pose_x = np.where(world_end[:, None], 0.0, x[body])
                 ends.append(pose_x + quat_rotate(pose_q, anchor))
             stretch = np.linalg.norm(ends[1] - ends[0], axis=1) - h.spring_params[:, 2]
-            energy += float(np.sum(0.5 * h.spring_params[:, 0] * stretch**2))
-        for d in np.flatnonzero(~h.drive_motor & (h.drive_mode == DRIVE_MODES.index("position"))):
-            offset = self.joint_coordinates(int(h.drive_joint[d]))[0] - h.drive_target[d]
-            energy += 0.5 * float(h.drive_gains[d, 0]) * offset**2
-        return energy
+            springs = 0.5 * h.spring_params[:, 0] * stretch**2
+        joint_springs = ~h.drive_motor & (h.drive_mode == DRIVE_MODES.index("position"))
+        ns, nd = m.spring_count // m.world_count, m.drive_count // m.world_count  # each world's, world-major
+        energy = []
+        for w in range(m.world_count):
+            e = float(gravity[w])
+            if ns:
+                e += float(np.sum(springs[w * ns : (w + 1) * ns]))
+            for d in w * nd + np.flatnonzero(joint_springs[w * nd : (w + 1) * nd]):
+                offset = self.joint_coordinates(int(h.drive_joint[d]))[0] - h.drive_target[d]
+                e += 0.5 * float(h.drive_gains[d, 0]) * offset**2
+            energy.append(e)
+        if world is not None:
+            return energy[self._world_rows(world).start // m.world_body_count]
+        return energy[0] if m.world_count == 1 else np.array(energy)
 
     def energy(self, world: int | None = None) -> float | np.ndarray:
         """Kinetic plus potential energy (`potential_energy`), J: conserved by a scene without loads, motors,

@@ -8,7 +8,10 @@ How one step goes (`Batch.step`):
   are zero, so its prediction repeats bit for bit and it takes no more iterations while others go on;
 - a world whose correction fails (iteration limit, divergence, NaN, a body turning too far, a velocity
   correction that stops short) drops out of the batch and is frozen at the start of the step;
-- each world that was not finished in the batch takes the step alone, from its state at the start, on a
+- the drives' PID integrals advance with the accepted states of the batch; a world that leaves it gets back its
+  integral of the start of the step;
+- each world that was not finished in the batch takes the step alone, from its state (and drive integrals and
+  targets) at the start, on a
   one-world Simulator of the same settings: the halving, splitting, raising and warning of one world, exactly.
   A world whose step fails there stops (frozen at its last good state, `Batch.stopped` gives the message by
   world index) and the others go on; only when every world has stopped does `step` raise.
@@ -67,6 +70,8 @@ class Batch:
         self.stopped: dict[int, str] = {}  # world -> why it stopped
         self.stats = WorldStats.zeros(self.count)
         self._t0: State = m.state()
+        self._integral0 = np.zeros(m.drive_count)  # the drives' PID integrals at the start of the step
+        self._drives = m.drive_count // self.count  # per world, world-major like the bodies
         self._solos: dict[int, object] = {}
 
     # ---------------------------------------------------------------- per-world reductions
@@ -92,6 +97,17 @@ class Batch:
             for name in ("body_x", "body_q", "body_v", "body_w"):
                 wp.copy(getattr(target, name), getattr(self._t0, name), w * n, w * n, n)
 
+    def _drive_rows(self, world: int) -> slice:
+        return slice(world * self._drives, (world + 1) * self._drives)
+
+    def _restore_integrals(self, worlds: np.ndarray) -> None:
+        """The drives' integrals of `worlds` back to the start of the step (the batch integrated them)."""
+        if self._drives:
+            integral = self.sim.drive_integral.numpy()
+            for w in np.flatnonzero(worlds).tolist():
+                integral[self._drive_rows(w)] = self._integral0[self._drive_rows(w)]
+            self.sim.drive_integral.assign(integral)
+
     def reset(self) -> None:
         self.stopped.clear()
         self.stats = WorldStats.zeros(self.count)
@@ -115,6 +131,8 @@ class Batch:
         sim = self.sim
         sim._update_forces()
         self._t0.copy_from(sim.state)
+        if self._drives:
+            self._integral0 = sim.drive_integral.numpy().copy()
         self._spin0 = self.spin.copy()  # a world stepped alone starts from its spin of the start
         self._live = live = np.array([w not in self.stopped for w in range(self.count)])
         if not live.any():
@@ -134,6 +152,7 @@ class Batch:
         alone = live & ~batch
         if (~batch).any():
             self._restore(sim.state, ~batch)  # frozen: the alone ones start there, the stopped ones stay
+            self._restore_integrals(~batch)
             for w in np.flatnonzero(alone).tolist():
                 self._step_alone(w, stats)
             sim._update_frames()
@@ -178,6 +197,7 @@ class Batch:
         if (~batch).any():
             self._restore(sim.pred, ~batch)  # the accepted state of a frozen world is its start
         wp.capture_launch(sim._accept_graph)
+        sim._integrate_drives.launch()  # every world's; `finish` puts back those of the worlds that leave
         sim.linear.check()
         sim._velocity_errors.launch()
         verr = self.world_max()
@@ -217,6 +237,10 @@ class Batch:
             wp.copy(getattr(solo.state, name), getattr(self._t0, name), 0, world * n, n)
         rows = slice(world * n, (world + 1) * n)
         solo.set_external_forces(sim._user_force[rows], sim._user_torque[rows])
+        drives = self._drive_rows(world)
+        if self._drives:
+            solo.drive_target.assign(sim.drive_target.numpy()[drives])
+            solo.drive_integral.assign(self._integral0[drives])
         solo.time, solo.step_count = sim.time, sim.step_count
         solo._update_frames()
         solo._spin = self._spin0[world]
@@ -229,5 +253,7 @@ class Batch:
             return
         for name in ("body_x", "body_q", "body_v", "body_w"):
             wp.copy(getattr(sim.state, name), getattr(solo.state, name), world * n, 0, n)
+        if self._drives:
+            wp.copy(sim.drive_integral, solo.drive_integral, drives.start, 0, self._drives)
         self.spin[world] = solo._spin
         stats.set(world, result)
