@@ -122,3 +122,16 @@ def test_threads_must_be_a_positive_integer():
     model = wi.scenes.binary_tree(7).finalize()
     with pytest.raises(ValueError, match="threads must be an integer >= 1"):
         SplitSimulator(model, DT, threads=0)
+
+
+def test_split_hands_failed_corrections_to_the_parallel_schedule_as_the_fused_step_does():
+    """One joint iteration allowed: from the fourth step the correction needs two, fails (the velocities of t0
+    put back) and the parallel schedule takes the step as two halves; the run is still the fused run bit for
+    bit."""
+    model = wi.scenes.binary_tree(63).finalize()
+    one, a, split, b = run_both(model, 10, 2, max_iterations=1, max_substep_depth=1)
+    assert [s.substeps for s in b] == [1, 1, 1] + [2] * 7
+    assert a == b
+    for x, y in zip(state_of(one), state_of(split)):
+        assert np.array_equal(x, y)
+    split.close()
