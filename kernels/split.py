@@ -154,6 +154,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         # What this launch does:
         start: int,
         h: f64,
+        tolerance: f64,
         body_force_in: wp.array(dtype=vec3d),
         body_torque_in: wp.array(dtype=vec3d),
         # Scratch:
@@ -182,8 +183,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         """One part's share of the joint correction. At the start of a step (`start`): keep the velocities of
         t0, predict. Else one iteration: the separator forward-solves its rows (after every part's) and
         solves backward; a part solves backward (after the separator); each applies the impulses to its bodies
-        and predicts them again. Then the part's joint errors, the NaN/spin summary of its prediction and, for
-        a part, its forward rows of the next solve (wasted when the step has converged)."""
+        and predicts them again. Then the part's joint errors; where they hold to `tolerance` (as they must
+        everywhere if the step has converged) the NaN/spin summary of its prediction; and, for a part, its
+        forward rows of the next solve (wasted when the step has converged)."""
         if start != 0:
             for k in range(part_bodies.shape[0]):
                 b = part_bodies[k]
@@ -197,19 +199,11 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, body_v_out,
                 body_w_out,
             )  # fmt: skip
-        bad = int(0)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
-        spin = f64(0.0)
         for k in range(part_bodies.shape[0]):
-            b = part_bodies[k]
             predict_index(
-                b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out, body_v_out,
-                body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+                part_bodies[k], body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
+                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
             )  # fmt: skip
-            finite, w = body_summary(b, pred_x, pred_q, pred_v, pred_w)
-            if finite:
-                spin = wp.max(spin, w)
-            else:
-                bad += 1
         inv_h = f64(1.0) / h
         worst = f64(0.0)
         for k in range(part_constraints.shape[0]):
@@ -221,8 +215,17 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             )  # fmt: skip
             worst = max_or_nan(worst, errors[i])
         part_out[0] = worst
-        part_out[1] = f64(bad)
-        part_out[2] = spin
+        if worst <= tolerance:  # the step may have converged: the NaN/spin summary of the prediction
+            bad = int(0)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
+            spin = f64(0.0)
+            for k in range(part_bodies.shape[0]):
+                finite, w = body_summary(part_bodies[k], pred_x, pred_q, pred_v, pred_w)
+                if finite:
+                    spin = wp.max(spin, w)
+                else:
+                    bad += 1
+            part_out[1] = f64(bad)
+            part_out[2] = spin
         if separator == 0:
             forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
 
