@@ -205,7 +205,7 @@ def markdown(results: dict) -> str:
     """The README's block of these results: tables per thread count, with the load they were measured under."""
     m, b = results["machine"], results["batched"]
     load = f"load average {m['load_average_before'][0]:.2f} before, {m['load_average_after'][0]:.2f} after"
-    control = ", ".join(f"{n} threads {v:.2f}x" for n, v in results["control_speedup"].items())
+    control = ", ".join(f"{n} thread{'s' if n != '1' else ''} {v:.2f}x" for n, v in results["control_speedup"].items())
     cores = list(results["control_speedup"])
     lines = [
         "<!-- generated from benchmarks/results/worlds.json by `python benchmarks/worlds.py --from-json "
