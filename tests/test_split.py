@@ -135,3 +135,19 @@ def test_split_hands_failed_corrections_to_the_parallel_schedule_as_the_fused_st
     for x, y in zip(state_of(one), state_of(split)):
         assert np.array_equal(x, y)
     split.close()
+
+
+def test_simulate_with_threads_writes_the_one_thread_run(tmp_path, capsys):
+    from cli_helpers import run
+
+    from warpimpulse import usd
+
+    out = {n: tmp_path / f"tree{n}.usda" for n in (1, 2)}
+    for n, path in out.items():
+        code, lines = run(["simulate", "--scene", "tree127", "--duration", "0.5", "--threads", str(n), "-o",
+                           str(path), "--no-progress"], capsys)  # fmt: skip
+        assert code == 0 and not any("one thread" in line for line in lines), lines
+    assert np.array_equal(usd.read_animation(out[1]).positions, usd.read_animation(out[2]).positions)
+    code, lines = run(["simulate", "--scene", "chain", "--duration", "0.1", "--threads", "2", "-o",
+                       str(tmp_path / "chain.usda"), "--no-progress"], capsys)  # fmt: skip
+    assert code == 0 and any("warpimpulse: one thread: the tree does not split" in line for line in lines), lines

@@ -65,6 +65,8 @@ def _add_simulate(sub) -> None:
                    help="rad a body may turn per substep: faster steps are split (default 0.5)")  # fmt: skip
     p.add_argument("--whole-steps", action="store_true", help="never split a step for a fast spin")
     p.add_argument("--device", default="cpu", help="Warp device (cpu, cuda)")
+    p.add_argument("--threads", type=_positive(int), default=1,
+                   help="cut one large tree at its root across this many threads (the same run)")  # fmt: skip
     p.add_argument("--flatten", action="store_true", help="one self-contained file instead of a layer over the input")
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
@@ -183,8 +185,9 @@ def _refuse_no_frame(duration: float, fps: float) -> None:
 def _simulate(args) -> int:
     from . import checks, run, usd
     from .energy import EnergyWatch
-    from .simulator import SimulationError, Simulator
+    from .simulator import SimulationError
     from .solver import SingularSystemError
+    from .split import SplitSimulator
     from .verbosity import verbose
 
     if args.verbose:
@@ -220,9 +223,10 @@ def _simulate(args) -> int:
     check_writable(out, create_parent=args.out is None)
     if out.is_file():
         print(f"warpimpulse: overwriting {out}", file=sys.stderr)
-    sim = Simulator(
+    sim = SplitSimulator(
         builder.finalize(args.device),
         dt,
+        threads=args.threads,
         tolerance=args.tolerance,
         velocity_tolerance=args.velocity_tolerance,
         solver=args.solver,
@@ -231,6 +235,8 @@ def _simulate(args) -> int:
         max_rotation=None if args.whole_steps else args.max_rotation,
         order=args.order,
     )
+    if sim.split_note:
+        print(f"warpimpulse: one thread: {sim.split_note}", file=sys.stderr)
     if sim.redundant_rows:  # information: loop joints repeating what the tree already holds (a planar loop in 3D)
         print(f"warpimpulse: {sim.redundant_rows} constraint rows of loop-closing joints are redundant "
               "(regularised)", file=sys.stderr)  # fmt: skip
