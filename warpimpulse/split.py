@@ -2,7 +2,8 @@
 
 The cut: the top bodies of the tree (the separator, often the root alone) are taken out, one at a time from the
 largest subtree left, until the subtrees below them can be dealt to the threads with the largest share within
-2 % of an even one (at most `MAX_SEPARATOR` bodies). Each thread owns a part: its subtrees' bodies, the
+2 % of an even one (at most `MAX_SEPARATOR` bodies); of the cuts tried, the one whose largest share plus
+separator is smallest is kept. Each thread owns a part: its subtrees' bodies, the
 constraints it evaluates (those on its bodies, including the ones that join them to the separator) and the
 columns of the factor whose constraints lie wholly in it. The rest (the separator's bodies, static bodies,
 the constraints on them alone and every column that joins a part to the separator) is the separator's, taken
@@ -101,11 +102,11 @@ def cut(model: Model, pattern, threads: int) -> SimpleNamespace:
     total = int(dynamic.sum())
     ideal = total / threads
     best = None
-    while True:
+    while True:  # the cost of a cut: its largest share, and the separator's bodies after it
         load, thread_of = _deal([int(size[r]) for r in subtrees], threads)
-        if best is None or load < best[0]:
+        if best is None or load + len(separator) < best[0] + len(best[1]):
             best = (load, list(separator), list(subtrees), thread_of)
-        if load <= BALANCE * ideal or len(separator) >= MAX_SEPARATOR:
+        if load <= BALANCE * ideal or len(separator) >= MAX_SEPARATOR or not subtrees:
             break
         top = max(subtrees, key=lambda r: size[r])
         subtrees.remove(top)
