@@ -30,7 +30,8 @@ class ThreadedSimulator:
     """Steps the worlds of a batched Model (`SceneBuilder.replicate`) on `threads` threads (default: one per
     core, at most one per world). Accessors, setters and stats are those of a batched Simulator: per world with
     `world=`, or with a leading world dimension. A Model of one world is stepped by a `SplitSimulator`: its
-    tree cut at the root, a part per thread (`split_note` says why where it runs on one thread)."""
+    tree cut at the root, a part per thread (`split_note` says why where it runs on one thread); its step fails
+    as a Simulator's does."""
 
     def __init__(self, model: Model, dt: float, threads: int | None = None, **settings) -> None:
         """Args: model, dt and `settings` as for `Simulator`; threads: how many (>= 1)."""
@@ -52,7 +53,9 @@ class ThreadedSimulator:
             part.prepare_substeps()
         self.dt = self.parts[0].dt
         self._last: list[StepStats] | None = None
-        self._starts_of_step = [part.model.state() if part.batch is None else None for part in self.parts]
+        self._starts_of_step = [
+            part.model.state() if part.batch is None and model.world_count > 1 else None for part in self.parts
+        ]
         self._stopped: dict[int, str] = {}  # worlds of one-world shares that stopped
         self._pool = ThreadPoolExecutor(len(self.parts), thread_name_prefix="warpimpulse")
 
@@ -100,11 +103,11 @@ class ThreadedSimulator:
 
     def step(self) -> StepStats:
         """One step of dt for every world; the StepStats over all worlds (per world in `world_stats`)."""
+        if self.model.world_count == 1:  # one tree on its threads: its Simulator's step, failures and all
+            self._last = [self.parts[0].step()]
+            return self._last[0]
         known = set(self._stopped)
-        if len(self.parts) == 1:  # one world (its own threads), or one share
-            results = [self._batched(0)]
-        else:
-            results = list(self._pool.map(self._batched, range(len(self.parts))))
+        results = list(self._pool.map(self._batched, range(len(self.parts))))
         for w in sorted(set(self._stopped) - known):
             warnings.warn(f"{self._stopped[w]}; the world stops, the others go on", RuntimeWarning, stacklevel=2)
         stats = [part.batch.finish() if part.batch is not None else r for part, r in zip(self.parts, results)]
