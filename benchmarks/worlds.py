@@ -15,7 +15,8 @@
 3. One tree on every core: `ThreadedSimulator` of one world (`split.SplitSimulator`: the tree cut at its root, a
    part a thread) on 1, 2, ... threads for the binary trees of 16,383 and 65,535 bodies: ms per step, the
    speed-up over one thread (which is the fused step itself), CPU time over wall time, and whether every thread
-   count ends bit for bit where one thread does.
+   count ends bit for bit where one thread does; and, for the most threads, the speed-up estimated from CPU
+   times as if each thread had a core of its own (`idle_core_estimate`).
 4. A hard world: one world spinning fast takes its steps alone, as substeps; the others' joint iterations are
    counted against a run without it (they should be equal).
 Variants are timed in turn, round after round, so load on the machine hits them alike; figures are medians
@@ -42,6 +43,7 @@ import warp as wp
 import warpimpulse as wi
 from warpimpulse.bench.harness import quiet_warp
 from warpimpulse.simulator import Simulator
+from warpimpulse.split import SplitSimulator
 from warpimpulse.threads import ThreadedSimulator
 
 DT = 1.0 / 60.0
@@ -171,7 +173,53 @@ def split_scaling(bodies: int, rounds: int, cores: list[int], seconds: float = 0
     same &= all(np.array_equal(first.angular_velocities(), sim.angular_velocities()) for sim in sims.values())
     for sim in sims.values():
         sim.close()
-    return {"bodies": bodies, "steps_per_block": block, "by_threads": out, "bit_identical": same}
+    estimate = idle_core_estimate(model, cores[-1], block, rounds) if len(cores) > 1 else None
+    return {"bodies": bodies, "steps_per_block": block, "by_threads": out, "bit_identical": same,
+            "idle_core_estimate": estimate}  # fmt: skip
+
+
+class TimedSplit(SplitSimulator):
+    """A SplitSimulator that adds up its parts' CPU time (each part's thread's own clock): all of it, and the
+    longest part of each phase."""
+
+    parts_cpu = 0.0
+    critical_cpu = 0.0
+
+    def _parts(self, graphs) -> None:
+        def run(graph) -> float:
+            start = time.thread_time()
+            wp.capture_launch(graph)
+            return time.thread_time() - start
+
+        pending = [self._pool.submit(run, g) for g in graphs[1:]]
+        times = [run(graphs[0]), *(f.result() for f in pending)]
+        self.parts_cpu += sum(times)
+        self.critical_cpu += max(times)
+
+
+def idle_core_estimate(model, threads: int, steps: int, rounds: int) -> dict:
+    """What `threads` cores of its own would give the split step, from CPU times, which other work on the
+    machine does not lengthen (much): the one-thread step's CPU time over the split step's with each phase of
+    the parts counted at its longest part (the separator, the host and the barriers' CPU as they are). A model,
+    not a measurement of wall time: it leaves out the time a thread waits to be woken."""
+    one, split = SplitSimulator(model, DT, threads=1), TimedSplit(model, DT, threads=threads)
+    one.step(), split.step()
+    cpu_one, cpu_split, parts, critical = [], [], [], []
+    for _ in range(rounds):
+        cpu_one.append(timed(lambda: one.step(), steps)[1] / steps)
+        split.parts_cpu = split.critical_cpu = 0.0
+        cpu_split.append(timed(lambda: split.step(), steps)[1] / steps)
+        parts.append(split.parts_cpu / steps)
+        critical.append(split.critical_cpu / steps)
+    split.close()
+    path = [c - p + k for c, p, k in zip(cpu_split, parts, critical)]
+    return {
+        "threads": threads,
+        "fused_cpu_ms": 1e3 * statistics.median(cpu_one),
+        "split_cpu_ms": 1e3 * statistics.median(cpu_split),
+        "critical_path_ms": 1e3 * statistics.median(path),
+        "speedup": statistics.median(cpu_one) / statistics.median(path),
+    }
 
 
 def hard_world(worlds: int, bodies: int, steps: int = 10) -> dict:
@@ -231,6 +279,13 @@ def markdown(results: dict) -> str:
     rows += [(f"one tree{t['bodies']}, cut at its root", t, "ms_per_step", "ms/step") for t in results.get("split", [])]
     for name, t, key, unit in rows:
         lines.append(f"| {name} | {cells(t['by_threads'], key, unit)} | {t['bit_identical']} |")
+    estimates = [(t["bodies"], t.get("idle_core_estimate")) for t in results.get("split", [])]
+    if any(e for _, e in estimates):
+        told = "; ".join(f"tree{b}: {e['speedup']:.2f}x on {e['threads']} (CPU {e['fused_cpu_ms']:.1f} ms a step on "
+                         f"one thread, {e['split_cpu_ms']:.1f} ms split, {e['critical_path_ms']:.1f} ms on the longest "
+                         "path)" for b, e in estimates if e)  # fmt: skip
+        lines += ["", "The split step on cores of its own, estimated from CPU times (which the machine's other load "
+                  f"lengthens little; each phase of the parts counted at its longest part): {told}."]  # fmt: skip
     h = results["hard_world"]
     lines += [
         "",
