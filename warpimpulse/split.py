@@ -30,6 +30,8 @@ run on one thread, and `split_note` says why.
 from __future__ import annotations
 
 import heapq
+import itertools
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
@@ -252,11 +254,32 @@ class SplitSimulator(Simulator):
         )
 
     def _parts(self, graphs: list[wp.Graph]) -> None:
-        """The parts' graphs at once: the first on this thread, the others on the pool's."""
-        pending = [self._pool.submit(wp.capture_launch, g) for g in graphs[1:]]
-        wp.capture_launch(graphs[0])
-        for f in pending:
-            f.result()
+        """The parts' graphs at once, on this thread and the pool's: each takes the next graph nobody has taken,
+        so a pool thread that a busy machine is slow to wake leaves its part to this thread instead of holding
+        the step up."""
+        claims, count = itertools.count(), len(graphs)
+        finished, lock, done = [0], threading.Lock(), threading.Event()
+        failure: list[BaseException] = []
+
+        def work() -> None:
+            while (i := next(claims)) < count:
+                try:
+                    wp.capture_launch(graphs[i])
+                except BaseException as exc:  # handed to the waiting thread, which raises it
+                    failure.append(exc)
+                    done.set()
+                    return
+                with lock:
+                    finished[0] += 1
+                    if finished[0] == count:
+                        done.set()
+
+        for _ in range(min(self.threads, count) - 1):
+            self._pool.submit(work)
+        work()
+        done.wait()
+        if failure:
+            raise failure[0]
 
     def _phase(self, graphs: list[wp.Graph]) -> None:
         """The separator's graph, then the parts'."""
