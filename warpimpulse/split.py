@@ -29,9 +29,8 @@ run on one thread, and `split_note` says why.
 
 from __future__ import annotations
 
+import functools
 import heapq
-import itertools
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
@@ -43,6 +42,7 @@ from .kernels import step as step_kernels
 from .kernels.split import OUT_BAD, OUT_ERROR, OUT_SPIN, OUT_VELOCITY_ERROR, OUT_WIDTH
 from .launch import capture, record
 from .model import Model
+from .pool import run_shared
 from .simulator import Simulator
 
 SEPARATOR = -1
@@ -254,32 +254,9 @@ class SplitSimulator(Simulator):
         )
 
     def _parts(self, graphs: list[wp.Graph]) -> None:
-        """The parts' graphs at once, on this thread and the pool's: each takes the next graph nobody has taken,
-        so a pool thread that a busy machine is slow to wake leaves its part to this thread instead of holding
-        the step up."""
-        claims, count = itertools.count(), len(graphs)
-        finished, lock, done = [0], threading.Lock(), threading.Event()
-        failure: list[BaseException] = []
-
-        def work() -> None:
-            while (i := next(claims)) < count:
-                try:
-                    wp.capture_launch(graphs[i])
-                except BaseException as exc:  # handed to the waiting thread, which raises it
-                    failure.append(exc)
-                    done.set()
-                    return
-                with lock:
-                    finished[0] += 1
-                    if finished[0] == count:
-                        done.set()
-
-        for _ in range(min(self.threads, count) - 1):
-            self._pool.submit(work)
-        work()
-        done.wait()
-        if failure:
-            raise failure[0]
+        """The parts' graphs at once, on this thread and the pool's (`pool.run_shared`: a pool thread woken late
+        on a busy machine leaves its part to this one)."""
+        run_shared(self._pool, self.threads - 1, [functools.partial(wp.capture_launch, g) for g in graphs])
 
     def _phase(self, graphs: list[wp.Graph]) -> None:
         """The separator's graph, then the parts'."""

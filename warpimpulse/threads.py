@@ -1,5 +1,5 @@
 """Batched worlds on every core: the worlds split into shares, one per thread, each share a Simulator of its
-own (`Model.worlds`), stepped at once. One world alone is one tree cut at its root instead, a part of it per
+own (`Model.worlds`), stepped at once by the calling thread and a pool's (`pool.run_shared`). One world alone is one tree cut at its root instead, a part of it per
 thread (`split.SplitSimulator`).
 
 A Warp CPU launch runs on one thread but releases the GIL, so Python threads launching on disjoint arrays use
@@ -14,6 +14,7 @@ A world's run does not depend on its share: every world gives, bit for bit, the 
 
 from __future__ import annotations
 
+import functools
 import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -21,6 +22,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from .model import Model
+from .pool import run_shared
 from .simulator import SimulationError, Simulator, StepStats
 from .split import SplitSimulator
 from .worlds import WorldStats
@@ -57,7 +59,7 @@ class ThreadedSimulator:
             part.model.state() if part.batch is None and model.world_count > 1 else None for part in self.parts
         ]
         self._stopped: dict[int, str] = {}  # worlds of one-world shares that stopped
-        self._pool = ThreadPoolExecutor(len(self.parts), thread_name_prefix="warpimpulse")
+        self._pool = ThreadPoolExecutor(max(1, len(self.parts) - 1), thread_name_prefix="warpimpulse")
 
     def close(self) -> None:
         self._pool.shutdown()
@@ -107,7 +109,8 @@ class ThreadedSimulator:
             self._last = [self.parts[0].step()]
             return self._last[0]
         known = set(self._stopped)
-        results = list(self._pool.map(self._batched, range(len(self.parts))))
+        tasks = [functools.partial(self._batched, i) for i in range(len(self.parts))]
+        results = run_shared(self._pool, len(self.parts) - 1, tasks)  # this thread takes shares too
         for w in sorted(set(self._stopped) - known):
             warnings.warn(f"{self._stopped[w]}; the world stops, the others go on", RuntimeWarning, stacklevel=2)
         stats = [part.batch.finish() if part.batch is not None else r for part, r in zip(self.parts, results)]
