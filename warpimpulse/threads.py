@@ -1,6 +1,6 @@
 """Batched worlds on every core: the worlds split into shares, one per thread, each share a Simulator of its
-own (`Model.worlds`), stepped at once by the calling thread and a pool's (`pool.run_shared`). One world alone is one tree cut at its root instead, a part of it per
-thread (`split.SplitSimulator`).
+own (`Model.worlds`), stepped at once by the calling thread and a pool's (`pool.run_shared`). One world alone
+is one tree cut at its root instead, a part of it per thread (`split.SplitSimulator`).
 
 A Warp CPU launch runs on one thread but releases the GIL, so Python threads launching on disjoint arrays use
 separate cores (docs/architecture.md, "Warp on a CPU"). Graph capture on a CPU is one record for the whole
