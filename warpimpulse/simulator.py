@@ -386,6 +386,8 @@ class Simulator:
         for k in range(self.max_substep_depth + 1):
             self._use_step_size(self.dt / 2**k)
         self._use_step_size(self.dt)
+        if self.schedule == "fused":  # and the fused kernel's launch (a one-world share steps by it)
+            self._fused_launch(self.dt)
 
     def _update_frames(self) -> None:
         """P_i, J_ib and K at the current state; factor K for the coming solves."""
