@@ -20,7 +20,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .assemble import assemble_slot
+from .assemble import assemble_slot, row_products_of
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .impulses import apply_body
@@ -63,6 +63,7 @@ def forward_rows(
 def backward_apply(
     part_columns: wp.array(dtype=int),
     part_bodies: wp.array(dtype=int),
+    constraint_kind: wp.array(dtype=int),
     perm: wp.array(dtype=int),
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
@@ -86,14 +87,15 @@ def backward_apply(
         backward_column(part_columns[n - 1 - k], perm, col_start, col_row, col_sign, values, diag_inv, work, impulse)
     for k in range(part_bodies.shape[0]):
         apply_body(
-            part_bodies[k], body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse,
-            body_v, body_w,
+            part_bodies[k], constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
+            jac_ang, impulse, body_v, body_w,
         )  # fmt: skip
 
 
 @wp.func
 def velocity_errors_of(
     part_constraints: wp.array(dtype=int),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     jac_lin: wp.array(dtype=mat33d),
@@ -106,7 +108,9 @@ def velocity_errors_of(
     worst = f64(0.0)
     for k in range(part_constraints.shape[0]):
         i = part_constraints[k]
-        velocity_error(i, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs)
+        velocity_error(
+            i, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs
+        )
         worst = max_or_nan(worst, errors[i])
     return worst
 
@@ -195,9 +199,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             if separator != 0:
                 forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
             backward_apply(
-                part_columns, part_bodies, perm, col_start, col_row, col_sign, values, diag_inv, work, impulse,
-                body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, body_v_out,
-                body_w_out,
+                part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, diag_inv,
+                work, impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                body_v_out, body_w_out,
             )  # fmt: skip
         for k in range(part_bodies.shape[0]):
             predict_index(
@@ -283,6 +287,8 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
+        mass_jac: wp.array(dtype=mat33d),
+        inertia_jac: wp.array(dtype=mat33d),
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
         body_v_out: wp.array(dtype=vec3d),
@@ -290,9 +296,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         part_out: wp.array(dtype=f64),
     ):
         """One part's share of what follows an accepted prediction. `accept`: take the prediction as the new
-        state, and the world inverse inertias and constraint frames there. `factor`: assemble and factor the
-        part's columns (the separator's after every part's), its velocity errors and, for a part, its forward
-        rows of the velocity correction (wasted when the velocities hold)."""
+        state, and the world inverse inertias, constraint frames and Jacobian rows' products there. `factor`:
+        assemble and factor the part's columns (the separator's after every part's), its velocity errors and,
+        for a part, its forward rows of the velocity correction (wasted when the velocities hold)."""
         if accept != 0:
             for k in range(part_bodies.shape[0]):
                 b = part_bodies[k]
@@ -302,16 +308,21 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 body_w_out[b] = pred_w[b]
                 world_inverse_inertia_of(b, body_inv_inertia, body_q_out, inv_inertia_world)
             for k in range(part_constraints.shape[0]):
+                i = part_constraints[k]
                 frame(
-                    part_constraints[k], constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
-                    constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out, proj, jac_lin,
-                    jac_ang,
+                    i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                    constraint_axis0, constraint_axis1, body_x_out, body_q_out, proj, jac_lin, jac_ang,
                 )  # fmt: skip
+                for side in range(2):
+                    row_products_of(
+                        2 * i + side, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin,
+                        jac_ang, mass_jac, inertia_jac,
+                    )  # fmt: skip
         if factor != 0:
             for k in range(part_slots.shape[0]):
                 assemble_slot(
-                    part_slots[k], constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row,
-                    slot_col, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                    part_slots[k], constraint_kind, slot_row, slot_col, slot_sides, mass_jac, inertia_jac, jac_lin,
+                    jac_ang, values,
                 )  # fmt: skip
             for k in range(part_columns.shape[0]):
                 factor_column(
@@ -319,8 +330,8 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                     col_sign, col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, part_singular,
                 )  # fmt: skip
             part_out[3] = velocity_errors_of(
-                part_constraints, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out,
-                errors, rhs,
+                part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
+                body_w_out, errors, rhs,
             )  # fmt: skip
             if separator == 0:
                 forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
@@ -331,6 +342,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         body_inv_mass: wp.array(dtype=f64),
         body_rows_start: wp.array(dtype=int),
         body_rows: wp.array(dtype=int),
+        constraint_kind: wp.array(dtype=int),
         constraint_body0: wp.array(dtype=int),
         constraint_body1: wp.array(dtype=int),
         # Pattern:
@@ -365,12 +377,13 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         if separator != 0:
             forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
         backward_apply(
-            part_columns, part_bodies, perm, col_start, col_row, col_sign, values, diag_inv, work, impulse,
-            body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
+            part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, diag_inv, work,
+            impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, body_v_out,
+            body_w_out,
         )  # fmt: skip
         part_out[3] = velocity_errors_of(
-            part_constraints, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out, body_w_out, errors,
-            rhs,
+            part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
+            body_w_out, errors, rhs,
         )  # fmt: skip
 
     return SimpleNamespace(correct=correct, refactor=refactor, velocity_fix=velocity_fix)

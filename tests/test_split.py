@@ -97,6 +97,11 @@ def test_a_scene_off_the_fused_schedule_runs_on_one_thread_and_says_why():
     assert sim.threads == 1 and sim.split_note.startswith("the fused schedule does not run: ")
 
 
+def test_a_composed_step_runs_on_one_thread_and_says_why():
+    sim = SplitSimulator(wi.scenes.binary_tree(31).finalize(), DT, threads=2, order=4)
+    assert sim.threads == 1 and sim.split_note == "order 4 composes base steps; the split step takes order 2"
+
+
 def test_a_loop_is_not_cut():
     model = wi.scenes.four_bar().finalize()
     with pytest.raises(CutError, match="closes a loop"):

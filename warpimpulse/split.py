@@ -203,6 +203,9 @@ class SplitSimulator(Simulator):
         if self.schedule != "fused" or self.linear is None or model.device.is_cuda:
             self.split_note = f"the fused schedule does not run: {self.schedule_note or 'a GPU or free bodies'}"
             return
+        if len(self.scheme.stages) > 1:
+            self.split_note = f"order {self.order} composes base steps; the split step takes order 2"
+            return
         try:
             parts = cut(model, self.linear.pattern, threads)
         except CutError as exc:
@@ -339,6 +342,7 @@ class SplitSimulator(Simulator):
                 code = s.SINGULAR
             elif not verr <= self.velocity_tolerance:
                 code = s.VELOCITY
+            row[s.STATUS_FAILED_VELOCITY] = _max_or_nan(0.0, verr) if code == s.VELOCITY else 0.0
             row[s.STATUS_CODE] = code
             if code != s.OK:
                 return status
