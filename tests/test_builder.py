@@ -140,6 +140,8 @@ def test_bad_forces_and_gravity():
         (lambda b: b.bodies[0].angular_velocity.__setitem__(2, math.inf), "body 'bob' angular_velocity contains"),
         (lambda b: b.bodies[0].position.__setitem__(0, math.nan), "body 'bob' position contains NaN"),
         (lambda b: setattr(b.bodies[0], "mass", 0.0), "body 'bob': mass must be positive"),
+        (lambda b: b.bodies[0].angular_velocity.__setitem__(0, 1e300), "body 'bob' angular_velocity is too large"),
+        (lambda b: b.bodies[0].inertia.__setitem__((0, 1), 0.5), "body 'bob': inertia tensor is not symmetric"),
         (lambda b: b.gravity.__setitem__(2, -math.inf), "gravity contains NaN or Inf"),
         (lambda b: b.forces[0].force.__setitem__(0, math.nan), "force on body 'bob' contains NaN"),
     ],

@@ -84,16 +84,17 @@ def test_gravity_of_a_wrong_type():
         ("position", [0, 0], r"body 'box' position must have 3 components"),
         ("orientation", [0, 0, np.nan, 1], r"body 'box' orientation contains NaN"),
         ("inertia", np.ones(3), r"body 'box' inertia must be a finite 3x3"),
-        ("mass", True, r"body 'box': mass must be a number"),
+        ("mass", True, r"body 'box': mass must be numeric, got the boolean True"),
         ("angular_velocity", [1e300, 0, 0], r"body 'box' angular_velocity is too large"),
     ],
 )
-def test_finalize_names_a_body_changed_after_add(field, value, match):
-    """Scenes may set body fields after add_body: finalize checks them again and names the body."""
+def test_a_body_field_set_after_add_is_checked(field, value, match):
+    """Scenes may set body fields after add_body: a value of the wrong type, shape or a non-finite one is
+    refused as it is set (the builder keeps bodies in typed columns), naming the body; values written in place
+    are checked by finalize (test_builder.test_finalize_rechecks_values_changed_after_adding)."""
     b = _one_body()
-    setattr(b.bodies[0], field, value)
     with pytest.raises(SceneError, match=match):
-        b.finalize()
+        setattr(b.bodies[0], field, value)
 
 
 SIMULATOR_MISTAKES = [

@@ -2,6 +2,10 @@
 
 Anchors and axes are given in world coordinates at build time and stored in each body's frame.
 Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see `joints.py`.
+
+Bodies, joints and basic constraints are columns of arrays (`tables.Table`), added many at a time
+(`add_bodies`, `add_joints`: numpy arrays in, index arrays out) or one at a time (`add_body`, `add_joint`: the
+same code with one row). Checks are vectorised, and a bad row is named: "body 'b17': mass must be positive".
 """
 
 from __future__ import annotations
@@ -9,7 +13,8 @@ from __future__ import annotations
 import copy
 import math
 import warnings
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,26 +23,18 @@ from .checks import SceneError
 from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import SHAPE_CODES, Colliders, Shape
-from .transforms import quat_conj, quat_mul, quat_rotate
+from .tables import Body, Constraint, Joint, Rows, Table
+from .transforms import quat_conj, quat_mul, quat_rotate, quat_to_matrix
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
+
+__all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "WORLD", "checked_material"]
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
 
-
-@dataclass
-class Body:
-    name: str
-    mass: float  # 0 for static bodies
-    inertia: np.ndarray  # 3x3, body frame, about the centre of mass
-    position: np.ndarray
-    orientation: np.ndarray  # (x, y, z, w)
-    linear_velocity: np.ndarray
-    angular_velocity: np.ndarray  # world frame
-    shape: Shape | None = None
-    static: bool = False
-    friction: float = 0.5
-    restitution: float = 0.0
+Names = str | Sequence[str] | None
+"""Names of rows added at once: None ("body<index>", "joint<index>"), a format template filled with each row's
+index ("b{}"), or one name per row."""
 
 
 @dataclass
@@ -48,35 +45,6 @@ class Ground:
     height: float
     friction: float
     restitution: float
-
-
-@dataclass
-class Constraint:
-    """One basic constraint between body0 (parent side, may be WORLD) and body1 (child side)."""
-
-    kind: ConstraintKind
-    body0: int
-    body1: int
-    anchor0: np.ndarray  # point on body0, body0 frame (world frame when body0 is WORLD)
-    anchor1: np.ndarray  # point on body1, body1 frame
-    axis0: np.ndarray  # body0 frame: line direction, plane normal, common axis, or first angle axis
-    axis1: np.ndarray  # body1 frame: common axis or second angle axis
-    rest_rotation: np.ndarray  # q0^-1 q1 at build time, for FIXED_ROTATION
-    rest_angle: float  # angle between axis0 and axis1 at build time, for ANGLE
-    joint: int
-
-
-@dataclass
-class Joint:
-    name: str
-    kind: str
-    parent: int
-    child: int
-    anchor: np.ndarray  # world, at build time
-    axis: np.ndarray | None
-    axis_child: np.ndarray | None
-    constraints: list[int] = field(default_factory=list)
-    loop: bool = False  # close a kinematic loop with this joint where there is a choice (mark_loop_joint)
 
 
 @dataclass
@@ -184,14 +152,83 @@ def _axis(value, what: str) -> np.ndarray:
     return arr / norm
 
 
+def _first(bad: np.ndarray) -> int | None:
+    """The index of the first True, or None."""
+    at = np.flatnonzero(bad)
+    return int(at[0]) if len(at) else None
+
+
+def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
+    """`value` as (count, *shape) floats: one row per item, or one value (or a single number) for all."""
+    arr = checks.numbers(value, what)
+    if arr.shape == (count, *shape):
+        return arr
+    if arr.shape == shape or arr.ndim == 0:
+        return np.broadcast_to(arr, (count, *shape))
+    if not shape:
+        raise SceneError(f"{what} must be a single number or {count} numbers, got {value!r}")
+    if len(shape) == 1:
+        raise SceneError(f"{what} must have {shape[0]} components, got shape {arr.shape}")
+    raise SceneError(f"{what} must have shape {shape} or {(count, *shape)}, got shape {arr.shape}")
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of (n, 3) arrays, component by component: a row gives the same bits in a batch of
+    any size (a reduction might not)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (n, 3) rotated by unit quaternions (n, 4), component by component (see `_dot`)."""
+    m = quat_to_matrix(q)
+    return m[:, :, 0] * v[:, None, 0] + m[:, :, 1] * v[:, None, 1] + m[:, :, 2] * v[:, None, 2]
+
+
+def _check_finite_rows(values: np.ndarray, label, field: str) -> None:
+    """Every row of `values` (n, k) finite and squarable in double precision, else the first bad row named."""
+    flat = values.reshape(len(values), -1)
+    i = _first(~np.isfinite(flat).all(axis=1))
+    if i is not None:
+        raise SceneError(f"{label(i)} {field} contains NaN or Inf: {values[i].tolist()}")
+    i = _first(np.abs(flat).max(axis=1, initial=0.0) > checks.LARGEST)
+    if i is not None:
+        raise SceneError(f"{label(i)} {field} is too large for double precision (|component| > {checks.LARGEST:g}): "
+                         f"{values[i].tolist()}")  # fmt: skip
+
+
+def _unit_rows(value, count: int, what: str, label, field: str) -> np.ndarray:
+    """Directions (count, 3), any length but zero, normalised."""
+    arr = _rows(value, count, (3,), what)
+    _check_finite_rows(arr, label, field)
+    norm = np.sqrt(_dot(arr, arr))
+    i = _first(norm < 1e-12)
+    if i is not None:
+        raise SceneError(f"{label(i)} {field} is a zero vector")
+    return arr / norm[:, None]
+
+
 class SceneBuilder:
     """Collects a scene. Call `finalize()` to get the device-side `Model`."""
 
     def __init__(self, gravity=(0.0, 0.0, -9.81)) -> None:
         self.gravity = _vec(gravity, "gravity")
-        self.bodies: list[Body] = []
-        self.joints: list[Joint] = []
-        self.constraints: list[Constraint] = []
+        f8 = np.float64
+        self._bodies = Table(mass=((), f8), inertia=((3, 3), f8), position=((3,), f8), orientation=((4,), f8),
+                             linear_velocity=((3,), f8), angular_velocity=((3,), f8), static=((), bool),
+                             friction=((), f8), restitution=((), f8), shape=((), np.int32))  # fmt: skip
+        # A joint's axis and axis_child are NaN where it has none; its constraints are first..first+count-1.
+        self._joints = Table(kind=((), np.int32), parent=((), np.int64), child=((), np.int64), anchor=((3,), f8),
+                             axis=((3,), f8), axis_child=((3,), f8), first=((), np.int64),
+                             constraint_count=((), np.int32), loop=((), bool))  # fmt: skip
+        self._constraints = Table(kind=((), np.int32), body0=((), np.int64), body1=((), np.int64),
+                                  anchor0=((3,), f8), anchor1=((3,), f8), axis0=((3,), f8), axis1=((3,), f8),
+                                  rest_rotation=((4,), f8), rest_angle=((), f8), joint=((), np.int64))  # fmt: skip
+        self._body_name: list[str] = []
+        self._body_names: dict[str, int] = {}
+        self._joint_name: list[str] = []
+        self._joint_kinds: list[str] = []  # the joint kinds' names, indexed by the joints' kind column
+        self._shapes: list[Shape] = []  # the distinct shapes, indexed by the bodies' shape column (-1: none)
+        self._shape_slots: dict[int, int] = {}  # id(shape) -> its index (the list keeps the shape alive)
         self.forces: list[Force] = []
         self.grounds: list[Ground] = []
         self.collision_filters: set[tuple[int, int]] = set()
@@ -199,8 +236,22 @@ class SceneBuilder:
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
         self.distances: list[Distance] = []
-        self._body_names: dict[str, int] = {}
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
+
+    @property
+    def bodies(self) -> Rows:
+        """The bodies as `tables.Body` views: `builder.bodies[i].mass`, `len(builder.bodies)`, iteration."""
+        return Rows(lambda: self._bodies.count, lambda i: Body(self, i))
+
+    @property
+    def joints(self) -> Rows:
+        """The joints as `tables.Joint` views."""
+        return Rows(lambda: self._joints.count, lambda i: Joint(self, i))
+
+    @property
+    def constraints(self) -> Rows:
+        """The basic constraints as `tables.Constraint` views, each joint's consecutive."""
+        return Rows(lambda: self._constraints.count, lambda i: Constraint(self, i))
 
     def replicate(self, count: int) -> SceneBuilder:
         """A builder of `count` independent copies of this scene, "world0/..." to "world{count-1}/...", finalized
@@ -211,9 +262,9 @@ class SceneBuilder:
             raise SceneError(f"replicate: count must be an integer >= 1, got {count!r}")
         if self.world_count > 1:
             raise SceneError("replicate: this builder is already replicated; replicate the original scene")
-        if not self.bodies:
+        if not self._bodies.count:
             raise SceneError("replicate: the scene has no bodies")
-        if self.grounds or any(b.shape is not None and b.shape.collide for b in self.bodies):
+        if self.grounds or self._colliding().any():
             raise SceneError(
                 "replicate: the scene has colliding shapes or grounds; batched worlds do not take contacts yet "
                 "(Shape(..., collide=False) keeps a shape for display and mass)"
@@ -225,39 +276,48 @@ class SceneBuilder:
         for n, what in rows:
             if n:
                 raise SceneError(f"replicate: the scene has {n} {what}; batched worlds do not take {what} yet")
+        count = int(count)
         out = SceneBuilder(self.gravity)
-        nb, nj, nc = len(self.bodies), len(self.joints), len(self.constraints)
-        prefix = count > 1
+        out._joint_kinds, out._shapes, out._shape_slots = list(self._joint_kinds), self._shapes, self._shape_slots
+        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
+        world = np.arange(count)
 
-        def body(b: int, w: int) -> int:
-            return b if b == WORLD else b + w * nb
+        def tiled(table: Table, shifts: dict[str, int]) -> dict[str, np.ndarray]:
+            """The table's columns repeated per world, with each index column shifted by its per-world size."""
+            columns = table.columns()
+            for k, col in columns.items():
+                col = np.concatenate([col] * count)
+                if k in shifts:  # WORLD stays WORLD
+                    shift = np.repeat(world * shifts[k], len(columns[k]))
+                    col = np.where(col == WORLD, col, col + shift) if k in ("parent", "child", "body0", "body1") \
+                        else col + shift  # fmt: skip
+                columns[k] = col
+            return columns
 
-        for w in range(int(count)):
-            bodies, joints, cons, forces = copy.deepcopy((self.bodies, self.joints, self.constraints, self.forces))
-            for b in bodies:
-                b.name = f"world{w}/{b.name}" if prefix else b.name
-                out._body_names[b.name] = len(out.bodies)
-                out.bodies.append(b)
-            for j in joints:
-                j.name = f"world{w}/{j.name}" if prefix else j.name
-                j.parent, j.child = body(j.parent, w), body(j.child, w)
-                j.constraints = [c + w * nc for c in j.constraints]
-                out.joints.append(j)
-            for c in cons:
-                c.body0, c.body1, c.joint = body(c.body0, w), body(c.body1, w), c.joint + w * nj
-                out.constraints.append(c)
-            for f in forces:
-                f.body = body(f.body, w)
+        out._bodies.set_columns(tiled(self._bodies, {}))
+        if nj:
+            out._joints.set_columns(tiled(self._joints, {"parent": nb, "child": nb, "first": nc}))
+        if nc:
+            out._constraints.set_columns(tiled(self._constraints, {"body0": nb, "body1": nb, "joint": nj}))
+
+        def named(names: list[str]) -> list[str]:
+            return [f"world{w}/{n}" for w in range(count) for n in names] if count > 1 else list(names)
+
+        out._body_name, out._joint_name = named(self._body_name), named(self._joint_name)
+        out._body_names = dict(zip(out._body_name, range(len(out._body_name))))
+        for w in range(count):
+            for f in copy.deepcopy(self.forces):
+                f.body += w * nb
                 out.forces.append(f)
             for spring in copy.deepcopy(self.springs):
-                spring.name = f"world{w}/{spring.name}" if prefix else spring.name
-                spring.body0, spring.body1 = body(spring.body0, w), body(spring.body1, w)
+                spring.name = f"world{w}/{spring.name}" if count > 1 else spring.name
+                spring.body0, spring.body1 = (b if b == WORLD else b + w * nb for b in (spring.body0, spring.body1))
                 out.springs.append(spring)
             for drive in copy.deepcopy(self.drives):
-                drive.name = f"world{w}/{drive.name}" if prefix else drive.name
+                drive.name = f"world{w}/{drive.name}" if count > 1 else drive.name
                 drive.joint += w * nj
                 out.drives.append(drive)
-        out.world_count = int(count)
+        out.world_count = count
         return out
 
     def _open(self, what: str) -> None:
@@ -278,7 +338,7 @@ class SceneBuilder:
         friction: float = 0.5,
         restitution: float = 0.0,
     ) -> int:
-        """Add a dynamic body and return its index.
+        """Add a dynamic body and return its index (`add_bodies` with one body).
 
         Args:
             mass: kg, positive.
@@ -295,15 +355,43 @@ class SceneBuilder:
                 its two bodies' coefficients.
             restitution: Newton's coefficient in [0, 1]; a contact takes the larger of its two bodies'.
         """
-        name = self._new_name(name, "body", len(self.bodies))
-        what = f"body {name!r}"
-        mass = checks.real(mass, f"{what}: mass")
-        if not math.isfinite(mass) or mass <= 0.0:
-            raise SceneError(f"{what}: mass must be positive and finite, got {mass}")
-        return self._append_body(
-            name, mass, self._inertia(inertia, what), position, orientation,
-            linear_velocity, angular_velocity, shape, False, friction, restitution,
-        )  # fmt: skip
+        name = self._new_name(name, "body", self._bodies.count)
+        return int(self._add_bodies(1, [name], mass, inertia, position, orientation, linear_velocity,
+                                    angular_velocity, shape, None, False, friction, restitution)[0])  # fmt: skip
+
+    def add_bodies(
+        self,
+        mass,
+        inertia,
+        position,
+        orientation=(0.0, 0.0, 0.0, 1.0),
+        linear_velocity=0.0,
+        angular_velocity=0.0,
+        name: Names = None,
+        shape: Shape | Sequence[Shape] | None = None,
+        shape_index=None,
+        friction=0.5,
+        restitution=0.0,
+    ) -> np.ndarray:
+        """Add n dynamic bodies at once and return their indices (n,); every argument as in `add_body`, per body.
+
+        Args:
+            mass: (n,) kg; its length is n.
+            inertia: (n, 3) principal moments or (n, 3, 3) tensors (kg m^2), or one (3,) / (3, 3) for all.
+            position, linear_velocity, angular_velocity: (n, 3), or one vector (or number) for all.
+            orientation: (n, 4) (x, y, z, w), or one for all.
+            name: `Names`: None, a template such as "b{}" (filled with each body's index), or n names.
+            shape: one Shape (or None) for all; or a list of shapes, each body's picked by `shape_index` (n,).
+            friction, restitution: (n,) or one number for all.
+        The checks are those of `add_body`, vectorised; the first bad body is named, and nothing is added.
+        """
+        arr = checks.numbers(mass, "add_bodies: mass")
+        if arr.ndim != 1:
+            raise SceneError(f"add_bodies: mass must be a 1-D array of the n bodies' masses, got shape {arr.shape}")
+        count = len(arr)
+        names = self._names(name, "body", self._bodies.count, count)
+        return self._add_bodies(count, names, arr, inertia, position, orientation, linear_velocity,
+                                angular_velocity, shape, shape_index, False, friction, restitution)  # fmt: skip
 
     def add_static_body(
         self,
@@ -316,10 +404,146 @@ class SceneBuilder:
     ) -> int:
         """Add a body that never moves (infinite mass); joints may attach to it like to the world, and bodies
         collide with its shape (a wall, a slope)."""
-        name = self._new_name(name, "body", len(self.bodies))
-        return self._append_body(
-            name, 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape, True, friction, restitution
+        name = self._new_name(name, "body", self._bodies.count)
+        return int(self._add_bodies(1, [name], 0.0, np.zeros((3, 3)), position, orientation, 0.0, 0.0, shape,
+                                    None, True, friction, restitution)[0])  # fmt: skip
+
+    def _add_bodies(self, count, names, mass, inertia, position, orientation, v, w, shape, shape_index, static,
+                    friction, restitution) -> np.ndarray:  # fmt: skip
+        """Append `count` bodies named `names`: the one path of add_body, add_bodies and add_static_body. Shapes
+        and types are checked on the input, values on the stored rows (`_check_bodies`, as finalize does)."""
+        batch = f"body {names[0]!r}" if count == 1 else f"bodies {names[0]!r}..{names[-1]!r}"
+        self._open(batch)
+        if count == 0:
+            return np.zeros(0, dtype=np.int64)
+        if not self._body_names.keys().isdisjoint(names) or len(set(names)) < count:
+            seen = set(self._body_names)
+            for n in names:
+                if n in seen:
+                    raise SceneError(f"body {n!r}: a body of that name already exists")
+                seen.add(n)
+        first = self._bodies.count
+
+        def label(i: int) -> str:
+            return f"body {names[i]!r}"
+
+        slots = self._shape_index(shape, shape_index, count, batch)
+        mass = _rows(mass, count, (), f"{batch}: mass")
+        inertia = checks.numbers(inertia, f"{batch}: inertia")
+        if count == 1 and inertia.shape in ((3,), (3, 3)):  # add_body's one body
+            inertia = inertia[None]
+        if inertia.shape == (count, 3):  # principal moments: a diagonal tensor
+            moments, inertia = inertia, np.zeros((count, 3, 3))
+            inertia[:, [0, 1, 2], [0, 1, 2]] = moments
+        if inertia.shape != (count, 3, 3):
+            raise SceneError(f"{batch}: inertia must be 3 moments or a 3x3 tensor per body, got shape {inertia.shape}")
+        q = _rows(orientation, count, (4,), f"{batch} orientation")
+        norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+        i = _first(norm < 1e-9)
+        if i is not None:
+            raise SceneError(f"{label(i)}: orientation quaternion is zero")
+        off = np.flatnonzero(np.abs(norm - 1.0) > 1e-6)
+        if len(off):
+            more = f" (and {len(off) - 1} more bodies)" if len(off) > 1 else ""
+            warnings.warn(f"{label(off[0])}: orientation quaternion has norm {norm[off[0]]:.6g}; normalised{more}",
+                          stacklevel=3)  # fmt: skip
+        columns = dict(
+            mass=mass, inertia=inertia, position=_rows(position, count, (3,), f"{batch} position"),
+            orientation=q / norm[:, None], linear_velocity=_rows(v, count, (3,), f"{batch} linear_velocity"),
+            angular_velocity=_rows(w, count, (3,), f"{batch} angular_velocity"), static=static, shape=slots,
+            friction=_rows(friction, count, (), f"{batch}: friction"),
+            restitution=_rows(restitution, count, (), f"{batch}: restitution"),
+        )  # fmt: skip
+        rows = self._bodies.grow(count)
+        for k, values in columns.items():
+            self._bodies[k][rows] = values
+        self._body_name.extend(names)
+        self._body_names.update(zip(names, range(first, first + count)))
+        try:
+            self._check_bodies(rows)
+        except SceneError:
+            self._bodies.truncate(first)
+            del self._body_name[first:]
+            for n in names:
+                del self._body_names[n]
+            raise
+        stored = self._bodies["inertia"][rows]
+        stored[:] = 0.5 * (stored + stored.transpose(0, 2, 1))  # symmetric to the last bit
+        return np.arange(first, first + count)
+
+    def _check_bodies(self, rows: slice) -> None:
+        """The values of bodies `rows`, vectorised, naming the first bad body: finite vectors, and for dynamic
+        bodies a positive finite mass and a symmetric positive definite inertia whose principal moments obey the
+        triangle inequality (a + b >= c); a finite friction >= 0 and a restitution in [0, 1]."""
+        t, start = self._bodies, rows.start
+
+        def label(i: int) -> str:
+            return f"body {self._body_name[start + i]!r}"
+
+        for field in ("position", "orientation", "linear_velocity", "angular_velocity"):
+            _check_finite_rows(t[field][rows], label, field)
+        dynamic = ~t["static"][rows]
+        mass = t["mass"][rows]
+        i = _first(dynamic & ~(np.isfinite(mass) & (mass > 0.0)))
+        if i is not None:
+            raise SceneError(f"{label(i)}: mass must be positive and finite, got {mass[i]}")
+        inertia = t["inertia"][rows]
+        i = _first(dynamic & ~np.isfinite(inertia).all(axis=(1, 2)))
+        if i is not None:
+            raise SceneError(f"{label(i)}: inertia contains NaN or Inf")
+        scale = np.maximum(np.abs(inertia).max(axis=(1, 2), initial=0.0), 1e-300)
+        i = _first(
+            dynamic & (np.abs(inertia - inertia.transpose(0, 2, 1)).max(axis=(1, 2), initial=0.0) > 1e-9 * scale)
         )
+        if i is not None:
+            raise SceneError(f"{label(i)}: inertia tensor is not symmetric")
+        moments = np.linalg.eigvalsh(np.where(dynamic[:, None, None], inertia, np.eye(3)))
+        i = _first(moments[:, 0] <= 0.0)
+        if i is not None:
+            raise SceneError(f"{label(i)}: inertia tensor is not positive definite (moments {moments[i].tolist()})")
+        i = _first(moments[:, 0] + moments[:, 1] < moments[:, 2] * (1.0 - 1e-9))
+        if i is not None:
+            raise SceneError(f"{label(i)}: principal moments {moments[i].tolist()} break the triangle inequality")
+        friction, restitution = t["friction"][rows], t["restitution"][rows]
+        i = _first(~(np.isfinite(friction) & (friction >= 0.0)))
+        if i is not None:
+            raise SceneError(f"{label(i)}: friction must be a finite number >= 0, got {friction[i]}")
+        i = _first(~((restitution >= 0.0) & (restitution <= 1.0)))
+        if i is not None:
+            raise SceneError(f"{label(i)}: restitution must be in [0, 1], got {restitution[i]}")
+
+    def _shape_slot(self, shape: Shape | None, what: str) -> int:
+        """The index of `shape` among the builder's distinct shapes (added if new), -1 for None."""
+        if shape is None:
+            return -1
+        if not isinstance(shape, Shape):
+            raise SceneError(f"{what}: shape must be a warpimpulse Shape or None, got {shape!r}")
+        if shape.collide and shape.zero_size():
+            raise SceneError(f"{what}: collision shape {shape.kind} has zero size ({shape})")
+        if id(shape) not in self._shape_slots:
+            self._shape_slots[id(shape)] = len(self._shapes)
+            self._shapes.append(shape)
+        return self._shape_slots[id(shape)]
+
+    def _shape_index(self, shape, shape_index, count: int, what: str) -> np.ndarray:
+        """Each of `count` new bodies' index among the distinct shapes (-1: none)."""
+        if shape_index is None:
+            return np.full(count, self._shape_slot(shape, what), dtype=np.int32)
+        if isinstance(shape, Shape) or shape is None:
+            raise SceneError(f"{what}: shape_index needs a list of shapes to index, got {shape!r}")
+        index = np.asarray(shape_index)
+        if index.shape != (count,) or index.dtype.kind not in "iu":
+            raise SceneError(f"{what}: shape_index must be {count} integers, got {shape_index!r}")
+        i = _first((index < -1) | (index >= len(shape)))
+        if i is not None:
+            raise SceneError(f"{what}: shape_index {int(index[i])} is not one of the {len(shape)} shapes")
+        slots = np.array([self._shape_slot(s, what) for s in shape] + [-1], dtype=np.int32)
+        return slots[index]
+
+    def _colliding(self) -> np.ndarray:
+        """Whether each body has a colliding shape."""
+        collide = np.array([s.collide for s in self._shapes] + [False], dtype=bool)
+        return collide[self._bodies["shape"]]
 
     def add_ground(
         self, height: float = 0.0, normal: Vec3 = (0.0, 0.0, 1.0), friction: float = 0.5, restitution: float = 0.0
@@ -348,59 +572,22 @@ class SceneBuilder:
     def _new_name(name, kind: str, index: int) -> str:
         return f"{kind}{index}" if name is None else checks.name(name, f"{kind} {index} name")
 
-    def _append_body(self, name, mass, inertia, position, orientation, v, w, shape, static, friction, restitution):
-        what = f"body {name!r}"
-        self._open(what)
-        if name in self._body_names:
-            raise SceneError(f"{what}: a body of that name already exists")
-        if shape is not None and not isinstance(shape, Shape):
-            raise SceneError(f"{what}: shape must be a warpimpulse Shape or None, got {shape!r}")
-        if shape is not None and shape.collide and shape.zero_size():
-            raise SceneError(f"{what}: collision shape {shape.kind} has zero size ({shape})")
-        friction, restitution = checked_material(friction, restitution, what)
-        q = _vec(orientation, f"{what} orientation", 4)
-        norm = float(np.linalg.norm(q))
-        if norm < 1e-9:
-            raise SceneError(f"{what}: orientation quaternion is zero")
-        if abs(norm - 1.0) > 1e-6:
-            warnings.warn(f"{what}: orientation quaternion has norm {norm:.6g}; normalised", stacklevel=3)
-        self.bodies.append(
-            Body(
-                name=name,
-                mass=mass,
-                inertia=inertia,
-                position=_vec(position, f"{what} position"),
-                orientation=q / norm,
-                linear_velocity=_vec(v, f"{what} linear_velocity"),
-                angular_velocity=_vec(w, f"{what} angular_velocity"),
-                shape=shape,
-                static=static,
-                friction=friction,
-                restitution=restitution,
-            )
-        )
-        self._body_names[name] = len(self.bodies) - 1
-        return len(self.bodies) - 1
-
     @staticmethod
-    def _inertia(inertia, what: str) -> np.ndarray:
-        arr = checks.numbers(inertia, f"{what}: inertia")
-        if arr.shape == (3,):
-            arr = np.diag(arr)
-        if arr.shape != (3, 3):
-            raise SceneError(f"{what}: inertia must be 3 moments or a 3x3 tensor, got shape {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise SceneError(f"{what}: inertia contains NaN or Inf")
-        scale = max(float(np.abs(arr).max()), 1e-300)
-        if np.abs(arr - arr.T).max() > 1e-9 * scale:
-            raise SceneError(f"{what}: inertia tensor is not symmetric")
-        moments = np.linalg.eigvalsh(arr)
-        if moments.min() <= 0.0:
-            raise SceneError(f"{what}: inertia tensor is not positive definite (moments {moments.tolist()})")
-        a, b, c = moments
-        if a + b < c * (1.0 - 1e-9):
-            raise SceneError(f"{what}: principal moments {moments.tolist()} break the triangle inequality")
-        return 0.5 * (arr + arr.T)
+    def _names(names: Names, kind: str, first: int, count: int) -> list[str]:
+        """The names of `count` new rows from index `first` (`Names`)."""
+        if names is None:
+            names = f"{kind}{{}}"
+        if isinstance(names, str):
+            if "{}" not in names:
+                raise SceneError(f"{kind} names: a template such as '{kind}{{}}' is expected, got {names!r}")
+            return list(map(names.format, range(first, first + count)))
+        names = list(names)
+        if len(names) != count:
+            raise SceneError(f"{kind} names: {count} are expected, got {len(names)}")
+        if not all(isinstance(n, str) and n for n in names):
+            for i, n in enumerate(names):
+                checks.name(n, f"{kind} {first + i} name")
+        return names
 
     # ---------------------------------------------------------------- joints
     # Every add_joint_* takes, in world coordinates at build time (the bodies' poses as added):
@@ -480,60 +667,132 @@ class SceneBuilder:
         return int(index)
 
     def add_joint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None, kinds=None) -> int:
-        """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this."""
-        name = self._new_name(name, "joint", len(self.joints))
+        """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this
+        (`add_joints` with one joint)."""
+        name = self._new_name(name, "joint", self._joints.count)
         what = f"joint {name!r}"
         self._open(what)
         p = self._body_index(parent, f"{what} parent")
         c = self._body_index(child, f"{what} child")
-        if c == WORLD:
-            raise SceneError(f"{what}: the child must be a body, not the world")
-        if p == c:
-            raise SceneError(f"{what}: connects body {self.bodies[c].name!r} to itself")
-        if (p == WORLD or self.bodies[p].static) and self.bodies[c].static:
-            raise SceneError(f"{what}: both bodies are static; the joint constrains nothing")
+        return int(self._add_joints(kind, np.array([p]), np.array([c]), anchor, axis, axis_child, [name], kinds)[0])
+
+    def add_joints(
+        self, kind: str, parent, child, anchor, axis=None, axis_child=None, name: Names = None
+    ) -> np.ndarray:
+        """Add n joints of one catalogue type at once and return their indices (n,); as `add_joint`, per joint.
+
+        Args:
+            kind: the type (`joints.JOINT_TYPES`), for all n.
+            parent: (n,) body indices, WORLD (-1) for the world. child: (n,) body indices; its length is n.
+            anchor: (n, 3) world points (m), or one for all. axis, axis_child: (n, 3) or one for all, where the
+                type takes them.
+            name: `Names`: None ("joint<index>"), a template such as "j{}", or n names.
+        The checks are those of `add_joint`, vectorised; the first bad joint is named, and nothing is added.
+        """
+        p, c = (np.asarray(x) for x in (parent, child))
+        for side, x in (("parent", p), ("child", c)):
+            if x.ndim != 1 or (len(x) and x.dtype.kind not in "iu"):
+                raise SceneError(f"add_joints: {side} must be a 1-D array of body indices, got {x!r}")
+        if len(p) != len(c):
+            raise SceneError(f"add_joints: {len(p)} parents for {len(c)} children")
+        names = self._names(name, "joint", self._joints.count, len(c))
+        return self._add_joints(kind, p.astype(np.int64), c.astype(np.int64), anchor, axis, axis_child, names)
+
+    def _add_joints(self, kind, p, c, anchor, axis, axis_child, names, kinds=None) -> np.ndarray:
+        """Append joints between bodies p and c (WORLD = -1), each made of the basic constraints `kinds` (by
+        default the catalogue's for `kind`): the one path of add_joint and add_joints."""
+        count, nb = len(c), self._bodies.count
+        batch = f"joint {names[0]!r}" if count == 1 else f"joints {names[0]!r}..{names[-1]!r}"
+        self._open(batch)
+        if count == 0:
+            return np.zeros(0, dtype=np.int64)
+
+        def label(i: int) -> str:
+            return f"joint {names[i]!r}"
+
+        for side, x in (("parent", p), ("child", c)):
+            i = _first((x < WORLD) | (x >= nb))
+            if i is not None:
+                raise SceneError(f"{label(i)} {side}: body index {x[i]} does not exist ({nb} bodies)")
+        i = _first(c == WORLD)
+        if i is not None:
+            raise SceneError(f"{label(i)}: the child must be a body, not the world")
+        i = _first(p == c)
+        if i is not None:
+            raise SceneError(f"{label(i)}: connects body {self._body_name[c[i]]!r} to itself")
+        static = self._bodies["static"]
+        i = _first(((p == WORLD) | static[np.maximum(p, 0)]) & static[c])
+        if i is not None:
+            raise SceneError(f"{label(i)}: both bodies are static; the joint constrains nothing")
         if kinds is None:
             if not isinstance(kind, str) or kind not in JOINT_TYPES:
-                raise SceneError(f"{what}: unknown joint type {kind!r}; expected one of {sorted(JOINT_TYPES)}")
+                raise SceneError(f"{batch}: unknown joint type {kind!r}; expected one of {sorted(JOINT_TYPES)}")
             kinds = JOINT_TYPES[kind]
         needs_axis = any(k.needs_axis for k in kinds)
         needs_child_axis = any(k == ConstraintKind.ANGLE for k in kinds)
-        anchor = _vec(anchor, f"{what} anchor")
-        axis = _axis(axis, f"{what} axis") if needs_axis or axis is not None else None
+        anchor = _rows(anchor, count, (3,), f"{batch} anchor")
+        _check_finite_rows(anchor, label, "anchor")
+        none = np.full((count, 3), np.nan)  # no axis
+        axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if needs_axis or axis is not None else none
         if needs_child_axis:
-            axis_child = _axis(axis_child if axis_child is not None else axis, f"{what} child axis")
-            if abs(float(np.dot(axis, axis_child))) > 1.0 - 1e-9:
-                raise SceneError(f"{what}: the two axes of an angle constraint are parallel")
+            axis_child = _unit_rows(axis_child if axis_child is not None else axis, count, f"{batch} child axis",
+                                    label, "child axis")  # fmt: skip
+            i = _first(np.abs(_dot(axis, axis_child)) > 1.0 - 1e-9)
+            if i is not None:
+                raise SceneError(f"{label(i)}: the two axes of an angle constraint are parallel")
         else:
-            axis_child = None
-        joint = Joint(name, kind, p, c, anchor, axis, axis_child)
-        self.joints.append(joint)
-        for k in kinds:
-            joint.constraints.append(len(self.constraints))
-            self.constraints.append(self._make_constraint(k, p, c, anchor, axis, axis_child, len(self.joints) - 1))
-        return len(self.joints) - 1
+            axis_child = none
+        kind = kind if isinstance(kind, str) else str(kind)
+        if kind not in self._joint_kinds:
+            self._joint_kinds.append(kind)
+        per = len(kinds)
+        first_joint, first_constraint = self._joints.count, self._constraints.count
+        rows = self._joints.grow(count)
+        joint = np.arange(first_joint, first_joint + count)
+        columns = dict(kind=self._joint_kinds.index(kind), parent=p, child=c, anchor=anchor, axis=axis,
+                       axis_child=axis_child, first=first_constraint + per * np.arange(count), constraint_count=per,
+                       loop=False)  # fmt: skip
+        for k, values in columns.items():
+            self._joints[k][rows] = values
+        self._joint_name.extend(names)
+        # The constraints, joint by joint: the axis where the joint has none is z, the child axis the axis.
+        a0 = np.where(np.isnan(axis), (0.0, 0.0, 1.0), axis)
+        a1 = np.where(np.isnan(axis_child), a0, axis_child)
+        geometry = self._constraint_geometry(p, c, anchor, a0, a1)
+        rows = self._constraints.grow(per * count)
+        for k, values in geometry.items():
+            self._constraints[k][rows] = np.repeat(values, per, axis=0)
+        self._constraints["kind"][rows] = np.tile(np.array([int(k) for k in kinds], dtype=np.int32), count)
+        self._constraints["joint"][rows] = np.repeat(joint, per)
+        return joint
+
+    def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions and orientations of bodies `b` (the world's origin and identity for WORLD)."""
+        world = (b == WORLD)[:, None]
+        at = np.maximum(b, 0)
+        x = np.where(world, 0.0, self._bodies["position"][at])
+        q = np.where(world, (0.0, 0.0, 0.0, 1.0), self._bodies["orientation"][at])
+        return x, q
 
     def _frame(self, b: int) -> tuple[np.ndarray, np.ndarray]:
-        if b == WORLD:
-            return np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])
-        return self.bodies[b].position, self.bodies[b].orientation
+        x, q = self._frames(np.array([b]))
+        return x[0], q[0]
 
-    def _make_constraint(self, kind, p, c, anchor, axis, axis_child, joint) -> Constraint:
-        x0, q0 = self._frame(p)
-        x1, q1 = self._frame(c)
-        a0 = axis if axis is not None else np.array([0.0, 0.0, 1.0])
-        a1 = axis_child if axis_child is not None else a0
-        return Constraint(
-            kind=kind,
+    def _constraint_geometry(self, p, c, anchor, a0, a1) -> dict[str, np.ndarray]:
+        """The anchor and axes of a constraint between bodies p and c in each body's frame, q0^-1 q1 and the
+        angle between the axes, as built (element-wise: a joint gets the same bits alone or in a batch)."""
+        x0, q0 = self._frames(p)
+        x1, q1 = self._frames(c)
+        c0, c1 = quat_conj(q0), quat_conj(q1)
+        return dict(
             body0=p,
             body1=c,
-            anchor0=quat_rotate(quat_conj(q0), anchor - x0),
-            anchor1=quat_rotate(quat_conj(q1), anchor - x1),
-            axis0=quat_rotate(quat_conj(q0), a0),
-            axis1=quat_rotate(quat_conj(q1), a1),
-            rest_rotation=quat_mul(quat_conj(q0), q1),
-            rest_angle=float(np.arccos(np.clip(np.dot(a0, a1), -1.0, 1.0))),
-            joint=joint,
+            anchor0=_rotate(c0, anchor - x0),
+            anchor1=_rotate(c1, anchor - x1),
+            axis0=_rotate(c0, a0),
+            axis1=_rotate(c1, a1),
+            rest_rotation=quat_mul(c0, q1),
+            rest_angle=np.arccos(np.clip(_dot(a0, a1), -1.0, 1.0)),
         )
 
     # ---------------------------------------------------------------- forces
@@ -704,70 +963,82 @@ class SceneBuilder:
     # ---------------------------------------------------------------- output
     @property
     def body_count(self) -> int:
-        return len(self.bodies)
+        return self._bodies.count
 
     def finalize(self, device: str | None = "cpu") -> Model:
         """The scene as a `Model` on `device` ("cpu", "cuda", "cuda:0" or a Warp device), checked once more."""
-        if not self.bodies:
+        if not self._bodies.count:
             raise SceneError("the scene has no bodies")
         self._check_arrays()
-        bodies, cons, joints, forces = self.bodies, self.constraints, self.joints, self.forces
-        starts = [j.constraints[0] if j.constraints else len(cons) for j in joints]
+        b, j, c = self._bodies.columns(), self._joints.columns(), self._constraints.columns()
+        f = self.forces
         return Model(
             device,
             gravity=self.gravity,
-            body_name=[b.name for b in bodies],
-            body_mass=np.array([b.mass for b in bodies]),
-            body_inertia=np.array([b.inertia for b in bodies]),
-            body_static=np.array([b.static for b in bodies], dtype=bool),
-            body_x=np.array([b.position for b in bodies]),
-            body_q=np.array([b.orientation for b in bodies]),
-            body_v=np.array([b.linear_velocity for b in bodies]),
-            body_w=np.array([b.angular_velocity for b in bodies]),
-            constraint_kind=np.array([int(c.kind) for c in cons], dtype=np.int32),
-            constraint_body0=np.array([c.body0 for c in cons], dtype=np.int64),
-            constraint_body1=np.array([c.body1 for c in cons], dtype=np.int64),
-            constraint_anchor0=np.array([c.anchor0 for c in cons]).reshape(-1, 3),
-            constraint_anchor1=np.array([c.anchor1 for c in cons]).reshape(-1, 3),
-            constraint_axis0=np.array([c.axis0 for c in cons]).reshape(-1, 3),
-            constraint_axis1=np.array([c.axis1 for c in cons]).reshape(-1, 3),
-            constraint_rest_rotation=np.array([c.rest_rotation for c in cons]).reshape(-1, 4),
-            constraint_rest_angle=np.array([c.rest_angle for c in cons]),
-            constraint_joint=np.array([c.joint for c in cons], dtype=np.int64),
-            joint_name=[j.name for j in joints],
-            joint_type=[j.kind for j in joints],
-            joint_parent=np.array([j.parent for j in joints], dtype=np.int64),
-            joint_child=np.array([j.child for j in joints], dtype=np.int64),
-            joint_constraint_start=np.array([*starts, len(cons)], dtype=np.int64),
-            force_body=np.array([f.body for f in forces], dtype=np.int64),
-            force_force=np.array([f.force for f in forces]).reshape(-1, 3),
-            force_torque=np.array([f.torque for f in forces]).reshape(-1, 3),
-            force_until=np.array([f.until for f in forces]),
+            body_name=list(self._body_name),
+            body_mass=np.where(b["static"], 0.0, b["mass"]),
+            body_inertia=b["inertia"],
+            body_static=b["static"],
+            body_x=b["position"],
+            body_q=b["orientation"],
+            body_v=b["linear_velocity"],
+            body_w=b["angular_velocity"],
+            **{
+                f"constraint_{k}": c[k]
+                for k in (
+                    "kind",
+                    "body0",
+                    "body1",
+                    "anchor0",
+                    "anchor1",
+                    "axis0",
+                    "axis1",
+                    "rest_rotation",
+                    "rest_angle",
+                    "joint",
+                )
+            },  # fmt: skip
+            joint_name=list(self._joint_name),
+            joint_type=self.joint_types(),
+            joint_parent=j["parent"],
+            joint_child=j["child"],
+            joint_constraint_start=np.append(j["first"], self._constraints.count),
+            force_body=np.array([x.body for x in f], dtype=np.int64),
+            force_force=np.array([x.force for x in f]).reshape(-1, 3),
+            force_torque=np.array([x.torque for x in f]).reshape(-1, 3),
+            force_until=np.array([x.until for x in f]),
             colliders=self._colliders(),
             **self._mechanism_arrays(),
             world_count=self.world_count,
         )
 
+    def joint_types(self) -> list[str]:
+        """Every joint's kind (`Joint.kind`), in joint order."""
+        return np.array(self._joint_kinds, dtype=object)[self._joints["kind"]].tolist()
+
     def _colliders(self) -> Colliders | None:
         """The collision geometry, or None for a scene where nothing collides (then the step has no contact
         stage at all)."""
-        colliding = [b.shape is not None and b.shape.collide for b in self.bodies]
-        if not any(colliding) or (not self.grounds and sum(colliding) < 2):
+        colliding = self._colliding()
+        if not colliding.any() or (not self.grounds and np.count_nonzero(colliding) < 2):
             return None
-        pairs = {(min(j.parent, j.child), max(j.parent, j.child)) for j in self.joints if j.parent != WORLD}
-        pairs |= self.collision_filters
+        parent, child = self._joints["parent"], self._joints["child"]
+        jointed = np.stack([np.minimum(parent, child), np.maximum(parent, child)], axis=1)[parent != WORLD]
+        pairs = np.concatenate([jointed, np.array(sorted(self.collision_filters), dtype=np.int64).reshape(-1, 2)])
+        slot = np.where(colliding, self._bodies["shape"], -1)  # -1 picks the last entry: no collision shape
+        shapes = self._shapes
         planes = self.grounds
         return Colliders(
-            shape_kind=np.array([SHAPE_CODES[b.shape.kind] if c else -1 for b, c in zip(self.bodies, colliding)]),
-            shape_size=np.array([b.shape.collision_size() if c else (0, 0, 0) for b, c in zip(self.bodies, colliding)]),
-            bound=np.array([b.shape.bounding_radius() if c else 0.0 for b, c in zip(self.bodies, colliding)]),
-            friction=np.array([b.friction for b in self.bodies]),
-            restitution=np.array([b.restitution for b in self.bodies]),
+            shape_kind=np.array([SHAPE_CODES[s.kind] for s in shapes] + [-1], dtype=np.int64)[slot],
+            shape_size=np.array([s.collision_size() for s in shapes] + [(0.0, 0.0, 0.0)], dtype=np.float64)[slot],
+            bound=np.array([s.bounding_radius() for s in shapes] + [0.0], dtype=np.float64)[slot],
+            friction=self._bodies["friction"].copy(),
+            restitution=self._bodies["restitution"].copy(),
             plane_normal=np.array([g.normal for g in planes]).reshape(-1, 3),
             plane_offset=np.array([g.height for g in planes]),
             plane_friction=np.array([g.friction for g in planes]),
             plane_restitution=np.array([g.restitution for g in planes]),
-            filter_pairs=np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2),
+            filter_pairs=np.unique(pairs, axis=0).astype(np.int64).reshape(-1, 2),
         )
 
     def _mechanism_arrays(self) -> dict:
@@ -790,7 +1061,7 @@ class SceneBuilder:
             drive_stiff=np.array([x.stiff for x in drives], dtype=bool),
             limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
             limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
-            joint_loop=np.array([j.loop for j in self.joints], dtype=bool),
+            joint_loop=self._joints["loop"].copy(),
             distance_name=[x.name for x in self.distances],
             distance_body=np.array([(x.body0, x.body1) for x in self.distances], dtype=np.int64).reshape(-1, 2),
             distance_anchor=np.array([(x.anchor0, x.anchor1, x.axis0) for x in self.distances]).reshape(-1, 3, 3),
@@ -798,38 +1069,12 @@ class SceneBuilder:
         )
 
     def _check_arrays(self) -> None:
-        """The add_* calls check their input, but the stored body arrays stay mutable (scenes set velocities
-        after adding bodies): check once more that no wrong type, NaN, Inf or bad mass reaches the device,
-        vectorised, and body by body (to name the culprit) only when something is wrong. Constraint data is
-        derived from checked input at add time and is not re-checked."""
+        """The add_* calls check their input, but the stored body columns stay mutable (scenes set velocities
+        after adding bodies, in place): check them once more, vectorised, naming the first bad body, so that no
+        NaN, Inf or bad mass reaches the device. Constraint data is derived from checked input at add time and
+        is not re-checked."""
         self.gravity = _vec(self.gravity, "gravity")
-        n = len(self.bodies)
-        for f, shape in _BODY_ARRAYS.items():
-            try:
-                values = np.array([getattr(b, f) for b in self.bodies], dtype=np.float64)
-                ok = values.shape == (n, *shape) and np.abs(values).max(initial=0.0) <= checks.LARGEST
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:  # NaN fails the comparison too
-                for b in self.bodies:
-                    what = f"body {b.name!r} {f}"
-                    if f == "inertia":
-                        arr = checks.numbers(b.inertia, what)
-                        if arr.shape != (3, 3) or not np.all(np.isfinite(arr)):
-                            raise SceneError(f"{what} must be a finite 3x3 tensor, got {arr.tolist()}")
-                    else:
-                        _vec(getattr(b, f), what, shape[0])
-        for b in self.bodies:
-            if isinstance(b.mass, (bool, np.bool_)) or not isinstance(b.mass, (float, int, np.number)):
-                raise SceneError(f"body {b.name!r}: mass must be a number, got {b.mass!r}")
-        mass = np.array([b.mass for b in self.bodies], dtype=np.float64)
-        bad = np.flatnonzero(~np.array([b.static for b in self.bodies]) & ~(np.isfinite(mass) & (mass > 0.0)))
-        if bad.size:
-            raise SceneError(f"body {self.bodies[bad[0]].name!r}: mass must be positive and finite, got {mass[bad[0]]}")
+        self._check_bodies(slice(0, self._bodies.count))
         for force in self.forces:
             if not (np.all(np.isfinite(force.force)) and np.all(np.isfinite(force.torque))):
-                raise SceneError(f"force on body {self.bodies[force.body].name!r} contains NaN or Inf")
-
-
-_BODY_ARRAYS = {"position": (3,), "orientation": (4,), "linear_velocity": (3,), "angular_velocity": (3,),
-                "inertia": (3, 3)}  # fmt: skip
+                raise SceneError(f"force on body {self._body_name[force.body]!r} contains NaN or Inf")
