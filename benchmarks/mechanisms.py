@@ -59,13 +59,15 @@ def chain(kind: str) -> wi.SceneBuilder:
 def four_bar_open() -> wi.SceneBuilder:
     """The four-bar without its loop-closing joint C (coupler to rocker): a tree of the same bodies; the motor
     stays on joint A (index 0)."""
-    cut = scenes.four_bar()
-    joints = cut.joints
-    cut.joints, cut.constraints = [], []
-    for j in joints:  # every joint but the loop's, rebuilt in order
+    full = scenes.four_bar()
+    cut = wi.SceneBuilder(full.gravity)
+    for b in full.bodies:
+        cut.add_body(b.mass, b.inertia, b.position, b.orientation, name=b.name, shape=b.shape)
+    for j in full.joints:  # every joint but the loop's, in order
         if j.name != "C":
             parent = None if j.parent < 0 else j.parent
             cut.add_joint(j.kind, parent, j.child, j.anchor, j.axis, j.axis_child, j.name)
+    cut.drives = list(full.drives)  # the motor on joint A (index 0 in both)
     return cut
 
 

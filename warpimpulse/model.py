@@ -194,7 +194,7 @@ class Model:
             joint_loop=np.asarray(joint_loop, bool).reshape(-1) if len(joint_loop) else None,
         )
         self.topology: Topology = analyze(self.graph, level_order=d.is_cuda)
-        self.kinds = sorted({ConstraintKind(int(k)) for k in h.constraint_kind})
+        self.kinds = [ConstraintKind(int(k)) for k in np.unique(h.constraint_kind)]
 
         self.gravity = wp.vec3d(*h.gravity)
         self.body_inv_mass = wp.zeros(self.body_count, dtype=wp.float64, device=d)
@@ -262,10 +262,15 @@ class Model:
         h.distance_body = distance_body = np.asarray(distance_body, np.int64).reshape(-1, 2)
         h.distance_anchor = distance_anchor = np.asarray(distance_anchor, np.float64).reshape(-1, 3, 3)
         h.distance_bounds = np.asarray(distance_bounds, np.float64).reshape(-1, 2)
-        self.coordinate_joint = [j for j, kind in enumerate(self.joint_type) if kind in COORDINATES]
-        row_of = {j: r for r, j in enumerate(self.coordinate_joint)}
-        first = h.joint_constraint_start[self.coordinate_joint]
-        kind = np.array([COORDINATES[self.joint_type[j]] for j in self.coordinate_joint], dtype=np.int32)
+        # Joint types as codes over the distinct names (a million joints share a few), then vectorised.
+        names, code = np.unique(np.asarray(self.joint_type, dtype=object).astype(str), return_inverse=True)
+        coordinate = np.array([COORDINATES.get(str(name), -1) for name in names], dtype=np.int32)[code.reshape(-1)]
+        coordinate_joint = np.flatnonzero(coordinate >= 0)
+        self.coordinate_joint = coordinate_joint.tolist()
+        row_of = np.full(self.joint_count, -1, dtype=np.int64)  # a joint's coordinate row
+        row_of[coordinate_joint] = np.arange(len(coordinate_joint))
+        first = h.joint_constraint_start[coordinate_joint]
+        kind = coordinate[coordinate_joint]
         axis_constraint = first + (kind == COORDINATES["revolute"])
         self.coordinate_count = len(self.coordinate_joint) + nd
         self.coordinate_kind = _array(np.concatenate([kind, np.full(nd, DISTANCE_COORDINATE)]), wp.int32, d)
@@ -286,8 +291,8 @@ class Model:
         # motor (bounds unused); limit_joint is each row's joint, -1 for a distance constraint.
         limits = np.asarray(limit_joint, np.int64)
         h.limit_joint = np.concatenate([limits, np.full(nd, -1), h.drive_joint[stiff]]).astype(np.int64)
-        h.limit_coordinate = np.concatenate([[row_of[j] for j in limits], len(self.coordinate_joint) + np.arange(nd),
-                                             [row_of[j] for j in h.drive_joint[stiff]]]).astype(np.int64)  # fmt: skip
+        h.limit_coordinate = np.concatenate([row_of[limits], len(self.coordinate_joint) + np.arange(nd),
+                                             row_of[h.drive_joint[stiff]]]).astype(np.int64)  # fmt: skip
         h.limit_bounds = np.concatenate([np.asarray(limit_bounds, np.float64).reshape(-1, 2),
                                          h.distance_bounds,
                                          np.zeros((len(stiff), 2))])  # fmt: skip
@@ -301,7 +306,7 @@ class Model:
         # drive_* arrays are over every drive (targets and integrals are per drive); the force elements are
         # the drives listed in drive_element.
         self.drive_element = _array(forced, wp.int32, d)
-        self.drive_coordinate = _array([row_of[j] for j in h.drive_joint], wp.int32, d)
+        self.drive_coordinate = _array(row_of[h.drive_joint], wp.int32, d)
         self.drive_mode = _array(mode, wp.int32, d)
         self.drive_gains = _array(gains, wp.vec3d, d)
         self.drive_max_force = _array(np.asarray(drive_max_force, np.float64), wp.float64, d)
@@ -311,15 +316,14 @@ class Model:
 
         # The wrench rows of the force elements on each body: 2 e + side, springs first, then drives.
         driven = h.drive_joint[forced]
-        ends = [*zip(h.spring_body0, h.spring_body1), *zip(h.joint_parent[driven], h.joint_child[driven])]
-        rows: list[list[int]] = [[] for _ in range(self.body_count)]
-        for e, pair in enumerate(ends):
-            for side, b in enumerate(pair):
-                if b >= 0:
-                    rows[b].append(2 * e + side)
-        self.element_count = len(ends)
-        self.body_wrench_start = _array(np.cumsum([0] + [len(r) for r in rows]), wp.int32, d)
-        self.body_wrench_rows = _array([r for rs in rows for r in rs], wp.int32, d)
+        ends = np.stack([np.concatenate([h.spring_body0, h.joint_parent[driven]]),
+                         np.concatenate([h.spring_body1, h.joint_child[driven]])], axis=1).reshape(-1)  # fmt: skip
+        rows = np.flatnonzero(ends >= 0)  # row 2 e + side on body ends[row]
+        rows = rows[np.argsort(ends[rows], kind="stable")]  # by body, each body's in row order
+        self.element_count = len(ends) // 2
+        per_body = np.bincount(ends[rows], minlength=self.body_count)
+        self.body_wrench_start = _array(np.concatenate([[0], np.cumsum(per_body)]), wp.int32, d)
+        self.body_wrench_rows = _array(rows, wp.int32, d)
 
     def set_masses(self, mass: np.ndarray, inertia: np.ndarray) -> None:
         """Every body's mass (kg) and inertia ((n, 3, 3) kg m^2, body frame about the centre of mass), on the

@@ -37,29 +37,49 @@ def _tree_levels(bodies: int) -> int:
     return levels
 
 
-def _tree(bodies: int, to_root: bool, joint: str = "ball") -> SceneBuilder:
+def tree_arrays(bodies: int, to_root: bool = False) -> dict:
+    """The paper's tree (or star) as the arguments of one `SceneBuilder.add_bodies` call ("bodies") and one
+    `add_joints` call ("joints"): body i's parent is (i - 1) // 2, its children 2i + 1 (bent by -15 degrees) and
+    2i + 2 (+15 degrees), computed a level at a time (each level one vectorised step)."""
     levels = _tree_levels(bodies)
-    builder = SceneBuilder()
-    lengths = np.linspace(ROOT_LENGTH, LEAF_LENGTH, levels) if levels > 1 else [ROOT_LENGTH]
-    down = np.array([0.0, 0.0, -1.0])
-    root, bottom = _capsule_body(builder, np.zeros(3), down, lengths[0], "b0", (0.55, 0.35, 0.2))
-    builder.add_joint_ball(None, root, np.zeros(3), name="j0")
-    frontier = [(root, bottom, down)]
-    for level in range(1, levels):
+    lengths = np.linspace(ROOT_LENGTH, LEAF_LENGTH, levels) if levels > 1 else np.array([ROOT_LENGTH])
+    spans = lengths - 2.0 * (lengths / 20.0)  # capsule radius = length / 20; joints sit at the cap centres
+    level = np.repeat(np.arange(levels), 2 ** np.arange(levels))
+    index = np.arange(bodies)
+    parent = (index - 1) // 2  # WORLD (-1) for the root
+    direction = np.zeros((bodies, 3))
+    top = np.zeros((bodies, 3))
+    direction[0] = (0.0, 0.0, -1.0)
+    for lv in range(1, levels):
         # Branch in the x-z plane on even levels and the y-z plane on odd ones.
-        bend_axis = np.array([0.0, 1.0, 0.0]) if level % 2 else np.array([1.0, 0.0, 0.0])
-        shade = level / max(levels - 1, 1)
-        color = (0.55 - 0.35 * shade, 0.35 + 0.4 * shade, 0.2)
-        next_frontier = []
-        for parent, top, direction in frontier:
-            for sign in (-1.0, 1.0):
-                d = quat_rotate(quat_from_axis_angle(bend_axis, sign * BRANCH_ANGLE), direction)
-                i = len(builder.bodies)
-                child, child_bottom = _capsule_body(builder, top, d, lengths[level], f"b{i}", color)
-                builder.add_joint(joint, root if to_root else parent, child, top, None, None, f"j{i}")
-                next_frontier.append((child, child_bottom, d))
-        frontier = next_frontier
-    builder.add_force(root, torque=(START_TORQUE, 0.0, 0.0), until=START_TORQUE_DURATION)
+        bend_axis = np.array([0.0, 1.0, 0.0]) if lv % 2 else np.array([1.0, 0.0, 0.0])
+        turns = np.array([quat_from_axis_angle(bend_axis, s * BRANCH_ANGLE) for s in (1.0, -1.0)])
+        kids = index[2**lv - 1 : 2 ** (lv + 1) - 1]
+        up = parent[kids]
+        direction[kids] = quat_rotate(turns[kids % 2], direction[up])  # odd children bend by -15 degrees
+        top[kids] = top[up] + direction[up] * spans[lv - 1, None]
+    shades = np.arange(levels) / max(levels - 1, 1)
+    shapes = [
+        Shape("capsule", radius=length / 20.0, length=span, color=(0.55 - 0.35 * shade, 0.35 + 0.4 * shade, 0.2),
+              collide=False)
+        for length, span, shade in zip(lengths.tolist(), spans.tolist(), shades.tolist())
+    ]  # fmt: skip
+    mass, inertia = zip(*(shape.mass_properties(DENSITY) for shape in shapes))
+    body_args = dict(
+        mass=np.array(mass)[level], inertia=np.array(inertia)[level],
+        position=top + direction * (0.5 * spans[level, None]),
+        orientation=quat_between([0.0, 0.0, 1.0], direction), name="b{}", shape=shapes, shape_index=level,
+    )  # fmt: skip
+    joint_args = dict(parent=np.where(index == 0, -1, 0) if to_root else parent, child=index, anchor=top, name="j{}")
+    return {"bodies": body_args, "joints": joint_args}
+
+
+def _tree(bodies: int, to_root: bool, joint: str = "ball") -> SceneBuilder:
+    builder = SceneBuilder()
+    args = tree_arrays(bodies, to_root)
+    builder.add_bodies(**args["bodies"])
+    builder.add_joints(joint, **args["joints"])
+    builder.add_force(0, torque=(START_TORQUE, 0.0, 0.0), until=START_TORQUE_DURATION)
     return builder
 
 

@@ -19,7 +19,6 @@ from .checks import SceneError
 from .types import ConstraintKind
 
 if TYPE_CHECKING:
-    from .builder import SceneBuilder
     from .shapes import Shape
 
 
@@ -102,7 +101,7 @@ class Rows:
 class _View:
     __slots__ = ("_builder", "index")
 
-    def __init__(self, builder: SceneBuilder, index: int) -> None:
+    def __init__(self, builder, index: int) -> None:  # a SceneBuilder (not imported: it imports this module)
         self._builder, self.index = builder, index
 
     def __eq__(self, other) -> bool:

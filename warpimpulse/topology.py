@@ -329,6 +329,27 @@ def _fill(n: int, key: np.ndarray) -> np.ndarray:
     return key
 
 
+def _heights(parent: np.ndarray) -> np.ndarray:
+    """Each node's height in a forest given by `parent` (-1 at a root): the longest path down to a leaf (0 for a
+    leaf). By pointer doubling, about log2(depth) vectorised rounds: first every node's depth, then the deepest
+    depth below each node, gathered from the nodes 1, 2, 4, ... levels down."""
+    depth = (parent >= 0).astype(np.int64)
+    up = parent.copy()
+    while np.any(up >= 0):  # depth += depth of the 2^k-th ancestor, then jump twice as far
+        has = np.flatnonzero(up >= 0)
+        depth[has] += depth[up[has]]
+        up[has] = up[up[has]]
+    deepest = depth.copy()  # the deepest depth within 2^k levels below each node
+    up = parent.copy()
+    while np.any(up >= 0):
+        has = np.flatnonzero(up >= 0)
+        gathered = deepest.copy()
+        np.maximum.at(gathered, up[has], deepest[has])
+        deepest = gathered
+        up[has] = up[up[has]]
+    return deepest - depth
+
+
 def _structure(perm: np.ndarray, pair_u: np.ndarray, pair_v: np.ndarray, unknowns: int) -> dict:
     """Symbolic block Cholesky of the pattern of pairs (u, v) of coupled unknowns, in the order `perm`."""
     n = len(perm)
@@ -346,10 +367,7 @@ def _structure(perm: np.ndarray, pair_u: np.ndarray, pair_v: np.ndarray, unknown
     parent = np.full(n, -1, dtype=np.int64)
     has = col_start[1:] - col_start[:-1] > 1
     parent[has] = col_row[col_start[:-1][has] + 1]
-    height = [0] * n
-    for j, p in enumerate(parent.tolist()):
-        if p >= 0 and height[j] + 1 > height[p]:
-            height[p] = height[j] + 1
+    height = _heights(parent)
     # Updates of column k: for its rows j <= i, L_ij -= L_ik L_jk^T, grouped by the target's column j, then k,
     # then i (the order the factor applies them).
     size = np.diff(col_start) - 1
@@ -376,7 +394,7 @@ def _structure(perm: np.ndarray, pair_u: np.ndarray, pair_v: np.ndarray, unknown
         row_start=np.concatenate([[0], np.cumsum(np.bincount(r_of, minlength=n))]).astype(np.int64),
         row_slot=below[row_order],
         row_col=k_of[row_order],
-        height=np.array(height, dtype=np.int64),
+        height=height,
     )
 
 

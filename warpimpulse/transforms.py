@@ -95,9 +95,12 @@ def quat_from_axis_angle(axis, angle: float) -> np.ndarray:
 
 
 def quat_between(a, b) -> np.ndarray:
-    """The shortest rotation taking direction a onto direction b."""
-    a = np.asarray(a, dtype=float) / np.linalg.norm(a)
-    b = np.asarray(b, dtype=float) / np.linalg.norm(b)
+    """The shortest rotation taking direction a onto direction b; (..., 3) batches give (..., 4)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.ndim > 1 or b.ndim > 1:
+        return _quats_between(a, b)
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
     c = np.cross(a, b)
     d = float(np.dot(a, b))
     if d < -1.0 + 1e-12:
@@ -107,3 +110,22 @@ def quat_between(a, b) -> np.ndarray:
         return quat_from_axis_angle(ortho, np.pi)
     q = np.append(c, 1.0 + d)
     return q / np.linalg.norm(q)
+
+
+def _quats_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`quat_between` of a batch: the same formula, and the same half turn where a and b are opposite."""
+    a, b = np.broadcast_arrays(a, b)
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    d = np.sum(a * b, axis=-1)
+    q = np.concatenate([np.cross(a, b), (1.0 + d)[..., None]], axis=-1)
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    q /= np.where(norm > 0.0, norm, 1.0)  # zero only where a and b are opposite, replaced below
+    opposite = d < -1.0 + 1e-12
+    if np.any(opposite):
+        ortho = np.cross(a[opposite], [1.0, 0.0, 0.0])
+        small = np.linalg.norm(ortho, axis=-1) < 1e-6
+        ortho[small] = np.cross(a[opposite][small], [0.0, 1.0, 0.0])
+        ortho /= np.linalg.norm(ortho, axis=-1, keepdims=True)
+        q[opposite] = np.concatenate([ortho * np.sin(0.5 * np.pi), np.full((len(ortho), 1), np.cos(0.5 * np.pi))], -1)
+    return q
