@@ -68,6 +68,9 @@ def parser() -> ArgumentParser:
     p.add_argument("--repeats", type=int, help="timed repeats per configuration (default 5, quick 3)")
     p.add_argument("--no-sweep", action="store_true", help="skip run time against error")
     p.add_argument("--no-scaling", action="store_true", help="skip scaling")
+    p.add_argument("--trees", type=int, nargs="*", help="tree sizes of the scaling (default 31 ... 65535, quick "
+                   "31 ... 2047); 2^k - 1 bodies")  # fmt: skip
+    p.add_argument("--chains", type=int, nargs="*", help="chain lengths of the scaling (default 10 ... 10000)")
     p.add_argument("--scaling-budget", type=float, help="seconds allowed per scaling point (default 300, quick 40)")
     p.add_argument("--no-progress", action="store_true")
     return p
@@ -96,8 +99,8 @@ def bench(argv: list[str]) -> int:
     if not args.no_scaling:
         budget = args.scaling_budget or (QUICK_SCALING_BUDGET if args.quick else SCALING_BUDGET)
         rows = scaling(
-            QUICK_SCALING_TREES if args.quick else SCALING_TREES,
-            QUICK_SCALING_CHAINS if args.quick else SCALING_CHAINS,
+            args.trees if args.trees is not None else QUICK_SCALING_TREES if args.quick else SCALING_TREES,
+            args.chains if args.chains is not None else QUICK_SCALING_CHAINS if args.quick else SCALING_CHAINS,
             steps=SCALING_STEPS, repeats=SCALING_REPEATS, budget_s=budget, progress=not args.no_progress,
         )  # fmt: skip
         results["scaling"] = {"meta": meta, "budget_s": budget, "steps": SCALING_STEPS,

@@ -25,6 +25,7 @@ import gc
 import math
 import os
 import platform
+import resource
 import statistics
 import sys
 import time
@@ -453,15 +454,10 @@ def scaling(
             row["skipped"] = over_budget(history.get((family, engine, variant), []), family, engine, n,
                                           steps * (repeats + 1), budget_s)  # fmt: skip
             plan.append(row)
-        builder, build_s = None, None
         for row in plan:
             if row["skipped"] is None:
-                if builder is None:
-                    start = time.perf_counter()
-                    builder = scenes.binary_tree(n) if family == "tree" else scenes.chain(n)
-                    build_s = time.perf_counter() - start
-                point = partial(scaling_point, builder, row["engine"], row["variant"], steps, repeats)
-                row.update(isolated(point, budget_s), scene_build_s=build_s)
+                point = partial(scaling_point, family, n, row["engine"], row["variant"], steps, repeats)
+                row.update(isolated(point, budget_s))
                 history.setdefault((family, row["engine"], row["variant"]), []).append(row)
             rows.append(row)
             bar.advance(f"{family}{n} {row['engine']} {row['variant']}" + (" skipped" if row["skipped"] else ""))
@@ -504,21 +500,28 @@ def over_budget(done: list[dict], family: str, engine: str, n: int, steps: int, 
     return None
 
 
-def scaling_point(builder: SceneBuilder, engine: str, variant: str, steps: int, repeats: int) -> dict:
-    """One scaling measurement (run in a child process): set-up time, then timed blocks of steps."""
+def scaling_point(family: str, n: int, engine: str, variant: str, steps: int, repeats: int) -> dict:
+    """One scaling measurement (run in a child process): set-up, from the scene builder call to an engine ready
+    to step (ours: the Model, its symbolic analysis and the Simulator; MuJoCo: its compiler), with the peak
+    memory of the process so far; then timed blocks of steps."""
     import warp as wp
 
     quiet_warp()
     with _stderr_to_devnull():  # Warp's native "no CUDA driver" line, once per child, would break the progress bar
         wp.init()
     mujoco_available()  # silences MuJoCo's warnings in this process too
-    n = len(builder.bodies)
     start = time.perf_counter()
+    builder = scenes.binary_tree(n) if family == "tree" else scenes.chain(n)
+    build_s = time.perf_counter() - start
     if engine == "mujoco":
         runner = MujocoRunner(MujocoScene.from_builder(builder, 1.0 / SCALING_RATE), variant, SCALING_RATE)
     else:
         runner = WarpimpulseRunner(builder, SCALING_RATE, SCALING_TOLERANCE, variant, builder.finalize("cpu"))
-    row: dict = {"setup_s": time.perf_counter() - start}
+    row: dict = {
+        "setup_s": time.perf_counter() - start,
+        "scene_build_s": build_s,
+        "setup_peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e9,
+    }  # KiB on Linux
     try:
         runs = _time_block(runner, steps, repeats)
     except StepFailed as e:

@@ -253,18 +253,20 @@ def scaling_markdown(scale: dict, level: str = "##") -> list[str]:
              f"h = 1/{SCALING_RATE}; warpimpulse at tolerance {SCALING_TOLERANCE:g}. Each point runs in its own "
              f"process, stopped at the budget of {scale['budget_s']:.0f} s (set-up and timing); a size projected "
              f"past it is skipped. Time: median of {scale['repeats']} blocks of {scale['steps']} steps after a "
-             "warm-up block. Set-up: our model and symbolic analysis, or MuJoCo's compiler (not the scene "
-             "description, built once for all engines).", "",
-             "| family | bodies | engine | variant | set-up (s) | µs/step | µs/body/step | joint it/step (max) | "
-             "linear it/step | note |",
-             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "warm-up block. Set-up: from the scene builder call to an engine ready to step (ours: the scene, "
+             "its Model and symbolic analysis, the Simulator; MuJoCo: the scene and its compiler); peak memory: "
+             "the measuring process's peak resident set by then, Python, Warp and MuJoCo included.", "",
+             "| family | bodies | engine | variant | set-up (s) | peak memory (GB) | µs/step | µs/body/step | "
+             "joint it/step (max) | linear it/step | note |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in rows:
         note = " ".join((r.get("skipped") or r.get("failed") or "").split())
         per_body = r.get("time_per_body_step")
         iters = r.get("joint_iterations_mean")
         lines.append(
             f"| {r['family']} | {r['bodies']} | {r['engine']} | {r['variant']} | {_num(r.get('setup_s'), '.2f')} | "
-            f"{_us(r.get('time_per_step'))} | {'—' if per_body is None else f'{per_body * 1e6:.3f}'} | "
+            f"{_num(r.get('setup_peak_rss_gb'), '.2f')} | {_us(r.get('time_per_step'))} | "
+            f"{'—' if per_body is None else f'{per_body * 1e6:.3f}'} | "
             + ("—" if iters is None else f"{iters:.2f} ({r['joint_iterations_max']})")
             + f" | {_num(r.get('linear_iterations_mean'), '.1f')} | {note} |"
         )
