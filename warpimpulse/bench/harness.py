@@ -157,7 +157,13 @@ class WarpimpulseRunner:
     """Our Simulator; a SimulationError (NaN, or no convergence in max_iterations) fails the configuration."""
 
     def __init__(
-        self, builder: SceneBuilder, rate: int, tolerance: float | None, solver: str = "auto", model=None, order=2
+        self,
+        builder: SceneBuilder | None,
+        rate: int,
+        tolerance: float | None,
+        solver: str = "auto",
+        model=None,
+        order=2,
     ):
         model = model if model is not None else builder.finalize("cpu")
         self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, solver=solver, order=order)
@@ -516,7 +522,9 @@ def scaling_point(family: str, n: int, engine: str, variant: str, steps: int, re
     if engine == "mujoco":
         runner = MujocoRunner(MujocoScene.from_builder(builder, 1.0 / SCALING_RATE), variant, SCALING_RATE)
     else:
-        runner = WarpimpulseRunner(builder, SCALING_RATE, SCALING_TOLERANCE, variant, builder.finalize("cpu"))
+        model = builder.finalize("cpu")
+        del builder  # done with, as when a script finalizes a scene function's builder: its memory is free again
+        runner = WarpimpulseRunner(None, SCALING_RATE, SCALING_TOLERANCE, variant, model)
     row: dict = {
         "setup_s": time.perf_counter() - start,
         "scene_build_s": build_s,
