@@ -4,7 +4,8 @@ A scene of a million bodies is a few arrays, not a million Python objects: `Scen
 joints and basic constraints in `Table`s, adds many rows at once (`add_bodies`, `add_joints`) or one
 (`add_body`, `add_joint`, the same code with one row), and hands the columns to the `Model` as they are.
 `builder.bodies[i]` is a `Body` view of row i: reading a field gives the stored value (a vector is a view
-into the column, so `body.linear_velocity[:] = v` writes through), and setting one checks it first.
+into the column, so `body.linear_velocity[:] = v` writes through, until rows are added: the columns may then
+move, so take the vector again), and setting a field checks it first.
 """
 
 from __future__ import annotations
