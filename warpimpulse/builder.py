@@ -278,20 +278,23 @@ class SceneBuilder:
                 raise SceneError(f"replicate: the scene has {n} {what}; batched worlds do not take {what} yet")
         count = int(count)
         out = SceneBuilder(self.gravity)
-        out._joint_kinds, out._shapes, out._shape_slots = list(self._joint_kinds), self._shapes, self._shape_slots
+        out._joint_kinds, out._shapes, out._shape_slots = (
+            list(self._joint_kinds),
+            list(self._shapes),
+            dict(self._shape_slots),
+        )
         nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
         world = np.arange(count)
 
         def tiled(table: Table, shifts: dict[str, int]) -> dict[str, np.ndarray]:
-            """The table's columns repeated per world, with each index column shifted by its per-world size."""
+            """The table's columns repeated per world, each index column shifted by its per-world size (WORLD stays
+            WORLD; no other index is negative)."""
             columns = table.columns()
             for k, col in columns.items():
-                col = np.concatenate([col] * count)
-                if k in shifts:  # WORLD stays WORLD
-                    shift = np.repeat(world * shifts[k], len(columns[k]))
-                    col = np.where(col == WORLD, col, col + shift) if k in ("parent", "child", "body0", "body1") \
-                        else col + shift  # fmt: skip
-                columns[k] = col
+                tiled = np.concatenate([col] * count)
+                if k in shifts:
+                    tiled += np.where(tiled == WORLD, 0, np.repeat(world * shifts[k], len(col)))
+                columns[k] = tiled
             return columns
 
         out._bodies.set_columns(tiled(self._bodies, {}))
@@ -976,7 +979,7 @@ class SceneBuilder:
             device,
             gravity=self.gravity,
             body_name=list(self._body_name),
-            body_mass=np.where(b["static"], 0.0, b["mass"]),
+            body_mass=b["mass"],
             body_inertia=b["inertia"],
             body_static=b["static"],
             body_x=b["position"],
