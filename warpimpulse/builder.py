@@ -24,7 +24,7 @@ from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import SHAPE_CODES, Colliders, Shape
 from .tables import Body, Constraint, Joint, Rows, Table
-from .transforms import quat_conj, quat_mul, quat_rotate, quat_to_matrix
+from .transforms import quat_conj, quat_mul, quat_rotate
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
 __all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "WORLD", "checked_material"]
@@ -154,8 +154,8 @@ def _axis(value, what: str) -> np.ndarray:
 
 def _first(bad: np.ndarray) -> int | None:
     """The index of the first True, or None."""
-    at = np.flatnonzero(bad)
-    return int(at[0]) if len(at) else None
+    i = int(np.argmax(bad)) if len(bad) else 0
+    return i if len(bad) and bad[i] else None
 
 
 def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -176,12 +176,6 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise dot products of (n, 3) arrays, component by component: a row gives the same bits in a batch of
     any size (a reduction might not)."""
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
-
-
-def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Vectors (n, 3) rotated by unit quaternions (n, 4), component by component (see `_dot`)."""
-    m = quat_to_matrix(q)
-    return m[:, :, 0] * v[:, None, 0] + m[:, :, 1] * v[:, None, 1] + m[:, :, 2] * v[:, None, 2]
 
 
 def _check_finite_rows(values: np.ndarray, label, field: str) -> None:
@@ -790,10 +784,10 @@ class SceneBuilder:
         return dict(
             body0=p,
             body1=c,
-            anchor0=_rotate(c0, anchor - x0),
-            anchor1=_rotate(c1, anchor - x1),
-            axis0=_rotate(c0, a0),
-            axis1=_rotate(c1, a1),
+            anchor0=quat_rotate(c0, anchor - x0),
+            anchor1=quat_rotate(c1, anchor - x1),
+            axis0=quat_rotate(c0, a0),
+            axis1=quat_rotate(c1, a1),
             rest_rotation=quat_mul(c0, q1),
             rest_angle=np.arccos(np.clip(_dot(a0, a1), -1.0, 1.0)),
         )

@@ -61,9 +61,11 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Vectors v (..., 3) rotated by unit quaternions q (..., 4)."""
     q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
-    if q.ndim == 1:
+    if q.ndim == 1 and v.ndim == 1:
         return quat_to_matrix(q) @ v
-    return np.einsum("...ij,...j->...i", quat_to_matrix(q), v)
+    # Element-wise over the batch (no matrix stacked, no reduction): a row gives the same bits in a batch of any size.
+    vx, vy, vz = np.moveaxis(v, -1, 0)
+    return np.stack([r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in _rows(*np.moveaxis(q, -1, 0))], axis=-1)
 
 
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:
