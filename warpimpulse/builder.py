@@ -778,17 +778,20 @@ class SceneBuilder:
     def _constraint_geometry(self, p, c, anchor, a0, a1) -> dict[str, np.ndarray]:
         """The anchor and axes of a constraint between bodies p and c in each body's frame, q0^-1 q1 and the
         angle between the axes, as built (element-wise: a joint gets the same bits alone or in a batch)."""
-        x0, q0 = self._frames(p)
-        x1, q1 = self._frames(c)
-        c0, c1 = quat_conj(q0), quat_conj(q1)
+        x, q = self._frames(np.concatenate([p, c]))
+        n = len(p)
+        inverse = quat_conj(q)
+        # Each side's anchor and axis in one rotation by q^-1: (2n, 2, 3), parent sides first.
+        local = quat_rotate(inverse[:, None], np.stack([np.concatenate([anchor, anchor]) - x,
+                                                        np.concatenate([a0, a1])], axis=1))  # fmt: skip
         return dict(
             body0=p,
             body1=c,
-            anchor0=quat_rotate(c0, anchor - x0),
-            anchor1=quat_rotate(c1, anchor - x1),
-            axis0=quat_rotate(c0, a0),
-            axis1=quat_rotate(c1, a1),
-            rest_rotation=quat_mul(c0, q1),
+            anchor0=local[:n, 0],
+            anchor1=local[n:, 0],
+            axis0=local[:n, 1],
+            axis1=local[n:, 1],
+            rest_rotation=quat_mul(inverse[:n], q[n:]),
             rest_angle=np.arccos(np.clip(_dot(a0, a1), -1.0, 1.0)),
         )
 

@@ -15,7 +15,12 @@ import numpy as np
 
 def _components(q: np.ndarray):
     """(x, y, z, w) as Python floats for one quaternion, as arrays over the batch otherwise."""
-    return q.tolist() if q.ndim == 1 else np.moveaxis(q, -1, 0)
+    return q.tolist() if q.ndim == 1 else _split(q)
+
+
+def _split(a: np.ndarray) -> tuple:
+    """The last axis's components as views (cheaper than np.moveaxis for the builder's one-row batches)."""
+    return tuple(a[..., k] for k in range(a.shape[-1]))
 
 
 def _product(ax, ay, az, aw, bx, by, bz, bw) -> tuple:
@@ -40,7 +45,7 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if a.ndim == b.ndim == 1:
         return np.array(_product(*a.tolist(), *b.tolist()))
-    return np.stack(_product(*np.moveaxis(a, -1, 0), *np.moveaxis(b, -1, 0)), axis=-1)
+    return np.stack(_product(*_split(a), *_split(b)), axis=-1)
 
 
 def quat_conj(q: np.ndarray) -> np.ndarray:
@@ -64,8 +69,8 @@ def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     if q.ndim == 1 and v.ndim == 1:
         return quat_to_matrix(q) @ v
     # Element-wise over the batch (no matrix stacked, no reduction): a row gives the same bits in a batch of any size.
-    vx, vy, vz = np.moveaxis(v, -1, 0)
-    return np.stack([r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in _rows(*np.moveaxis(q, -1, 0))], axis=-1)
+    vx, vy, vz = _split(v)
+    return np.stack([r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in _rows(*_split(q))], axis=-1)
 
 
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:
