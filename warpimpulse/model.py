@@ -262,9 +262,11 @@ class Model:
         h.distance_body = distance_body = np.asarray(distance_body, np.int64).reshape(-1, 2)
         h.distance_anchor = distance_anchor = np.asarray(distance_anchor, np.float64).reshape(-1, 3, 3)
         h.distance_bounds = np.asarray(distance_bounds, np.float64).reshape(-1, 2)
-        # Joint types as codes over the distinct names (a million joints share a few), then vectorised.
-        names, code = np.unique(np.asarray(self.joint_type, dtype=object).astype(str), return_inverse=True)
-        coordinate = np.array([COORDINATES.get(str(name), -1) for name in names], dtype=np.int32)[code.reshape(-1)]
+        # Each joint's coordinate kind (-1: none), a comparison per distinct type (a million joints share a few).
+        types = np.array(self.joint_type, dtype=object)
+        coordinate = np.full(self.joint_count, -1, dtype=np.int32)
+        for name in set(self.joint_type) & COORDINATES.keys():
+            coordinate[types == name] = COORDINATES[name]
         coordinate_joint = np.flatnonzero(coordinate >= 0)
         self.coordinate_joint = coordinate_joint.tolist()
         row_of = np.full(self.joint_count, -1, dtype=np.int64)  # a joint's coordinate row
