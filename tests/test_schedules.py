@@ -233,6 +233,16 @@ def test_schedule_choice():
     assert cg.schedule == "parallel" and "CG" in cg.schedule_note
     with pytest.raises(ValueError, match="unknown schedule 'gpu'"):
         wi.Simulator(model, 1 / 60, schedule="gpu")
+    assert wi.Simulator(_servo_chain().finalize(), 1 / 60).schedule == "fused"  # force elements run fused
+    limited = scenes.chain(3)
+    limited.add_joint_limit(0, -0.3, 0.3)
+    sim = wi.Simulator(limited.finalize(), 1 / 60)
+    assert sim.schedule == "parallel" and "limits" in sim.schedule_note
+    free = wi.SceneBuilder()
+    a, b = (free.add_body(1.0, (0.1, 0.1, 0.1), (x, 0.0, 0.0)) for x in (0.0, 1.0))
+    free.add_spring(a, b, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 10.0, rest_length=0.5)
+    sim = wi.Simulator(free.finalize(), 1 / 60)
+    assert sim.schedule == "parallel" and "without joints" in sim.schedule_note
 
 
 def _failure(schedule: str, make, **options) -> str:
@@ -356,3 +366,19 @@ def test_a_halved_composed_step_undoes_the_drives_integrals_of_its_failed_attemp
 
 def _state(sim: wi.Simulator) -> list[np.ndarray]:
     return [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"]
+
+
+def test_motor_targets_set_between_batches_agree():
+    """A new motor target between two batches reaches the fused kernel (it reads the targets each launch)."""
+    results = []
+    for schedule in ("fused", "parallel"):
+        sim = wi.Simulator(_servo_chain().finalize(), 1 / 60, schedule=schedule)
+        sim.simulate(0.5)
+        sim.set_motor_target(0, -0.3)
+        sim.set_motor_target(1, 2.0)
+        stats = sim.simulate(0.5)
+        results.append((stats, _state(sim), sim.drive_integral.numpy()))
+    assert results[0][0] == results[1][0]
+    for a, b in zip([*results[0][1], results[0][2]], [*results[1][1], results[1][2]]):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(results[0][2][2:] != 0.0)  # the three servos' integrals moved (drives 0, 1 are joint springs)
