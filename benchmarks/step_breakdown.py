@@ -5,11 +5,13 @@ For each scene: the time of a step by the fused schedule (whole steps, many a la
 (`mj_step(nstep=n)` and one `mj_step` a call), medians of interleaved rounds. Then the fused step by stage:
 each serial stage of kernels/step.py (predict every body, joint errors, solve, apply, frames, assemble, factor,
 velocity errors, the NaN/spin summary) launched alone `REPEATS` times, times the number of times a step runs it
-(from the run's StepStats); "other" is the measured step minus their sum. Big trees give the cost per body-step
-and the set-up time (builder, finalize, Simulator). Step times are CPU time of this process
+(from the run's StepStats); "other" is the measured step minus their sum. chain10 with a force element on every
+link (`--mechanisms`: only these): fused against parallel. Big trees give the cost per body-step and the set-up
+time (builder, finalize, Simulator). Step times are CPU time of this process
 (`time.process_time`): on a shared machine, time spent descheduled is not the engine's.
 
     python benchmarks/step_breakdown.py [--quick] [--json benchmarks/results/step_breakdown.json] [--readme README.md]
+    python benchmarks/step_breakdown.py --mechanisms
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ SCENES = {  # name: (builder, dt, tolerance)
     "chain10": (lambda: scenes.chain(10), 1 / 60, 1e-6),
     "chain50": (lambda: scenes.chain(50), 1 / 60, 1e-6),
 }
+MECHANISMS = ("springs", "joint springs")  # benchmarks/mechanisms.py's chain10 variants (force elements)
 BIG = (2047, 65535)  # binary trees for the cost per body-step and set-up
 ANALYSIS = (65535, 1048575)  # binary trees for the symbolic analysis alone
 
@@ -330,6 +333,29 @@ def scene_point(name: str, steps: int) -> dict:
     return out
 
 
+def mechanism_point(kind: str, steps: int) -> dict:
+    """chain10 with a force element on every link (benchmarks/mechanisms.py): the fused step (the coupled RK4
+    prediction in the launch) against the parallel one, interleaved blocks from the same state."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from mechanisms import chain
+
+    dt = 1 / 60
+    engines = {s: _Ours(lambda: chain(kind), dt, 1e-6, s, s == "fused") for s in ("fused", "parallel")}
+    times: dict = {key: [] for key in engines}
+    for _ in range(ROUNDS):
+        for key, engine in engines.items():
+            engine.restore()
+
+            def warm(engine=engine) -> None:
+                engine.run(steps)
+                engine.restore()
+
+            times[key].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
+    return {"scene": f"chain10 {kind}", "dt": dt, "steps": steps, "fused_batched_us": statistics.median(times["fused"]),
+            "parallel_us": statistics.median(times["parallel"]),
+            "joint_iterations": statistics.mean(s.joint_iterations for s in engines["fused"].stats)}  # fmt: skip
+
+
 def specialization(name: str, steps: int) -> dict:
     """The fused step compiled for the scene's constraint kinds only, and for all six (`wp.static` dispatch
     inside the fused loop), in interleaved rounds."""
@@ -411,6 +437,15 @@ def table(result: dict) -> str:
         lines += ["", "| tree bodies | symbolic analysis (arrays in) | peak memory of the run |", "|---:|---:|---:|"]
         for a in result["analysis"]:
             lines.append(f"| {a['bodies']:,} | {a['analysis_s']:.1f} s | {a['peak_rss_gb']:.2f} GB |")
+    if result.get("mechanisms"):
+        lines += [
+            "",
+            "| force elements (coupled RK4 prediction) | fused, n steps a launch | parallel |",
+            "|---|---:|---:|",
+        ]
+        for p in result["mechanisms"]:
+            lines.append(f"| {p['scene']} (h = 1/{round(1 / p['dt'])}) | {p['fused_batched_us']:.1f} | "
+                         f"{p['parallel_us']:.1f} |")  # fmt: skip
     if result.get("specialization"):
         lines += ["", "| fused step, compiled for | " + " | ".join(p["scene"] for p in result["specialization"]) + " |",
                   "|---|" + "---:|" * len(result["specialization"])]  # fmt: skip
@@ -427,7 +462,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", default=str(ROOT / "benchmarks/results/step_breakdown.json"))
     parser.add_argument("--readme", default=None, help="rewrite README.md's step-time block from the results")
     parser.add_argument("--from-json", action="store_true", help="only regenerate the README block")
+    parser.add_argument("--mechanisms", action="store_true", help="only the force-element scenes, printed")
     args = parser.parse_args(argv)
+    if args.mechanisms:
+        wp.config.quiet = True
+        for kind in MECHANISMS:
+            print(json.dumps(mechanism_point(kind, 30 if args.quick else STEPS)))
+        return 0
     if args.from_json:
         result = json.loads(Path(args.json).read_text())
     else:
@@ -437,6 +478,8 @@ def main(argv: list[str] | None = None) -> int:
         for name in SCENES:
             result["scenes"].append(scene_point(name, steps))
             print(json.dumps(result["scenes"][-1]), file=sys.stderr)
+        result["mechanisms"] = [mechanism_point(kind, steps) for kind in MECHANISMS]
+        print(json.dumps(result["mechanisms"]), file=sys.stderr)
         result["specialization"] = [specialization(name, steps) for name in ("tree127", "chain10")]
         print(json.dumps(result["specialization"]), file=sys.stderr)
         for bodies in BIG[:1] if args.quick else BIG:

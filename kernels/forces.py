@@ -129,6 +129,45 @@ def drive_error(coordinate: int, mode: int, value: f64, rate: f64, target: f64) 
     return e
 
 
+@wp.func
+def spring_wrench(
+    e: int,
+    spring_body0: wp.array(dtype=int),
+    spring_body1: wp.array(dtype=int),
+    spring_anchor0: wp.array(dtype=vec3d),
+    spring_anchor1: wp.array(dtype=vec3d),
+    spring_params: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    wrench_force: wp.array(dtype=vec3d),
+    wrench_torque: wp.array(dtype=vec3d),
+):
+    """Spring e's wrenches (rows 2 e + side) at the given state: f = -k (L - L0) - c dL/dt along the unit vector
+    n from A (body0) to B (body1): f n on body1 at B, -f n on body0 at A. Both act along one line, so momentum
+    and angular momentum are kept."""
+    b0 = spring_body0[e]
+    b1 = spring_body1[e]
+    x0 = pose_x(b0, body_x)
+    x1 = pose_x(b1, body_x)
+    pa = x0 + wp.quat_rotate(pose_q(b0, body_q), spring_anchor0[e])
+    pb = x1 + wp.quat_rotate(pose_q(b1, body_q), spring_anchor1[e])
+    ua = pose_v(b0, body_v) + wp.cross(pose_v(b0, body_w), pa - x0)
+    ub = pose_v(b1, body_v) + wp.cross(pose_v(b1, body_w), pb - x1)
+    k = spring_params[e]
+    d = pb - pa
+    length = wp.length(d)
+    f = -k[0] * d  # a spring of rest length 0 at coincident points: no direction needed
+    if length > f64(1.0e-12):
+        n = d / length
+        f = n * (-k[0] * (length - k[2]) - k[1] * wp.dot(ub - ua, n))
+    wrench_force[2 * e] = -f
+    wrench_torque[2 * e] = wp.cross(pa - x0, -f)
+    wrench_force[2 * e + 1] = f
+    wrench_torque[2 * e + 1] = wp.cross(pb - x1, f)
+
+
 @wp.kernel
 def spring_wrenches(
     # Model:
@@ -146,28 +185,63 @@ def spring_wrenches(
     wrench_force_out: wp.array(dtype=vec3d),
     wrench_torque_out: wp.array(dtype=vec3d),
 ):
-    """f = -k (L - L0) - c dL/dt along the unit vector n from A (body0) to B (body1): f n on body1 at B,
-    -f n on body0 at A. Both act along one line, so momentum and angular momentum are kept."""
-    e = wp.tid()
-    b0 = spring_body0[e]
-    b1 = spring_body1[e]
-    x0 = pose_x(b0, body_x_in)
-    x1 = pose_x(b1, body_x_in)
-    pa = x0 + wp.quat_rotate(pose_q(b0, body_q_in), spring_anchor0[e])
-    pb = x1 + wp.quat_rotate(pose_q(b1, body_q_in), spring_anchor1[e])
-    ua = pose_v(b0, body_v_in) + wp.cross(pose_v(b0, body_w_in), pa - x0)
-    ub = pose_v(b1, body_v_in) + wp.cross(pose_v(b1, body_w_in), pb - x1)
-    k = spring_params[e]
-    d = pb - pa
-    length = wp.length(d)
-    f = -k[0] * d  # a spring of rest length 0 at coincident points: no direction needed
-    if length > f64(1.0e-12):
-        n = d / length
-        f = n * (-k[0] * (length - k[2]) - k[1] * wp.dot(ub - ua, n))
-    wrench_force_out[2 * e] = -f
-    wrench_torque_out[2 * e] = wp.cross(pa - x0, -f)
-    wrench_force_out[2 * e + 1] = f
-    wrench_torque_out[2 * e + 1] = wp.cross(pb - x1, f)
+    """Every spring's wrenches (`spring_wrench`)."""
+    spring_wrench(
+        wp.tid(), spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params, body_x_in, body_q_in,
+        body_v_in, body_w_in, wrench_force_out, wrench_torque_out,
+    )  # fmt: skip
+
+
+@wp.func
+def drive_wrench(
+    e: int,
+    row_offset: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    drive_element: wp.array(dtype=int),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_gains: wp.array(dtype=vec3d),
+    drive_max_force: wp.array(dtype=f64),
+    drive_target: wp.array(dtype=f64),
+    drive_integral: wp.array(dtype=f64),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    wrench_force: wp.array(dtype=vec3d),
+    wrench_torque: wp.array(dtype=vec3d),
+):
+    """Drive element e's wrenches (rows 2 (row_offset + e) + side) at the given state, with the integral of the
+    step's start: the torque tau about the axis (+tau on body1, -tau on body0), or the force f along the axis at
+    B (+f on body1, -f on body0 at the same point, so no net couple)."""
+    i = drive_element[e]
+    r = drive_coordinate[i]
+    value, rate, a, pb = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    kind = coordinate_kind[r]
+    out = drive_output(
+        kind, drive_mode[i], value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i]
+    )
+    row = 2 * (row_offset + e)
+    if kind == ANGLE_COORDINATE:
+        wrench_force[row] = vec3d()
+        wrench_torque[row] = -out * a
+        wrench_force[row + 1] = vec3d()
+        wrench_torque[row + 1] = out * a
+    else:
+        f = out * a
+        wrench_force[row] = -f
+        wrench_torque[row] = wp.cross(pb - pose_x(coordinate_body0[r], body_x), -f)
+        wrench_force[row + 1] = f
+        wrench_torque[row + 1] = wp.cross(pb - pose_x(coordinate_body1[r], body_x), f)
 
 
 @wp.kernel
@@ -197,31 +271,50 @@ def drive_wrenches(
     wrench_force_out: wp.array(dtype=vec3d),
     wrench_torque_out: wp.array(dtype=vec3d),
 ):
-    """The torque tau of drive element e about the axis (+tau on body1, -tau on body0), or its force f along the
-    axis at B (+f on body1, -f on body0 at the same point, so no net couple)."""
-    e = wp.tid()
-    i = drive_element[e]
-    r = drive_coordinate[i]
+    """Every drive element's wrenches (`drive_wrench`)."""
+    drive_wrench(
+        wp.tid(), row_offset, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, drive_element, drive_coordinate, drive_mode,
+        drive_gains, drive_max_force, drive_target, drive_integral, body_x_in, body_q_in, body_v_in, body_w_in,
+        wrench_force_out, wrench_torque_out,
+    )  # fmt: skip
+
+
+@wp.func
+def integrate_drive(
+    e: int,
+    h: f64,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_gains: wp.array(dtype=vec3d),
+    drive_max_force: wp.array(dtype=f64),
+    drive_target: wp.array(dtype=f64),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    drive_integral: wp.array(dtype=f64),
+):
+    """Drive e's PID integral += h e(t0 + h) at the state given (the end of the step), held constant within a
+    step; clamped so that ki |integral| stays within max_force (anti wind-up)."""
+    ki = drive_gains[e][1]
+    if ki == f64(0.0):
+        return
+    r = drive_coordinate[e]
     value, rate, a, pb = coordinate_row(
         r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
     )  # fmt: skip
-    kind = coordinate_kind[r]
-    out = drive_output(
-        kind, drive_mode[i], value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i]
-    )
-    row = 2 * (row_offset + e)
-    if kind == ANGLE_COORDINATE:
-        wrench_force_out[row] = vec3d()
-        wrench_torque_out[row] = -out * a
-        wrench_force_out[row + 1] = vec3d()
-        wrench_torque_out[row + 1] = out * a
-    else:
-        f = out * a
-        wrench_force_out[row] = -f
-        wrench_torque_out[row] = wp.cross(pb - pose_x(coordinate_body0[r], body_x_in), -f)
-        wrench_force_out[row + 1] = f
-        wrench_torque_out[row + 1] = wp.cross(pb - pose_x(coordinate_body1[r], body_x_in), f)
+    bound = drive_max_force[e] / ki
+    integral = drive_integral[e] + h * drive_error(coordinate_kind[r], drive_mode[e], value, rate, drive_target[e])
+    drive_integral[e] = wp.clamp(integral, -bound, bound)
 
 
 @wp.kernel
@@ -248,20 +341,12 @@ def integrate_drives(
     # Data out:
     drive_integral: wp.array(dtype=f64),
 ):
-    """The PID's integral += h e(t0 + h), held constant within a step; clamped so that ki |integral| stays
-    within max_force (anti wind-up)."""
-    e = wp.tid()
-    ki = drive_gains[e][1]
-    if ki == f64(0.0):
-        return
-    r = drive_coordinate[e]
-    value, rate, a, pb = coordinate_row(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+    """Every drive's integral (`integrate_drive`)."""
+    integrate_drive(
+        wp.tid(), h, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, drive_coordinate, drive_mode, drive_gains, drive_max_force,
+        drive_target, body_x_in, body_q_in, body_v_in, body_w_in, drive_integral,
     )  # fmt: skip
-    bound = drive_max_force[e] / ki
-    integral = drive_integral[e] + h * drive_error(coordinate_kind[r], drive_mode[e], value, rate, drive_target[e])
-    drive_integral[e] = wp.clamp(integral, -bound, bound)
 
 
 @wp.func
@@ -278,18 +363,17 @@ def body_derivative(
     return v, gravity + force * inv_mass, dq, ji * (torque - wp.cross(w, jw * w))
 
 
-@wp.kernel
-def rk4_stage(
-    # Model:
+@wp.func
+def rk4_stage_body(
+    b: int,
+    stage: int,
+    h: f64,
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
     gravity: vec3d,
     body_wrench_start: wp.array(dtype=int),
     body_wrench_rows: wp.array(dtype=int),
-    stage: int,
-    h: f64,
-    # Data in: the state at t0 (start_*), the stage state, external and element wrenches
     start_x: wp.array(dtype=vec3d),
     start_q: wp.array(dtype=quatd),
     start_v: wp.array(dtype=vec3d),
@@ -302,20 +386,18 @@ def rk4_stage(
     body_torque: wp.array(dtype=vec3d),
     wrench_force: wp.array(dtype=vec3d),
     wrench_torque: wp.array(dtype=vec3d),
-    # Data in/out: the weighted sum of the stage derivatives
     rk4_sum_x: wp.array(dtype=vec3d),
     rk4_sum_q: wp.array(dtype=quatd),
     rk4_sum_v: wp.array(dtype=vec3d),
     rk4_sum_w: wp.array(dtype=vec3d),
-    # Data out: the next stage state (stages 0-2) or the prediction (stage 3)
     body_x_out: wp.array(dtype=vec3d),
     body_q_out: wp.array(dtype=quatd),
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """Stage `stage` (0-3) of classic RK4 for every body at once: k = f(stage state), sum += weight k, next
-    stage = y0 + c k (c = h/2, h/2, h), and after the fourth stage y(t0 + h) = y0 + h/6 sum."""
-    b = wp.tid()
+    """Stage `stage` (0-3) of classic RK4 for body b: k = f(stage state), sum += weight k, next stage = y0 + c k
+    (c = h/2, h/2, h), and after the fourth stage y(t0 + h) = y0 + h/6 sum. Reads only body b's rows of the
+    stage state, so the state out may be the state in."""
     inv_mass = body_inv_mass[b]
     if inv_mass == f64(0.0):
         body_x_out[b] = start_x[b]
@@ -359,3 +441,47 @@ def rk4_stage(
         body_q_out[b] = wp.normalize(start_q[b] + dq * step)  # a rotation, for the elements and the next stage
         body_v_out[b] = start_v[b] + dv * step
         body_w_out[b] = start_w[b] + dw * step
+
+
+@wp.kernel
+def rk4_stage(
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    body_wrench_start: wp.array(dtype=int),
+    body_wrench_rows: wp.array(dtype=int),
+    stage: int,
+    h: f64,
+    # Data in: the state at t0 (start_*), the stage state, external and element wrenches
+    start_x: wp.array(dtype=vec3d),
+    start_q: wp.array(dtype=quatd),
+    start_v: wp.array(dtype=vec3d),
+    start_w: wp.array(dtype=vec3d),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    body_force: wp.array(dtype=vec3d),
+    body_torque: wp.array(dtype=vec3d),
+    wrench_force: wp.array(dtype=vec3d),
+    wrench_torque: wp.array(dtype=vec3d),
+    # Data in/out: the weighted sum of the stage derivatives
+    rk4_sum_x: wp.array(dtype=vec3d),
+    rk4_sum_q: wp.array(dtype=quatd),
+    rk4_sum_v: wp.array(dtype=vec3d),
+    rk4_sum_w: wp.array(dtype=vec3d),
+    # Data out: the next stage state (stages 0-2) or the prediction (stage 3)
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Stage `stage` of RK4 for every body at once (`rk4_stage_body`)."""
+    rk4_stage_body(
+        wp.tid(), stage, h, body_inv_mass, body_inertia, body_inv_inertia, gravity, body_wrench_start,
+        body_wrench_rows, start_x, start_q, start_v, start_w, body_x_in, body_q_in, body_v_in, body_w_in, body_force,
+        body_torque, wrench_force, wrench_torque, rk4_sum_x, rk4_sum_q, rk4_sum_v, rk4_sum_w, body_x_out,
+        body_q_out, body_v_out, body_w_out,
+    )  # fmt: skip

@@ -31,6 +31,7 @@ import warp as wp
 from .assemble import assemble_slot, augmented_slot, row_products_of
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
+from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .rigid import body_summary, predict_index, world_inverse_inertia_of
@@ -58,6 +59,47 @@ SPLIT = wp.constant(1)
 RETRY = wp.constant(2)
 SINGULAR = wp.constant(3)
 VELOCITY = wp.constant(4)
+
+
+@wp.struct
+class ForceElements:
+    """A scene's force elements for the fused step (`fused(kinds, forced=True)`): the springs, the drives that
+    are forces (`Model.drive_element`) and every drive's PID state, the wrench rows of each body, and the
+    coupled RK4 prediction's scratch (`kernels/forces.py`; `Simulator._coupled_prediction` is its parallel
+    schedule)."""
+
+    spring_body0: wp.array(dtype=int)
+    spring_body1: wp.array(dtype=int)
+    spring_anchor0: wp.array(dtype=vec3d)
+    spring_anchor1: wp.array(dtype=vec3d)
+    spring_params: wp.array(dtype=vec3d)
+    coordinate_kind: wp.array(dtype=int)
+    coordinate_body0: wp.array(dtype=int)
+    coordinate_body1: wp.array(dtype=int)
+    coordinate_anchor0: wp.array(dtype=vec3d)
+    coordinate_anchor1: wp.array(dtype=vec3d)
+    coordinate_axis0: wp.array(dtype=vec3d)
+    coordinate_rest_rotation: wp.array(dtype=quatd)
+    drive_element: wp.array(dtype=int)
+    drive_coordinate: wp.array(dtype=int)
+    drive_mode: wp.array(dtype=int)
+    drive_gains: wp.array(dtype=vec3d)
+    drive_max_force: wp.array(dtype=f64)
+    drive_target: wp.array(dtype=f64)
+    drive_integral: wp.array(dtype=f64)
+    integral0: wp.array(dtype=f64)  # the integrals of the step's start, restored when a stage fails
+    body_wrench_start: wp.array(dtype=int)
+    body_wrench_rows: wp.array(dtype=int)
+    wrench_force: wp.array(dtype=vec3d)
+    wrench_torque: wp.array(dtype=vec3d)
+    stage_x: wp.array(dtype=vec3d)
+    stage_q: wp.array(dtype=quatd)
+    stage_v: wp.array(dtype=vec3d)
+    stage_w: wp.array(dtype=vec3d)
+    rk4_sum_x: wp.array(dtype=vec3d)
+    rk4_sum_q: wp.array(dtype=quatd)
+    rk4_sum_v: wp.array(dtype=vec3d)
+    rk4_sum_w: wp.array(dtype=vec3d)
 
 
 @wp.func
@@ -88,6 +130,12 @@ def save_start(
         for b in range(body_count):
             x0[b] = body_x[b]
             q0[b] = body_q[b]
+
+
+@wp.func
+def copy_values(source: wp.array(dtype=f64), target: wp.array(dtype=f64)):
+    for i in range(source.shape[0]):
+        target[i] = source[i]
 
 
 @wp.func
@@ -162,6 +210,128 @@ def predict_all(
         predict_index(
             b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
             body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+        )  # fmt: skip
+
+
+@wp.func
+def element_wrenches(
+    el: ForceElements,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Every force element's wrench rows at the given state: the springs, then the drives (`spring_wrench`,
+    `drive_wrench`)."""
+    springs = el.spring_body0.shape[0]
+    for e in range(springs):
+        spring_wrench(
+            e, el.spring_body0, el.spring_body1, el.spring_anchor0, el.spring_anchor1, el.spring_params, body_x,
+            body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
+        )  # fmt: skip
+    for e in range(el.drive_element.shape[0]):
+        drive_wrench(
+            e, springs, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
+            el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_element,
+            el.drive_coordinate, el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target,
+            el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
+        )  # fmt: skip
+
+
+@wp.func
+def rk4_stage_all(
+    stage: int,
+    body_count: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    el: ForceElements,
+    start_x: wp.array(dtype=vec3d),
+    start_q: wp.array(dtype=quatd),
+    start_v: wp.array(dtype=vec3d),
+    start_w: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    body_force: wp.array(dtype=vec3d),
+    body_torque: wp.array(dtype=vec3d),
+    out_x: wp.array(dtype=vec3d),
+    out_q: wp.array(dtype=quatd),
+    out_v: wp.array(dtype=vec3d),
+    out_w: wp.array(dtype=vec3d),
+):
+    for b in range(body_count):
+        rk4_stage_body(
+            b, stage, h, body_inv_mass, body_inertia, body_inv_inertia, gravity, el.body_wrench_start,
+            el.body_wrench_rows, start_x, start_q, start_v, start_w, body_x, body_q, body_v, body_w, body_force,
+            body_torque, el.wrench_force, el.wrench_torque, el.rk4_sum_x, el.rk4_sum_q, el.rk4_sum_v, el.rk4_sum_w,
+            out_x, out_q, out_v, out_w,
+        )  # fmt: skip
+
+
+@wp.func
+def coupled_predict_all(
+    body_count: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    el: ForceElements,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    body_force: wp.array(dtype=vec3d),
+    body_torque: wp.array(dtype=vec3d),
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    pred_v: wp.array(dtype=vec3d),
+    pred_w: wp.array(dtype=vec3d),
+):
+    """RK4 over all bodies at once, the force elements evaluated at every stage state: the launches of
+    `Simulator._coupled_prediction` in the same order (stage 0 from the state, the next stage states in
+    el.stage_*, the last into the prediction)."""
+    element_wrenches(el, body_x, body_q, body_v, body_w)
+    rk4_stage_all(
+        0, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q, body_v, body_w,
+        body_x, body_q, body_v, body_w, body_force, body_torque, el.stage_x, el.stage_q, el.stage_v, el.stage_w,
+    )  # fmt: skip
+    for stage in range(1, 4):
+        element_wrenches(el, el.stage_x, el.stage_q, el.stage_v, el.stage_w)
+        if stage < 3:
+            rk4_stage_all(
+                stage, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q,
+                body_v, body_w, el.stage_x, el.stage_q, el.stage_v, el.stage_w, body_force, body_torque, el.stage_x,
+                el.stage_q, el.stage_v, el.stage_w,
+            )  # fmt: skip
+        else:
+            rk4_stage_all(
+                stage, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q,
+                body_v, body_w, el.stage_x, el.stage_q, el.stage_v, el.stage_w, body_force, body_torque, pred_x,
+                pred_q, pred_v, pred_w,
+            )  # fmt: skip
+
+
+@wp.func
+def integrate_drives_all(
+    h: f64,
+    el: ForceElements,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Every drive's PID integral at the accepted state (`integrate_drive`)."""
+    for e in range(el.drive_coordinate.shape[0]):
+        integrate_drive(
+            e, h, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
+            el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_coordinate,
+            el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target, body_x, body_q, body_v, body_w,
+            el.drive_integral,
         )  # fmt: skip
 
 
@@ -296,12 +466,14 @@ def cholesky_solve(
 
 
 @functools.cache
-def fused(kinds: frozenset[int]) -> SimpleNamespace:
+def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
     """The fused step kernels for a set of constraint kinds (`constraints.specialized(kinds)`'s stage funcs):
     `cholesky_steps` (the direct solver, either formulation) and `iterative_steps` (the paper's sweeps), and the
-    kind-dependent serial stages they call (`benchmarks/step_breakdown.py` times each)."""
+    kind-dependent serial stages they call (`benchmarks/step_breakdown.py` times each). `forced`: the scene has
+    force elements (springs, joint springs, PID drives), so the prediction is the coupled RK4 of all bodies
+    (`coupled_predict_all`) and each accepted stage integrates the drives; the iterative baseline has none."""
     ck = specialized(kinds)
-    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}"
+    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}"
     wp.set_module_options({"enable_backward": False}, module)
     frame = ck.frame
     position_error = ck.position_error
@@ -457,6 +629,7 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
         spin_in: wp.array(dtype=f64),
         body_force_in: wp.array(dtype=vec3d),
         body_torque_in: wp.array(dtype=vec3d),
+        elements: ForceElements,  # unused without `forced`
         # Scratch: the prediction, the velocities of t0, errors, right-hand sides, impulses, the factor
         pred_x: wp.array(dtype=vec3d),
         pred_q: wp.array(dtype=quatd),
@@ -503,6 +676,9 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             save_start(
                 body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
             )  # fmt: skip
+            if wp.static(forced):
+                if stage_count > 1:  # a later stage's failure undoes the integrals of the stages before it
+                    copy_values(elements.drive_integral, elements.integral0)
             iterations = wp.int32(0)  # summed over the stages, as are the velocity iterations
             velocity_iterations = wp.int32(0)
             joint_error = f64(0.0)  # the largest over the stages
@@ -512,11 +688,18 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             for stage in range(stage_count):
                 hs = stages[stage] * h
                 inv_h = f64(1.0) / hs
-                predict_all(
-                    body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
-                    body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                    pred_w,
-                )  # fmt: skip
+                if wp.static(forced):
+                    coupled_predict_all(
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
+                        body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x,
+                        pred_q, pred_v, pred_w,
+                    )  # fmt: skip
+                else:
+                    predict_all(
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
+                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
+                        pred_w,
+                    )  # fmt: skip
                 err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
@@ -536,12 +719,23 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
-                    apply_and_predict_all(
-                        body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                        body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_x_out,
-                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                        pred_w,
-                    )  # fmt: skip
+                    if wp.static(forced):  # the elements couple the bodies' predictions: every impulse first
+                        apply_all(
+                            body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
+                            inv_inertia_world, jac_lin, jac_ang, impulse, body_v_out, body_w_out,
+                        )  # fmt: skip
+                        coupled_predict_all(
+                            body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
+                            body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x,
+                            pred_q, pred_v, pred_w,
+                        )  # fmt: skip
+                    else:
+                        apply_and_predict_all(
+                            body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
+                            body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_x_out,
+                            body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q,
+                            pred_v, pred_w,
+                        )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
@@ -558,6 +752,9 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                     restore_start(
                         body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
                     )  # fmt: skip
+                    if wp.static(forced):
+                        if stage > 0:
+                            copy_values(elements.integral0, elements.drive_integral)
                     status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
                     status_out[k, STATUS_JOINT_ERROR] = err
                     status_out[k, STATUS_CODE] = f64(RETRY)
@@ -565,6 +762,8 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
                 joint_error = wp.max(joint_error, err)
                 spin = new_spin
                 accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+                if wp.static(forced):
+                    integrate_drives_all(hs, elements, body_x_out, body_q_out, body_v_out, body_w_out)
                 frames_all(
                     body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
                     constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
@@ -623,171 +822,174 @@ def fused(kinds: frozenset[int]) -> SimpleNamespace:
             if code != OK:
                 return
 
-    @wp.kernel(module=module)
-    def iterative_steps(
-        # Model:
-        body_count: int,
-        constraint_count: int,
-        body_inv_mass: wp.array(dtype=f64),
-        body_inertia: wp.array(dtype=mat33d),
-        body_inv_inertia: wp.array(dtype=mat33d),
-        gravity: vec3d,
-        constraint_kind: wp.array(dtype=int),
-        constraint_body0: wp.array(dtype=int),
-        constraint_body1: wp.array(dtype=int),
-        constraint_anchor0: wp.array(dtype=vec3d),
-        constraint_anchor1: wp.array(dtype=vec3d),
-        constraint_axis0: wp.array(dtype=vec3d),
-        constraint_axis1: wp.array(dtype=vec3d),
-        constraint_rest_rotation: wp.array(dtype=quatd),
-        constraint_rest_angle: wp.array(dtype=f64),
-        # Settings:
-        h: f64,
-        stages: wp.array(dtype=f64),
-        reach: f64,
-        batch_in: wp.array(dtype=int),
-        tolerance: f64,
-        velocity_tolerance: f64,
-        max_iterations: int,
-        max_rotation: f64,
-        final: int,
-        spin_in: wp.array(dtype=f64),
-        body_force_in: wp.array(dtype=vec3d),
-        body_torque_in: wp.array(dtype=vec3d),
-        # Scratch:
-        pred_x: wp.array(dtype=vec3d),
-        pred_q: wp.array(dtype=quatd),
-        pred_v: wp.array(dtype=vec3d),
-        pred_w: wp.array(dtype=vec3d),
-        x0: wp.array(dtype=vec3d),
-        q0: wp.array(dtype=quatd),
-        v0: wp.array(dtype=vec3d),
-        w0: wp.array(dtype=vec3d),
-        errors: wp.array(dtype=f64),
-        rhs: wp.array(dtype=vec3d),
-        # Frames:
-        inv_inertia_world: wp.array(dtype=mat33d),
-        proj: wp.array(dtype=mat33d),
-        jac_lin: wp.array(dtype=mat33d),
-        jac_ang: wp.array(dtype=mat33d),
-        # Data out:
-        body_x_out: wp.array(dtype=vec3d),
-        body_q_out: wp.array(dtype=quatd),
-        body_v_out: wp.array(dtype=vec3d),
-        body_w_out: wp.array(dtype=vec3d),
-        status_out: wp.array2d(dtype=f64),
-    ):
-        """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0], with the paper's iterative
-        baseline: joint sweeps until one meets every constraint within tolerance, the prediction, then velocity
-        sweeps (as `Simulator` without a system); a step is the base steps of stages[i] h in turn, as in
-        `cholesky_steps`."""
-        spin = spin_in[0]
-        stage_count = stages.shape[0]
-        for k in range(batch_in[0]):
-            status_out[k, STATUS_SPIN] = spin
-            if turns_too_far(spin, reach * h, max_rotation):
-                status_out[k, STATUS_CODE] = f64(SPLIT)
-                return
-            save_start(
-                body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
-            )  # fmt: skip
-            iterations = wp.int32(0)
-            velocity_iterations = wp.int32(0)
-            joint_error = f64(0.0)
-            verr = f64(0.0)
-            failed = f64(0.0)
-            code = wp.int32(OK)
-            for stage in range(stage_count):
-                hs = stages[stage] * h
-                inv_h = f64(1.0) / hs
-                sweeps = wp.int32(0)
-                best = f64(0.0)
-                ok = wp.bool(False)
-                while True:
-                    err = sweep_positions_once(
+    iterative_steps = None  # the paper's baseline predicts each body alone: no force elements
+    if not forced:
+
+        @wp.kernel(module=module)
+        def iterative_steps(
+            # Model:
+            body_count: int,
+            constraint_count: int,
+            body_inv_mass: wp.array(dtype=f64),
+            body_inertia: wp.array(dtype=mat33d),
+            body_inv_inertia: wp.array(dtype=mat33d),
+            gravity: vec3d,
+            constraint_kind: wp.array(dtype=int),
+            constraint_body0: wp.array(dtype=int),
+            constraint_body1: wp.array(dtype=int),
+            constraint_anchor0: wp.array(dtype=vec3d),
+            constraint_anchor1: wp.array(dtype=vec3d),
+            constraint_axis0: wp.array(dtype=vec3d),
+            constraint_axis1: wp.array(dtype=vec3d),
+            constraint_rest_rotation: wp.array(dtype=quatd),
+            constraint_rest_angle: wp.array(dtype=f64),
+            # Settings:
+            h: f64,
+            stages: wp.array(dtype=f64),
+            reach: f64,
+            batch_in: wp.array(dtype=int),
+            tolerance: f64,
+            velocity_tolerance: f64,
+            max_iterations: int,
+            max_rotation: f64,
+            final: int,
+            spin_in: wp.array(dtype=f64),
+            body_force_in: wp.array(dtype=vec3d),
+            body_torque_in: wp.array(dtype=vec3d),
+            # Scratch:
+            pred_x: wp.array(dtype=vec3d),
+            pred_q: wp.array(dtype=quatd),
+            pred_v: wp.array(dtype=vec3d),
+            pred_w: wp.array(dtype=vec3d),
+            x0: wp.array(dtype=vec3d),
+            q0: wp.array(dtype=quatd),
+            v0: wp.array(dtype=vec3d),
+            w0: wp.array(dtype=vec3d),
+            errors: wp.array(dtype=f64),
+            rhs: wp.array(dtype=vec3d),
+            # Frames:
+            inv_inertia_world: wp.array(dtype=mat33d),
+            proj: wp.array(dtype=mat33d),
+            jac_lin: wp.array(dtype=mat33d),
+            jac_ang: wp.array(dtype=mat33d),
+            # Data out:
+            body_x_out: wp.array(dtype=vec3d),
+            body_q_out: wp.array(dtype=quatd),
+            body_v_out: wp.array(dtype=vec3d),
+            body_w_out: wp.array(dtype=vec3d),
+            status_out: wp.array2d(dtype=f64),
+        ):
+            """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0], with the paper's iterative
+            baseline: joint sweeps until one meets every constraint within tolerance, the prediction, then velocity
+            sweeps (as `Simulator` without a system); a step is the base steps of stages[i] h in turn, as in
+            `cholesky_steps`."""
+            spin = spin_in[0]
+            stage_count = stages.shape[0]
+            for k in range(batch_in[0]):
+                status_out[k, STATUS_SPIN] = spin
+                if turns_too_far(spin, reach * h, max_rotation):
+                    status_out[k, STATUS_CODE] = f64(SPLIT)
+                    return
+                save_start(
+                    body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
+                )  # fmt: skip
+                iterations = wp.int32(0)
+                velocity_iterations = wp.int32(0)
+                joint_error = f64(0.0)
+                verr = f64(0.0)
+                failed = f64(0.0)
+                code = wp.int32(OK)
+                for stage in range(stage_count):
+                    hs = stages[stage] * h
+                    inv_h = f64(1.0) / hs
+                    sweeps = wp.int32(0)
+                    best = f64(0.0)
+                    ok = wp.bool(False)
+                    while True:
+                        err = sweep_positions_once(
+                            constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                            constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                            constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
+                            tolerance, body_x_out, body_q_out, body_force_in, body_torque_in, inv_inertia_world, proj,
+                            jac_lin, jac_ang, body_v_out, body_w_out,
+                        )  # fmt: skip
+                        if not wp.isfinite(err):
+                            break
+                        if sweeps == 0:
+                            best = err
+                        best = wp.min(best, err)
+                        if err <= tolerance:
+                            ok = True
+                            break
+                        if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
+                            break
+                        sweeps += 1
+                    iterations += sweeps
+                    predict_all(
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
+                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
+                        pred_w,
+                    )  # fmt: skip
+                    err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                        constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                        tolerance, body_x_out, body_q_out, body_force_in, body_torque_in, inv_inertia_world, proj,
-                        jac_lin, jac_ang, body_v_out, body_w_out,
+                        constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
                     )  # fmt: skip
-                    if not wp.isfinite(err):
-                        break
-                    if sweeps == 0:
-                        best = err
-                    best = wp.min(best, err)
-                    if err <= tolerance:
-                        ok = True
-                        break
-                    if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
-                        break
-                    sweeps += 1
-                iterations += sweeps
-                predict_all(
-                    body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
-                    body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                    pred_w,
-                )  # fmt: skip
-                err = position_errors_all(
-                    constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
-                    constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                    constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
-                )  # fmt: skip
-                new_spin = spin
-                if ok:
-                    bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
-                    if not (err <= tolerance) or bad > 0:
-                        ok = wp.bool(False)
-                    elif final == 0 and turns_too_far(new_spin, hs, max_rotation):
-                        ok = wp.bool(False)
-                if not ok:
-                    restore_start(
-                        body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
+                    new_spin = spin
+                    if ok:
+                        bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                        if not (err <= tolerance) or bad > 0:
+                            ok = wp.bool(False)
+                        elif final == 0 and turns_too_far(new_spin, hs, max_rotation):
+                            ok = wp.bool(False)
+                    if not ok:
+                        restore_start(
+                            body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
+                        )  # fmt: skip
+                        status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
+                        status_out[k, STATUS_JOINT_ERROR] = err
+                        status_out[k, STATUS_CODE] = f64(RETRY)
+                        return
+                    joint_error = wp.max(joint_error, err)
+                    spin = new_spin
+                    accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+                    frames_all(
+                        body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
+                        constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
+                        body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang,
                     )  # fmt: skip
-                    status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
-                    status_out[k, STATUS_JOINT_ERROR] = err
-                    status_out[k, STATUS_CODE] = f64(RETRY)
+                    vsweeps = wp.int32(0)
+                    vbest = f64(0.0)
+                    converged = wp.bool(True)
+                    while True:
+                        verr = sweep_velocities_once(
+                            constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                            velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
+                        )  # fmt: skip
+                        if vsweeps == 0:
+                            vbest = verr
+                        vbest = wp.min(vbest, verr)
+                        if verr <= velocity_tolerance:
+                            break
+                        if (
+                            not wp.isfinite(verr)
+                            or vsweeps >= max_iterations
+                            or (vsweeps >= 3 and verr > f64(1.0e3) * vbest)
+                        ):
+                            converged = False
+                            break
+                        vsweeps += 1
+                    velocity_iterations += vsweeps
+                    verr = velocity_errors_all(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                        body_v_out, body_w_out, errors, rhs,
+                    )  # fmt: skip
+                    if not converged:  # the host raises or warns once the step is done
+                        code = VELOCITY
+                        failed = max_or_nan(failed, verr)
+                finish(status_out, k, code, iterations, velocity_iterations, 0, joint_error, verr, failed, spin)
+                if code != OK:
                     return
-                joint_error = wp.max(joint_error, err)
-                spin = new_spin
-                accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
-                frames_all(
-                    body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
-                    constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                    body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang,
-                )  # fmt: skip
-                vsweeps = wp.int32(0)
-                vbest = f64(0.0)
-                converged = wp.bool(True)
-                while True:
-                    verr = sweep_velocities_once(
-                        constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                        velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
-                    )  # fmt: skip
-                    if vsweeps == 0:
-                        vbest = verr
-                    vbest = wp.min(vbest, verr)
-                    if verr <= velocity_tolerance:
-                        break
-                    if (
-                        not wp.isfinite(verr)
-                        or vsweeps >= max_iterations
-                        or (vsweeps >= 3 and verr > f64(1.0e3) * vbest)
-                    ):
-                        converged = False
-                        break
-                    vsweeps += 1
-                velocity_iterations += vsweeps
-                verr = velocity_errors_all(
-                    constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                    body_v_out, body_w_out, errors, rhs,
-                )  # fmt: skip
-                if not converged:  # the host raises or warns once the step is done
-                    code = VELOCITY
-                    failed = max_or_nan(failed, verr)
-            finish(status_out, k, code, iterations, velocity_iterations, 0, joint_error, verr, failed, spin)
-            if code != OK:
-                return
 
     return SimpleNamespace(
         kinds=ck.kinds,

@@ -82,3 +82,11 @@ def test_each_kind_alone_compiles_for_cuda(factory, tmp_path):
     for kind in sorted(ALL_KINDS):
         for module in specialized_modules(factory, {kind}):
             compile_for_cuda(module, tmp_path)
+
+
+def test_the_fused_step_with_force_elements_compiles_for_cuda(tmp_path):
+    """`step.fused(kinds, forced=True)`: the coupled RK4 prediction and the drives' integrals in the fused loop."""
+    from warpimpulse.kernels import step
+    from warpimpulse.kernels.constraints import ALL_KINDS
+
+    compile_for_cuda(step.fused(ALL_KINDS, forced=True).cholesky_steps.module, tmp_path)

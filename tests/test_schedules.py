@@ -43,6 +43,41 @@ def _welded_hinge() -> wi.SceneBuilder:
     return b
 
 
+def _sprung_chain(links: int = 10) -> wi.SceneBuilder:
+    """A hinged chain, each link hung from a spring-damper to a world point above its tip, one spring between
+    two links: forces in every RK4 stage (the coupled prediction)."""
+    b = scenes.chain(links)
+    for j in range(links):
+        tip = b.bodies[j].position
+        b.add_spring(None, j, tip + (0.0, 0.0, 0.5), tip, 200.0, damping=2.0)
+    b.add_spring(1, links - 2, b.bodies[1].position, b.bodies[links - 2].position, 30.0, damping=0.5)
+    return b
+
+
+def _servo_chain(links: int = 6) -> wi.SceneBuilder:
+    """Hinges and sliders with every kind of force drive: joint springs on an angle and an offset, PID position
+    and velocity servos with integrals (one clamped by max_force, its integral winding up to the bound), a torque
+    that ends within the run, a spring between two links."""
+    b = scenes.chain(links, joint=["revolute", "prismatic"])
+    b.add_joint_spring(0, 40.0, damping=1.0, rest=0.2)
+    b.add_joint_spring(1, 60.0, damping=2.0, rest=-0.1)
+    b.add_motor(2, "position", target=0.4, kp=80.0, ki=30.0, kd=5.0)
+    b.add_motor(3, "velocity", target=0.3, kp=20.0, ki=40.0, max_force=3.0)
+    b.add_motor(4, "velocity", target=1.5, kp=10.0, ki=5.0)
+    b.add_spring(0, links - 1, b.bodies[0].position, b.bodies[links - 1].position, 25.0, damping=0.3)
+    b.add_force(links - 1, torque=(0.0, 3.0, 0.0), until=0.4)
+    return b
+
+
+def _servo_chain50() -> wi.SceneBuilder:
+    """chain50 with PID servos (integrals) on a few hinges: at h = 1/15 with yoshida3 a later stage of some steps
+    fails, so the drives' integrals of the stages before it must be undone with the state."""
+    b = scenes.chain(50)
+    for j in (0, 7, 20, 41):
+        b.add_motor(j, "position", target=0.2, kp=20.0, ki=10.0, kd=1.0)
+    return b
+
+
 MIXED = ["ball", "prismatic", "universal", "fixed", "cylindrical", "planar", "revolute"]
 # (scene, dt, steps, Simulator options): every solver the fused schedule has, both formulations, every
 # constraint kind, model forces that end within the run, fast spins (split steps), failing steps (halved).
@@ -78,6 +113,18 @@ CASES = {
         20,
         {"solver": "iterative", "tolerance": 1e-8, "order": 4},
     ),
+    # Force elements (springs, joint springs, PID drives): the coupled RK4 prediction, the drives' integrals.
+    "chain10_springs": (_sprung_chain, 1 / 60, 60, {}),
+    "chain10_springs_order4": (_sprung_chain, 1 / 60, 30, {"order": 4}),
+    "servo_chain": (_servo_chain, 1 / 60, 60, {}),
+    "servo_chain_order4": (_servo_chain, 1 / 60, 40, {"order": 4}),
+    "servo_chain_body_matrix_order6": (_servo_chain, 1 / 60, 20, {"order": 6, "formulation": "body"}),
+    "servo_chain50_yoshida3_halved": (
+        _servo_chain50,
+        1 / 15,
+        20,
+        {"order": 4, "scheme": "yoshida3", "tolerance": 1e-6},
+    ),
 }
 
 
@@ -85,7 +132,7 @@ def _run(case: str, schedule: str, batched: bool):
     make, dt, steps, options = CASES[case]
     sim = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
     stats = sim.simulate(steps * dt) if batched else [sim.step() for _ in range(steps)]
-    state = [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"]
+    state = [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"] + [sim.drive_integral.numpy().copy()]
     return sim, stats, state
 
 
@@ -186,6 +233,16 @@ def test_schedule_choice():
     assert cg.schedule == "parallel" and "CG" in cg.schedule_note
     with pytest.raises(ValueError, match="unknown schedule 'gpu'"):
         wi.Simulator(model, 1 / 60, schedule="gpu")
+    assert wi.Simulator(_servo_chain().finalize(), 1 / 60).schedule == "fused"  # force elements run fused
+    limited = scenes.chain(3)
+    limited.add_joint_limit(0, -0.3, 0.3)
+    sim = wi.Simulator(limited.finalize(), 1 / 60)
+    assert sim.schedule == "parallel" and "limits" in sim.schedule_note
+    free = wi.SceneBuilder()
+    a, b = (free.add_body(1.0, (0.1, 0.1, 0.1), (x, 0.0, 0.0)) for x in (0.0, 1.0))
+    free.add_spring(a, b, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 10.0, rest_length=0.5)
+    sim = wi.Simulator(free.finalize(), 1 / 60)
+    assert sim.schedule == "parallel" and "without joints" in sim.schedule_note
 
 
 def _failure(schedule: str, make, **options) -> str:
@@ -282,3 +339,46 @@ def test_order_and_fall_back_under_the_fused_schedule(order, monkeypatch):
     assert results[0] == results[1] and results[0][0].fallback == "an impact"
     assert results[0][0].order == 2 and all(s.order == order for s in results[0][1:])
     np.testing.assert_array_equal(fused.positions(), parallel.positions())
+
+
+def test_a_halved_composed_step_undoes_the_drives_integrals_of_its_failed_attempt():
+    """A composed step whose later stage fails is redone as two halves from its start: the drives' integrals too
+    (the first stages' increments are undone with the state), so the halves are two steps of h/2 bit for bit."""
+    make, dt, _, options = CASES["servo_chain50_yoshida3_halved"]
+    sim = wi.Simulator(make().finalize(), dt, schedule="parallel", **options)
+    halves = wi.Simulator(make().finalize(), dt / 2, schedule="parallel", max_substep_depth=6, **options)
+    for _ in range(20):
+        start = _state(sim) + [sim.drive_integral.numpy().copy()]
+        stats = sim.step()
+        if stats.substeps == 2:
+            break
+    assert stats.substeps == 2 and stats.joint_iterations > 0
+    for name, values in zip("xqvw", start):  # as they are (set_state would normalise the quaternions)
+        getattr(halves.state, f"body_{name}").assign(values)
+    halves._update_frames()
+    halves.drive_integral.assign(start[4])
+    halves.step_count, halves.time = 2 * (sim.step_count - 1), sim.time - dt
+    halves.step(2)
+    np.testing.assert_array_equal(sim.drive_integral.numpy(), halves.drive_integral.numpy())
+    for a, b in zip(_state(sim), _state(halves)):
+        np.testing.assert_array_equal(a, b)
+
+
+def _state(sim: wi.Simulator) -> list[np.ndarray]:
+    return [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"]
+
+
+def test_motor_targets_set_between_batches_agree():
+    """A new motor target between two batches reaches the fused kernel (it reads the targets each launch)."""
+    results = []
+    for schedule in ("fused", "parallel"):
+        sim = wi.Simulator(_servo_chain().finalize(), 1 / 60, schedule=schedule)
+        sim.simulate(0.5)
+        sim.set_motor_target(0, -0.3)
+        sim.set_motor_target(1, 2.0)
+        stats = sim.simulate(0.5)
+        results.append((stats, _state(sim), sim.drive_integral.numpy()))
+    assert results[0][0] == results[1][0]
+    for a, b in zip([*results[0][1], results[0][2]], [*results[1][1], results[1][2]]):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(results[0][2][2:] != 0.0)  # the three servos' integrals moved (drives 0, 1 are joint springs)

@@ -102,6 +102,18 @@ def test_a_composed_step_runs_on_one_thread_and_says_why():
     assert sim.threads == 1 and sim.split_note == "order 4 composes base steps; the split step takes order 2"
 
 
+def test_force_elements_run_on_one_thread_and_say_why():
+    """Springs couple the bodies' predictions (the fused step's coupled RK4), which the parts do not share."""
+    builder = wi.scenes.binary_tree(31)
+    builder.add_spring(None, 5, builder.bodies[5].position + (0.0, 0.0, 0.3), builder.bodies[5].position, 50.0)
+    model = builder.finalize()
+    sim, one = SplitSimulator(model, DT, threads=2), Simulator(model, DT)
+    assert sim.threads == 1 and "force elements" in sim.split_note
+    sim.step(5)
+    one.step(5)
+    assert np.array_equal(sim.positions(), one.positions())
+
+
 def test_a_loop_is_not_cut():
     model = wi.scenes.four_bar().finalize()
     with pytest.raises(CutError, match="closes a loop"):

@@ -262,7 +262,10 @@ class Simulator:
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
-        self._save_start = self._capture(lambda: self._start.copy_from(self.state))
+        self._integral0 = wp.zeros_like(self.drive_integral)  # the drives' integrals there (stages integrate them)
+        self._save_start = self._capture(
+            lambda: self._start.copy_from(self.state), lambda: wp.copy(self._integral0, self.drive_integral)
+        )
         self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
         self.contact_stage = None
         self._penetration, self._contact_sweeps = 0.0, 0  # of the (sub)step's position phase
@@ -542,13 +545,13 @@ class Simulator:
             return "parallel", "contacts are a stage the fused step does not have yet"
         if getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split":
             return "parallel", "the split systems iterate their velocity correction from the host"
-        m = self.model
-        mechanisms = [name for name, n in (("spring", m.spring_count), ("drive", m.drive_count),
-                                           ("limit", m.limit_count)) if n]  # fmt: skip
-        if mechanisms:  # force elements and limits are stages the fused kernel does not have yet
-            return "parallel", f"the scene has {', '.join(mechanisms)}s, not in the fused step yet"
+        if self.model.limit_count:  # rows of the correction loop (kernels/limits.py), a stage it does not have yet
+            return "parallel", "joint limits, stiff motors and distance constraints are not in the fused step yet"
+        if self._forced and self.linear is None:
+            return "parallel", "force elements without joints: the fused step predicts them with the direct solver only"
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
-        self._fused = step_kernels.fused(frozenset(int(k) for k in kinds))
+        self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced)
+        self._elements = self._force_elements()
         self._status = wp.zeros(
             (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
         )
@@ -561,6 +564,24 @@ class Simulator:
         self._fused_by_h: dict[float, wp.Graph] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
+
+    def _force_elements(self) -> step_kernels.ForceElements:
+        """The force elements and the coupled prediction's scratch, for the fused kernel (empty without)."""
+        elements = step_kernels.ForceElements()
+        if not self._forced:
+            return elements
+        m = self.model
+        for field in step_kernels.ForceElements.vars:
+            if hasattr(m, field):
+                setattr(elements, field, getattr(m, field))
+        elements.drive_target, elements.drive_integral = self.drive_target, self.drive_integral
+        elements.integral0 = self._integral0
+        elements.wrench_force, elements.wrench_torque = self.wrench_force, self.wrench_torque
+        elements.stage_x, elements.stage_q = self._stage.body_x, self._stage.body_q
+        elements.stage_v, elements.stage_w = self._stage.body_v, self._stage.body_w
+        elements.rk4_sum_x, elements.rk4_sum_q = self.rk4_sum_x, self.rk4_sum_q
+        elements.rk4_sum_v, elements.rk4_sum_w = self.rk4_sum_v, self.rk4_sum_w
+        return elements
 
     def _fused_launch(self, h: float) -> wp.Graph:
         """The fused kernel's launch for steps of h, recorded and captured once per h."""
@@ -576,7 +597,7 @@ class Simulator:
                 h=h, stages=self._stages, reach=self.scheme.reach, batch_in=self._batch,
                 max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
                 pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
-                q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status,
+                q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
             )  # fmt: skip
             self._fused_by_h[h] = self._capture(launch)
         return self._fused_by_h[h]
@@ -736,8 +757,9 @@ class Simulator:
                 if whole:  # undo this attempt's impulses: the frames of t0 still hold
                     wp.copy(self.state.body_v, self._v0)
                     wp.copy(self.state.body_w, self._w0)
-                else:  # back to the start of the composed step, and its frames
+                else:  # back to the start of the composed step, its drives' integrals and its frames
                     self.state.copy_from(self._start)
+                    wp.copy(self.drive_integral, self._integral0)
                     self._update_frames()
                 halves = _combined([self._advance(0.5 * h, depth + 1, stages) for _ in range(2)])
                 halves.joint_iterations += sum(p.joint_iterations for p in parts)  # the failed attempt's work

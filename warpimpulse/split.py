@@ -206,6 +206,9 @@ class SplitSimulator(Simulator):
         if len(self.scheme.stages) > 1:
             self.split_note = f"order {self.order} composes base steps; the split step takes order 2"
             return
+        if self._forced:
+            self.split_note = "force elements couple the bodies' predictions; the split step predicts each part alone"
+            return
         try:
             parts = cut(model, self.linear.pattern, threads)
         except CutError as exc:
