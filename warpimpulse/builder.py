@@ -24,7 +24,7 @@ from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import SHAPE_CODES, Colliders, Shape
 from .tables import Body, Constraint, Joint, Rows, Table
-from .transforms import quat_conj, quat_mul, quat_rotate
+from .transforms import mul_components, quat_conj, quat_rotate, rotate_components
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
 __all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "WORLD", "checked_material"]
@@ -154,8 +154,7 @@ def _axis(value, what: str) -> np.ndarray:
 
 def _first(bad: np.ndarray) -> int | None:
     """The index of the first True, or None."""
-    i = int(np.argmax(bad)) if len(bad) else 0
-    return i if len(bad) and bad[i] else None
+    return int(bad.argmax()) if bad.any() else None
 
 
 def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -163,6 +162,8 @@ def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
     arr = checks.numbers(value, what)
     if arr.shape == (count, *shape):
         return arr
+    if arr.shape == shape and count == 1:  # one row (add_body, add_joint): a view, as broadcast_to gives, faster
+        return arr[None]
     if arr.shape == shape or arr.ndim == 0:
         return np.broadcast_to(arr, (count, *shape))
     if not shape:
@@ -178,22 +179,41 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
-def _check_finite_rows(values: np.ndarray, label, field: str) -> None:
-    """Every row of `values` (n, k) finite and squarable in double precision, else the first bad row named."""
-    flat = values.reshape(len(values), -1)
-    i = _first(~np.isfinite(flat).all(axis=1))
-    if i is not None:
-        raise SceneError(f"{label(i)} {field} contains NaN or Inf: {values[i].tolist()}")
-    i = _first(np.abs(flat).max(axis=1, initial=0.0) > checks.LARGEST)
-    if i is not None:
-        raise SceneError(f"{label(i)} {field} is too large for double precision (|component| > {checks.LARGEST:g}): "
-                         f"{values[i].tolist()}")  # fmt: skip
+def _parts(rows: np.ndarray) -> list:
+    """The components of rows (n, k): k Python floats for one row, else k arrays (n,). The joint geometry is
+    written once over components; Python's float arithmetic is numpy's element-wise IEEE double arithmetic, so a
+    joint added alone gets the bits it gets in a batch (tests/test_bulk_builder.py), without numpy's per-call
+    cost on arrays of one row."""
+    return rows[0].tolist() if len(rows) == 1 else [rows[:, k] for k in range(rows.shape[1])]
+
+
+def _whole(parts) -> np.ndarray:
+    """Rows (n, k) from components as `_parts` gives them."""
+    return np.stack(parts, axis=-1) if isinstance(parts[0], np.ndarray) else np.array([parts])
+
+
+def _check_finite_rows(fields: dict[str, np.ndarray], label) -> None:
+    """Every row of each field's values (n, ...) finite and squarable in double precision, else the first bad
+    row of the first bad field named. One test covers all fields (NaN propagates through max); the culprit is
+    looked for only when it fails."""
+    flats = [values.reshape(len(values), -1) for values in fields.values()]
+    flat = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)
+    if np.abs(flat).max(initial=0.0) <= checks.LARGEST:
+        return
+    for (field, values), flat in zip(fields.items(), flats):
+        i = _first(~np.isfinite(flat).all(axis=1))
+        if i is not None:
+            raise SceneError(f"{label(i)} {field} contains NaN or Inf: {values[i].tolist()}")
+        i = _first(np.abs(flat).max(axis=1, initial=0.0) > checks.LARGEST)
+        if i is not None:
+            raise SceneError(f"{label(i)} {field} is too large for double precision (|component| > "
+                             f"{checks.LARGEST:g}): {values[i].tolist()}")  # fmt: skip
 
 
 def _unit_rows(value, count: int, what: str, label, field: str) -> np.ndarray:
     """Directions (count, 3), any length but zero, normalised."""
     arr = _rows(value, count, (3,), what)
-    _check_finite_rows(arr, label, field)
+    _check_finite_rows({field: arr}, label)
     norm = np.sqrt(_dot(arr, arr))
     i = _first(norm < 1e-12)
     if i is not None:
@@ -477,8 +497,8 @@ class SceneBuilder:
         def label(i: int) -> str:
             return f"body {self._body_name[start + i]!r}"
 
-        for field in ("position", "orientation", "linear_velocity", "angular_velocity"):
-            _check_finite_rows(t[field][rows], label, field)
+        _check_finite_rows({f: t[f][rows] for f in ("position", "orientation", "linear_velocity", "angular_velocity")},
+                           label)  # fmt: skip
         dynamic = ~t["static"][rows]
         mass = t["mass"][rows]
         i = _first(dynamic & ~(np.isfinite(mass) & (mass > 0.0)))
@@ -728,7 +748,7 @@ class SceneBuilder:
         needs_axis = any(k.needs_axis for k in kinds)
         needs_child_axis = any(k == ConstraintKind.ANGLE for k in kinds)
         anchor = _rows(anchor, count, (3,), f"{batch} anchor")
-        _check_finite_rows(anchor, label, "anchor")
+        _check_finite_rows({"anchor": anchor}, label)
         none = np.full((count, 3), np.nan)  # no axis
         axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if needs_axis or axis is not None else none
         if needs_child_axis:
@@ -778,20 +798,22 @@ class SceneBuilder:
     def _constraint_geometry(self, p, c, anchor, a0, a1) -> dict[str, np.ndarray]:
         """The anchor and axes of a constraint between bodies p and c in each body's frame, q0^-1 q1 and the
         angle between the axes, as built (element-wise: a joint gets the same bits alone or in a batch)."""
-        x, q = self._frames(np.concatenate([p, c]))
         n = len(p)
+        x, q = self._frames(np.concatenate([p, c]))
         inverse = quat_conj(q)
-        # Each side's anchor and axis in one rotation by q^-1: (2n, 2, 3), parent sides first.
-        local = quat_rotate(inverse[:, None], np.stack([np.concatenate([anchor, anchor]) - x,
-                                                        np.concatenate([a0, a1])], axis=1))  # fmt: skip
+        inverse0, inverse1 = _parts(inverse[:n]), _parts(inverse[n:])
+
+        def local(inverse: list, v: np.ndarray) -> np.ndarray:
+            return _whole(rotate_components(inverse, _parts(v)))
+
         return dict(
             body0=p,
             body1=c,
-            anchor0=local[:n, 0],
-            anchor1=local[n:, 0],
-            axis0=local[:n, 1],
-            axis1=local[n:, 1],
-            rest_rotation=quat_mul(inverse[:n], q[n:]),
+            anchor0=local(inverse0, anchor - x[:n]),
+            anchor1=local(inverse1, anchor - x[n:]),
+            axis0=local(inverse0, a0),
+            axis1=local(inverse1, a1),
+            rest_rotation=_whole(mul_components(inverse0, _parts(q[n:]))),
             rest_angle=np.arccos(np.clip(_dot(a0, a1), -1.0, 1.0)),
         )
 

@@ -40,6 +40,19 @@ def _rows(x, y, z, w) -> tuple:
     )
 
 
+def rotate_components(q, v) -> tuple:
+    """v rotated by the unit quaternion q, each given as components (Python floats, or arrays that broadcast):
+    quat_rotate's batch formula, for callers that keep components (the builder computes a one-row add on
+    floats and a batch on arrays, with the same bits)."""
+    vx, vy, vz = v
+    return tuple(r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in _rows(*q))
+
+
+def mul_components(a, b) -> tuple:
+    """The rotation a * b of quaternions given as components (floats or arrays): quat_mul's formula."""
+    return _product(*a, *b)
+
+
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation a * b (b first, then a)."""
     a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
@@ -69,8 +82,7 @@ def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     if q.ndim == 1 and v.ndim == 1:
         return quat_to_matrix(q) @ v
     # Element-wise over the batch (no matrix stacked, no reduction): a row gives the same bits in a batch of any size.
-    vx, vy, vz = _split(v)
-    return np.stack([r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in _rows(*_split(q))], axis=-1)
+    return np.stack(rotate_components(_split(q), _split(v)), axis=-1)
 
 
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:
