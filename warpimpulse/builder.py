@@ -471,9 +471,7 @@ class SceneBuilder:
             friction=_rows(friction, count, (), f"{batch}: friction"),
             restitution=_rows(restitution, count, (), f"{batch}: restitution"),
         )  # fmt: skip
-        rows = self._bodies.grow(count)
-        for k, values in columns.items():
-            self._bodies[k][rows] = values
+        rows = self._bodies.append(count, columns)
         self._body_name.extend(names)
         self._body_names.update(zip(names, range(first, first + count)))
         try:
@@ -492,19 +490,18 @@ class SceneBuilder:
         """The values of bodies `rows`, vectorised, naming the first bad body: finite vectors, and for dynamic
         bodies a positive finite mass and a symmetric positive definite inertia whose principal moments obey the
         triangle inequality (a + b >= c); a finite friction >= 0 and a restitution in [0, 1]."""
-        t, start = self._bodies, rows.start
+        t, start = self._bodies.view(rows), rows.start
 
         def label(i: int) -> str:
             return f"body {self._body_name[start + i]!r}"
 
-        _check_finite_rows({f: t[f][rows] for f in ("position", "orientation", "linear_velocity", "angular_velocity")},
-                           label)  # fmt: skip
-        dynamic = ~t["static"][rows]
-        mass = t["mass"][rows]
+        _check_finite_rows({f: t[f] for f in ("position", "orientation", "linear_velocity", "angular_velocity")}, label)
+        dynamic = ~t["static"]
+        mass = t["mass"]
         i = _first(dynamic & ~(np.isfinite(mass) & (mass > 0.0)))
         if i is not None:
             raise SceneError(f"{label(i)}: mass must be positive and finite, got {mass[i]}")
-        inertia = t["inertia"][rows]
+        inertia = t["inertia"]
         i = _first(dynamic & ~np.isfinite(inertia).all(axis=(1, 2)))
         if i is not None:
             raise SceneError(f"{label(i)}: inertia contains NaN or Inf")
@@ -521,7 +518,7 @@ class SceneBuilder:
         i = _first(moments[:, 0] + moments[:, 1] < moments[:, 2] * (1.0 - 1e-9))
         if i is not None:
             raise SceneError(f"{label(i)}: principal moments {moments[i].tolist()} break the triangle inequality")
-        friction, restitution = t["friction"][rows], t["restitution"][rows]
+        friction, restitution = t["friction"], t["restitution"]
         i = _first(~(np.isfinite(friction) & (friction >= 0.0)))
         if i is not None:
             raise SceneError(f"{label(i)}: friction must be a finite number >= 0, got {friction[i]}")

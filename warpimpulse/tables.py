@@ -51,6 +51,17 @@ class Table:
         self.count = stop
         return rows
 
+    def append(self, count: int, values: dict[str, Any]) -> slice:
+        """Append `count` rows, each column given (broadcast to the rows) or left zero; return their slice."""
+        rows = self.grow(count)
+        for k, v in values.items():
+            self._arrays[k][rows] = v
+        return rows
+
+    def view(self, rows: slice) -> dict[str, np.ndarray]:
+        """Every column's `rows`, as views."""
+        return {k: a[rows] for k, a in self._arrays.items()}
+
     def truncate(self, count: int) -> None:
         """Forget every row from `count` on (a refused addition leaves nothing behind)."""
         self.count = count
