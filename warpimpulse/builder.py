@@ -761,23 +761,20 @@ class SceneBuilder:
             self._joint_kinds.append(kind)
         per = len(kinds)
         first_joint, first_constraint = self._joints.count, self._constraints.count
-        rows = self._joints.grow(count)
         joint = np.arange(first_joint, first_joint + count)
-        columns = dict(kind=self._joint_kinds.index(kind), parent=p, child=c, anchor=anchor, axis=axis,
-                       axis_child=axis_child, first=first_constraint + per * np.arange(count), constraint_count=per,
-                       loop=False)  # fmt: skip
-        for k, values in columns.items():
-            self._joints[k][rows] = values
+        self._joints.append(count, dict(kind=self._joint_kinds.index(kind), parent=p, child=c, anchor=anchor, axis=axis,
+                                        axis_child=axis_child, first=first_constraint + per * np.arange(count),
+                                        constraint_count=per))  # fmt: skip
         self._joint_name.extend(names)
         # The constraints, joint by joint: the axis where the joint has none is z, the child axis the axis.
         a0 = np.where(np.isnan(axis), (0.0, 0.0, 1.0), axis)
         a1 = np.where(np.isnan(axis_child), a0, axis_child)
-        geometry = self._constraint_geometry(p, c, anchor, a0, a1)
-        rows = self._constraints.grow(per * count)
-        for k, values in geometry.items():
-            self._constraints[k][rows] = np.repeat(values, per, axis=0)
-        self._constraints["kind"][rows] = np.tile(np.array([int(k) for k in kinds], dtype=np.int32), count)
-        self._constraints["joint"][rows] = np.repeat(joint, per)
+        columns = self._constraint_geometry(p, c, anchor, a0, a1)
+        columns["joint"] = joint
+        rows = self._constraints.view(self._constraints.grow(per * count))
+        for k, values in columns.items():  # each joint's values on its `per` rows, through (count, per, ...) views
+            rows[k].reshape(count, per, *values.shape[1:])[:] = values[:, None]
+        rows["kind"].reshape(count, per)[:] = [int(k) for k in kinds]
         return joint
 
     def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -799,19 +796,17 @@ class SceneBuilder:
         x, q = self._frames(np.concatenate([p, c]))
         inverse = quat_conj(q)
         inverse0, inverse1 = _parts(inverse[:n]), _parts(inverse[n:])
-
-        def local(inverse: list, v: np.ndarray) -> np.ndarray:
-            return _whole(rotate_components(inverse, _parts(v)))
-
+        anchor0, axis0 = rotate_components(inverse0, _parts(anchor - x[:n]), _parts(a0))
+        anchor1, axis1 = rotate_components(inverse1, _parts(anchor - x[n:]), _parts(a1))
         return dict(
             body0=p,
             body1=c,
-            anchor0=local(inverse0, anchor - x[:n]),
-            anchor1=local(inverse1, anchor - x[n:]),
-            axis0=local(inverse0, a0),
-            axis1=local(inverse1, a1),
+            anchor0=_whole(anchor0),
+            anchor1=_whole(anchor1),
+            axis0=_whole(axis0),
+            axis1=_whole(axis1),
             rest_rotation=_whole(mul_components(inverse0, _parts(q[n:]))),
-            rest_angle=np.arccos(np.clip(_dot(a0, a1), -1.0, 1.0)),
+            rest_angle=np.arccos(np.minimum(np.maximum(_dot(a0, a1), -1.0), 1.0)),  # np.clip's bits, cheaper
         )
 
     # ---------------------------------------------------------------- forces

@@ -40,12 +40,12 @@ def _rows(x, y, z, w) -> tuple:
     )
 
 
-def rotate_components(q, v) -> tuple:
-    """v rotated by the unit quaternion q, each given as components (Python floats, or arrays that broadcast):
-    quat_rotate's batch formula, for callers that keep components (the builder computes a one-row add on
-    floats and a batch on arrays, with the same bits)."""
-    vx, vy, vz = v
-    return tuple(r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in _rows(*q))
+def rotate_components(q, *vectors) -> list[tuple]:
+    """Each vector rotated by the unit quaternion q, all given as components (Python floats, or arrays that
+    broadcast): quat_rotate's batch formula, for callers that keep components (the builder computes a one-row
+    add on floats and a batch on arrays, with the same bits)."""
+    rows = _rows(*q)
+    return [tuple(r0 * vx + r1 * vy + r2 * vz for r0, r1, r2 in rows) for vx, vy, vz in vectors]
 
 
 def mul_components(a, b) -> tuple:
@@ -82,7 +82,7 @@ def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     if q.ndim == 1 and v.ndim == 1:
         return quat_to_matrix(q) @ v
     # Element-wise over the batch (no matrix stacked, no reduction): a row gives the same bits in a batch of any size.
-    return np.stack(rotate_components(_split(q), _split(v)), axis=-1)
+    return np.stack(rotate_components(_split(q), _split(v))[0], axis=-1)
 
 
 def quat_from_matrix(m: np.ndarray) -> np.ndarray:
