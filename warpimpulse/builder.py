@@ -162,8 +162,8 @@ def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
     arr = checks.numbers(value, what)
     if arr.shape == (count, *shape):
         return arr
-    if arr.shape == shape and count == 1:  # one row (add_body, add_joint): a view, as broadcast_to gives, faster
-        return arr[None]
+    if count == 1 and (arr.shape == shape or arr.ndim == 0):  # one row (add_body, add_joint): broadcast_to's
+        return arr[None] if arr.shape == shape else np.full((1, *shape), arr)  # values, without its overhead
     if arr.shape == shape or arr.ndim == 0:
         return np.broadcast_to(arr, (count, *shape))
     if not shape:
@@ -192,6 +192,16 @@ def _whole(parts) -> np.ndarray:
     return np.stack(parts, axis=-1) if isinstance(parts[0], np.ndarray) else np.array([parts])
 
 
+def _norms(rows: np.ndarray) -> np.ndarray:
+    """The length of each row (n, k), its squares summed component by component, left to right, as `_dot`
+    does (on Python floats for one row: the same bits, fewer numpy calls)."""
+    parts = _parts(rows)
+    squares = parts[0] * parts[0]
+    for x in parts[1:]:
+        squares = squares + x * x
+    return np.sqrt(np.reshape(squares, -1))
+
+
 def _check_finite_rows(fields: dict[str, np.ndarray], label) -> None:
     """Every row of each field's values (n, ...) finite and squarable in double precision, else the first bad
     row of the first bad field named. One test covers all fields (NaN propagates through max); the culprit is
@@ -214,7 +224,7 @@ def _unit_rows(value, count: int, what: str, label, field: str) -> np.ndarray:
     """Directions (count, 3), any length but zero, normalised."""
     arr = _rows(value, count, (3,), what)
     _check_finite_rows({field: arr}, label)
-    norm = np.sqrt(_dot(arr, arr))
+    norm = _norms(arr)
     i = _first(norm < 1e-12)
     if i is not None:
         raise SceneError(f"{label(i)} {field} is a zero vector")
@@ -455,12 +465,13 @@ class SceneBuilder:
         if inertia.shape != (count, 3, 3):
             raise SceneError(f"{batch}: inertia must be 3 moments or a 3x3 tensor per body, got shape {inertia.shape}")
         q = _rows(orientation, count, (4,), f"{batch} orientation")
-        norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+        norm = _norms(q)
         i = _first(norm < 1e-9)
         if i is not None:
             raise SceneError(f"{label(i)}: orientation quaternion is zero")
-        off = np.flatnonzero(np.abs(norm - 1.0) > 1e-6)
-        if len(off):
+        off = np.abs(norm - 1.0) > 1e-6
+        if off.any():
+            off = np.flatnonzero(off)
             more = f" (and {len(off) - 1} more bodies)" if len(off) > 1 else ""
             warnings.warn(f"{label(off[0])}: orientation quaternion has norm {norm[off[0]]:.6g}; normalised{more}",
                           stacklevel=3)  # fmt: skip
@@ -511,7 +522,7 @@ class SceneBuilder:
         )
         if i is not None:
             raise SceneError(f"{label(i)}: inertia tensor is not symmetric")
-        moments = np.linalg.eigvalsh(np.where(dynamic[:, None, None], inertia, np.eye(3)))
+        moments = np.linalg.eigvalsh(inertia if dynamic.all() else np.where(dynamic[:, None, None], inertia, np.eye(3)))
         i = _first(moments[:, 0] <= 0.0)
         if i is not None:
             raise SceneError(f"{label(i)}: inertia tensor is not positive definite (moments {moments[i].tolist()})")
@@ -724,10 +735,11 @@ class SceneBuilder:
         def label(i: int) -> str:
             return f"joint {names[i]!r}"
 
-        for side, x in (("parent", p), ("child", c)):
-            i = _first((x < WORLD) | (x >= nb))
-            if i is not None:
-                raise SceneError(f"{label(i)} {side}: body index {x[i]} does not exist ({nb} bodies)")
+        ends = np.concatenate([p, c])  # parents, then children
+        i = _first((ends < WORLD) | (ends >= nb))
+        if i is not None:
+            side = "parent" if i < count else "child"
+            raise SceneError(f"{label(i % count)} {side}: body index {ends[i]} does not exist ({nb} bodies)")
         i = _first(c == WORLD)
         if i is not None:
             raise SceneError(f"{label(i)}: the child must be a body, not the world")
@@ -779,10 +791,11 @@ class SceneBuilder:
 
     def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions and orientations of bodies `b` (the world's origin and identity for WORLD)."""
-        world = (b == WORLD)[:, None]
         at = np.maximum(b, 0)
-        x = np.where(world, 0.0, self._bodies["position"][at])
-        q = np.where(world, (0.0, 0.0, 0.0, 1.0), self._bodies["orientation"][at])
+        x, q = self._bodies["position"][at], self._bodies["orientation"][at]
+        world = b == WORLD
+        if world.any():
+            x, q = np.where(world[:, None], 0.0, x), np.where(world[:, None], (0.0, 0.0, 0.0, 1.0), q)
         return x, q
 
     def _frame(self, b: int) -> tuple[np.ndarray, np.ndarray]:
