@@ -174,9 +174,10 @@ def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise dot products of (n, 3) arrays, component by component: a row gives the same bits in a batch of
-    any size (a reduction might not)."""
-    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+    """Row-wise dot products (n,) of (n, 3) arrays, component by component: a row gives the same bits in a batch
+    of any size (a reduction might not); on Python floats for one row (`_parts`)."""
+    (ax, ay, az), (bx, by, bz) = _parts(a), _parts(b)
+    return np.reshape(ax * bx + ay * by + az * bz, -1)
 
 
 def _parts(rows: np.ndarray) -> list:
@@ -513,20 +514,21 @@ class SceneBuilder:
         if i is not None:
             raise SceneError(f"{label(i)}: mass must be positive and finite, got {mass[i]}")
         inertia = t["inertia"]
-        i = _first(dynamic & ~np.isfinite(inertia).all(axis=(1, 2)))
+        flat = inertia.reshape(len(inertia), 9)  # reductions over one axis: cheaper than over (1, 2)
+        i = _first(dynamic & ~np.isfinite(flat).all(axis=1))
         if i is not None:
             raise SceneError(f"{label(i)}: inertia contains NaN or Inf")
-        scale = np.maximum(np.abs(inertia).max(axis=(1, 2), initial=0.0), 1e-300)
-        i = _first(
-            dynamic & (np.abs(inertia - inertia.transpose(0, 2, 1)).max(axis=(1, 2), initial=0.0) > 1e-9 * scale)
-        )
+        scale = np.maximum(np.abs(flat).max(axis=1, initial=0.0), 1e-300)
+        asymmetry = np.abs(flat - inertia.transpose(0, 2, 1).reshape(len(inertia), 9)).max(axis=1, initial=0.0)
+        i = _first(dynamic & (asymmetry > 1e-9 * scale))
         if i is not None:
             raise SceneError(f"{label(i)}: inertia tensor is not symmetric")
         moments = np.linalg.eigvalsh(inertia if dynamic.all() else np.where(dynamic[:, None, None], inertia, np.eye(3)))
-        i = _first(moments[:, 0] <= 0.0)
+        smallest, middle, largest = moments.T
+        i = _first(smallest <= 0.0)
         if i is not None:
             raise SceneError(f"{label(i)}: inertia tensor is not positive definite (moments {moments[i].tolist()})")
-        i = _first(moments[:, 0] + moments[:, 1] < moments[:, 2] * (1.0 - 1e-9))
+        i = _first(smallest + middle < largest * (1.0 - 1e-9))
         if i is not None:
             raise SceneError(f"{label(i)}: principal moments {moments[i].tolist()} break the triangle inequality")
         friction, restitution = t["friction"], t["restitution"]
