@@ -761,7 +761,8 @@ class SceneBuilder:
         anchor = _rows(anchor, count, (3,), f"{batch} anchor")
         _check_finite_rows({"anchor": anchor}, label)
         none = np.full((count, 3), np.nan)  # no axis
-        axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if needs_axis or axis is not None else none
+        has_axis = needs_axis or axis is not None
+        axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if has_axis else none
         if needs_child_axis:
             axis_child = _unit_rows(axis_child if axis_child is not None else axis, count, f"{batch} child axis",
                                     label, "child axis")  # fmt: skip
@@ -781,8 +782,8 @@ class SceneBuilder:
                                         constraint_count=per))  # fmt: skip
         self._joint_name.extend(names)
         # The constraints, joint by joint: the axis where the joint has none is z, the child axis the axis.
-        a0 = np.where(np.isnan(axis), (0.0, 0.0, 1.0), axis)
-        a1 = np.where(np.isnan(axis_child), a0, axis_child)
+        a0 = axis if has_axis else np.broadcast_to(np.array([0.0, 0.0, 1.0]), (count, 3))
+        a1 = axis_child if needs_child_axis else a0
         columns = self._constraint_geometry(p, c, anchor, a0, a1)
         columns["joint"] = joint
         rows = self._constraints.view(self._constraints.grow(per * count))
