@@ -462,7 +462,7 @@ class SceneBuilder:
             inertia = inertia[None]
         if inertia.shape == (count, 3):  # principal moments: a diagonal tensor
             moments, inertia = inertia, np.zeros((count, 3, 3))
-            inertia[:, [0, 1, 2], [0, 1, 2]] = moments
+            inertia.reshape(count, 9)[:, ::4] = moments  # the diagonal, by a strided view
         if inertia.shape != (count, 3, 3):
             raise SceneError(f"{batch}: inertia must be 3 moments or a 3x3 tensor per body, got shape {inertia.shape}")
         q = _rows(orientation, count, (4,), f"{batch} orientation")
