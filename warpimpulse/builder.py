@@ -5,7 +5,10 @@ Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see
 
 Bodies, joints and basic constraints are columns of arrays (`tables.Table`), added many at a time
 (`add_bodies`, `add_joints`: numpy arrays in, index arrays out) or one at a time (`add_body`, `add_joint`: the
-same code with one row). Checks are vectorised, and a bad row is named: "body 'b17': mass must be positive".
+same code with one row). Every add is checked when it is called, vectorised, and a bad row is named ("body
+'b17': mass must be positive") and leaves nothing behind. A one-row add pays numpy's per-call cost on arrays of
+length 1, so the joint geometry and row norms are written over components (`_parts`): Python floats for one row,
+arrays for a batch, one formula and the same bits (benchmarks/builder.py measures the one-row adds).
 """
 
 from __future__ import annotations
