@@ -176,11 +176,11 @@ def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
     raise SceneError(f"{what} must have shape {shape} or {(count, *shape)}, got shape {arr.shape}")
 
 
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise dot products (n,) of (n, 3) arrays, component by component: a row gives the same bits in a batch
-    of any size (a reduction might not); on Python floats for one row (`_parts`)."""
-    (ax, ay, az), (bx, by, bz) = _parts(a), _parts(b)
-    return np.reshape(ax * bx + ay * by + az * bz, -1)
+def _dot(a: list, b: list) -> np.ndarray:
+    """Row-wise dot products (n,) of 3-vectors given as `_parts`, component by component: a row gives the same
+    bits in a batch of any size (a reduction might not)."""
+    (ax, ay, az), (bx, by, bz) = a, b
+    return np.asarray(ax * bx + ay * by + az * bz).reshape(-1)  # (np.reshape is slow on a float)
 
 
 def _parts(rows: np.ndarray) -> list:
@@ -203,7 +203,7 @@ def _norms(rows: np.ndarray) -> np.ndarray:
     squares = parts[0] * parts[0]
     for x in parts[1:]:
         squares = squares + x * x
-    return np.sqrt(np.reshape(squares, -1))
+    return np.sqrt(np.asarray(squares).reshape(-1))
 
 
 def _check_finite_rows(fields: dict[str, np.ndarray], label) -> None:
@@ -769,7 +769,7 @@ class SceneBuilder:
         if needs_child_axis:
             axis_child = _unit_rows(axis_child if axis_child is not None else axis, count, f"{batch} child axis",
                                     label, "child axis")  # fmt: skip
-            i = _first(np.abs(_dot(axis, axis_child)) > 1.0 - 1e-9)
+            i = _first(np.abs(_dot(_parts(axis), _parts(axis_child))) > 1.0 - 1e-9)
             if i is not None:
                 raise SceneError(f"{label(i)}: the two axes of an angle constraint are parallel")
         else:
@@ -815,16 +815,20 @@ class SceneBuilder:
         x, q = self._frames(np.concatenate([p, c]))
         inverse = quat_conj(q)
         inverse0, inverse1 = _parts(inverse[:n]), _parts(inverse[n:])
-        anchor0, axis0 = rotate_components(inverse0, _parts(anchor - x[:n]), _parts(a0))
-        anchor1, axis1 = rotate_components(inverse1, _parts(anchor - x[n:]), _parts(a1))
+        anchor, a0, a1 = _parts(anchor), _parts(a0), _parts(a1)
+        arm0, arm1 = ([a - o for a, o in zip(anchor, _parts(origin))] for origin in (x[:n], x[n:]))
+        anchor0, axis0 = rotate_components(inverse0, arm0, a0)
+        anchor1, axis1 = rotate_components(inverse1, arm1, a1)
+        # All in one array (n, 16), handed out as column views.
+        out = _whole(anchor0 + anchor1 + axis0 + axis1 + mul_components(inverse0, _parts(q[n:])))
         return dict(
             body0=p,
             body1=c,
-            anchor0=_whole(anchor0),
-            anchor1=_whole(anchor1),
-            axis0=_whole(axis0),
-            axis1=_whole(axis1),
-            rest_rotation=_whole(mul_components(inverse0, _parts(q[n:]))),
+            anchor0=out[:, 0:3],
+            anchor1=out[:, 3:6],
+            axis0=out[:, 6:9],
+            axis1=out[:, 9:12],
+            rest_rotation=out[:, 12:16],
             rest_angle=np.arccos(np.minimum(np.maximum(_dot(a0, a1), -1.0), 1.0)),  # np.clip's bits, cheaper
         )
 
