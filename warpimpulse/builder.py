@@ -408,7 +408,8 @@ class SceneBuilder:
 
         Args:
             mass: (n,) kg; its length is n.
-            inertia: (n, 3) principal moments or (n, 3, 3) tensors (kg m^2), or one (3,) / (3, 3) for all.
+            inertia: (n, 3) principal moments or (n, 3, 3) tensors (kg m^2); for one body, its (3,) / (3, 3)
+                alone (not broadcast to n bodies: a (3, 3) for three bodies would be ambiguous).
             position, linear_velocity, angular_velocity: (n, 3), or one vector (or number) for all.
             orientation: (n, 4) (x, y, z, w), or one for all.
             name: `Names`: None, a template such as "b{}" (filled with each body's index), or n names.
