@@ -24,7 +24,7 @@ import warp as wp
 from . import collide
 from .contact_solve import relative_velocity
 from .forces import coordinate_row
-from .limits import compensate, factor_masked, limit_side, row_setup, solve_factored
+from .limits import compensate, factor_masked, fix_furthest_out, limit_side, row_setup, solve_factored
 
 wp.set_module_options({"enable_backward": False})
 
@@ -543,20 +543,9 @@ def solve_rows(
                 for c in range(nr):
                     held -= row_solved[c * nl + i] * row_delta[nl + c]
                 row_delta[i] = held
-        pick = int(-1)  # noqa: UP018
         worst = tolerance / h  # a rate the contacts' sweeps may leave: no pivot on less
-        for i in range(nl):
-            if row_mask[i] == 1:
-                total = row_before[i] + row_delta[i]
-                over = wp.max(row_low[i] - total, total - row_high[i]) * row_matrix[i * n + i]
-                if over > worst:
-                    worst = over
-                    pick = i
-        if pick >= 0:
-            total = row_before[pick] + row_delta[pick]
-            row_mask[pick] = wp.where(total < row_low[pick], 2, 3)
-            row_delta[pick] = wp.clamp(total, row_low[pick], row_high[pick]) - row_before[pick]
-        else:
+        pick = fix_furthest_out(nl, n, row_matrix, row_mask, row_before, row_low, row_high, row_delta, worst)
+        if pick < 0:
             for i in range(nl):
                 if row_mask[i] >= 2:
                     demand = row_goal[i]  # the rate change still wanted at fixed row i, all impulses counted

@@ -502,6 +502,38 @@ def row_setup(
 
 
 @wp.func
+def fix_furthest_out(
+    count: int,
+    stride: int,
+    matrix: wp.array(dtype=f64),
+    mask: wp.array(dtype=int),
+    before: wp.array(dtype=f64),
+    low: wp.array(dtype=f64),
+    high: wp.array(dtype=f64),
+    delta: wp.array(dtype=f64),
+    threshold: f64,
+) -> int:
+    """Block pivoting's first move: of the free rows (mask 1) among the first `count`, fix the one whose total
+    before + delta lies furthest outside [low, high] (measured as a rate: times its diagonal entry of the
+    row-major `matrix` of width `stride`, and only beyond `threshold`) at that bound (mask 2 low, 3 high).
+    Returns the row fixed, or -1 when every free row is within its bounds."""
+    pick = int(-1)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
+    worst = threshold
+    for i in range(count):
+        if mask[i] == 1:
+            total = before[i] + delta[i]
+            over = wp.max(low[i] - total, total - high[i]) * matrix[i * stride + i]
+            if over > worst:
+                worst = over
+                pick = i
+    if pick >= 0:
+        total = before[pick] + delta[pick]
+        mask[pick] = wp.where(total < low[pick], 2, 3)
+        delta[pick] = wp.clamp(total, low[pick], high[pick]) - before[pick]
+    return pick
+
+
+@wp.func
 def box_pivot(
     n: int,
     matrix: wp.array(dtype=f64),
@@ -528,20 +560,9 @@ def box_pivot(
                     want -= matrix[i * n + j] * delta[j]
             rhs[i] = want
         solve_masked(n, matrix, mask, rhs, work, scratch, delta)
-        pick = int(-1)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
         worst = f64(0.0)
-        for i in range(n):
-            if mask[i] == 1:
-                total = before[i] + delta[i]
-                over = wp.max(low[i] - total, total - high[i]) * matrix[i * n + i]
-                if over > worst:
-                    worst = over
-                    pick = i
-        if pick >= 0:
-            total = before[pick] + delta[pick]
-            mask[pick] = wp.where(total < low[pick], 2, 3)
-            delta[pick] = wp.clamp(total, low[pick], high[pick]) - before[pick]
-        else:
+        pick = fix_furthest_out(n, n, matrix, mask, before, low, high, delta, worst)
+        if pick < 0:
             for i in range(n):
                 if mask[i] >= 2:
                     demand = rhs[i]  # the rate change still wanted at fixed row i, all impulses counted
