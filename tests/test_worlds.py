@@ -369,3 +369,23 @@ def test_a_world_failing_inside_a_fused_launch_stops_at_the_start_of_its_step():
         ref.step(2)
         for a, b in zip(state_of(ref), state_of(sim)):
             assert np.array_equal(a, b)
+
+
+def test_threads_simulate_on_fused_shares_gives_the_batched_run_step_by_step():
+    """`simulate` over more steps than a fused launch takes (256): the batched run's states and per-step stats."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    mass, force, spin = worlds_setup()
+    model = wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize()
+    ref = Simulator(model, DT)
+    with ThreadedSimulator(model, DT, threads=2) as sim:
+        for s in (ref, sim):
+            s.set_masses(mass=mass)
+            s.set_external_forces(force=force)
+            s.set_state(angular_velocities=spin)
+        expected, got = ref.simulate(300 * DT), sim.simulate(300 * DT)
+        assert sim.fused_shares and len(got) == 300 and sim.step_count == 300
+        assert [s.joint_iterations for s in got] == [s.joint_iterations for s in expected]
+        assert [s.max_joint_error for s in got] == [s.max_joint_error for s in expected]
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)

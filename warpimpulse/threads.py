@@ -200,9 +200,10 @@ class ThreadedSimulator:
         steps = int(round(duration / self.dt))
         if not steps:
             return []
-        if self.fused_shares:
-            return self._fused_step(steps)
-        return [self.step() for _ in range(steps)]
+        if not self.fused_shares:
+            return [self.step() for _ in range(steps)]
+        chunk = Simulator.FUSED_BATCH  # a launch's steps; each world's stats are kept only for a chunk
+        return [s for start in range(0, steps, chunk) for s in self._fused_step(min(chunk, steps - start))]
 
     @property
     def world_stats(self) -> WorldStats | None:
