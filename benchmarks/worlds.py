@@ -8,8 +8,10 @@
    per second of each, and their ratio. Both start from the same state and run the same steps, and the
    batched run is checked to end bit for bit where the separate ones do.
 2. Every core: `ThreadedSimulator` on 1, 2, ... cores for 2 worlds of tree4095, 16 of tree255 and the
-   batched case above (a share must have kernel work to run in parallel: two worlds of tree31 are mostly
-   host work, which holds the GIL): world-steps per second and the speed-up over one thread, with the
+   batched case above, `step(10)` a timed call (these scenes run fused: each world a one-world share, its 10
+   steps one launch that releases the GIL; "shares" in the JSON), timed in turn with batched shares (one
+   batched Simulator a thread, the parallel schedule asked: how they ran before): world-steps per second and
+   the speed-up over one thread, with the
    process's CPU time over wall time (near the thread count when the threads really run at once; well under
    it when the machine is busy with other work).
 3. One tree on every core: `ThreadedSimulator` of one world (`split.SplitSimulator`: the tree cut at its root, a
@@ -114,31 +116,40 @@ def batched_vs_separate(worlds: int, bodies: int, rounds: int) -> dict:
 
 
 def threads_scaling(worlds: int, bodies: int, rounds: int, cores: list[int]) -> dict:
+    """The worlds on 1, 2, ... threads in the shares the ThreadedSimulator picks, and, timed in turn with them,
+    in batched shares (the parallel schedule asked: every share a batched Simulator, as before the fused
+    shares): both start alike and must end bit for bit alike."""
     model = wi.scenes.binary_tree(bodies).replicate(worlds).finalize()
-    sims = {n: ThreadedSimulator(model, DT, threads=n) for n in cores}
+    kinds = {"picked": {}, "batched": {"schedule": "parallel"}}
+    sims = {(k, n): ThreadedSimulator(model, DT, threads=n, **settings) for k, settings in kinds.items() for n in cores}
     for sim in sims.values():
         sim.step()
-    walls: dict[int, list[float]] = {n: [] for n in cores}
-    usage: dict[int, list[float]] = {n: [] for n in cores}
+    walls: dict[tuple, list[float]] = {key: [] for key in sims}
+    usage: dict[tuple, list[float]] = {key: [] for key in sims}
     for _ in range(rounds):
-        for n, sim in sims.items():
-            wall, cpu = timed(sim.step, BLOCK)
-            walls[n].append(wall)
-            usage[n].append(cpu / wall)
-    base = statistics.median(walls[cores[0]])
-    out = {
-        str(n): {
-            "world_steps_per_s": worlds * BLOCK / statistics.median(walls[n]),
-            "speedup": base / statistics.median(walls[n]),
-            "cpu_over_wall": statistics.median(usage[n]),
+        for key, sim in sims.items():
+            wall, cpu = timed(lambda: sim.step(BLOCK), 1)  # noqa: B023 (called at once)
+            walls[key].append(wall)
+            usage[key].append(cpu / wall)
+
+    def by_threads(kind: str) -> dict:
+        base = statistics.median(walls[(kind, cores[0])])
+        return {
+            str(n): {
+                "world_steps_per_s": worlds * BLOCK / statistics.median(walls[(kind, n)]),
+                "speedup": base / statistics.median(walls[(kind, n)]),
+                "cpu_over_wall": statistics.median(usage[(kind, n)]),
+            }
+            for n in cores
         }
-        for n in cores
-    }
-    ref = sims[cores[0]]
+
+    ref = sims[("picked", cores[0])]
     same = all(np.array_equal(ref.positions(), sim.positions()) for sim in sims.values())
+    shares = "fused" if ref.fused_shares else "batched"
     for sim in sims.values():
         sim.close()
-    return {"worlds": worlds, "bodies": bodies, "by_threads": out, "bit_identical": same}
+    return {"worlds": worlds, "bodies": bodies, "shares": shares, "by_threads": by_threads("picked"),
+            "batched_shares": by_threads("batched"), "bit_identical": same}  # fmt: skip
 
 
 def split_scaling(bodies: int, rounds: int, cores: list[int], seconds: float = 0.3) -> dict:
@@ -274,8 +285,13 @@ def markdown(results: dict) -> str:
             f"{v[key]:.4g} {unit}, {v['speedup']:.2f}x (cpu/wall {v['cpu_over_wall']:.2f})" for v in by.values()
         )
 
-    rows = [(f"{t['worlds']} worlds of tree{t['bodies']}", t, "world_steps_per_s", "world-steps/s")
-            for t in results["threads"]]  # fmt: skip
+    rows = []
+    for t in results["threads"]:
+        name = f"{t['worlds']} worlds of tree{t['bodies']}"
+        rows.append((f"{name} ({t.get('shares', 'batched')} shares)", t, "world_steps_per_s", "world-steps/s"))
+        if t.get("shares") == "fused":
+            batched = {**t, "by_threads": t["batched_shares"]}
+            rows.append((f"{name} (batched shares)", batched, "world_steps_per_s", "world-steps/s"))
     rows += [(f"one tree{t['bodies']}, cut at its root", t, "ms_per_step", "ms/step") for t in results.get("split", [])]
     for name, t, key, unit in rows:
         lines.append(f"| {name} | {cells(t['by_threads'], key, unit)} | {t['bit_identical']} |")

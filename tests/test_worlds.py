@@ -193,24 +193,35 @@ def test_per_world_values_change_one_world_only():
     assert np.all(sim.linear_velocities() == 0.0) and sim.stopped == {}
 
 
-def test_threads_give_the_batched_run_and_stop_worlds_alone():
-    """Shares of two worlds and of one (3 worlds on 2 threads): the same run as one batched Simulator, bit for
-    bit; a failure in either kind of share stops that world only, by its index in the whole model."""
+# Shares of the ThreadedSimulator: batched ones (the parallel schedule asked: two worlds and one on 2 threads)
+# and one-world fused ones (each world a share, n steps a launch), with how each is stepped n times.
+SHARES = {
+    "batched": ({"schedule": "parallel"}, lambda sim, n: [sim.step() for _ in range(n)]),
+    "fused": ({}, lambda sim, n: sim.step(n)),
+}
+
+
+@pytest.mark.parametrize("shares", SHARES)
+def test_threads_give_the_batched_run_and_stop_worlds_alone(shares):
+    """Shares of two worlds and of one (3 worlds on 2 threads), or of one world each: the same run as one batched
+    Simulator, bit for bit; a failure in any kind of share stops that world only, by its index in the whole
+    model."""
     from warpimpulse.threads import ThreadedSimulator
 
+    settings, steps = SHARES[shares]
     mass, force, spin = worlds_setup()
     force[1, 6] = force[2, 6] = (0.0, 0.0, 1e13)  # world 1 in the two-world share, world 2 alone in its share
     with pytest.warns(RuntimeWarning, match="the world stops"):
         ref, _ = batched(5, mass, force, spin, max_iterations=10)
     with ThreadedSimulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, threads=2,
-                           max_iterations=10) as sim:  # fmt: skip
-        assert [p.model.world_count for p in sim.parts] == [2, 1]
+                           max_iterations=10, **settings) as sim:  # fmt: skip
+        assert sim.fused_shares == (shares == "fused")
+        assert [p.model.world_count for p in sim.parts] == ([2, 1] if shares == "batched" else [1, 1, 1])
         sim.set_masses(mass=mass)
         sim.set_external_forces(force=force)
         sim.set_state(angular_velocities=spin)
         with pytest.warns(RuntimeWarning, match="world 2: step 1"):
-            for _ in range(5):
-                sim.step()
+            steps(sim, 5)
         assert sorted(sim.stopped) == [1, 2] and sim.stopped[1].startswith("world 1: ")
         for a, b in zip(state_of(ref), state_of(sim)):
             assert np.array_equal(a, b)
@@ -226,21 +237,24 @@ def test_a_batched_run_records_every_world(tmp_path):
     assert np.allclose(anim.positions[-1], sim.positions().reshape(-1, 3))
 
 
-def test_threads_with_split_steps_give_the_batched_run():
-    """Worlds whose steps split into substeps, in a two-world share (alone, after the threads) and in a one-world
-    share (on its thread, with every substep size recorded beforehand)."""
+@pytest.mark.parametrize("shares", SHARES)
+def test_threads_with_split_steps_give_the_batched_run(shares):
+    """Worlds whose steps split into substeps, in a two-world share (alone, after the threads), in a one-world
+    share (on its thread, with every substep size recorded beforehand) or in fused one-world shares (the fused
+    launch hands the step to the parallel schedule)."""
     from warpimpulse.threads import ThreadedSimulator
 
+    settings, steps = SHARES[shares]
     mass, force, spin = worlds_setup()
     spin[0, 6] = spin[2, 6] = (0.0, 0.0, 200.0)
     ref, ref_stats = batched(4, mass, force, spin)
     assert ref_stats[-1].substeps[0] > 1 and ref_stats[-1].substeps[2] > 1
-    with ThreadedSimulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, threads=2) as sim:
+    model = wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize()
+    with ThreadedSimulator(model, DT, threads=2, **settings) as sim:
         sim.set_masses(mass=mass)
         sim.set_external_forces(force=force)
         sim.set_state(angular_velocities=spin)
-        for _ in range(4):
-            sim.step()
+        steps(sim, 4)
         for a, b in zip(state_of(ref), state_of(sim)):
             assert np.array_equal(a, b)
         assert np.array_equal(sim.world_stats.substeps, ref_stats[-1].substeps)
@@ -307,17 +321,71 @@ def test_a_stopped_world_keeps_its_motor_integral():
     assert np.array_equal(after[2:], before[2:]) and not np.array_equal(after[:2], before[:2])
 
 
-def test_threads_share_worlds_with_a_motor_and_springs():
+@pytest.mark.parametrize("shares", SHARES)
+def test_threads_share_worlds_with_a_motor_and_springs(shares):
     """Shares of worlds with springs and motors (`Model.worlds` takes their rows): the batched run."""
     from warpimpulse.threads import ThreadedSimulator
 
+    settings, steps = SHARES[shares]
     model = mechanism_scene().replicate(3).finalize()
     ref = Simulator(model, DT)
+    with ThreadedSimulator(model, DT, threads=2, **settings) as sim:
+        batched_shares = shares == "batched"
+        assert [p.model.spring_count for p in sim.parts] == ([2, 1] if batched_shares else [1, 1, 1])
+        firsts = [0, 2] if batched_shares else [0, 1, 2]
+        assert [p.model.drive_name[0] for p in sim.parts] == [f"world{w}/j0.motor" for w in firsts]
+        ref.step(20)
+        steps(sim, 20)
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)
+
+
+def test_a_world_failing_inside_a_fused_launch_stops_at_the_start_of_its_step():
+    """A world whose step 23 fails (a torque spins it up; no halving allowed), inside one call of 30 steps on
+    fused one-world shares: it stops at its state of the start of step 23, as in the batched run, and the
+    others run all 30 steps, bit for bit."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    settings = {"max_iterations": 10, "max_substep_depth": 0}
+    model = wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize()
+    torque = np.zeros((WORLDS, BODIES, 3))
+    torque[1, 6] = (0.0, 0.0, 100.0)
+    ref = Simulator(model, DT, **settings)
+    ref.set_external_forces(torque=torque)
+    with pytest.warns(RuntimeWarning, match="world 1: step 23 "):
+        ref.step(30)
+    with ThreadedSimulator(model, DT, threads=2, **settings) as sim:
+        assert sim.fused_shares
+        sim.set_external_forces(torque=torque)
+        with pytest.warns(RuntimeWarning, match="world 1: step 23 "):
+            stats = sim.step(30)
+        assert not stats.converged and sim.step_count == 30 and sim.time == ref.time
+        assert sim.stopped == ref.stopped
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)
+        assert not sim.world_stats.converged[1] and sim.world_stats.converged[[0, 2]].all()
+        assert np.array_equal(sim.world_stats.joint_iterations, ref.world_stats.joint_iterations)
+        sim.step(2)  # the stopped world stays, the others go on
+        ref.step(2)
+        for a, b in zip(state_of(ref), state_of(sim)):
+            assert np.array_equal(a, b)
+
+
+def test_threads_simulate_on_fused_shares_gives_the_batched_run_step_by_step():
+    """`simulate` over more steps than a fused launch takes (256): the batched run's states and per-step stats."""
+    from warpimpulse.threads import ThreadedSimulator
+
+    mass, force, spin = worlds_setup()
+    model = wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize()
+    ref = Simulator(model, DT)
     with ThreadedSimulator(model, DT, threads=2) as sim:
-        assert [p.model.spring_count for p in sim.parts] == [2, 1]
-        assert [p.model.drive_name[0] for p in sim.parts] == ["world0/j0.motor", "world2/j0.motor"]
-        for _ in range(20):
-            ref.step()
-            sim.step()
+        for s in (ref, sim):
+            s.set_masses(mass=mass)
+            s.set_external_forces(force=force)
+            s.set_state(angular_velocities=spin)
+        expected, got = ref.simulate(300 * DT), sim.simulate(300 * DT)
+        assert sim.fused_shares and len(got) == 300 and sim.step_count == 300
+        assert [s.joint_iterations for s in got] == [s.joint_iterations for s in expected]
+        assert [s.max_joint_error for s in got] == [s.max_joint_error for s in expected]
         for a, b in zip(state_of(ref), state_of(sim)):
             assert np.array_equal(a, b)
