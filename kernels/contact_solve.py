@@ -420,6 +420,21 @@ def inverse_inertia(b: int, inv_inertia_world: wp.array(dtype=mat33d)) -> mat33d
 
 
 @wp.func
+def pair_inverses(a: int, b: int, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=mat33d)):
+    """(1/m_a, 1/m_b, I_a^-1, I_b^-1) of a contact's two bodies (world frame; zeros for the world, index < 0)."""
+    return (body_inv_mass_of(a, body_inv_mass), body_inv_mass_of(b, body_inv_mass),
+            inverse_inertia(a, inv_inertia_world), inverse_inertia(b, inv_inertia_world))  # fmt: skip
+
+
+@wp.func
+def impulse_vector(n: vec3d, lam: vec3d) -> vec3d:
+    """The world impulse of a contact's (normal, tangent 1, tangent 2) components; the tangents are
+    `collide.any_perpendicular(n)` and n x it, as the solves use them."""
+    t1 = collide.any_perpendicular(n)
+    return n * lam[0] + t1 * lam[1] + wp.cross(n, t1) * lam[2]
+
+
+@wp.func
 def apply_impulse(
     b: int,
     p: vec3d,
@@ -628,11 +643,9 @@ def warm_positions(
         n = contact_normal[k]
         lam = contact_warm[k]
         contact_impulse_out[k] = lam
-        t1 = collide.any_perpendicular(n)
-        p = n * lam[0] + t1 * lam[1] + wp.cross(n, t1) * lam[2]
-        apply_pair(a, b, p, contact_arm_a[k], contact_arm_b[k], body_inv_mass_of(a, body_inv_mass),
-                   body_inv_mass_of(b, body_inv_mass), inverse_inertia(a, inv_inertia_world_in),
-                   inverse_inertia(b, inv_inertia_world_in), body_v_out, body_w_out)  # fmt: skip
+        ima, imb, ia, ib = pair_inverses(a, b, body_inv_mass, inv_inertia_world_in)
+        apply_pair(a, b, impulse_vector(n, lam), contact_arm_a[k], contact_arm_b[k], ima, imb, ia, ib, body_v_out,
+                   body_w_out)  # fmt: skip
 
 
 @wp.func
@@ -677,10 +690,7 @@ def contact_masses(
     """(n . K n, the largest eigenvalue of K on the tangent plane): the relative point velocity from a unit
     impulse along the normal, and the most from a unit tangential one (K: the contact's mass matrix). Fixed
     while a solve sweeps, so computed once per solve."""
-    ima = body_inv_mass_of(a, body_inv_mass)
-    imb = body_inv_mass_of(b, body_inv_mass)
-    ia = inverse_inertia(a, inv_inertia_world)
-    ib = inverse_inertia(b, inv_inertia_world)
+    ima, imb, ia, ib = pair_inverses(a, b, body_inv_mass, inv_inertia_world)
     t1 = collide.any_perpendicular(n)
     t2 = wp.cross(n, t1)
     k11 = response(t1, t1, ra, rb, ima, imb, ia, ib)
@@ -835,10 +845,7 @@ def solve_positions(
             n = contact_normal[k]
             ra = contact_arm_a[k]
             rb = contact_arm_b[k]
-            ima = body_inv_mass_of(a, body_inv_mass)
-            imb = body_inv_mass_of(b, body_inv_mass)
-            ia = inverse_inertia(a, inv_inertia_world_in)
-            ib = inverse_inertia(b, inv_inertia_world_in)
+            ima, imb, ia, ib = pair_inverses(a, b, body_inv_mass, inv_inertia_world_in)
             lam = contact_impulse_out[k]
             du = relative_velocity(a, b, ra, rb, body_v_out, body_w_out) - contact_u0[k]
             gap = contact_gap[k] + h * wp.dot(n, du) + slop
@@ -933,14 +940,8 @@ def solve_velocities(
             if contact_match[k] >= 0:
                 lam = contact_warm_velocity[k]
             contact_velocity_impulse_out[k] = lam
-            n = contact_normal[k]
-            t1 = collide.any_perpendicular(n)
-            p = n * lam[0] + t1 * lam[1] + wp.cross(n, t1) * lam[2]
-            ib = inverse_inertia(b, inv_inertia_world_in)
-            ia = inverse_inertia(a, inv_inertia_world_in)
-            ima = body_inv_mass_of(a, body_inv_mass)
-            imb = body_inv_mass_of(b, body_inv_mass)
-            apply_pair(a, b, p, ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
+            ima, imb, ia, ib = pair_inverses(a, b, body_inv_mass, inv_inertia_world_in)
+            apply_pair(a, b, impulse_vector(contact_normal[k], lam), ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
     if first != 0:  # the approach speeds once the position phase's impulses are all applied
         for k in range(count):
             u = relative_velocity(contact_body[k][0], contact_body[k][1], contact_arm_a_out[k], contact_arm_b_out[k],
@@ -959,10 +960,7 @@ def solve_velocities(
             n = contact_normal[k]
             ra = contact_arm_a_out[k]
             rb = contact_arm_b_out[k]
-            ima = body_inv_mass_of(a, body_inv_mass)
-            imb = body_inv_mass_of(b, body_inv_mass)
-            ia = inverse_inertia(a, inv_inertia_world_in)
-            ib = inverse_inertia(b, inv_inertia_world_in)
+            ima, imb, ia, ib = pair_inverses(a, b, body_inv_mass, inv_inertia_world_in)
             lam = contact_velocity_impulse_out[k]
             # Apart by g > 0: may close it over the next step, not more (a speculative contact), unless it is an
             # impact of the next step.
