@@ -79,13 +79,18 @@ def record(
     return wp.launch(kernel, dim=dim, inputs=inputs, device=device, record_cmd=True)
 
 
+def run(*work: Work) -> None:
+    """Each item of work in turn: a launch is launched, anything else (an array copy, a nested loop) called."""
+    for item in work:
+        item.launch() if isinstance(item, (wp.Launch, Nothing, Launches)) else item()
+
+
 def capture(device, *work: Work) -> wp.Graph:
     """Launches (or array copies) that always run together, replayed as one captured graph: on a CPU about
     0.3 us a launch against 3-5 us for a recorded one (docs/architecture.md, "Measured facts")."""
     wp.capture_begin(device=device)
     try:
-        for item in work:
-            item.launch() if isinstance(item, (wp.Launch, Nothing, Launches)) else item()
+        run(*work)
     finally:
         graph = wp.capture_end(device=device)
     return graph

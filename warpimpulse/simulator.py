@@ -25,10 +25,11 @@ from .kernels import forces as force_kernels
 from .kernels import impulses as impulse_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import limits as limit_kernels
+from .kernels import loop as loop_kernels
 from .kernels import rigid as rigid_kernels
 from .kernels import step as step_kernels
 from .kernels import worlds as world_kernels
-from .launch import Launches, capture, record
+from .launch import Launches, capture, record, run
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
 from .steps import SimulationError, StepStats
@@ -258,6 +259,9 @@ class Simulator:
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
+        # The joint-correction loop's record and its go-on flag, decided on the device (`kernels/loop.py`).
+        self.loop_state = wp.zeros(loop_kernels.LOOP_WIDTH, dtype=wp.float64, device=d)
+        self.loop_go = wp.zeros(1, dtype=wp.int32, device=d)
         self._fingerprint = diagnose.fingerprint(model)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
@@ -306,14 +310,16 @@ class Simulator:
         frames = [self._inertia, self._frames, *prepare, *self._limit_system_launches()]
         self._frames_graph = self._capture(*frames)
         # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
-        self._accept_graph = self._capture(lambda: self.state.copy_from(self.pred), *frames)
+        self._accept_work = (lambda: self.state.copy_from(self.pred), *frames)
+        self._accept_graph = self._capture(*self._accept_work)
         self._save_velocities = self._capture(
             lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w), self.limit_impulse.zero_
         )
         self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
         if self._direct:
             solve = self.linear.solve_launches(self.rhs, self.impulse)
-            self._velocity_fix = self._capture(*self._mask, *solve, self._apply, self._velocity_errors)
+            self._velocity_fix_work = (*self._mask, *solve, self._apply, self._velocity_errors)
+            self._velocity_fix = self._capture(*self._velocity_fix_work)
         self._use_step_size(self.dt)
 
     def _limit_system_launches(self) -> list:
@@ -356,15 +362,44 @@ class Simulator:
                              h=h, body_v=s.body_v, body_w=s.body_w)
                 for v in (0, 1)
             )  # fmt: skip
-            iterate = None
+            iterate = correct = finish = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iterate = self._capture(*self._mask, *solve, self._apply, correct_limits, predict, *measure)
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate, integrate,
-                                      correct_limits, correct_limit_velocities)  # fmt: skip
+                iteration = (*self._mask, *solve, self._apply, correct_limits, predict, *measure)
+                iterate = self._capture(*iteration)
+                if self.batch is None:  # the loops as graphs (batched worlds decide per world, `worlds.py`)
+                    errors_of = (self.errors, self.limit_error)
+                    correct = self._capture_loop((predict, *measure), iteration, errors_of, self.tolerance,
+                                                 self.max_iterations)  # fmt: skip
+                    split = getattr(self.linear.pattern, "formulation", "") == "split"
+                    if not self.model.limit_count and not split:  # one exact solve of J v = 0, if needed
+                        first = (*self._accept_work, integrate, self._velocity_errors)
+                        finish = self._capture_loop(first, self._velocity_fix_work, errors_of[:1],
+                                                    self.velocity_tolerance, 1)  # fmt: skip
+            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate, correct,
+                                      finish, integrate, correct_limits, correct_limit_velocities)  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
-         self._integrate_drives, self._correct_limits,
+         self._correct, self._finish, self._integrate_drives, self._correct_limits,
          self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
+
+    def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int) -> wp.Graph:
+        """A correction loop as one graph (`kernels/loop.py`): the work `first` (which measures), then
+        `iteration` (which measures again) while the largest of the `errors` is over `tolerance` and the policy
+        allows (at most `limit` iterations), decided on the device; the host reads one record after it
+        (`_loop_record`)."""
+        decide = [
+            *(self._record(loop_kernels.loop_reduce, e.shape[0], errors=e) for e in errors),
+            self._record(loop_kernels.loop_decide, 1, tolerance=tolerance, max_iterations=limit),
+        ]
+        start = self._record(loop_kernels.loop_start, 1)
+        body = (*iteration, *decide)
+        return self._capture(start, *first, *decide, lambda: wp.capture_while(self.loop_go, lambda: run(*body)))
+
+    def _loop_record(self) -> tuple[float, float, int]:
+        """(largest error, best error, iterations) of the loop graph just replayed."""
+        record = self.loop_state.numpy()
+        last, best = float(record[loop_kernels.LOOP_LAST]), float(record[loop_kernels.LOOP_BEST])
+        return last, best, int(record[loop_kernels.LOOP_ITERATIONS])
 
     def _coupled_prediction(self, h: float) -> Launches:
         """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""
@@ -784,6 +819,14 @@ class Simulator:
                 ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
             return StepStats(joint_it, 0, joint_err, math.inf, False, linear_iterations, 1), False
+        if self._finish is not None:  # accept, factor and correct the velocities by one graph
+            wp.capture_launch(self._finish)
+            self.linear.check()  # a lost pivot raises here, before the corrected velocities are used
+            vel_err, _, vel_it = self._loop_record()
+            if not math.isfinite(vel_err):
+                self._max_error("velocity")  # raises, naming the bodies with a NaN or Inf
+            linear_iterations += vel_it
+            return self._finish_step(StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1), h)
         wp.capture_launch(self._accept_graph)
         if self.linear is not None:
             self.linear.check()
@@ -809,11 +852,16 @@ class Simulator:
                 linear_iterations += self._fix_velocities()
                 vel_it += 1
                 vel_err = self._max_error("velocity")
+        return self._finish_step(StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1), h)
+
+    def _finish_step(self, stats: StepStats, h: float) -> tuple[StepStats, bool]:
+        """The end of an accepted base step of h: the velocity correction's outcome under the iteration policy,
+        the contacts' velocity phase, and whether everything converged."""
+        vel_err = stats.max_velocity_error
         if vel_err > self.velocity_tolerance and self.linear is not None:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
             # ill-conditioned K) is reported under the same policy as an iteration limit.
             self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
-        stats = StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1)
         if self.contact_stage is not None:
             self._contact_velocities(h, stats)
         stats.converged = (
@@ -859,6 +907,8 @@ class Simulator:
             wp.capture_launch(self._evaluate)
             err = self._max_error("joint")
             return sweeps, err, 0, err <= self.tolerance or final
+        if self._correct is not None:
+            return self._correct_on_device(final)
         iterations, linear_iterations, best = 0, 0, math.inf
         wp.capture_launch(self._evaluate)
         while True:
@@ -878,6 +928,18 @@ class Simulator:
                 self._correct_limits.launch()
                 wp.capture_launch(self._evaluate)
             iterations += 1
+
+    def _correct_on_device(self, final: bool) -> tuple[int, float, int, bool]:
+        """`_correct_joints` by the loop graph (`_capture_loop`): the same launches in the same order, the loop
+        decided on the device; the host reads its record and applies the iteration policy's outcome."""
+        wp.capture_launch(self._correct)
+        err, best, iterations = self._loop_record()
+        if not math.isfinite(err):
+            self._max_error("joint")  # raises, naming the bodies with a NaN or Inf
+        if err <= self.tolerance:
+            return iterations, err, iterations, True
+        self._may_iterate(iterations, err, "joint", best, final)  # stopped: on the final try raise or warn
+        return iterations, err, iterations, final
 
     def _joint_iteration(self) -> int:
         """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns
