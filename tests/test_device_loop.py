@@ -14,10 +14,9 @@ from warpimpulse.steps import SimulationError
 
 
 def _host_loop(sim: wi.Simulator) -> None:
-    """Make `sim` decide its loops on the host again (the replaced code path, kept for batched worlds)."""
-    for h, launches in sim._launches_by_h.items():
-        sim._launches_by_h[h] = (*launches[:5], None, None, *launches[7:])
-    sim._use_step_size(sim.dt)
+    """Make `sim` decide its loops on the host (the path the fused schedule's rare parallel steps and batched
+    worlds keep)."""
+    sim._device_loops = lambda: None
 
 
 def _limited_chain() -> wi.SceneBuilder:

@@ -256,6 +256,7 @@ class Simulator:
             self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
             self.batch = Batch(self)
         self._launches_by_h: dict[float, tuple] = {}
+        self._loops_by_h: dict[float, tuple] = {}  # the parallel schedule's device-decided loops (`_device_loops`)
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
@@ -362,25 +363,37 @@ class Simulator:
                              h=h, body_v=s.body_v, body_w=s.body_w)
                 for v in (0, 1)
             )  # fmt: skip
-            iterate = correct = finish = None
+            iterate = iteration = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
                 iteration = (*self._mask, *solve, self._apply, correct_limits, predict, *measure)
                 iterate = self._capture(*iteration)
-                if self.batch is None:  # the loops as graphs (batched worlds decide per world, `worlds.py`)
-                    errors_of = (self.errors, self.limit_error)
-                    correct = self._capture_loop((predict, *measure), iteration, errors_of, self.tolerance,
-                                                 self.max_iterations)  # fmt: skip
-                    split = getattr(self.linear.pattern, "formulation", "") == "split"
-                    if not self.model.limit_count and not split:  # one exact solve of J v = 0, if needed
-                        first = (*self._accept_work, integrate, self._velocity_errors)
-                        finish = self._capture_loop(first, self._velocity_fix_work, errors_of[:1],
-                                                    self.velocity_tolerance, 1)  # fmt: skip
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate, correct,
-                                      finish, integrate, correct_limits, correct_limit_velocities)  # fmt: skip
+            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
+                                      ((predict, *measure), iteration), integrate, correct_limits,
+                                      correct_limit_velocities)  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
-         self._correct, self._finish, self._integrate_drives, self._correct_limits,
+         self._loop_work, self._integrate_drives, self._correct_limits,
          self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
+        self._h = h
+
+    def _device_loops(self) -> tuple[wp.Graph, wp.Graph | None] | None:
+        """The parallel schedule's loops at the current step size as graphs decided on the device (captured
+        once per step size): the joint correction, and accepting the prediction with its factor and velocity
+        correction (None with limits or split systems, whose velocity rows the host sequences). None where the
+        host keeps its loops: other solvers, batched worlds (`worlds.py` decides per world), and the fused
+        schedule's rare parallel steps (a fused share must find nothing to capture when threads step it)."""
+        if not self._direct or self.batch is not None or self.schedule != "parallel":
+            return None
+        if self._h not in self._loops_by_h:
+            first, iteration = self._loop_work
+            errors = (self.errors, self.limit_error)
+            correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations)
+            finish = None
+            if not self.model.limit_count and getattr(self.linear.pattern, "formulation", "") != "split":
+                first = (*self._accept_work, self._integrate_drives, self._velocity_errors)
+                finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance, 1)
+            self._loops_by_h[self._h] = (correct, finish)
+        return self._loops_by_h[self._h]
 
     def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int) -> wp.Graph:
         """A correction loop as one graph (`kernels/loop.py`): the work `first` (which measures), then
@@ -423,6 +436,7 @@ class Simulator:
         process, so threads that step simulators at once (`threads.py`) must find nothing left to capture."""
         for k in range(self.max_substep_depth + 1):
             self._use_step_size(self.dt / 2**k)
+            self._device_loops()
         self._use_step_size(self.dt)
         if self.schedule == "fused":  # and the fused kernel's launch (a one-world share steps by it)
             self._fused_launch(self.dt)
@@ -819,8 +833,9 @@ class Simulator:
                 ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
             return StepStats(joint_it, 0, joint_err, math.inf, False, linear_iterations, 1), False
-        if self._finish is not None:  # accept, factor and correct the velocities by one graph
-            wp.capture_launch(self._finish)
+        finish = (self._device_loops() or (None, None))[1]
+        if finish is not None:  # accept, factor and correct the velocities by one graph
+            wp.capture_launch(finish)
             self.linear.check()  # a lost pivot raises here, before the corrected velocities are used
             vel_err, _, vel_it = self._loop_record()
             if not math.isfinite(vel_err):
@@ -907,8 +922,9 @@ class Simulator:
             wp.capture_launch(self._evaluate)
             err = self._max_error("joint")
             return sweeps, err, 0, err <= self.tolerance or final
-        if self._correct is not None:
-            return self._correct_on_device(final)
+        loops = self._device_loops()
+        if loops is not None:
+            return self._correct_on_device(loops[0], final)
         iterations, linear_iterations, best = 0, 0, math.inf
         wp.capture_launch(self._evaluate)
         while True:
@@ -929,10 +945,10 @@ class Simulator:
                 wp.capture_launch(self._evaluate)
             iterations += 1
 
-    def _correct_on_device(self, final: bool) -> tuple[int, float, int, bool]:
-        """`_correct_joints` by the loop graph (`_capture_loop`): the same launches in the same order, the loop
+    def _correct_on_device(self, loop: wp.Graph, final: bool) -> tuple[int, float, int, bool]:
+        """`_correct_joints` by the loop graph (`_device_loops`): the same launches in the same order, the loop
         decided on the device; the host reads its record and applies the iteration policy's outcome."""
-        wp.capture_launch(self._correct)
+        wp.capture_launch(loop)
         err, best, iterations = self._loop_record()
         if not math.isfinite(err):
             self._max_error("joint")  # raises, naming the bodies with a NaN or Inf
