@@ -14,8 +14,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/warpimpulse simulate --scene tree127 --duration 10 --fps 30  # -> out/tree127.usdc
 
+# The suite on the default schedule (fused on a CPU), then on the parallel schedule, what a GPU runs (the tests
+# of the fused schedule itself are skipped there).
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" tests
+	$(PY) -m pytest -q -m "not slow" tests --schedule parallel
 
 # Break the engine on purpose, one curated mutation at a time (tests/mutants/mutations.toml), and list the
 # mutations the fast suite does not notice. Minutes per mutation; not part of `make test`.

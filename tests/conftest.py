@@ -2,8 +2,43 @@
 engine's state), reference.py (reduced-coordinate and free-body references), rigs.py (random joint rigs) and
 cli_helpers.py (running the command line); tests import those, never each other."""
 
+import pytest
 import warp as wp
+
+import warpimpulse as wi
 
 wp.config.quiet = True
 # Warp 1.19 no longer reads `config.quiet`; its start-up and module-load messages are info-level logs.
 wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--schedule",
+        default="auto",
+        choices=("auto", "fused", "parallel"),
+        help="the schedule a Simulator built with schedule='auto' runs (`make test-parallel`: the whole suite on "
+        "the parallel schedule, what a GPU runs)",
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    if config.getoption("--schedule") == "parallel":
+        skip = pytest.mark.skip(reason="a test of the fused schedule itself")
+        for item in items:
+            if "fused" in item.keywords:
+                item.add_marker(skip)
+
+
+@pytest.fixture(autouse=True)
+def _default_schedule(request, monkeypatch):
+    """With --schedule, every Simulator the tests build without naming a schedule runs that one."""
+    chosen = request.config.getoption("--schedule")
+    if chosen == "auto":
+        return
+    init = wi.Simulator.__init__
+
+    def built_with(self, *args, schedule: str = "auto", **settings):
+        init(self, *args, schedule=chosen if schedule == "auto" else schedule, **settings)
+
+    monkeypatch.setattr(wi.Simulator, "__init__", built_with)

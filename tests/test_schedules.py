@@ -197,6 +197,7 @@ def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
     return counts
 
 
+@pytest.mark.fused
 def test_a_batch_of_steps_is_one_launch(monkeypatch):
     """tree31's start torque ends at t = 1 s: 90 steps of 1/60 are two launches (before and after), no step
     goes to the host; a spin that needs splitting goes to the parallel schedule."""
@@ -225,6 +226,7 @@ def test_step_n_is_n_steps():
             a.step(bad)
 
 
+@pytest.mark.fused
 def test_schedule_choice():
     model = scenes.chain(3).finalize()
     assert wi.Simulator(model, 1 / 60).schedule == "fused"  # auto, on a CPU
@@ -320,6 +322,7 @@ def test_the_readme_step_time_block_is_the_committed_json():
     assert block.strip() == breakdown.table(result).strip()
 
 
+@pytest.mark.fused
 @pytest.mark.parametrize("order", [2, 4, 6])
 def test_order_and_fall_back_under_the_fused_schedule(order, monkeypatch):
     """Composed steps (order 4, 6) run by the fused schedule, a batch a launch; a step recorded with fall_back()

@@ -10,6 +10,8 @@ import warpimpulse as wi
 from warpimpulse.simulator import Simulator
 from warpimpulse.split import SEPARATOR, CutError, SplitSimulator, cut
 
+pytestmark = pytest.mark.fused  # the split runs the fused step's stages
+
 DT = 1.0 / 60.0
 
 

@@ -201,6 +201,7 @@ SHARES = {
 }
 
 
+@pytest.mark.fused
 @pytest.mark.parametrize("shares", SHARES)
 def test_threads_give_the_batched_run_and_stop_worlds_alone(shares):
     """Shares of two worlds and of one (3 worlds on 2 threads), or of one world each: the same run as one batched
@@ -321,6 +322,7 @@ def test_a_stopped_world_keeps_its_motor_integral():
     assert np.array_equal(after[2:], before[2:]) and not np.array_equal(after[:2], before[:2])
 
 
+@pytest.mark.fused
 @pytest.mark.parametrize("shares", SHARES)
 def test_threads_share_worlds_with_a_motor_and_springs(shares):
     """Shares of worlds with springs and motors (`Model.worlds` takes their rows): the batched run."""
@@ -340,6 +342,7 @@ def test_threads_share_worlds_with_a_motor_and_springs(shares):
             assert np.array_equal(a, b)
 
 
+@pytest.mark.fused
 def test_a_world_failing_inside_a_fused_launch_stops_at_the_start_of_its_step():
     """A world whose step 23 fails (a torque spins it up; no halving allowed), inside one call of 30 steps on
     fused one-world shares: it stops at its state of the start of step 23, as in the batched run, and the
@@ -371,6 +374,7 @@ def test_a_world_failing_inside_a_fused_launch_stops_at_the_start_of_its_step():
             assert np.array_equal(a, b)
 
 
+@pytest.mark.fused
 def test_threads_simulate_on_fused_shares_gives_the_batched_run_step_by_step():
     """`simulate` over more steps than a fused launch takes (256): the batched run's states and per-step stats."""
     from warpimpulse.threads import ThreadedSimulator
