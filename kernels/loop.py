@@ -48,6 +48,17 @@ def loop_reduce(
         loop_state[LOOP_BAD] = f64(1.0)
 
 
+@wp.func
+def verdict(err: f64, best: f64, iterations: int, tolerance: f64, max_iterations: int):
+    """(go on, failed) of a correction whose last error is err after `iterations` (best: the smallest error so
+    far, err included): go on while over the tolerance, under the iteration limit and not diverging (the error
+    1000-fold over the best after three iterations); failed when it must stop over the tolerance."""
+    over = not (err <= tolerance)
+    diverging = iterations >= 3 and err > f64(1.0e3) * best
+    failed = over and (not wp.isfinite(err) or iterations >= max_iterations or diverging)
+    return over and not failed, failed
+
+
 @wp.kernel
 def loop_decide(
     tolerance: f64,
@@ -66,10 +77,77 @@ def loop_decide(
     best = wp.min(loop_state[LOOP_BEST], err)
     loop_state[LOOP_BEST] = best
     iterations = int(loop_state[LOOP_ITERATIONS])
-    diverging = iterations >= 3 and err > f64(1.0e3) * best
-    go = wp.isfinite(err) and err > tolerance and iterations < max_iterations and not diverging
+    go, failed = verdict(err, best, iterations, tolerance, max_iterations)
     if go:
         loop_state[LOOP_ITERATIONS] = f64(iterations + 1)
         loop_go[0] = 1
     else:
         loop_go[0] = 0
+
+
+@wp.kernel
+def worlds_start(
+    # Data out:
+    world_loop_out: wp.array2d(dtype=f64),
+):
+    """A new loop for every world (batched worlds, `worlds.Batch`): the columns of `world_loop` are those of
+    `loop_state`."""
+    w = wp.tid()
+    world_loop_out[w, LOOP_ERROR] = f64(0.0)
+    world_loop_out[w, LOOP_LAST] = f64(0.0)
+    world_loop_out[w, LOOP_BEST] = f64(wp.inf)
+    world_loop_out[w, LOOP_ITERATIONS] = f64(0.0)
+    world_loop_out[w, LOOP_BAD] = f64(0.0)
+
+
+@wp.kernel
+def worlds_reduce(
+    # Model:
+    constraint_world: wp.array(dtype=int),
+    # Data in:
+    errors: wp.array(dtype=f64),
+    # Data out:
+    world_loop_out: wp.array2d(dtype=f64),
+):
+    """Each world's largest error (`loop_reduce` per world)."""
+    c = wp.tid()
+    w = constraint_world[c]
+    e = errors[c]
+    if wp.isfinite(e):
+        wp.atomic_max(world_loop_out, w, LOOP_ERROR, e)
+    else:
+        world_loop_out[w, LOOP_BAD] = f64(1.0)
+
+
+@wp.kernel
+def worlds_decide(
+    tolerance: f64,
+    max_iterations: int,
+    # Data out:
+    world_loop_out: wp.array2d(dtype=f64),
+    world_batch_out: wp.array(dtype=wp.int32),
+    world_active_out: wp.array(dtype=int),
+    loop_go_out: wp.array(dtype=wp.int32),
+):
+    """Per world of the batch: go on (`world_active`, which masks the next solve's right-hand sides), or leave
+    the batch when it failed (the host steps it alone). loop_go (zeroed before) becomes 1 when any goes on."""
+    w = wp.tid()
+    err = world_loop_out[w, LOOP_ERROR]
+    if world_loop_out[w, LOOP_BAD] != f64(0.0):
+        err = f64(wp.nan)
+    world_loop_out[w, LOOP_LAST] = err
+    world_loop_out[w, LOOP_ERROR] = f64(0.0)
+    world_loop_out[w, LOOP_BAD] = f64(0.0)
+    best = wp.min(world_loop_out[w, LOOP_BEST], err)
+    world_loop_out[w, LOOP_BEST] = best
+    iterations = int(world_loop_out[w, LOOP_ITERATIONS])
+    go, failed = verdict(err, best, iterations, tolerance, max_iterations)
+    active = 0
+    if world_batch_out[w] != 0:
+        if failed:
+            world_batch_out[w] = 0
+        elif go:
+            active = 1
+            world_loop_out[w, LOOP_ITERATIONS] = f64(iterations + 1)
+            wp.atomic_max(loop_go_out, 0, 1)
+    world_active_out[w] = active

@@ -83,3 +83,19 @@ def test_device_loop_stops_at_the_iteration_limit_and_names_the_joints():
         messages.append(str(failure.value))
     assert "did not reach 1e-12 in 2 iterations" in messages[0]
     assert messages[0] == messages[1]
+
+
+def test_batched_worlds_decide_their_loops_on_the_device(monkeypatch):
+    """Batched worlds iterate each world on the device until its own tolerance (`worlds.Batch.device_loop`):
+    the host reads per-world errors only for the velocity correction, not once an iteration."""
+    from warpimpulse.worlds import Batch
+
+    sim = wi.Simulator(scenes.chain(10).replicate(4).finalize("cpu"), 1 / 60, tolerance=1e-6)
+    sim.step(3)
+    reads = []
+    world_max = Batch.world_max
+    monkeypatch.setattr(Batch, "world_max", lambda self: reads.append(1) or world_max(self))
+    stats = [sim.step() for _ in range(10)]
+    assert sum(s.joint_iterations for s in stats) >= 20
+    assert len(reads) <= 2 * len(stats)
+    assert all(s.converged for s in stats)

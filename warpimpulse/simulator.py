@@ -437,6 +437,8 @@ class Simulator:
         for k in range(self.max_substep_depth + 1):
             self._use_step_size(self.dt / 2**k)
             self._device_loops()
+            if self.batch is not None:
+                self.batch.device_loop()
         self._use_step_size(self.dt)
         if self.schedule == "fused":  # and the fused kernel's launch (a one-world share steps by it)
             self._fused_launch(self.dt)

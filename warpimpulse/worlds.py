@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .kernels import loop as loop_kernels
+from .launch import run
 from .model import State
 from .solver import SingularSystemError
 from .steps import SimulationError, StepStats
@@ -73,6 +75,11 @@ class Batch:
         self._integral0 = np.zeros(m.drive_count)  # the drives' PID integrals at the start of the step
         self._drives = m.drive_count // self.count  # per world, world-major like the bodies
         self._solos: dict[int, object] = {}
+        # The correction loop decided on the device, per world (`kernels/loop.py`): each world's record (the
+        # columns of `loop_state`) and whether it is still in the batch; one graph a step size (`device_loop`).
+        self.world_loop = wp.zeros((self.count, loop_kernels.LOOP_WIDTH), dtype=wp.float64, device=m.device)
+        self.world_batch = wp.zeros(self.count, dtype=wp.int32, device=m.device)
+        self._loops_by_h: dict[float, wp.Graph] = {}
 
     # ---------------------------------------------------------------- per-world reductions
     def world_max(self) -> np.ndarray:
@@ -167,29 +174,41 @@ class Batch:
             bool(stats.converged[live].all()), int(stats.linear_iterations.max()), int(stats.substeps.max()),
         )  # fmt: skip
 
+    def device_loop(self) -> wp.Graph:
+        """The joint-correction loop of every world of the batch at the simulator's current step size, as one
+        graph decided on the device (captured once per step size; `Simulator.prepare_substeps` captures them
+        ahead for threads): predict and measure, then, while any world of the batch goes on, iterate the worlds
+        that do (`world_active` masks the others' right-hand sides); a world that fails leaves the batch."""
+        sim = self.sim
+        if sim._h not in self._loops_by_h:
+            first, iteration = sim._loop_work
+            decide = (
+                sim._record(loop_kernels.worlds_reduce, sim.model.constraint_count, errors=sim.errors,
+                            world_loop_out=self.world_loop),
+                sim.loop_go.zero_,
+                sim._record(loop_kernels.worlds_decide, self.count, tolerance=sim.tolerance,
+                            max_iterations=sim.max_iterations, world_loop_out=self.world_loop,
+                            world_batch_out=self.world_batch),
+            )  # fmt: skip
+            start = sim._record(loop_kernels.worlds_start, self.count, world_loop_out=self.world_loop)
+            body = (*iteration, *decide)
+            self._loops_by_h[sim._h] = sim._capture(
+                start, *first, *decide, lambda: wp.capture_while(sim.loop_go, lambda: run(*body))
+            )
+        return self._loops_by_h[sim._h]
+
     def _advance(self, h: float, depth: int, batch: np.ndarray, stats: WorldStats) -> None:
         """One substep of h for the worlds of `batch`; a world that fails leaves `batch` (frozen at the start
         of the step, to be stepped alone)."""
         sim = self.sim
         sim._use_step_size(h)
         final = depth >= sim.max_substep_depth
-        tolerance = sim.tolerance
-        iterations = np.zeros(self.count, np.int64)
-        best = np.full(self.count, np.inf)
-        wp.capture_launch(sim._evaluate)
-        while True:
-            err = self.world_max()
-            best = np.minimum(best, err)
-            pending = batch & ~(err <= tolerance)
-            diverging = (iterations >= 3) & (err > 1e3 * best)
-            failed = pending & (~np.isfinite(err) | (iterations >= sim.max_iterations) | diverging)
-            batch &= ~failed
-            active = pending & ~failed
-            if not active.any():
-                break
-            sim.world_active.assign(active.astype(np.int32))
-            wp.capture_launch(sim._iterate)
-            iterations += active
+        self.world_batch.assign(batch.astype(np.int32))
+        wp.capture_launch(self.device_loop())
+        record = self.world_loop.numpy()
+        err = record[:, loop_kernels.LOOP_LAST].copy()
+        iterations = record[:, loop_kernels.LOOP_ITERATIONS].astype(np.int64)
+        batch &= self.world_batch.numpy() != 0
         summary = self._read_summary(batch)  # of the last prediction of each world
         batch &= summary[:, 0] == 0
         if not final and sim.max_rotation is not None:
