@@ -261,8 +261,11 @@ class Simulator:
         self._w0 = wp.zeros_like(self.state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
         # The joint-correction loop's record and its go-on flag, decided on the device (`kernels/loop.py`).
-        self.loop_state = wp.zeros(loop_kernels.LOOP_WIDTH, dtype=wp.float64, device=d)
+        self.loop_state = wp.zeros((1, loop_kernels.LOOP_WIDTH), dtype=wp.float64, device=d)
+        self.loop_batch = wp.ones(1, dtype=wp.int32, device=d)  # the one world stays in its "batch"
+        self.loop_active = wp.zeros(1, dtype=wp.int32, device=d)
         self.loop_go = wp.zeros(1, dtype=wp.int32, device=d)
+        self._limit_world = wp.zeros(model.limit_count, dtype=wp.int32, device=d)  # one world's limits
         self._fingerprint = diagnose.fingerprint(model)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
@@ -386,7 +389,7 @@ class Simulator:
             return None
         if self._h not in self._loops_by_h:
             first, iteration = self._loop_work
-            errors = (self.errors, self.limit_error)
+            errors = ((self.errors, self.model.constraint_world), (self.limit_error, self._limit_world))
             correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations)
             finish = None
             if not self.model.limit_count and getattr(self.linear.pattern, "formulation", "") != "split":
@@ -395,22 +398,28 @@ class Simulator:
             self._loops_by_h[self._h] = (correct, finish)
         return self._loops_by_h[self._h]
 
-    def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int) -> wp.Graph:
+    def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int,
+                      **loop) -> wp.Graph:  # fmt: skip
         """A correction loop as one graph (`kernels/loop.py`): the work `first` (which measures), then
-        `iteration` (which measures again) while the largest of the `errors` is over `tolerance` and the policy
-        allows (at most `limit` iterations), decided on the device; the host reads one record after it
-        (`_loop_record`)."""
+        `iteration` (which measures again) while, in any world, the largest of the `errors` ((error array, the
+        world of each error) pairs) is over `tolerance` and the policy allows (at most `limit` iterations),
+        decided on the device; the host reads the records after it (`_loop_record`). `loop`: the per-world
+        records of batched worlds (`worlds.Batch`), else the one world's."""
+        worlds = self.model.world_count if loop else 1
         decide = [
-            *(self._record(loop_kernels.loop_reduce, e.shape[0], errors=e) for e in errors),
-            self._record(loop_kernels.loop_decide, 1, tolerance=tolerance, max_iterations=limit),
+            *(self._record(loop_kernels.loop_reduce, e.shape[0], errors=e, error_world=w, **loop) for e, w in errors),
+            self.loop_go.zero_,
+            self._record(loop_kernels.loop_decide, worlds, tolerance=tolerance, max_iterations=limit, **loop),
         ]
-        start = self._record(loop_kernels.loop_start, 1)
+        start = [self._record(loop_kernels.loop_start, worlds, **loop)]
+        if not loop:  # the one world starts in the loop (batched worlds: the host writes which)
+            start.append(lambda: self.loop_batch.fill_(1))
         body = (*iteration, *decide)
-        return self._capture(start, *first, *decide, lambda: wp.capture_while(self.loop_go, lambda: run(*body)))
+        return self._capture(*start, *first, *decide, lambda: wp.capture_while(self.loop_go, lambda: run(*body)))
 
     def _loop_record(self) -> tuple[float, float, int]:
-        """(largest error, best error, iterations) of the loop graph just replayed."""
-        record = self.loop_state.numpy()
+        """(largest error, best error, iterations) of the one-world loop graph just replayed."""
+        record = self.loop_state.numpy()[0]
         last, best = float(record[loop_kernels.LOOP_LAST]), float(record[loop_kernels.LOOP_BEST])
         return last, best, int(record[loop_kernels.LOOP_ITERATIONS])
 

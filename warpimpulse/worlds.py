@@ -28,7 +28,6 @@ import numpy as np
 import warp as wp
 
 from .kernels import loop as loop_kernels
-from .launch import run
 from .model import State
 from .solver import SingularSystemError
 from .steps import SimulationError, StepStats
@@ -182,19 +181,10 @@ class Batch:
         sim = self.sim
         if sim._h not in self._loops_by_h:
             first, iteration = sim._loop_work
-            decide = (
-                sim._record(loop_kernels.worlds_reduce, sim.model.constraint_count, errors=sim.errors,
-                            world_loop_out=self.world_loop),
-                sim.loop_go.zero_,
-                sim._record(loop_kernels.worlds_decide, self.count, tolerance=sim.tolerance,
-                            max_iterations=sim.max_iterations, world_loop_out=self.world_loop,
-                            world_batch_out=self.world_batch),
+            self._loops_by_h[sim._h] = sim._capture_loop(
+                first, iteration, ((sim.errors, sim.model.constraint_world),), sim.tolerance, sim.max_iterations,
+                loop_state_out=self.world_loop, loop_batch_out=self.world_batch, loop_active_out=sim.world_active,
             )  # fmt: skip
-            start = sim._record(loop_kernels.worlds_start, self.count, world_loop_out=self.world_loop)
-            body = (*iteration, *decide)
-            self._loops_by_h[sim._h] = sim._capture(
-                start, *first, *decide, lambda: wp.capture_while(sim.loop_go, lambda: run(*body))
-            )
         return self._loops_by_h[sim._h]
 
     def _advance(self, h: float, depth: int, batch: np.ndarray, stats: WorldStats) -> None:
