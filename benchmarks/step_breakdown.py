@@ -153,8 +153,8 @@ def _stage_kernels(ns):
             if slot_row.shape[0] > 0:
                 for r in range(2 * constraint_body0.shape[0]):
                     step_kernels.row_products_of(
-                        r, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
-                        mass_jac, inertia_jac,
+                        r, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world,
+                        jac_lin, jac_ang, mass_jac, inertia_jac,
                     )  # fmt: skip
             for s in range(slot_row.shape[0]):
                 step_kernels.assemble_slot(

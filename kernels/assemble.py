@@ -9,7 +9,7 @@ Cholesky (fill slots share no body and assemble to zero) and the full pattern fo
 import warp as wp
 
 from ..types import Slot
-from .constraints import POINT, constraint_dim
+from .constraints import POINT, constraint_dim, skew_times, skew_vector, times_skew_transpose
 
 wp.set_module_options({"enable_backward": False})
 
@@ -26,28 +26,33 @@ def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constrai
 
 
 @wp.func
-def row_products(inv_mass: f64, inv_inertia_world: mat33d, jac_lin: mat33d, jac_ang: mat33d):
-    """(m^-1 J_lin, J_ang J~^-1) of one side of a constraint: that side's factor of every block of K its body
-    is in, computed once a row instead of once a block."""
+def row_products(kind: int, inv_mass: f64, inv_inertia_world: mat33d, jac_lin: mat33d, jac_ang: mat33d):
+    """(m^-1 J_lin, J_ang J~^-1) of one side of a constraint of `kind`: that side's factor of every block of K
+    its body is in, computed once a row instead of once a block. A point constraint's J_ang is a skew matrix
+    (`constraints.constraint_frame`): its product is `skew_times`."""
+    if kind == POINT:
+        return inv_mass * jac_lin, skew_times(skew_vector(jac_ang), inv_inertia_world)
     return inv_mass * jac_lin, jac_ang * inv_inertia_world
 
 
 @wp.func
 def row_block(mass_jac: mat33d, inertia_jac: mat33d, kind: int, side: int, jac_lin: mat33d, jac_ang: mat33d) -> mat33d:
     """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and row j's Jacobian (constraint j of `kind`, on
-    its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 (`constraints.constraint_frame`):
-    there the linear part is +-m^-1 J_lin of row i, the same value without the product."""
-    angular = inertia_jac * wp.transpose(jac_ang)
+    its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a skew matrix
+    (`constraints.constraint_frame`): there the linear part is +-m^-1 J_lin of row i, the same value without the
+    product, and the angular part is `times_skew_transpose`."""
     if kind == POINT:
+        angular = times_skew_transpose(inertia_jac, skew_vector(jac_ang))
         if side == 0:
             return mass_jac + angular
         return angular - mass_jac
-    return mass_jac * wp.transpose(jac_lin) + angular
+    return mass_jac * wp.transpose(jac_lin) + inertia_jac * wp.transpose(jac_ang)
 
 
 @wp.func
 def row_products_of(
     r: int,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
@@ -61,7 +66,8 @@ def row_products_of(
     i = r // 2
     b = side_body(i, r - 2 * i, constraint_body0, constraint_body1)
     if b >= 0:
-        m, w = row_products(body_inv_mass[b], inv_inertia_world_in[b], jac_lin_in[r], jac_ang_in[r])
+        kind = constraint_kind[i]
+        m, w = row_products(kind, body_inv_mass[b], inv_inertia_world_in[b], jac_lin_in[r], jac_ang_in[r])
         mass_jac_out[r] = m
         inertia_jac_out[r] = w
 
@@ -69,6 +75,7 @@ def row_products_of(
 @wp.kernel
 def assemble_rows(
     # Model:
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
@@ -82,8 +89,8 @@ def assemble_rows(
 ):
     """Every Jacobian row's products (`row_products_of`), before `assemble`."""
     row_products_of(
-        wp.tid(), constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
-        mass_jac_out, inertia_jac_out,
+        wp.tid(), constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
+        jac_ang_in, mass_jac_out, inertia_jac_out,
     )  # fmt: skip
 
 
@@ -106,7 +113,7 @@ def shared_body_block(
     b = side_body(i, si, constraint_body0, constraint_body1)
     ri = 2 * i + si
     rj = 2 * j + sj
-    m, w = row_products(body_inv_mass[b], inv_inertia_world[b], jac_lin[ri], jac_ang[ri])
+    m, w = row_products(constraint_kind[i], body_inv_mass[b], inv_inertia_world[b], jac_lin[ri], jac_ang[ri])
     return row_block(m, w, constraint_kind[j], sj, jac_lin[rj], jac_ang[rj])
 
 

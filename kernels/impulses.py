@@ -5,7 +5,7 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 
 import warp as wp
 
-from .constraints import POINT
+from .constraints import POINT, skew_vector
 
 wp.set_module_options({"enable_backward": False})
 
@@ -29,8 +29,8 @@ def apply_body(
     body_w_out: wp.array(dtype=vec3d),
 ):
     """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows. A point
-    constraint's J_lin is +-I (`constraints.constraint_frame`), so its J_lin^T lambda is +-lambda, the same
-    value without the product."""
+    constraint's J_lin is +-I and its J_ang a skew matrix [v]x (`constraints.constraint_frame`), so its
+    J_lin^T lambda is +-lambda, the same value without the product, and its J_ang^T lambda = -v x lambda."""
     dv = vec3d()
     dl = vec3d()
     for k in range(body_rows_start[b], body_rows_start[b + 1]):
@@ -42,9 +42,10 @@ def apply_body(
                 dv += lam
             else:
                 dv -= lam
+            dl += wp.cross(lam, skew_vector(jac_ang_in[r]))
         else:
             dv += wp.transpose(jac_lin_in[r]) * lam
-        dl += wp.transpose(jac_ang_in[r]) * lam
+            dl += wp.transpose(jac_ang_in[r]) * lam
     body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
     body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl
 

@@ -107,10 +107,11 @@ def predict_body(
     x1 = x + v * h + a * (f64(0.5) * h * h)
     v1 = v + a * h
     wb = wp.quat_rotate_inv(q, w)
-    n = wp.min(int(wp.ceil(wp.length(w) * wp.abs(h) / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)  # h < 0 runs backwards
-    n = wp.max(n, 1)
-    hs = h  # h / 1, without the division
-    if n > 1:
+    n = int(1)
+    hs = h
+    if wp.length_sq(w) * (h * h) > MAX_SUBSTEP_ROTATION * MAX_SUBSTEP_ROTATION:  # no root nor division below
+        n = wp.min(int(wp.ceil(wp.length(w) * wp.abs(h) / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)  # h < 0: backwards
+        n = wp.max(n, 1)
         hs = h / f64(n)
     q1 = q
     diagonal = is_diagonal(inertia)

@@ -315,8 +315,8 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 )  # fmt: skip
                 for side in range(2):
                     row_products_of(
-                        2 * i + side, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin,
-                        jac_ang, mass_jac, inertia_jac,
+                        2 * i + side, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                        inv_inertia_world, jac_lin, jac_ang, mass_jac, inertia_jac,
                     )  # fmt: skip
         if factor != 0:
             for k in range(part_slots.shape[0]):

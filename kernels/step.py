@@ -777,8 +777,8 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                 if slot_row.shape[0] > 0:
                     for r in range(2 * constraint_count):
                         row_products_of(
-                            r, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin,
-                            jac_ang, mass_jac, inertia_jac,
+                            r, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world,
+                            jac_lin, jac_ang, mass_jac, inertia_jac,
                         )  # fmt: skip
                 for s in range(slot_row.shape[0]):
                     assemble_slot(
