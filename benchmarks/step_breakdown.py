@@ -133,11 +133,10 @@ def _stage_kernels(ns):
     def assemble_factor(repeats: int, factor: int, constraint_kind: wp.array(dtype=int),
                         constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int),
                         body_inv_mass: wp.array(dtype=f64), slot_row: wp.array(dtype=int),
-                        slot_col: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
+                        perm: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
                         slot_code: wp.array(dtype=int), slot_ref: wp.array(dtype=int),
                         inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
-                        jac_ang: wp.array(dtype=mat33d), mass_jac: wp.array(dtype=mat33d),
-                        inertia_jac: wp.array(dtype=mat33d), pivot_tolerance: f64, loop_tolerance: f64,
+                        jac_ang: wp.array(dtype=mat33d), pivot_tolerance: f64, loop_tolerance: f64,
                         col_loop: wp.array(dtype=int), col_start: wp.array(dtype=int),
                         update_start: wp.array(dtype=int), update_target: wp.array(dtype=int),
                         update_a: wp.array(dtype=int), update_b: wp.array(dtype=int),
@@ -150,19 +149,13 @@ def _stage_kernels(ns):
                     s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
                     values,
                 )  # fmt: skip
-            if slot_row.shape[0] > 0:
-                for r in range(2 * constraint_body0.shape[0]):
-                    step_kernels.row_products_of(
-                        r, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world,
-                        jac_lin, jac_ang, mass_jac, inertia_jac,
+            for j in range(col_start.shape[0] - 1):  # as the fused step: each column assembled, then factored
+                if slot_row.shape[0] > 0:
+                    step_kernels.assemble_column(
+                        j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                        slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
                     )  # fmt: skip
-            for s in range(slot_row.shape[0]):
-                step_kernels.assemble_slot(
-                    s, constraint_kind, slot_row, slot_col, slot_sides, mass_jac, inertia_jac, jac_lin, jac_ang,
-                    values,
-                )  # fmt: skip
-            if factor != 0:
-                for j in range(col_start.shape[0] - 1):
+                if factor != 0:
                     step_kernels.factor_column(
                         j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,

@@ -3,7 +3,8 @@
 K is stored as 3x3 blocks in "slots". Each slot is one block (row constraint i, column constraint j)
 and lists the bodies the two constraints share (at most two) by the side each has on them. The host
 builds the slot lists once per topology (`warpimpulse/topology.py`): the lower factor pattern for
-Cholesky (fill slots share no body and assemble to zero) and the full pattern for CG.
+Cholesky (fill slots share no body and assemble to zero), assembled a block column at a time
+(`assemble_column`), and the full pattern for CG, a slot at a time (`assemble_slot`).
 """
 
 import warp as wp
@@ -28,8 +29,8 @@ def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constrai
 @wp.func
 def row_products(kind: int, inv_mass: f64, inv_inertia_world: mat33d, jac_lin: mat33d, jac_ang: mat33d):
     """(m^-1 J_lin, J_ang J~^-1) of one side of a constraint of `kind`: that side's factor of every block of K
-    its body is in, computed once a row instead of once a block. A point constraint's J_ang is a skew matrix
-    (`constraints.constraint_frame`): its product is `skew_times`."""
+    its body is in. A point constraint's J_ang is a skew matrix (`constraints.constraint_frame`): its product is
+    `skew_times`."""
     if kind == POINT:
         return inv_mass * jac_lin, skew_times(skew_vector(jac_ang), inv_inertia_world)
     return inv_mass * jac_lin, jac_ang * inv_inertia_world
@@ -50,51 +51,6 @@ def row_block(mass_jac: mat33d, inertia_jac: mat33d, kind: int, side: int, jac_l
 
 
 @wp.func
-def row_products_of(
-    r: int,
-    constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
-    jac_lin_in: wp.array(dtype=mat33d),
-    jac_ang_in: wp.array(dtype=mat33d),
-    mass_jac_out: wp.array(dtype=mat33d),
-    inertia_jac_out: wp.array(dtype=mat33d),
-):
-    """`row_products` of Jacobian row r (constraint r // 2, side r % 2); none for the world's side."""
-    i = r // 2
-    b = side_body(i, r - 2 * i, constraint_body0, constraint_body1)
-    if b >= 0:
-        kind = constraint_kind[i]
-        m, w = row_products(kind, body_inv_mass[b], inv_inertia_world_in[b], jac_lin_in[r], jac_ang_in[r])
-        mass_jac_out[r] = m
-        inertia_jac_out[r] = w
-
-
-@wp.kernel
-def assemble_rows(
-    # Model:
-    constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    body_inv_mass: wp.array(dtype=f64),
-    # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
-    jac_lin_in: wp.array(dtype=mat33d),
-    jac_ang_in: wp.array(dtype=mat33d),
-    # Data out:
-    mass_jac_out: wp.array(dtype=mat33d),
-    inertia_jac_out: wp.array(dtype=mat33d),
-):
-    """Every Jacobian row's products (`row_products_of`), before `assemble`."""
-    row_products_of(
-        wp.tid(), constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
-        jac_ang_in, mass_jac_out, inertia_jac_out,
-    )  # fmt: skip
-
-
-@wp.func
 def shared_body_block(
     i: int,
     si: int,
@@ -108,8 +64,8 @@ def shared_body_block(
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
 ) -> mat33d:
-    """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share, without stored
-    row products (the iterative sweeps' blocks)."""
+    """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share, from row i's
+    products formed for this block alone (CG's slots, the iterative sweeps' blocks)."""
     b = side_body(i, si, constraint_body0, constraint_body1)
     ri = 2 * i + si
     rj = 2 * j + sj
@@ -151,30 +107,33 @@ def diagonal_block(
 def assemble_slot(
     s: int,
     constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
-    mass_jac_in: wp.array(dtype=mat33d),
-    inertia_jac_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     values_out: wp.array(dtype=mat33d),
 ):
-    """Slot s of K: the sum over the (at most two) bodies its row and column constraints share, from the rows'
-    products (`row_products_of`)."""
+    """Slot s of K: the sum over the (at most two) bodies its row and column constraints share
+    (`shared_body_block`)."""
     i = slot_row[s]
     j = slot_col[s]
     sides = slot_sides[s]
-    kind = constraint_kind[j]
     k = mat33d()
     if sides[0] >= 0:
-        ri = 2 * i + sides[0]
-        rj = 2 * j + sides[1]
-        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], kind, sides[1], jac_lin_in[rj], jac_ang_in[rj])
+        k += shared_body_block(
+            i, sides[0], j, sides[1], constraint_kind, constraint_body0, constraint_body1,
+            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+        )  # fmt: skip
     if sides[2] >= 0:
-        ri = 2 * i + sides[2]
-        rj = 2 * j + sides[3]
-        k += row_block(mass_jac_in[ri], inertia_jac_in[ri], kind, sides[3], jac_lin_in[rj], jac_ang_in[rj])
+        k += shared_body_block(
+            i, sides[2], j, sides[3], constraint_kind, constraint_body0, constraint_body1,
+            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+        )  # fmt: skip
     if i == j:
         k = pad_unused_rows(k, constraint_kind[i])
     values_out[s] = k
@@ -184,22 +143,121 @@ def assemble_slot(
 def assemble(
     # Model:
     constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
     # Pattern: the slots to fill
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
     # Data in:
-    mass_jac_in: wp.array(dtype=mat33d),
-    inertia_jac_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
-    """Every slot of K (`assemble_slot`), after `assemble_rows`."""
+    """Every slot of K (`assemble_slot`)."""
     assemble_slot(
-        wp.tid(), constraint_kind, slot_row, slot_col, slot_sides, mass_jac_in, inertia_jac_in, jac_lin_in,
-        jac_ang_in, values_out,
+        wp.tid(), constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col, slot_sides,
+        inv_inertia_world_in, jac_lin_in, jac_ang_in, values_out,
+    )  # fmt: skip
+
+
+@wp.func
+def side_products(
+    c: int,
+    side: int,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+):
+    """`row_products` of side `side` of constraint c; zeros for the world's side (never read: no slot lists it)."""
+    b = side_body(c, side, constraint_body0, constraint_body1)
+    if b < 0:
+        return mat33d(), mat33d()
+    r = 2 * c + side
+    return row_products(constraint_kind[c], body_inv_mass[b], inv_inertia_world[b], jac_lin[r], jac_ang[r])
+
+
+@wp.func
+def assemble_column(
+    j: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    slot_row: wp.array(dtype=int),
+    slot_sides: wp.array(dtype=wp.vec4i),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    values_out: wp.array(dtype=mat33d),
+):
+    """Block column j (in elimination order) of K's factor pattern: its column constraint c's two `row_products`,
+    formed once, then every slot (i, c) of the column as K_ic = (J_cb M_b^-1 J_ib^T)^T over the bodies b that i
+    and c share (`row_block`).
+
+    A column at a time, so that c's products stay in registers for its slots (on a tree, the side on the parent
+    serves three): stored per Jacobian row, they were 144 bytes a row written and read back ~2.5 times, which
+    made the assembly of a 65,535-body tree memory bound (117 ns a body before, measured by
+    benchmarks/step_breakdown.py's stages)."""
+    c = perm[j]
+    m0, w0 = side_products(
+        c, 0, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
+        jac_ang_in,
+    )  # fmt: skip
+    m1, w1 = side_products(
+        c, 1, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
+        jac_ang_in,
+    )  # fmt: skip
+    for s in range(col_start[j], col_start[j + 1]):
+        i = slot_row[s]
+        kind = constraint_kind[i]
+        sides = slot_sides[s]
+        k = mat33d()
+        for pair in range(2):
+            si = sides[2 * pair]
+            if si >= 0:
+                ri = 2 * i + si
+                if sides[2 * pair + 1] == 0:
+                    k += wp.transpose(row_block(m0, w0, kind, si, jac_lin_in[ri], jac_ang_in[ri]))
+                else:
+                    k += wp.transpose(row_block(m1, w1, kind, si, jac_lin_in[ri], jac_ang_in[ri]))
+        if i == c:
+            k = pad_unused_rows(k, kind)
+        values_out[s] = k
+
+
+@wp.kernel
+def assemble_columns(
+    # Model:
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    # Pattern: the factor's
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    slot_row: wp.array(dtype=int),
+    slot_sides: wp.array(dtype=wp.vec4i),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out:
+    values_out: wp.array(dtype=mat33d),
+):
+    """Every block column of K's factor pattern (`assemble_column`), a column a thread."""
+    assemble_column(
+        wp.tid(), perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row,
+        slot_sides, inv_inertia_world_in, jac_lin_in, jac_ang_in, values_out,
     )  # fmt: skip
 
 

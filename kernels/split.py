@@ -20,7 +20,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .assemble import assemble_slot, row_products_of
+from .assemble import assemble_column
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .impulses import apply_body
@@ -261,13 +261,11 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         row_slot: wp.array(dtype=int),
         row_col: wp.array(dtype=int),
         slot_row: wp.array(dtype=int),
-        slot_col: wp.array(dtype=int),
         slot_sides: wp.array(dtype=wp.vec4i),
         # The part:
         part_bodies: wp.array(dtype=int),
         part_constraints: wp.array(dtype=int),
         part_columns: wp.array(dtype=int),
-        part_slots: wp.array(dtype=int),
         separator: int,
         # What this launch does:
         accept: int,
@@ -287,8 +285,6 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
-        mass_jac: wp.array(dtype=mat33d),
-        inertia_jac: wp.array(dtype=mat33d),
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
         body_v_out: wp.array(dtype=vec3d),
@@ -313,16 +309,11 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                     i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                     constraint_axis0, constraint_axis1, body_x_out, body_q_out, proj, jac_lin, jac_ang,
                 )  # fmt: skip
-                for side in range(2):
-                    row_products_of(
-                        2 * i + side, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                        inv_inertia_world, jac_lin, jac_ang, mass_jac, inertia_jac,
-                    )  # fmt: skip
         if factor != 0:
-            for k in range(part_slots.shape[0]):
-                assemble_slot(
-                    part_slots[k], constraint_kind, slot_row, slot_col, slot_sides, mass_jac, inertia_jac, jac_lin,
-                    jac_ang, values,
+            for k in range(part_columns.shape[0]):
+                assemble_column(
+                    part_columns[k], perm, col_start, constraint_kind, constraint_body0, constraint_body1,
+                    body_inv_mass, slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
                 )  # fmt: skip
             for k in range(part_columns.shape[0]):
                 factor_column(

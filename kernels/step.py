@@ -2,8 +2,8 @@
 
 A Warp CPU launch runs on one thread anyway, so on a CPU the step's many launches (and the host's reading of
 errors between them) buy nothing: here the same per-element stage funcs the parallel kernels call
-(`rigid.predict_index`, the constraint funcs of `constraints.specialized`, `assemble.row_products_of` /
-`assemble_slot`, `cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps
+(`rigid.predict_index`, the constraint funcs of `constraints.specialized`, `assemble.assemble_column`,
+`augmented_slot`, `cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps
 of `iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
 apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
 summary) is decided on the device, for up to `batch_in[0]` steps a launch. A step is the base steps of a
@@ -28,7 +28,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .assemble import assemble_slot, augmented_slot, row_products_of
+from .assemble import assemble_column, augmented_slot
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
@@ -653,8 +653,6 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
-        mass_jac: wp.array(dtype=mat33d),
-        inertia_jac: wp.array(dtype=mat33d),
         # Data out: the state, advanced in place, and a status row a step
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
@@ -774,19 +772,13 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                         s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
                         values,
                     )  # fmt: skip
-                if slot_row.shape[0] > 0:
-                    for r in range(2 * constraint_count):
-                        row_products_of(
-                            r, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world,
-                            jac_lin, jac_ang, mass_jac, inertia_jac,
-                        )  # fmt: skip
-                for s in range(slot_row.shape[0]):
-                    assemble_slot(
-                        s, constraint_kind, slot_row, slot_col, slot_sides, mass_jac, inertia_jac, jac_lin, jac_ang,
-                        values,
-                    )  # fmt: skip
                 singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
-                for j in range(col_start.shape[0] - 1):
+                for j in range(col_start.shape[0] - 1):  # left-looking: column j assembled just before its factor
+                    if slot_row.shape[0] > 0:
+                        assemble_column(
+                            j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                            slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                        )  # fmt: skip
                     factor_column(
                         j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,

@@ -18,7 +18,7 @@ from .diagnose import mass_ratio_note
 from .kernels import assemble as assemble_kernels
 from .kernels import cg as cg_kernels
 from .kernels import cholesky as cholesky_kernels
-from .launch import Launches, record
+from .launch import record
 from .model import Model
 from .topology import schedule
 
@@ -58,10 +58,6 @@ class Frames:
         self.jac_lin = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
         self.jac_ang = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
         self.inv_inertia_world = wp.zeros(nb, dtype=wp.mat33d, device=d)
-        # Each Jacobian row's m^-1 J_lin and J_ang J~^-1, computed once a step for the blocks of K
-        # (`assemble.row_products`).
-        self.mass_jac = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
-        self.inertia_jac = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
 
 
 def _int(values, device) -> wp.array:
@@ -79,14 +75,6 @@ def _slots(row, col, sides, device) -> SimpleNamespace:
         slot_col=_int(col, device),
         slot_sides=wp.array(np.asarray(sides, np.int32).reshape(-1, 4), dtype=wp.vec4i, device=device),
     )
-
-
-def _assemble_launch(model: Model, frames: Frames, slots: SimpleNamespace, values) -> Launches:
-    """The rows' products, then the slots of K from them."""
-    sources = (model, frames, slots)
-    rows = record(assemble_kernels.assemble_rows, 2 * model.constraint_count, model.device, sources)
-    return Launches([rows, record(assemble_kernels.assemble, len(slots.slot_row), model.device, sources,
-                                  values_out=values)])  # fmt: skip
 
 
 class CholeskySolver:
@@ -141,7 +129,8 @@ class CholeskySolver:
             )
         else:
             slots = _slots(pat.slot_row, pat.slot_col, pat.slot_sides, d)
-            self._assemble = _assemble_launch(model, frames, slots, self.values)
+            sources = (model, frames, self.device_pattern, slots)
+            self._assemble = record(assemble_kernels.assemble_columns, n, d, sources, values_out=self.values)
         self.work = wp.zeros(n, dtype=wp.vec3d, device=d)
         # What the fused step (`kernels/step.py`) reads besides the pattern: the slots to assemble (K's, or the
         # augmented matrix's codes) and the augmented vectors.
@@ -266,7 +255,10 @@ class CGSolver:
         d = model.device
         csr = model.topology.csr()
         self.values = wp.zeros(len(csr.col), dtype=wp.mat33d, device=d)
-        self._assemble = _assemble_launch(model, frames, _slots(csr.row, csr.col, csr.sides, d), self.values)
+        slots = _slots(csr.row, csr.col, csr.sides, d)
+        self._assemble = record(
+            assemble_kernels.assemble, len(csr.col), d, (model, frames, slots), values_out=self.values
+        )
         self.precond = wp.zeros(n, dtype=wp.mat33d, device=d)
         self.diag_slot = _int(csr.diag, d)
         self.row_start = _int(csr.start, d)

@@ -178,7 +178,6 @@ def _columns(model: Model, pattern, owner: np.ndarray, threads: int) -> SimpleNa
             part_bodies=np.flatnonzero(owner == p),
             part_constraints=np.flatnonzero(evaluator == p),
             part_columns=columns,
-            part_slots=np.flatnonzero(np.isin(col_of_slot, columns)),
         )
 
     return SimpleNamespace(separator=lists(SEPARATOR), parts=[lists(p) for p in range(threads)], owner=owner)
