@@ -206,8 +206,8 @@ def assemble_column(
 
     A column at a time, so that c's products stay in registers for its slots (on a tree, the side on the parent
     serves three): stored per Jacobian row, they were 144 bytes a row written and read back ~2.5 times, which
-    made the assembly of a 65,535-body tree memory bound (117 ns a body before, measured by
-    benchmarks/step_breakdown.py's stages)."""
+    made the assembly of a 65,535-body tree memory bound: 117 ns a body-step, 77 a column at a time
+    (docs/architecture.md, "Cheaper stages")."""
     c = perm[j]
     m0, w0 = side_products(
         c, 0, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
@@ -225,11 +225,13 @@ def assemble_column(
         for pair in range(2):
             si = sides[2 * pair]
             if si >= 0:
+                m = m0  # c's products on the side it shares the body by
+                w = w0
+                if sides[2 * pair + 1] != 0:
+                    m = m1
+                    w = w1
                 ri = 2 * i + si
-                if sides[2 * pair + 1] == 0:
-                    k += wp.transpose(row_block(m0, w0, kind, si, jac_lin_in[ri], jac_ang_in[ri]))
-                else:
-                    k += wp.transpose(row_block(m1, w1, kind, si, jac_lin_in[ri], jac_ang_in[ri]))
+                k += wp.transpose(row_block(m, w, kind, si, jac_lin_in[ri], jac_ang_in[ri]))
         if i == c:
             k = pad_unused_rows(k, kind)
         values_out[s] = k
