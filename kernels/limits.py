@@ -38,8 +38,9 @@ f64 = wp.float64
 ANGLE_COORDINATE = wp.constant(0)
 
 
-@wp.kernel
-def limit_errors(
+@wp.func
+def limit_error(
+    i: int,
     # Model:
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
@@ -70,9 +71,9 @@ def limit_errors(
     limit_rate_out: wp.array(dtype=f64),
     limit_error_out: wp.array(dtype=f64),
 ):
-    """The error of a limit at the prediction: its violation, or for an active limit the distance to its bound.
-    A stiff motor's value is its offset from its goal, value(t0) + h target or target, its bounds (0, 0)."""
-    i = wp.tid()
+    """The error of row i at the prediction: a limit's violation, or for an active limit the distance to its
+    bound. A stiff motor's value is its offset from its goal, value(t0) + h target or target, its bounds (0, 0).
+    Returns the error (m or rad)."""
     r = limit_coordinate[i]
     value, rate, a, pb = coordinate_row(
         r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
@@ -105,6 +106,48 @@ def limit_errors(
     limit_value_out[i] = value
     limit_rate_out[i] = rate0
     limit_error_out[i] = err
+    return err
+
+
+@wp.kernel
+def limit_errors(
+    # Model:
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    limit_bounds: wp.array(dtype=wp.vec2d),
+    limit_drive: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_max_force: wp.array(dtype=f64),
+    # Data in: the impulse accumulated this step, the prediction (body_*_in), the state at t0 (start_*)
+    h: f64,
+    drive_target: wp.array(dtype=f64),
+    limit_impulse: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    start_x: wp.array(dtype=vec3d),
+    start_q: wp.array(dtype=quatd),
+    start_v: wp.array(dtype=vec3d),
+    start_w: wp.array(dtype=vec3d),
+    # Data out: the predicted coordinate, its rate at t0 now, and the error (m or rad)
+    limit_value_out: wp.array(dtype=f64),
+    limit_rate_out: wp.array(dtype=f64),
+    limit_error_out: wp.array(dtype=f64),
+):
+    """Every row's error at the prediction (`limit_error`), a thread a row."""
+    limit_error(
+        wp.tid(), coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, limit_coordinate, limit_bounds, limit_drive, drive_mode,
+        drive_max_force, h, drive_target, limit_impulse, body_x_in, body_q_in, body_v_in, body_w_in, start_x, start_q,
+        start_v, start_w, limit_value_out, limit_rate_out, limit_error_out,
+    )  # fmt: skip
 
 
 @wp.func
@@ -138,6 +181,54 @@ def limit_side(
     return b, a * sign, wp.cross(pb - pose_x(b, body_x), a) * sign
 
 
+@wp.func
+def coupling_entry(
+    l: int,
+    i: int,
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    # Data in:
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    # Data out: c of limit l for constraint i at l * constraint_count + i
+    limit_coupling_out: wp.array(dtype=vec3d),
+):
+    """c_i = sum over the bodies that limit l and constraint i share of J_ib M_b^-1 g_b^T."""
+    nc = constraint_body0.shape[0]
+    r = limit_coordinate[l]
+    c = vec3d()
+    for side in range(2):
+        b, g_lin, g_ang = limit_side(
+            r, side, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+        )  # fmt: skip
+        if b >= 0:
+            if constraint_body0[i] == b:
+                c += jac_lin_in[2 * i] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i] * (
+                    inv_inertia_world_in[b] * g_ang
+                )
+            if constraint_body1[i] == b:
+                c += jac_lin_in[2 * i + 1] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i + 1] * (
+                    inv_inertia_world_in[b] * g_ang
+                )
+    limit_coupling_out[l * nc + i] = c
+
+
 @wp.kernel
 def limit_coupling(
     # Model:
@@ -163,26 +254,69 @@ def limit_coupling(
     # Data out: c of limit l for constraint i at l * constraint_count + i
     limit_coupling_out: wp.array(dtype=vec3d),
 ):
-    """c_i = sum over the bodies that limit l and constraint i share of J_ib M_b^-1 g_b^T."""
+    """Every row's coupling to every constraint (`coupling_entry`), a thread an entry."""
     l, i = wp.tid()
-    nc = constraint_body0.shape[0]
-    r = limit_coordinate[l]
-    c = vec3d()
-    for side in range(2):
-        b, g_lin, g_ang = limit_side(
-            r, side, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+    coupling_entry(
+        l, i, body_inv_mass, constraint_body0, constraint_body1, coordinate_kind, coordinate_body0, coordinate_body1,
+        coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, limit_coordinate,
+        body_x_in, body_q_in, body_v_in, body_w_in, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_coupling_out,
+    )  # fmt: skip
+
+
+@wp.func
+def matrix_entry(
+    k: int,
+    l: int,
+    # Model:
+    coupled: int,
+    body_inv_mass: wp.array(dtype=f64),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    # Data in: c and K^-1 c of every row (when `coupled`)
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    limit_coupling_in: wp.array(dtype=vec3d),
+    limit_response_in: wp.array(dtype=vec3d),
+    # Data out: S, row-major (rows k, l)
+    limit_matrix_out: wp.array(dtype=f64),
+):
+    """The rows' own system with the joints holding: S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l, the rate change of
+    row k per unit impulse of row l. A diagonal is kept at least 1e-9 of its free value g M^-1 g^T (a row the
+    joints lock gets no unbounded impulse)."""
+    nl = limit_coordinate.shape[0]
+    free = f64(0.0)
+    for sk in range(2):
+        bk, glk, gak = limit_side(
+            limit_coordinate[k], sk, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+            coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in,
+            body_w_in,
         )  # fmt: skip
-        if b >= 0:
-            if constraint_body0[i] == b:
-                c += jac_lin_in[2 * i] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i] * (
-                    inv_inertia_world_in[b] * g_ang
-                )
-            if constraint_body1[i] == b:
-                c += jac_lin_in[2 * i + 1] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i + 1] * (
-                    inv_inertia_world_in[b] * g_ang
-                )
-    limit_coupling_out[l * nc + i] = c
+        if bk >= 0:
+            for sl in range(2):
+                bl, gll, gal = limit_side(
+                    limit_coordinate[l], sl, coordinate_kind, coordinate_body0, coordinate_body1,
+                    coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in,
+                    body_q_in, body_v_in, body_w_in,
+                )  # fmt: skip
+                if bl == bk:
+                    free += body_inv_mass[bk] * wp.dot(glk, gll) + wp.dot(gak, inv_inertia_world_in[bk] * gal)
+    held = free
+    if coupled != 0:
+        nc = limit_coupling_in.shape[0] // nl
+        for i in range(nc):
+            held -= wp.dot(limit_coupling_in[k * nc + i], limit_response_in[l * nc + i])
+    if k == l:
+        held = wp.max(held, f64(1.0e-9) * free)
+    limit_matrix_out[k * nl + l] = held
 
 
 @wp.kernel
@@ -209,35 +343,13 @@ def limit_matrix(
     # Data out: S, row-major (rows k, l)
     limit_matrix_out: wp.array(dtype=f64),
 ):
-    """The rows' own system with the joints holding: S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l, the rate change of
-    row k per unit impulse of row l. A diagonal is kept at least 1e-9 of its free value g M^-1 g^T (a row the
-    joints lock gets no unbounded impulse)."""
+    """The rows' system S (`matrix_entry`), a thread an entry."""
     k, l = wp.tid()
-    nl = limit_coordinate.shape[0]
-    free = f64(0.0)
-    for sk in range(2):
-        bk, glk, gak = limit_side(
-            limit_coordinate[k], sk, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-            coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in,
-            body_w_in,
-        )  # fmt: skip
-        if bk >= 0:
-            for sl in range(2):
-                bl, gll, gal = limit_side(
-                    limit_coordinate[l], sl, coordinate_kind, coordinate_body0, coordinate_body1,
-                    coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in,
-                    body_q_in, body_v_in, body_w_in,
-                )  # fmt: skip
-                if bl == bk:
-                    free += body_inv_mass[bk] * wp.dot(glk, gll) + wp.dot(gak, inv_inertia_world_in[bk] * gal)
-    held = free
-    if coupled != 0:
-        nc = limit_coupling_in.shape[0] // nl
-        for i in range(nc):
-            held -= wp.dot(limit_coupling_in[k * nc + i], limit_response_in[l * nc + i])
-    if k == l:
-        held = wp.max(held, f64(1.0e-9) * free)
-    limit_matrix_out[k * nl + l] = held
+    matrix_entry(
+        k, l, coupled, body_inv_mass, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, limit_coordinate, body_x_in, body_q_in,
+        body_v_in, body_w_in, inv_inertia_world_in, limit_coupling_in, limit_response_in, limit_matrix_out,
+    )  # fmt: skip
 
 
 @wp.func
@@ -578,8 +690,8 @@ def box_pivot(
             mask[pick] = 1
 
 
-@wp.kernel
-def correct_rows(
+@wp.func
+def correct_all(
     # Model:
     velocity: int,
     limit_count: int,
@@ -675,3 +787,63 @@ def correct_rows(
                 constraint_body0, constraint_body1, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_response_in,
                 body_x_in, body_q_in, body_v, body_w,
             )  # fmt: skip
+
+
+@wp.kernel
+def correct_rows(
+    # Model:
+    velocity: int,
+    limit_count: int,
+    coupled: int,
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    limit_bounds: wp.array(dtype=wp.vec2d),
+    limit_drive: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_max_force: wp.array(dtype=f64),
+    # Data in:
+    h: f64,
+    drive_target: wp.array(dtype=f64),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    limit_response_in: wp.array(dtype=vec3d),
+    limit_matrix_in: wp.array(dtype=f64),
+    limit_value_in: wp.array(dtype=f64),
+    limit_rate_in: wp.array(dtype=f64),
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    # Data in/out: the state at t0's (or t0 + h's) velocities, the impulses, scratch
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    limit_impulse: wp.array(dtype=f64),
+    limit_velocity_impulse: wp.array(dtype=f64),
+    limit_mask: wp.array(dtype=int),
+    limit_low: wp.array(dtype=f64),
+    limit_high: wp.array(dtype=f64),
+    limit_goal: wp.array(dtype=f64),
+    limit_before: wp.array(dtype=f64),
+    limit_rhs: wp.array(dtype=f64),
+    limit_delta: wp.array(dtype=f64),
+    limit_work: wp.array(dtype=f64),
+    limit_scratch: wp.array(dtype=f64),
+):
+    """All rows at once on one thread (`correct_all`)."""
+    correct_all(
+        velocity, limit_count, coupled, body_inv_mass, constraint_body0, constraint_body1, coordinate_kind,
+        coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
+        coordinate_rest_rotation, limit_coordinate, limit_bounds, limit_drive, drive_mode, drive_max_force, h,
+        drive_target, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_response_in, limit_matrix_in,
+        limit_value_in, limit_rate_in, body_x_in, body_q_in, body_v, body_w, limit_impulse, limit_velocity_impulse,
+        limit_mask, limit_low, limit_high, limit_goal, limit_before, limit_rhs, limit_delta, limit_work,
+        limit_scratch,
+    )  # fmt: skip

@@ -34,6 +34,7 @@ from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body
 from .iterative import sweep_positions_once, sweep_velocities_once
+from .limits import correct_all, coupling_entry, limit_error, matrix_entry
 from .rigid import body_summary, predict_index, world_inverse_inertia_of
 
 wp.set_module_options({"enable_backward": False})
@@ -102,6 +103,48 @@ class ForceElements:
     rk4_sum_w: wp.array(dtype=vec3d)
 
 
+@wp.struct
+class Rows:
+    """A scene's rows of the correction loop for the fused step (`fused(kinds, rows=True)`): joint limits, stiff
+    motors and distance constraints on the table of coordinates, the rows' system S with the joints holding and
+    its scratch (`kernels/limits.py`; `Simulator._limit_system_launches`, `_correct_limits` and
+    `_correct_limit_velocities` are its parallel schedule). `coupling_rows` and `response_rows` are
+    `limit_coupling` and `limit_response` seen as one row of constraint_count entries a limit row."""
+
+    coordinate_kind: wp.array(dtype=int)
+    coordinate_body0: wp.array(dtype=int)
+    coordinate_body1: wp.array(dtype=int)
+    coordinate_anchor0: wp.array(dtype=vec3d)
+    coordinate_anchor1: wp.array(dtype=vec3d)
+    coordinate_axis0: wp.array(dtype=vec3d)
+    coordinate_rest_rotation: wp.array(dtype=quatd)
+    limit_coordinate: wp.array(dtype=int)
+    limit_bounds: wp.array(dtype=wp.vec2d)
+    limit_drive: wp.array(dtype=int)
+    drive_mode: wp.array(dtype=int)
+    drive_max_force: wp.array(dtype=f64)
+    drive_target: wp.array(dtype=f64)
+    limit_impulse: wp.array(dtype=f64)  # accumulated over the step (the position pass)
+    limit_velocity_impulse: wp.array(dtype=f64)
+    limit_value: wp.array(dtype=f64)
+    limit_rate: wp.array(dtype=f64)
+    limit_error: wp.array(dtype=f64)
+    limit_mask: wp.array(dtype=int)
+    limit_low: wp.array(dtype=f64)
+    limit_high: wp.array(dtype=f64)
+    limit_goal: wp.array(dtype=f64)
+    limit_before: wp.array(dtype=f64)
+    limit_rhs: wp.array(dtype=f64)
+    limit_delta: wp.array(dtype=f64)
+    limit_scratch: wp.array(dtype=f64)
+    limit_work: wp.array(dtype=f64)
+    limit_matrix: wp.array(dtype=f64)
+    limit_coupling: wp.array(dtype=vec3d)
+    limit_response: wp.array(dtype=vec3d)
+    coupling_rows: wp.array2d(dtype=vec3d)
+    response_rows: wp.array2d(dtype=vec3d)
+
+
 @wp.func
 def turns_too_far(spin: f64, h: f64, max_rotation: f64) -> bool:
     """Whether a body spinning at `spin` turns further than max_rotation in a step of h (0: never split)."""
@@ -136,6 +179,12 @@ def save_start(
 def copy_values(source: wp.array(dtype=f64), target: wp.array(dtype=f64)):
     for i in range(source.shape[0]):
         target[i] = source[i]
+
+
+@wp.func
+def zero_values(target: wp.array(dtype=f64)):
+    for i in range(target.shape[0]):
+        target[i] = f64(0.0)
 
 
 @wp.func
@@ -419,6 +468,111 @@ def velocity_errors_all(
 
 
 @wp.func
+def limit_errors_all(
+    h: f64,
+    rows: Rows,
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    pred_v: wp.array(dtype=vec3d),
+    pred_w: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+) -> f64:
+    """Every row's error at the prediction, from the state at t0 (`limit_error`); returns the largest (NaN if
+    any is)."""
+    worst = f64(0.0)
+    for i in range(rows.limit_coordinate.shape[0]):
+        err = limit_error(
+            i, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
+            rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
+            rows.limit_bounds, rows.limit_drive, rows.drive_mode, rows.drive_max_force, h, rows.drive_target,
+            rows.limit_impulse, pred_x, pred_q, pred_v, pred_w, body_x, body_q, body_v, body_w, rows.limit_value,
+            rows.limit_rate, rows.limit_error,
+        )  # fmt: skip
+        worst = max_or_nan(worst, err)
+    return worst
+
+
+@wp.func
+def correct_rows_all(
+    velocity: int,
+    h: f64,
+    rows: Rows,
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`correct_all`)."""
+    correct_all(
+        velocity, rows.limit_coordinate.shape[0], 1, body_inv_mass, constraint_body0, constraint_body1,
+        rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
+        rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
+        rows.limit_bounds, rows.limit_drive, rows.drive_mode, rows.drive_max_force, h, rows.drive_target,
+        inv_inertia_world, jac_lin, jac_ang, rows.limit_response, rows.limit_matrix, rows.limit_value,
+        rows.limit_rate, body_x, body_q, body_v, body_w, rows.limit_impulse, rows.limit_velocity_impulse,
+        rows.limit_mask, rows.limit_low, rows.limit_high, rows.limit_goal, rows.limit_before, rows.limit_rhs,
+        rows.limit_delta, rows.limit_work, rows.limit_scratch,
+    )  # fmt: skip
+
+
+@wp.func
+def row_couplings_all(
+    constraint_count: int,
+    rows: Rows,
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+):
+    """c = J M^-1 g^T of every row and constraint at the state (`coupling_entry`)."""
+    for l in range(rows.limit_coordinate.shape[0]):
+        for i in range(constraint_count):
+            coupling_entry(
+                l, i, body_inv_mass, constraint_body0, constraint_body1, rows.coordinate_kind, rows.coordinate_body0,
+                rows.coordinate_body1, rows.coordinate_anchor0, rows.coordinate_anchor1, rows.coordinate_axis0,
+                rows.coordinate_rest_rotation, rows.limit_coordinate, body_x, body_q, body_v, body_w,
+                inv_inertia_world, jac_lin, jac_ang, rows.limit_coupling,
+            )  # fmt: skip
+
+
+@wp.func
+def row_matrix_all(
+    rows: Rows,
+    body_inv_mass: wp.array(dtype=f64),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    inv_inertia_world: wp.array(dtype=mat33d),
+):
+    """The rows' system S with the joints holding, from c and K^-1 c (`matrix_entry`)."""
+    nl = rows.limit_coordinate.shape[0]
+    for k in range(nl):
+        for l in range(nl):
+            matrix_entry(
+                k, l, 1, body_inv_mass, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1,
+                rows.coordinate_anchor0, rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation,
+                rows.limit_coordinate, body_x, body_q, body_v, body_w, inv_inertia_world, rows.limit_coupling,
+                rows.limit_response, rows.limit_matrix,
+            )  # fmt: skip
+
+
+@wp.func
 def max_or_nan(a: f64, b: f64) -> f64:
     """max(a, b), NaN when either is NaN (so a non-finite error is never taken for a converged one)."""
     if not wp.isfinite(b) or not wp.isfinite(a):
@@ -466,14 +620,18 @@ def cholesky_solve(
 
 
 @functools.cache
-def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
+def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> SimpleNamespace:
     """The fused step kernels for a set of constraint kinds (`constraints.specialized(kinds)`'s stage funcs):
     `cholesky_steps` (the direct solver, either formulation) and `iterative_steps` (the paper's sweeps), and the
     kind-dependent serial stages they call (`benchmarks/step_breakdown.py` times each). `forced`: the scene has
     force elements (springs, joint springs, PID drives), so the prediction is the coupled RK4 of all bodies
-    (`coupled_predict_all`) and each accepted stage integrates the drives; the iterative baseline has none."""
+    (`coupled_predict_all`) and each accepted stage integrates the drives; the iterative baseline has none.
+    `rows`: the scene has joint limits, stiff motors or distance constraints (`Rows`, kernels/limits.py), rows of
+    the correction loop solved after the joints in each iteration, then after the velocity correction, on their
+    own system S, formed with the factor at each new state; the host passes one stage (the parallel schedule
+    takes such steps at order 2: impacts and saturation are not reversible). The iterative baseline has none."""
     ck = specialized(kinds)
-    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}"
+    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}{'_rows' if rows else ''}"
     wp.set_module_options({"enable_backward": False}, module)
     frame = ck.frame
     position_error = ck.position_error
@@ -630,6 +788,7 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
         body_force_in: wp.array(dtype=vec3d),
         body_torque_in: wp.array(dtype=vec3d),
         elements: ForceElements,  # unused without `forced`
+        limit_rows: Rows,  # unused without `rows`
         # Scratch: the prediction, the velocities of t0, errors, right-hand sides, impulses, the factor
         pred_x: wp.array(dtype=vec3d),
         pred_q: wp.array(dtype=quatd),
@@ -677,7 +836,10 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
             if wp.static(forced):
                 if stage_count > 1:  # a later stage's failure undoes the integrals of the stages before it
                     copy_values(elements.drive_integral, elements.integral0)
+            if wp.static(rows):
+                zero_values(limit_rows.limit_impulse)  # the rows' impulses accumulate over the step
             iterations = wp.int32(0)  # summed over the stages, as are the velocity iterations
+            row_solves = wp.int32(0)  # the velocity corrections before the rows' (`rows`)
             velocity_iterations = wp.int32(0)
             joint_error = f64(0.0)  # the largest over the stages
             verr = f64(0.0)  # the last stage's
@@ -703,6 +865,14 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                     constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
                 )  # fmt: skip
+                if wp.static(rows):
+                    err = max_or_nan(
+                        err,
+                        limit_errors_all(
+                            hs, limit_rows, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out,
+                            body_w_out,
+                        ),
+                    )  # fmt: skip
                 tries = wp.int32(0)
                 best = err
                 ok = wp.bool(False)
@@ -717,16 +887,28 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
-                    if wp.static(forced):  # the elements couple the bodies' predictions: every impulse first
+                    if wp.static(forced or rows):  # every impulse first: rows, elements couple the bodies
                         apply_all(
                             body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
                             inv_inertia_world, jac_lin, jac_ang, impulse, body_v_out, body_w_out,
                         )  # fmt: skip
-                        coupled_predict_all(
-                            body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
-                            body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x,
-                            pred_q, pred_v, pred_w,
-                        )  # fmt: skip
+                        if wp.static(rows):
+                            correct_rows_all(
+                                0, hs, limit_rows, body_inv_mass, constraint_body0, constraint_body1,
+                                inv_inertia_world, jac_lin, jac_ang, body_x_out, body_q_out, body_v_out, body_w_out,
+                            )  # fmt: skip
+                        if wp.static(forced):
+                            coupled_predict_all(
+                                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
+                                body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in,
+                                pred_x, pred_q, pred_v, pred_w,
+                            )  # fmt: skip
+                        else:
+                            predict_all(
+                                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
+                                body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q,
+                                pred_v, pred_w,
+                            )  # fmt: skip
                     else:
                         apply_and_predict_all(
                             body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
@@ -739,6 +921,14 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                         constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
                     )  # fmt: skip
+                    if wp.static(rows):
+                        err = max_or_nan(
+                            err,
+                            limit_errors_all(
+                                hs, limit_rows, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out,
+                                body_w_out,
+                            ),
+                        )  # fmt: skip
                     tries += 1
                 iterations += tries
                 new_spin = spin
@@ -783,10 +973,42 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                         j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
                     )  # fmt: skip
+                if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
+                    row_couplings_all(
+                        constraint_count, limit_rows, body_inv_mass, constraint_body0, constraint_body1, body_x_out,
+                        body_q_out, body_v_out, body_w_out, inv_inertia_world, jac_lin, jac_ang,
+                    )  # fmt: skip
+                    for l in range(limit_rows.limit_coordinate.shape[0]):
+                        cholesky_solve(
+                            augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                            row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
+                            limit_rows.response_rows[l],
+                        )  # fmt: skip
+                    row_matrix_all(
+                        limit_rows, body_inv_mass, body_x_out, body_q_out, body_v_out, body_w_out, inv_inertia_world
+                    )  # fmt: skip
                 verr = velocity_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
                     body_v_out, body_w_out, errors, rhs,
                 )  # fmt: skip
+                if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
+                    cholesky_solve(
+                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                        row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                    )  # fmt: skip
+                    apply_all(
+                        body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
+                        jac_lin, jac_ang, impulse, body_v_out, body_w_out,
+                    )  # fmt: skip
+                    row_solves += 1
+                    correct_rows_all(
+                        1, hs, limit_rows, body_inv_mass, constraint_body0, constraint_body1, inv_inertia_world,
+                        jac_lin, jac_ang, body_x_out, body_q_out, body_v_out, body_w_out,
+                    )  # fmt: skip
+                    verr = velocity_errors_all(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                        body_v_out, body_w_out, errors, rhs,
+                    )  # fmt: skip
                 if not (verr <= velocity_tolerance):
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
@@ -808,14 +1030,14 @@ def fused(kinds: frozenset[int], forced: bool = False) -> SimpleNamespace:
                     code = VELOCITY
                     failed = max_or_nan(failed, verr)
             finish(
-                status_out, k, code, iterations, velocity_iterations, iterations + velocity_iterations,
+                status_out, k, code, iterations, velocity_iterations, iterations + velocity_iterations + row_solves,
                 joint_error, verr, failed, spin,
             )  # fmt: skip
             if code != OK:
                 return
 
-    iterative_steps = None  # the paper's baseline predicts each body alone: no force elements
-    if not forced:
+    iterative_steps = None  # the paper's baseline predicts each body alone and has no rows
+    if not (forced or rows):
 
         @wp.kernel(module=module)
         def iterative_steps(

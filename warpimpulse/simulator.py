@@ -605,13 +605,18 @@ class Simulator:
             return "parallel", "contacts are a stage the fused step does not have yet"
         if getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split":
             return "parallel", "the split systems iterate their velocity correction from the host"
-        if self.model.limit_count:  # rows of the correction loop (kernels/limits.py), a stage it does not have yet
-            return "parallel", "joint limits, stiff motors and distance constraints are not in the fused step yet"
         if self._forced and self.linear is None:
             return "parallel", "force elements without joints: the fused step predicts them with the direct solver only"
+        rows = self.model.limit_count > 0  # limits, stiff motors, distance constraints (kernels/limits.py)
+        if rows and self.linear is None:
+            return (
+                "parallel",
+                "distance constraints without joints: the fused step solves rows with the direct solver only",
+            )
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
-        self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced)
+        self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced, rows)
         self._elements = self._force_elements()
+        self._rows = self._row_arrays()
         self._status = wp.zeros(
             (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
         )
@@ -620,7 +625,9 @@ class Simulator:
         self._spin_in = wp.zeros(1, dtype=wp.float64, device=self.model.device)
         # CPU arrays' memory, read and written without a copy
         self._views = None if cuda else (self._status.numpy(), self._batch.numpy(), self._spin_in.numpy())
-        self._stages = wp.array(self.scheme.stages, dtype=wp.float64, device=self.model.device)
+        # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
+        self._fused_stages = (1.0,) if rows else self.scheme.stages
+        self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
         self._fused_by_h: dict[float, wp.Graph] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
@@ -643,6 +650,20 @@ class Simulator:
         elements.rk4_sum_v, elements.rk4_sum_w = self.rk4_sum_v, self.rk4_sum_w
         return elements
 
+    def _row_arrays(self) -> step_kernels.Rows:
+        """The rows of the correction loop and their scratch, for the fused kernel (empty without)."""
+        rows = step_kernels.Rows()
+        m, nl = self.model, self.model.limit_count
+        if not nl:
+            return rows
+        for field in step_kernels.Rows.vars:
+            source = self if hasattr(self, field) else m
+            if hasattr(source, field):
+                setattr(rows, field, getattr(source, field))
+        rows.coupling_rows = self.limit_coupling.reshape((nl, m.constraint_count))
+        rows.response_rows = self.limit_response.reshape((nl, m.constraint_count))
+        return rows
+
     def _fused_launch(self, h: float) -> wp.Graph:
         """The fused kernel's launch for steps of h, recorded and captured once per h."""
         if h not in self._fused_by_h:
@@ -654,10 +675,11 @@ class Simulator:
                 sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
             launch = record(
                 kernel, 1, self.model.device, sources, data_out=self.state,
-                h=h, stages=self._stages, reach=self.scheme.reach, batch_in=self._batch,
+                h=h, stages=self._stages, reach=max(abs(g) for g in self._fused_stages), batch_in=self._batch,
                 max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
                 pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
                 q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
+                limit_rows=self._rows,
             )  # fmt: skip
             self._fused_by_h[h] = self._capture(launch)
         return self._fused_by_h[h]
@@ -682,6 +704,9 @@ class Simulator:
         split, a failed correction) is taken by the parallel schedule, which splits, halves or reports it."""
         out: list[StepStats] = []
         columns = step_kernels
+        order, fallback = self.order, ""
+        if len(self._fused_stages) < len(self.scheme.stages):
+            order, fallback = 2, ROWS_FALLBACK
         while len(out) < n:
             self._update_forces()
             batch = self._steps_alike(min(n - len(out), self.FUSED_BATCH))
@@ -690,7 +715,7 @@ class Simulator:
                 code = int(row[columns.STATUS_CODE])
                 self._spin = row[columns.STATUS_SPIN]
                 if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
-                    if code == columns.RETRY and len(self.scheme.stages) > 1:
+                    if code == columns.RETRY and len(self._fused_stages) > 1:
                         self._update_frames()  # of the restored start: a later stage may have failed
                     out.append(self._step_parallel())
                     break
@@ -699,7 +724,7 @@ class Simulator:
                 stats = StepStats(
                     int(row[columns.STATUS_JOINT_ITERATIONS]), int(row[columns.STATUS_VELOCITY_ITERATIONS]),
                     row[columns.STATUS_JOINT_ERROR], row[columns.STATUS_VELOCITY_ERROR], True,
-                    int(row[columns.STATUS_LINEAR_ITERATIONS]), 1, self.order,
+                    int(row[columns.STATUS_LINEAR_ITERATIONS]), 1, order, fallback,
                 )  # fmt: skip
                 if code == columns.VELOCITY:
                     self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])

@@ -208,6 +208,11 @@ class SplitSimulator(Simulator):
         if self._forced:
             self.split_note = "force elements couple the bodies' predictions; the split step predicts each part alone"
             return
+        if model.limit_count:
+            self.split_note = (
+                "joint limits, stiff motors or distance constraints: their rows are one system over the model"
+            )
+            return
         try:
             parts = cut(model, self.linear.pattern, threads)
         except CutError as exc:
