@@ -78,6 +78,47 @@ def _servo_chain50() -> wi.SceneBuilder:
     return b
 
 
+def _limited_chain(links: int = 10, bound: float = 0.3) -> wi.SceneBuilder:
+    """A hinged chain with a +-bound limit on every hinge: it swings into its stops (push-only rows that become
+    active, release and hit again)."""
+    b = scenes.chain(links)
+    for j in range(links):
+        b.add_joint_limit(j, -bound, bound)
+    return b
+
+
+def _motor_chain(links: int = 10) -> wi.SceneBuilder:
+    """A hinged chain with a stiff motor on every hinge (rows of the correction loop, coupled through the
+    joints): velocity servos, position servos, and one too weak to hold (it saturates at max_force)."""
+    b = scenes.chain(links)
+    for j in range(links):
+        if j % 3 == 2:
+            b.add_motor(j, "position", target=0.2 * (j % 2) - 0.1, max_force=1e4, stiff=True)
+        else:
+            b.add_motor(j, "velocity", target=0.5 if j else 0.2, max_force=1e4 if j else 2.0, stiff=True)
+    return b
+
+
+def _roped_chain(links: int = 6) -> wi.SceneBuilder:
+    """A hinged chain whose tip hangs from a rope to a world point (it goes taut as the chain swings down), a
+    strut keeping two links apart, and a sprung slider: distance rows with joints and force elements."""
+    b = scenes.chain(links, joint=["revolute", "revolute", "prismatic"])
+    tip = b.bodies[links - 1].position
+    b.add_distance(None, links - 1, tip + (0.0, 0.0, 1.0), tip, max_distance=1.5, name="rope")
+    b.add_distance(0, links - 2, b.bodies[0].position, b.bodies[links - 2].position, min_distance=3.5, name="strut")
+    b.add_joint_spring(2, 40.0, damping=1.0)
+    b.add_joint_limit(1, -0.1, 0.1)
+    return b
+
+
+def _sprung_limited_chain() -> wi.SceneBuilder:
+    """The sprung chain with limits on its hinges: force elements (the coupled prediction) and rows together."""
+    b = _sprung_chain()
+    for j in range(0, 10, 2):
+        b.add_joint_limit(j, -0.2, 0.2)
+    return b
+
+
 MIXED = ["ball", "prismatic", "universal", "fixed", "cylindrical", "planar", "revolute"]
 # (scene, dt, steps, Simulator options): every solver the fused schedule has, both formulations, every
 # constraint kind, model forces that end within the run, fast spins (split steps), failing steps (halved).
@@ -125,6 +166,18 @@ CASES = {
         20,
         {"order": 4, "scheme": "yoshida3", "tolerance": 1e-6},
     ),
+    # Rows of the correction loop (limits, stiff motors, distance constraints; kernels/limits.py): their position
+    # pass in every iteration, the rows' system S at each new state, their velocity pass; steps taken at order 2
+    # when 4 or 6 is asked (ROWS_FALLBACK); a step that fails in a batch is handed back and halved.
+    "chain10_limits": (_limited_chain, 1 / 60, 90, {}),
+    "chain10_stiff_motors": (_motor_chain, 1 / 60, 60, {}),
+    "chain6_distances": (_roped_chain, 1 / 60, 60, {}),
+    "chain10_springs_limits": (_sprung_limited_chain, 1 / 60, 60, {}),
+    "walker_held": (lambda: scenes.walking_machine(collide=False), 1 / 60, 40, {}),
+    "car_held": (lambda: scenes.car(collide=False), 1 / 60, 40, {}),
+    "chain10_limits_order4": (_limited_chain, 1 / 60, 40, {"order": 4}),
+    "chain10_limits_body_matrix_order6": (_limited_chain, 1 / 60, 30, {"order": 6, "formulation": "body"}),
+    "chain50_limits_halved": (lambda: _limited_chain(50, 0.5), 1 / 20, 30, {}),
 }
 
 
@@ -133,6 +186,7 @@ def _run(case: str, schedule: str, batched: bool):
     sim = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
     stats = sim.simulate(steps * dt) if batched else [sim.step() for _ in range(steps)]
     state = [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"] + [sim.drive_integral.numpy().copy()]
+    state += [sim.limit_impulse.numpy().copy(), sim.limit_velocity_impulse.numpy().copy()]
     return sim, stats, state
 
 
@@ -153,6 +207,46 @@ def test_the_cases_reach_the_host_paths():
     assert max(s.substeps for s in _run("spin_split", "fused", True)[1]) == 4
     assert max(s.substeps for s in _run("chain50_halved", "fused", True)[1]) > 1
     assert max(s.substeps for s in _run("spin_split_order4", "fused", True)[1]) == 4
+
+
+def _row_history(case: str) -> tuple[np.ndarray, list]:
+    """Each step's row impulses (N s or N m s) and stats of a case, by the fused schedule."""
+    make, dt, steps, options = CASES[case]
+    sim = wi.Simulator(make().finalize(), dt, **options)
+    assert sim.schedule == "fused", sim.schedule_note
+    impulses, stats = [], []
+    for _ in range(steps):
+        stats.append(sim.step())
+        impulses.append(sim.limit_impulse.numpy().copy())
+    return np.array(impulses), stats
+
+
+def test_the_row_cases_reach_their_paths():
+    """The row cases do exercise what they name: limits that push on some steps and not others, every row of
+    the distances case, a saturated motor (|impulse| = max_force h), halved steps handed back from a batch, and
+    order 4 taken at order 2 with its reason."""
+    limits, _ = _row_history("chain10_limits")
+    pushing = np.count_nonzero(limits, axis=1)
+    assert pushing.max() == 10 and (pushing == 0).any()
+    distances, _ = _row_history("chain6_distances")
+    assert np.all(np.count_nonzero(distances, axis=0) > 0)  # the limit, the rope and the strut
+    motors, _ = _row_history("chain10_stiff_motors")
+    assert np.all(np.abs(np.abs(motors[:, 0]) - 2.0 / 60) < 1e-12)  # the weak servo gives all it has
+    _, stats = _row_history("chain50_limits_halved")
+    assert max(s.substeps for s in stats) > 1 and min(s.substeps for s in stats) == 1
+    _, stats = _row_history("chain10_limits_order4")
+    assert {(s.order, s.fallback) for s in stats} == {(2, wi.simulator.ROWS_FALLBACK)}
+
+
+@pytest.mark.parametrize("case", ["chain10_limits", "chain10_stiff_motors", "chain6_distances", "walker_held"])
+def test_steps_with_rows_are_taken_by_the_fused_kernel(case, monkeypatch):
+    """A batch of steps with rows is one launch and hands no step back (a fused kernel that failed every step
+    would still agree with the parallel schedule, which would take them all)."""
+    make, dt, steps, options = CASES[case]
+    sim = wi.Simulator(make().finalize(), dt, **options)
+    counts = _count_launches(sim, monkeypatch)
+    stats = sim.step(steps)
+    assert counts == {"launches": 1, "parallel_steps": 0} and stats.converged
 
 
 def test_a_composed_step_that_fails_in_a_later_stage_is_redone_from_its_start(monkeypatch):
@@ -238,8 +332,14 @@ def test_schedule_choice():
     assert wi.Simulator(_servo_chain().finalize(), 1 / 60).schedule == "fused"  # force elements run fused
     limited = scenes.chain(3)
     limited.add_joint_limit(0, -0.3, 0.3)
-    sim = wi.Simulator(limited.finalize(), 1 / 60)
-    assert sim.schedule == "parallel" and "limits" in sim.schedule_note
+    assert wi.Simulator(limited.finalize(), 1 / 60).schedule == "fused"  # rows run fused
+    ropes = wi.SceneBuilder()
+    a, b = (ropes.add_body(1.0, (0.1, 0.1, 0.1), (x, 0.0, 0.0)) for x in (0.0, 1.0))
+    ropes.add_distance(a, b, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), max_distance=0.5)
+    sim = wi.Simulator(ropes.finalize(), 1 / 60)
+    assert sim.schedule == "parallel" and "distance constraints without joints" in sim.schedule_note
+    held = wi.Simulator(scenes.walking_machine().finalize(), 1 / 60)  # colliding shapes: a contact stage
+    assert held.schedule == "parallel" and "contacts" in held.schedule_note
     free = wi.SceneBuilder()
     a, b = (free.add_body(1.0, (0.1, 0.1, 0.1), (x, 0.0, 0.0)) for x in (0.0, 1.0))
     free.add_spring(a, b, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 10.0, rest_length=0.5)
@@ -279,6 +379,12 @@ def test_failures_found_by_the_fused_kernel_name_step_joints_and_bodies():
     limit = tree(max_iterations=1)
     assert limit("fused") == limit("parallel")
     assert limit("fused").startswith("step 1 ") and "worst joints: 'j" in limit("fused")
+
+    def limited(schedule):  # the rows' errors count in the joint correction's: it stops on its limit
+        return _failure(schedule, lambda: _limited_chain(10, 0.05).finalize(), dt=1 / 10, max_iterations=2,
+                        max_substep_depth=0)  # fmt: skip
+
+    assert limited("fused") == limited("parallel") and "worst joints" in limited("fused")
 
 
 @pytest.mark.parametrize("solver", ["cholesky", "iterative"])

@@ -131,11 +131,11 @@ def double_pendulum(length: float = 1.0, mass: float = 1.0, angles=(math.pi / 2,
 STEEL = 7800.0  # kg/m^3, the mechanisms' links
 
 
-def _link(builder: SceneBuilder, start, end, width: float, name: str, color) -> int:
+def _link(builder: SceneBuilder, start, end, width: float, name: str, color, collide: bool = True) -> int:
     """A box bar of square section `width` from `start` to `end` (its local z along the bar)."""
     start, end = np.asarray(start, dtype=float), np.asarray(end, dtype=float)
     length = float(np.linalg.norm(end - start))
-    shape = Shape("box", size=(width, width, length), color=color)
+    shape = Shape("box", size=(width, width, length), color=color, collide=collide)
     mass, inertia = shape.mass_properties(STEEL)
     q = quat_between([0.0, 0.0, 1.0], (end - start) / length)
     return builder.add_body(mass, inertia, 0.5 * (start + end), q, name=name, shape=shape)
@@ -188,7 +188,9 @@ CAR_WHEEL_SPEED = 5.0  # rad/s, the wheel servos' initial target
 CAR_STEERING = 0.3  # rad, the steering servos' initial target (to the left)
 
 
-def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, ground: bool = False) -> SceneBuilder:
+def car(
+    wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, ground: bool = False, collide: bool = True
+) -> SceneBuilder:
     """The paper's car (section 5): a chassis; per wheel a strut on a slider with a spring-damper along z (the
     suspension, its spring preloaded so that the built pose is the rest pose), a front knuckle on a steering
     hinge about z (front wheels), and the wheel on a hinge about y driven by a velocity servo. The two
@@ -196,17 +198,20 @@ def car(wheel_speed: float = CAR_WHEEL_SPEED, steering: float = CAR_STEERING, gr
     (`SceneBuilder.add_motor`): a PID torque on the light knuckle would need a gain too low to steer.
     Without `ground` the chassis is fixed to the world ("hold"), so the wheels spin and steer in the air; with
     it the car is free and stands on its wheels on a ground (friction 1) that touches them, and drives.
+    `collide` False (held only): the shapes are for display and mass, so the step has no contact stage (held,
+    nothing touches: the paper's car is joints, motors and springs alone).
 
     Motors, in add order: wheels front-left, front-right, rear-left, rear-right, then steering left, right.
     """
+    _held_if_not_colliding(ground, collide)
     builder = SceneBuilder()
     z_axis, y_axis = np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])
-    chassis = _solid(builder, Shape("box", size=(2.4, 1.2, 0.3), color=(0.7, 0.1, 0.1)), 300.0, (0.0, 0.0, 0.8),
-                     (0.0, 0.0, 0.0, 1.0), "chassis")  # fmt: skip
+    chassis = _solid(builder, Shape("box", size=(2.4, 1.2, 0.3), color=(0.7, 0.1, 0.1), collide=collide), 300.0,
+                     (0.0, 0.0, 0.8), (0.0, 0.0, 0.0, 1.0), "chassis")  # fmt: skip
     if not ground:
         builder.add_joint_fixed(None, chassis, (0.0, 0.0, 0.8), name="hold")
     k, c, strut_mass = 2.0e4, 400.0, 15.0
-    wheel_shape = Shape("cylinder", radius=0.3, length=0.2, color=(0.15, 0.15, 0.15))
+    wheel_shape = Shape("cylinder", radius=0.3, length=0.2, color=(0.15, 0.15, 0.15), collide=collide)
     upright = quat_between([0.0, 0.0, 1.0], y_axis)  # the cylinder's axis along y
     g = float(np.linalg.norm(builder.gravity))
     wheels, steering_hinges = [], []
@@ -269,27 +274,35 @@ def walker_leg_points(phase: float, crank: float = 0.12, sleeve_height: float = 
     return o, p, s, p + foot * u
 
 
-def walking_machine(crank_speed: float = 2.0 * math.pi, ground: bool = False) -> SceneBuilder:
+def _held_if_not_colliding(ground: bool, collide: bool) -> None:
+    if ground and not collide:
+        raise ValueError("a mechanism on the ground needs colliding shapes: collide=False is for the held one")
+
+
+def walking_machine(crank_speed: float = 2.0 * math.pi, ground: bool = False, collide: bool = True) -> SceneBuilder:
     """The paper's walking machine (section 5): per leg one servo motor (a stiff velocity motor on the crank's
     hinge), two hinges (crank to leg, body to sleeve) and one slider (the leg through the sleeve): one closed
     loop per leg, a crank-driven slotted lever whose foot traces a closed curve each crank turn. Four legs,
     cranks half a turn apart on each side. Without `ground` the body is fixed to the world ("hold"); with it
     the body is free, each leg ends in a foot plate on an ankle hinge (`WALKER_FOOT`), and the machine stands on
-    its four feet on a ground (friction 1) and walks along -x (docs/contacts.md, "The walking machine")."""
+    its four feet on a ground (friction 1) and walks along -x (docs/contacts.md, "The walking machine").
+    `collide` False (held only): the shapes are for display and mass, so the step has no contact stage (held,
+    no two parts touch: the paper's walking machine is joints and motors alone)."""
+    _held_if_not_colliding(ground, collide)
     builder = SceneBuilder()
     axis = np.array([0.0, -1.0, 0.0])  # angles grow from +x towards +z
     height = 1.0
-    body = _solid(builder, Shape("box", size=(1.4, 0.5, 0.2), color=(0.3, 0.3, 0.7)), 500.0, (0.0, 0.0, height + 0.3),
-                  (0.0, 0.0, 0.0, 1.0), "body")  # fmt: skip
+    body = _solid(builder, Shape("box", size=(1.4, 0.5, 0.2), color=(0.3, 0.3, 0.7), collide=collide), 500.0,
+                  (0.0, 0.0, height + 0.3), (0.0, 0.0, 0.0, 1.0), "body")  # fmt: skip
     if not ground:
         builder.add_joint_fixed(None, body, (0.0, 0.0, height + 0.3), name="hold")
     for i, (x, y, phase) in enumerate(WALKER_TRIPODS if ground else WALKER_LEGS):
         origin = np.array([x, y, height])
         o, p, s, f = (origin + v for v in walker_leg_points(2.0 * math.pi * phase))
         u = (p - s) / np.linalg.norm(p - s)
-        crank = _link(builder, o, p, 0.03, f"leg{i}_crank", (0.8, 0.6, 0.2))
-        sleeve = _link(builder, s - 0.05 * u, s + 0.05 * u, 0.06, f"leg{i}_sleeve", (0.5, 0.5, 0.5))
-        leg = _link(builder, s - 0.15 * u, f, 0.03, f"leg{i}_leg", (0.2, 0.6, 0.3))
+        crank = _link(builder, o, p, 0.03, f"leg{i}_crank", (0.8, 0.6, 0.2), collide)
+        sleeve = _link(builder, s - 0.05 * u, s + 0.05 * u, 0.06, f"leg{i}_sleeve", (0.5, 0.5, 0.5), collide)
+        leg = _link(builder, s - 0.15 * u, f, 0.03, f"leg{i}_leg", (0.2, 0.6, 0.3), collide)
         servo = builder.add_joint_revolute(body, crank, o, axis, name=f"leg{i}_servo")
         builder.add_joint_revolute(crank, leg, p, axis, name=f"leg{i}_knee")
         builder.add_joint_revolute(body, sleeve, s, axis, name=f"leg{i}_hip")
