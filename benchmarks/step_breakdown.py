@@ -6,12 +6,18 @@ For each scene: the time of a step by the fused schedule (whole steps, many a la
 each serial stage of kernels/step.py (predict every body, joint errors, solve, apply, frames, assemble, factor,
 velocity errors, the NaN/spin summary) launched alone `REPEATS` times, times the number of times a step runs it
 (from the run's StepStats); "other" is the measured step minus their sum. chain10 with a force element on every
-link (`--mechanisms`: only these): fused against parallel. Big trees give the cost per body-step and the set-up
-time (builder, finalize, Simulator). Step times are CPU time of this process
-(`time.process_time`): on a shared machine, time spent descheduled is not the engine's.
+link: fused against parallel. Big trees give the cost per body-step and the set-up time (builder, finalize,
+Simulator). Step times are CPU time of this process (`time.process_time`): on a shared machine, time spent
+descheduled is not the engine's.
+
+`--mechanisms`: only the mechanisms, fused against parallel, interleaved blocks from the same state, into their own
+JSON: chain10 with a force element on every link, and the scenes with rows of the correction loop (kernels/limits.py):
+chain10 with a +-0.3 rad limit on every hinge, chain10 with a stiff velocity motor on every hinge, and the paper's
+walking machine and car held in the air (`collide=False`: joints, motors and springs alone; with their collision
+shapes they have a contact stage, which the fused step does not have).
 
     python benchmarks/step_breakdown.py [--quick] [--json benchmarks/results/step_breakdown.json] [--readme README.md]
-    python benchmarks/step_breakdown.py --mechanisms
+    python benchmarks/step_breakdown.py --mechanisms [--json benchmarks/results/fused_mechanisms.json]
 """
 
 from __future__ import annotations
@@ -48,6 +54,13 @@ SCENES = {  # name: (builder, dt, tolerance)
     "chain50": (lambda: scenes.chain(50), 1 / 60, 1e-6),
 }
 MECHANISMS = ("springs", "joint springs")  # benchmarks/mechanisms.py's chain10 variants (force elements)
+ROW_CHAINS = ("limits", "stiff motors")  # its chain10 variants with rows of the correction loop
+ROW_SCENES = {  # name: builder (h = 1/60): the paper's mechanisms held, their shapes for display only
+    "walking machine (held)": lambda: scenes.walking_machine(collide=False),
+    "car (held)": lambda: scenes.car(collide=False),
+}
+STEP_JSON = ROOT / "benchmarks/results/step_breakdown.json"
+MECHANISMS_JSON = ROOT / "benchmarks/results/fused_mechanisms.json"
 BIG = (2047, 65535)  # binary trees for the cost per body-step and set-up
 ANALYSIS = (65535, 1048575)  # binary trees for the symbolic analysis alone
 
@@ -326,14 +339,23 @@ def scene_point(name: str, steps: int) -> dict:
     return out
 
 
-def mechanism_point(kind: str, steps: int) -> dict:
-    """chain10 with a force element on every link (benchmarks/mechanisms.py): the fused step (the coupled RK4
-    prediction in the launch) against the parallel one, interleaved blocks from the same state."""
+def _chain(kind: str):
+    """benchmarks/mechanisms.py's chain10 with `kind` on every link, as a builder function."""
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from mechanisms import chain
 
+    return lambda: chain(kind)
+
+
+def mechanism_point(kind: str, steps: int, make=None) -> dict:
+    """chain10 with `kind` on every link (benchmarks/mechanisms.py), or the scene `make` builds: the fused step
+    (the coupled RK4 prediction, the rows, in the launch) against the parallel one, interleaved blocks from the
+    same state."""
     dt = 1 / 60
-    engines = {s: _Ours(lambda: chain(kind), dt, 1e-6, s, s == "fused") for s in ("fused", "parallel")}
+    label = kind if make else f"chain10 {kind}"
+    make = make or _chain(kind)
+    engines = {s: _Ours(make, dt, 1e-6, s, s == "fused") for s in ("fused", "parallel")}
+    assert engines["fused"].sim.schedule == "fused", engines["fused"].sim.schedule_note
     times: dict = {key: [] for key in engines}
     for _ in range(ROUNDS):
         for key, engine in engines.items():
@@ -344,9 +366,11 @@ def mechanism_point(kind: str, steps: int) -> dict:
                 engine.restore()
 
             times[key].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
-    return {"scene": f"chain10 {kind}", "dt": dt, "steps": steps, "fused_batched_us": statistics.median(times["fused"]),
-            "parallel_us": statistics.median(times["parallel"]),
-            "joint_iterations": statistics.mean(s.joint_iterations for s in engines["fused"].stats)}  # fmt: skip
+    fused = engines["fused"].stats
+    return {"scene": label, "dt": dt, "steps": steps,
+            "fused_batched_us": statistics.median(times["fused"]), "parallel_us": statistics.median(times["parallel"]),
+            "joint_iterations": statistics.mean(s.joint_iterations for s in fused),
+            "velocity_iterations": statistics.mean(s.velocity_iterations for s in fused)}  # fmt: skip
 
 
 def specialization(name: str, steps: int) -> dict:
@@ -449,24 +473,46 @@ def table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def mechanisms_table(result: dict) -> str:
+    """The `--mechanisms` run: fused against parallel, a row a scene."""
+    lines = [f"µs a step (CPU time), medians of {ROUNDS} interleaved blocks of {result['mechanisms'][0]['steps']} "
+             "steps from the same state (the scene at 1.1 s):", "",
+             "| scene | fused, n steps a launch | parallel | parallel / fused | joint iterations a step |",
+             "|---|---:|---:|---:|---:|"]  # fmt: skip
+    for p in result["mechanisms"]:
+        lines.append(f"| {p['scene']} (h = 1/{round(1 / p['dt'])}) | {p['fused_batched_us']:.1f} | "
+                     f"{p['parallel_us']:.1f} | {p['parallel_us'] / p['fused_batched_us']:.1f} | "
+                     f"{p['joint_iterations']:.2f} |")  # fmt: skip
+    meta = result["meta"]
+    lines += ["", f"{meta['machine']}; {meta['versions']}; {meta['date']}; "
+              "`python benchmarks/step_breakdown.py --mechanisms`."]  # fmt: skip
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps, no 65,535-body tree")
-    parser.add_argument("--json", default=str(ROOT / "benchmarks/results/step_breakdown.json"))
+    parser.add_argument("--json", default=None, help=f"default {STEP_JSON} ({MECHANISMS_JSON} with --mechanisms)")
     parser.add_argument("--readme", default=None, help="rewrite README.md's step-time block from the results")
     parser.add_argument("--from-json", action="store_true", help="only regenerate the README block")
-    parser.add_argument("--mechanisms", action="store_true", help="only the force-element scenes, printed")
+    parser.add_argument("--mechanisms", action="store_true", help="only the mechanisms, fused against parallel")
     args = parser.parse_args(argv)
+    steps = 30 if args.quick else STEPS
     if args.mechanisms:
         wp.config.quiet = True
-        for kind in MECHANISMS:
-            print(json.dumps(mechanism_point(kind, 30 if args.quick else STEPS)))
+        result = {"meta": metadata(sys.argv[1:]), "mechanisms": []}
+        points = [(kind, None) for kind in MECHANISMS + ROW_CHAINS] + list(ROW_SCENES.items())
+        for kind, make in points:
+            result["mechanisms"].append(mechanism_point(kind, steps, make))
+            print(json.dumps(result["mechanisms"][-1]), file=sys.stderr)
+        Path(args.json or MECHANISMS_JSON).write_text(json.dumps(result, indent=1) + "\n")
+        print(mechanisms_table(result))
         return 0
+    args.json = args.json or STEP_JSON
     if args.from_json:
         result = json.loads(Path(args.json).read_text())
     else:
         wp.config.quiet = True
-        steps = 30 if args.quick else STEPS
         result = {"meta": metadata(sys.argv[1:]), "scenes": [], "big": []}
         for name in SCENES:
             result["scenes"].append(scene_point(name, steps))

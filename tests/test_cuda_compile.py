@@ -90,3 +90,12 @@ def test_the_fused_step_with_force_elements_compiles_for_cuda(tmp_path):
     from warpimpulse.kernels.constraints import ALL_KINDS
 
     compile_for_cuda(step.fused(ALL_KINDS, forced=True).cholesky_steps.module, tmp_path)
+
+
+def test_the_fused_step_with_rows_compiles_for_cuda(tmp_path):
+    """`step.fused(kinds, forced=True, rows=True)`: limits, stiff motors and distance rows in the fused loop, with
+    force elements (the held car has both)."""
+    from warpimpulse.kernels import step
+    from warpimpulse.kernels.constraints import ALL_KINDS
+
+    compile_for_cuda(step.fused(ALL_KINDS, forced=True, rows=True).cholesky_steps.module, tmp_path)
