@@ -189,19 +189,10 @@ def coupling_entry(
     body_inv_mass: wp.array(dtype=f64),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    # Data in:
-    body_x_in: wp.array(dtype=vec3d),
-    body_q_in: wp.array(dtype=quatd),
-    body_v_in: wp.array(dtype=vec3d),
-    body_w_in: wp.array(dtype=vec3d),
+    # Data in: the rows' Jacobians (`row_sides`), the frames
+    limit_side_body_in: wp.array(dtype=int),
+    limit_side_lin_in: wp.array(dtype=vec3d),
+    limit_side_ang_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
@@ -210,13 +201,11 @@ def coupling_entry(
 ):
     """c_i = sum over the bodies that limit l and constraint i share of J_ib M_b^-1 g_b^T."""
     nc = constraint_body0.shape[0]
-    r = limit_coordinate[l]
     c = vec3d()
     for side in range(2):
-        b, g_lin, g_ang = limit_side(
-            r, side, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
-        )  # fmt: skip
+        b = limit_side_body_in[2 * l + side]
+        g_lin = limit_side_lin_in[2 * l + side]
+        g_ang = limit_side_ang_in[2 * l + side]
         if b >= 0:
             if constraint_body0[i] == b:
                 c += jac_lin_in[2 * i] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i] * (
@@ -229,12 +218,10 @@ def coupling_entry(
     limit_coupling_out[l * nc + i] = c
 
 
-@wp.kernel
-def limit_coupling(
+@wp.func
+def row_sides(
+    l: int,
     # Model:
-    body_inv_mass: wp.array(dtype=f64),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
     coordinate_body1: wp.array(dtype=int),
@@ -248,6 +235,63 @@ def limit_coupling(
     body_q_in: wp.array(dtype=quatd),
     body_v_in: wp.array(dtype=vec3d),
     body_w_in: wp.array(dtype=vec3d),
+    # Data out: side s of row l at 2 l + s
+    limit_side_body_out: wp.array(dtype=int),
+    limit_side_lin_out: wp.array(dtype=vec3d),
+    limit_side_ang_out: wp.array(dtype=vec3d),
+):
+    """Row l's Jacobian g on both sides at the state (`limit_side`), kept for S and C: every entry of both reads
+    it, so each row's coordinate is evaluated once a state, not once an entry."""
+    for side in range(2):
+        b, g_lin, g_ang = limit_side(
+            limit_coordinate[l], side, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+            coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in,
+            body_w_in,
+        )  # fmt: skip
+        limit_side_body_out[2 * l + side] = b
+        limit_side_lin_out[2 * l + side] = g_lin
+        limit_side_ang_out[2 * l + side] = g_ang
+
+
+@wp.kernel
+def limit_sides(
+    # Model:
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    limit_coordinate: wp.array(dtype=int),
+    # Data in:
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out:
+    limit_side_body_out: wp.array(dtype=int),
+    limit_side_lin_out: wp.array(dtype=vec3d),
+    limit_side_ang_out: wp.array(dtype=vec3d),
+):
+    """Every row's Jacobian on both sides (`row_sides`), a thread a row."""
+    row_sides(
+        wp.tid(), coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, limit_coordinate, body_x_in, body_q_in, body_v_in, body_w_in,
+        limit_side_body_out, limit_side_lin_out, limit_side_ang_out,
+    )  # fmt: skip
+
+
+@wp.kernel
+def limit_coupling(
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    # Data in:
+    limit_side_body_in: wp.array(dtype=int),
+    limit_side_lin_in: wp.array(dtype=vec3d),
+    limit_side_ang_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
@@ -257,9 +301,8 @@ def limit_coupling(
     """Every row's coupling to every constraint (`coupling_entry`), a thread an entry."""
     l, i = wp.tid()
     coupling_entry(
-        l, i, body_inv_mass, constraint_body0, constraint_body1, coordinate_kind, coordinate_body0, coordinate_body1,
-        coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, limit_coordinate,
-        body_x_in, body_q_in, body_v_in, body_w_in, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_coupling_out,
+        l, i, body_inv_mass, constraint_body0, constraint_body1, limit_side_body_in, limit_side_lin_in,
+        limit_side_ang_in, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_coupling_out,
     )  # fmt: skip
 
 
@@ -270,19 +313,10 @@ def matrix_entry(
     # Model:
     coupled: int,
     body_inv_mass: wp.array(dtype=f64),
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    # Data in: c and K^-1 c of every row (when `coupled`)
-    body_x_in: wp.array(dtype=vec3d),
-    body_q_in: wp.array(dtype=quatd),
-    body_v_in: wp.array(dtype=vec3d),
-    body_w_in: wp.array(dtype=vec3d),
+    # Data in: the rows' Jacobians (`row_sides`), c and K^-1 c of every row (when `coupled`)
+    limit_side_body_in: wp.array(dtype=int),
+    limit_side_lin_in: wp.array(dtype=vec3d),
+    limit_side_ang_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=mat33d),
     limit_coupling_in: wp.array(dtype=vec3d),
     limit_response_in: wp.array(dtype=vec3d),
@@ -292,21 +326,17 @@ def matrix_entry(
     """The rows' own system with the joints holding: S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l, the rate change of
     row k per unit impulse of row l. A diagonal is kept at least 1e-9 of its free value g M^-1 g^T (a row the
     joints lock gets no unbounded impulse)."""
-    nl = limit_coordinate.shape[0]
+    nl = limit_side_body_in.shape[0] // 2
     free = f64(0.0)
     for sk in range(2):
-        bk, glk, gak = limit_side(
-            limit_coordinate[k], sk, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-            coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in,
-            body_w_in,
-        )  # fmt: skip
+        bk = limit_side_body_in[2 * k + sk]
+        glk = limit_side_lin_in[2 * k + sk]
+        gak = limit_side_ang_in[2 * k + sk]
         if bk >= 0:
             for sl in range(2):
-                bl, gll, gal = limit_side(
-                    limit_coordinate[l], sl, coordinate_kind, coordinate_body0, coordinate_body1,
-                    coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in,
-                    body_q_in, body_v_in, body_w_in,
-                )  # fmt: skip
+                bl = limit_side_body_in[2 * l + sl]
+                gll = limit_side_lin_in[2 * l + sl]
+                gal = limit_side_ang_in[2 * l + sl]
                 if bl == bk:
                     free += body_inv_mass[bk] * wp.dot(glk, gll) + wp.dot(gak, inv_inertia_world_in[bk] * gal)
     held = free
@@ -324,19 +354,10 @@ def limit_matrix(
     # Model:
     coupled: int,
     body_inv_mass: wp.array(dtype=f64),
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    # Data in: c and K^-1 c of every row (when `coupled`)
-    body_x_in: wp.array(dtype=vec3d),
-    body_q_in: wp.array(dtype=quatd),
-    body_v_in: wp.array(dtype=vec3d),
-    body_w_in: wp.array(dtype=vec3d),
+    # Data in: the rows' Jacobians (`row_sides`), c and K^-1 c of every row (when `coupled`)
+    limit_side_body_in: wp.array(dtype=int),
+    limit_side_lin_in: wp.array(dtype=vec3d),
+    limit_side_ang_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=mat33d),
     limit_coupling_in: wp.array(dtype=vec3d),
     limit_response_in: wp.array(dtype=vec3d),
@@ -346,9 +367,8 @@ def limit_matrix(
     """The rows' system S (`matrix_entry`), a thread an entry."""
     k, l = wp.tid()
     matrix_entry(
-        k, l, coupled, body_inv_mass, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, limit_coordinate, body_x_in, body_q_in,
-        body_v_in, body_w_in, inv_inertia_world_in, limit_coupling_in, limit_response_in, limit_matrix_out,
+        k, l, coupled, body_inv_mass, limit_side_body_in, limit_side_lin_in, limit_side_ang_in, inv_inertia_world_in,
+        limit_coupling_in, limit_response_in, limit_matrix_out,
     )  # fmt: skip
 
 

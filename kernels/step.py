@@ -34,7 +34,7 @@ from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body
 from .iterative import sweep_positions_once, sweep_velocities_once
-from .limits import correct_all, coupling_entry, limit_error, matrix_entry
+from .limits import correct_all, coupling_entry, limit_error, matrix_entry, row_sides
 from .rigid import body_summary, predict_index, world_inverse_inertia_of
 
 wp.set_module_options({"enable_backward": False})
@@ -139,6 +139,9 @@ class Rows:
     limit_scratch: wp.array(dtype=f64)
     limit_work: wp.array(dtype=f64)
     limit_matrix: wp.array(dtype=f64)
+    limit_side_body: wp.array(dtype=int)
+    limit_side_lin: wp.array(dtype=vec3d)
+    limit_side_ang: wp.array(dtype=vec3d)
     limit_coupling: wp.array(dtype=vec3d)
     limit_response: wp.array(dtype=vec3d)
     coupling_rows: wp.array2d(dtype=vec3d)
@@ -539,36 +542,32 @@ def row_couplings_all(
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
 ):
-    """c = J M^-1 g^T of every row and constraint at the state (`coupling_entry`)."""
-    for l in range(rows.limit_coordinate.shape[0]):
+    """Every row's Jacobian g at the state (`row_sides`), then c = J M^-1 g^T of every row and constraint
+    (`coupling_entry`)."""
+    nl = rows.limit_coordinate.shape[0]
+    for l in range(nl):
+        row_sides(
+            l, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
+            rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
+            body_x, body_q, body_v, body_w, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
+        )  # fmt: skip
+    for l in range(nl):
         for i in range(constraint_count):
             coupling_entry(
-                l, i, body_inv_mass, constraint_body0, constraint_body1, rows.coordinate_kind, rows.coordinate_body0,
-                rows.coordinate_body1, rows.coordinate_anchor0, rows.coordinate_anchor1, rows.coordinate_axis0,
-                rows.coordinate_rest_rotation, rows.limit_coordinate, body_x, body_q, body_v, body_w,
-                inv_inertia_world, jac_lin, jac_ang, rows.limit_coupling,
+                l, i, body_inv_mass, constraint_body0, constraint_body1, rows.limit_side_body, rows.limit_side_lin,
+                rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, rows.limit_coupling,
             )  # fmt: skip
 
 
 @wp.func
-def row_matrix_all(
-    rows: Rows,
-    body_inv_mass: wp.array(dtype=f64),
-    body_x: wp.array(dtype=vec3d),
-    body_q: wp.array(dtype=quatd),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-    inv_inertia_world: wp.array(dtype=mat33d),
-):
-    """The rows' system S with the joints holding, from c and K^-1 c (`matrix_entry`)."""
+def row_matrix_all(rows: Rows, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=mat33d)):
+    """The rows' system S with the joints holding, from g, c and K^-1 c (`matrix_entry`)."""
     nl = rows.limit_coordinate.shape[0]
     for k in range(nl):
         for l in range(nl):
             matrix_entry(
-                k, l, 1, body_inv_mass, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1,
-                rows.coordinate_anchor0, rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation,
-                rows.limit_coordinate, body_x, body_q, body_v, body_w, inv_inertia_world, rows.limit_coupling,
-                rows.limit_response, rows.limit_matrix,
+                k, l, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
+                inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
             )  # fmt: skip
 
 
@@ -984,9 +983,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
                             limit_rows.response_rows[l],
                         )  # fmt: skip
-                    row_matrix_all(
-                        limit_rows, body_inv_mass, body_x_out, body_q_out, body_v_out, body_w_out, inv_inertia_world
-                    )  # fmt: skip
+                    row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
                 verr = velocity_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
                     body_v_out, body_w_out, errors, rhs,

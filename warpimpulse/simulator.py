@@ -242,6 +242,9 @@ class Simulator:
         self.limit_mask = wp.zeros(nl, dtype=wp.int32, device=d)
         self.limit_matrix = wp.zeros(nl * nl, dtype=wp.float64, device=d)  # the rows' system S
         self.limit_work = wp.zeros(nl * nl, dtype=wp.float64, device=d)
+        self.limit_side_body = wp.zeros(2 * nl, dtype=wp.int32, device=d)  # each row's Jacobian g, both sides
+        self.limit_side_lin = wp.zeros(2 * nl, dtype=wp.vec3d, device=d)
+        self.limit_side_ang = wp.zeros(2 * nl, dtype=wp.vec3d, device=d)
         self.limit_coupling = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # J M^-1 g^T of each limit
         self.limit_response = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # K^-1 J M^-1 g^T
         self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
@@ -334,7 +337,7 @@ class Simulator:
         if nl == 0:
             return []
         coupled = isinstance(self.linear, CholeskySolver)
-        launches = []
+        launches = [self._record(limit_kernels.limit_sides, nl, s)]
         if coupled:
             launches.append(self._record(limit_kernels.limit_coupling, (nl, nc), s))
             for l in range(nl):
