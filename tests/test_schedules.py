@@ -491,3 +491,20 @@ def test_motor_targets_set_between_batches_agree():
     for a, b in zip([*results[0][1], results[0][2]], [*results[1][1], results[1][2]]):
         np.testing.assert_array_equal(a, b)
     assert np.all(results[0][2][2:] != 0.0)  # the three servos' integrals moved (drives 0, 1 are joint springs)
+
+
+def test_stiff_motor_targets_set_between_batches_agree():
+    """A stiff motor's new target (a row's goal) between two batches reaches the fused kernel: the held car
+    steers the other way and its wheels speed up, as under the parallel schedule."""
+    results = []
+    for schedule in ("fused", "parallel"):
+        sim = wi.Simulator(scenes.car(collide=False).finalize(), 1 / 60, schedule=schedule)
+        sim.simulate(0.25)
+        sim.set_motor_target(4, -0.2)  # the steering servos (motors 4, 5: one target)
+        sim.set_motor_target(0, 9.0)  # the front-left wheel
+        stats = sim.simulate(0.25)
+        results.append((stats, _state(sim), sim.joint_coordinates("front_left_steering")))
+    assert results[0][0] == results[1][0]
+    for a, b in zip(results[0][1], results[1][1]):
+        np.testing.assert_array_equal(a, b)
+    assert results[0][2][0] < 0.0  # it turned to the new target's side
