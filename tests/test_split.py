@@ -116,6 +116,20 @@ def test_force_elements_run_on_one_thread_and_say_why():
     assert np.array_equal(sim.positions(), one.positions())
 
 
+def test_rows_run_on_one_thread_and_say_why():
+    """A distance constraint is a row of one dense system over the whole model (kernels/limits.py): the fused
+    step takes it, the parts could not."""
+    builder = wi.scenes.binary_tree(31)
+    top = builder.bodies[20].position
+    builder.add_distance(None, 20, top + (0.0, 0.0, 0.3), top, max_distance=0.2, name="rope")
+    model = builder.finalize()
+    sim, one = SplitSimulator(model, DT, threads=2), Simulator(model, DT)
+    assert sim.threads == 1 and "distance constraints" in sim.split_note and one.schedule == "fused"
+    sim.step(5)
+    one.step(5)
+    assert np.array_equal(sim.positions(), one.positions())
+
+
 def test_a_loop_is_not_cut():
     model = wi.scenes.four_bar().finalize()
     with pytest.raises(CutError, match="closes a loop"):
