@@ -221,6 +221,7 @@ def _row_history(case: str) -> tuple[np.ndarray, list]:
     return np.array(impulses), stats
 
 
+@pytest.mark.fused
 def test_the_row_cases_reach_their_paths():
     """The row cases do exercise what they name: limits that push on some steps and not others, every row of
     the distances case, a saturated motor (|impulse| = max_force h), halved steps handed back from a batch, and
@@ -238,6 +239,7 @@ def test_the_row_cases_reach_their_paths():
     assert {(s.order, s.fallback) for s in stats} == {(2, wi.simulator.ROWS_FALLBACK)}
 
 
+@pytest.mark.fused
 @pytest.mark.parametrize("case", ["chain10_limits", "chain10_stiff_motors", "chain6_distances", "walker_held"])
 def test_steps_with_rows_are_taken_by_the_fused_kernel(case, monkeypatch):
     """A batch of steps with rows is one launch and hands no step back (a fused kernel that failed every step
