@@ -710,53 +710,70 @@ def box_pivot(
             mask[pick] = 1
 
 
+@wp.struct
+class Rows:
+    """A scene's rows of the correction loop for the fused step (`fused(kinds, rows=True)`): joint limits, stiff
+    motors and distance constraints on the table of coordinates, the rows' system S with the joints holding and
+    its scratch (`kernels/limits.py`; `Simulator._limit_system_launches`, `_correct_limits` and
+    `_correct_limit_velocities` are its parallel schedule). `coupling_rows` and `response_rows` are
+    `limit_coupling` and `limit_response` seen as one row of constraint_count entries a limit row."""
+
+    coordinate_kind: wp.array(dtype=int)
+    coordinate_body0: wp.array(dtype=int)
+    coordinate_body1: wp.array(dtype=int)
+    coordinate_anchor0: wp.array(dtype=vec3d)
+    coordinate_anchor1: wp.array(dtype=vec3d)
+    coordinate_axis0: wp.array(dtype=vec3d)
+    coordinate_rest_rotation: wp.array(dtype=quatd)
+    limit_coordinate: wp.array(dtype=int)
+    limit_bounds: wp.array(dtype=wp.vec2d)
+    limit_drive: wp.array(dtype=int)
+    drive_mode: wp.array(dtype=int)
+    drive_max_force: wp.array(dtype=f64)
+    drive_target: wp.array(dtype=f64)
+    limit_impulse: wp.array(dtype=f64)  # accumulated over the step (the position pass)
+    limit_velocity_impulse: wp.array(dtype=f64)
+    limit_value: wp.array(dtype=f64)
+    limit_rate: wp.array(dtype=f64)
+    limit_error: wp.array(dtype=f64)
+    limit_mask: wp.array(dtype=int)
+    limit_low: wp.array(dtype=f64)
+    limit_high: wp.array(dtype=f64)
+    limit_goal: wp.array(dtype=f64)
+    limit_before: wp.array(dtype=f64)
+    limit_rhs: wp.array(dtype=f64)
+    limit_delta: wp.array(dtype=f64)
+    limit_scratch: wp.array(dtype=f64)
+    limit_work: wp.array(dtype=f64)
+    limit_matrix: wp.array(dtype=f64)
+    limit_side_body: wp.array(dtype=int)
+    limit_side_lin: wp.array(dtype=vec3d)
+    limit_side_ang: wp.array(dtype=vec3d)
+    limit_coupling: wp.array(dtype=vec3d)
+    limit_response: wp.array(dtype=vec3d)
+    coupling_rows: wp.array2d(dtype=vec3d)
+    response_rows: wp.array2d(dtype=vec3d)
+
+
 @wp.func
 def correct_all(
-    # Model:
     velocity: int,
-    limit_count: int,
     coupled: int,
+    # Model:
     body_inv_mass: wp.array(dtype=f64),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    limit_bounds: wp.array(dtype=wp.vec2d),
-    limit_drive: wp.array(dtype=int),
-    drive_mode: wp.array(dtype=int),
-    drive_max_force: wp.array(dtype=f64),
     # Data in:
     h: f64,
-    drive_target: wp.array(dtype=f64),
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
-    limit_response_in: wp.array(dtype=vec3d),
-    limit_matrix_in: wp.array(dtype=f64),
-    limit_value_in: wp.array(dtype=f64),
-    limit_rate_in: wp.array(dtype=f64),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
-    # Data in/out: the state at t0's (or t0 + h's) velocities, the impulses, scratch
+    # Data in/out: the state at t0's (or t0 + h's) velocities; the rows, their impulses and scratch
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
-    limit_impulse: wp.array(dtype=f64),
-    limit_velocity_impulse: wp.array(dtype=f64),
-    limit_mask: wp.array(dtype=int),
-    limit_low: wp.array(dtype=f64),
-    limit_high: wp.array(dtype=f64),
-    limit_goal: wp.array(dtype=f64),
-    limit_before: wp.array(dtype=f64),
-    limit_rhs: wp.array(dtype=f64),
-    limit_delta: wp.array(dtype=f64),
-    limit_work: wp.array(dtype=f64),
-    limit_scratch: wp.array(dtype=f64),
+    rows: Rows,
 ):
     """All rows at once (one thread), on the rows' system S (`limit_matrix`) with an active set.
 
@@ -768,102 +785,113 @@ def correct_all(
     bounds (push only; |motor| <= max_force h over the step) by block pivoting: rows out of bounds are fixed
     at them one at a time, fixed rows whose demand turns inwards are freed, until neither happens. The
     impulses go to the bodies with the joints' reaction."""
-    n = limit_count
+    n = rows.limit_coordinate.shape[0]
     for i in range(n):
-        r = limit_coordinate[i]
+        r = rows.limit_coordinate[i]
         value, rate, a, pb = coordinate_row(
-            r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v, body_w,
-        )  # fmt: skip
+            r,
+            rows.coordinate_kind,
+            rows.coordinate_body0,
+            rows.coordinate_body1,
+            rows.coordinate_anchor0,
+            rows.coordinate_anchor1,
+            rows.coordinate_axis0,
+            rows.coordinate_rest_rotation,
+            body_x_in,
+            body_q_in,
+            body_v,
+            body_w,
+        )
         current = rate
         if velocity == 0:
-            current = limit_value_in[i] + h * (rate - limit_rate_in[i])
+            current = rows.limit_value[i] + h * (rate - rows.limit_rate[i])
         active, goal, low, high = row_setup(
-            velocity, limit_impulse[i], current, limit_drive[i], limit_bounds[i], drive_mode, drive_max_force,
-            drive_target, h,
-        )  # fmt: skip
-        limit_low[i] = low
-        limit_high[i] = high
-        limit_mask[i] = active
-        limit_goal[i] = goal
-        limit_delta[i] = f64(0.0)
-        limit_before[i] = limit_impulse[i]  # the row's total before this pass
+            velocity,
+            rows.limit_impulse[i],
+            current,
+            rows.limit_drive[i],
+            rows.limit_bounds[i],
+            rows.drive_mode,
+            rows.drive_max_force,
+            rows.drive_target,
+            h,
+        )
+        rows.limit_low[i] = low
+        rows.limit_high[i] = high
+        rows.limit_mask[i] = active
+        rows.limit_goal[i] = goal
+        rows.limit_delta[i] = f64(0.0)
+        rows.limit_before[i] = rows.limit_impulse[i]  # the row's total before this pass
         if velocity != 0:
-            limit_velocity_impulse[i] = f64(0.0)
+            rows.limit_velocity_impulse[i] = f64(0.0)
     box_pivot(
-        n, limit_matrix_in, limit_mask, limit_goal, limit_before, limit_low, limit_high, limit_delta, limit_rhs,
-        limit_work, limit_scratch,
-    )  # fmt: skip
+        n,
+        rows.limit_matrix,
+        rows.limit_mask,
+        rows.limit_goal,
+        rows.limit_before,
+        rows.limit_low,
+        rows.limit_high,
+        rows.limit_delta,
+        rows.limit_rhs,
+        rows.limit_work,
+        rows.limit_scratch,
+    )
     for i in range(n):
-        if limit_mask[i] != 0:
-            d = limit_delta[i]
+        if rows.limit_mask[i] != 0:
+            d = rows.limit_delta[i]
             if velocity == 0:
-                limit_impulse[i] = limit_impulse[i] + d
+                rows.limit_impulse[i] = rows.limit_impulse[i] + d
             else:
-                limit_velocity_impulse[i] = limit_velocity_impulse[i] + d
+                rows.limit_velocity_impulse[i] = rows.limit_velocity_impulse[i] + d
             apply_fixed(
-                i, d, coupled, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-                coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, limit_coordinate, body_inv_mass,
-                constraint_body0, constraint_body1, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_response_in,
-                body_x_in, body_q_in, body_v, body_w,
-            )  # fmt: skip
+                i,
+                d,
+                coupled,
+                rows.coordinate_kind,
+                rows.coordinate_body0,
+                rows.coordinate_body1,
+                rows.coordinate_anchor0,
+                rows.coordinate_anchor1,
+                rows.coordinate_axis0,
+                rows.coordinate_rest_rotation,
+                rows.limit_coordinate,
+                body_inv_mass,
+                constraint_body0,
+                constraint_body1,
+                inv_inertia_world_in,
+                jac_lin_in,
+                jac_ang_in,
+                rows.limit_response,
+                body_x_in,
+                body_q_in,
+                body_v,
+                body_w,
+            )
 
 
 @wp.kernel
 def correct_rows(
-    # Model:
     velocity: int,
-    limit_count: int,
     coupled: int,
+    # Model:
     body_inv_mass: wp.array(dtype=f64),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    limit_bounds: wp.array(dtype=wp.vec2d),
-    limit_drive: wp.array(dtype=int),
-    drive_mode: wp.array(dtype=int),
-    drive_max_force: wp.array(dtype=f64),
     # Data in:
     h: f64,
-    drive_target: wp.array(dtype=f64),
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
-    limit_response_in: wp.array(dtype=vec3d),
-    limit_matrix_in: wp.array(dtype=f64),
-    limit_value_in: wp.array(dtype=f64),
-    limit_rate_in: wp.array(dtype=f64),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
-    # Data in/out: the state at t0's (or t0 + h's) velocities, the impulses, scratch
+    # Data in/out:
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
-    limit_impulse: wp.array(dtype=f64),
-    limit_velocity_impulse: wp.array(dtype=f64),
-    limit_mask: wp.array(dtype=int),
-    limit_low: wp.array(dtype=f64),
-    limit_high: wp.array(dtype=f64),
-    limit_goal: wp.array(dtype=f64),
-    limit_before: wp.array(dtype=f64),
-    limit_rhs: wp.array(dtype=f64),
-    limit_delta: wp.array(dtype=f64),
-    limit_work: wp.array(dtype=f64),
-    limit_scratch: wp.array(dtype=f64),
+    rows: Rows,
 ):
     """All rows at once on one thread (`correct_all`)."""
     correct_all(
-        velocity, limit_count, coupled, body_inv_mass, constraint_body0, constraint_body1, coordinate_kind,
-        coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
-        coordinate_rest_rotation, limit_coordinate, limit_bounds, limit_drive, drive_mode, drive_max_force, h,
-        drive_target, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_response_in, limit_matrix_in,
-        limit_value_in, limit_rate_in, body_x_in, body_q_in, body_v, body_w, limit_impulse, limit_velocity_impulse,
-        limit_mask, limit_low, limit_high, limit_goal, limit_before, limit_rhs, limit_delta, limit_work,
-        limit_scratch,
+        velocity, coupled, body_inv_mass, constraint_body0, constraint_body1, h, inv_inertia_world_in, jac_lin_in,
+        jac_ang_in, body_x_in, body_q_in, body_v, body_w, rows,
     )  # fmt: skip

@@ -37,7 +37,7 @@ from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body
 from .iterative import sweep_positions_once, sweep_velocities_once
-from .limits import correct_all, coupling_entry, limit_error, matrix_entry, row_sides
+from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
 from .rigid import body_summary, predict_index, world_inverse_inertia_of
 
 wp.set_module_options({"enable_backward": False})
@@ -104,51 +104,6 @@ class ForceElements:
     rk4_sum_q: wp.array(dtype=quatd)
     rk4_sum_v: wp.array(dtype=vec3d)
     rk4_sum_w: wp.array(dtype=vec3d)
-
-
-@wp.struct
-class Rows:
-    """A scene's rows of the correction loop for the fused step (`fused(kinds, rows=True)`): joint limits, stiff
-    motors and distance constraints on the table of coordinates, the rows' system S with the joints holding and
-    its scratch (`kernels/limits.py`; `Simulator._limit_system_launches`, `_correct_limits` and
-    `_correct_limit_velocities` are its parallel schedule). `coupling_rows` and `response_rows` are
-    `limit_coupling` and `limit_response` seen as one row of constraint_count entries a limit row."""
-
-    coordinate_kind: wp.array(dtype=int)
-    coordinate_body0: wp.array(dtype=int)
-    coordinate_body1: wp.array(dtype=int)
-    coordinate_anchor0: wp.array(dtype=vec3d)
-    coordinate_anchor1: wp.array(dtype=vec3d)
-    coordinate_axis0: wp.array(dtype=vec3d)
-    coordinate_rest_rotation: wp.array(dtype=quatd)
-    limit_coordinate: wp.array(dtype=int)
-    limit_bounds: wp.array(dtype=wp.vec2d)
-    limit_drive: wp.array(dtype=int)
-    drive_mode: wp.array(dtype=int)
-    drive_max_force: wp.array(dtype=f64)
-    drive_target: wp.array(dtype=f64)
-    limit_impulse: wp.array(dtype=f64)  # accumulated over the step (the position pass)
-    limit_velocity_impulse: wp.array(dtype=f64)
-    limit_value: wp.array(dtype=f64)
-    limit_rate: wp.array(dtype=f64)
-    limit_error: wp.array(dtype=f64)
-    limit_mask: wp.array(dtype=int)
-    limit_low: wp.array(dtype=f64)
-    limit_high: wp.array(dtype=f64)
-    limit_goal: wp.array(dtype=f64)
-    limit_before: wp.array(dtype=f64)
-    limit_rhs: wp.array(dtype=f64)
-    limit_delta: wp.array(dtype=f64)
-    limit_scratch: wp.array(dtype=f64)
-    limit_work: wp.array(dtype=f64)
-    limit_matrix: wp.array(dtype=f64)
-    limit_side_body: wp.array(dtype=int)
-    limit_side_lin: wp.array(dtype=vec3d)
-    limit_side_ang: wp.array(dtype=vec3d)
-    limit_coupling: wp.array(dtype=vec3d)
-    limit_response: wp.array(dtype=vec3d)
-    coupling_rows: wp.array2d(dtype=vec3d)
-    response_rows: wp.array2d(dtype=vec3d)
 
 
 @wp.func
@@ -519,14 +474,8 @@ def correct_rows_all(
 ):
     """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`correct_all`)."""
     correct_all(
-        velocity, rows.limit_coordinate.shape[0], 1, body_inv_mass, constraint_body0, constraint_body1,
-        rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
-        rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
-        rows.limit_bounds, rows.limit_drive, rows.drive_mode, rows.drive_max_force, h, rows.drive_target,
-        inv_inertia_world, jac_lin, jac_ang, rows.limit_response, rows.limit_matrix, rows.limit_value,
-        rows.limit_rate, body_x, body_q, body_v, body_w, rows.limit_impulse, rows.limit_velocity_impulse,
-        rows.limit_mask, rows.limit_low, rows.limit_high, rows.limit_goal, rows.limit_before, rows.limit_rhs,
-        rows.limit_delta, rows.limit_work, rows.limit_scratch,
+        velocity, 1, body_inv_mass, constraint_body0, constraint_body1, h, inv_inertia_world, jac_lin, jac_ang,
+        body_x, body_q, body_v, body_w, rows,
     )  # fmt: skip
 
 

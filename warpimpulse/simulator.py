@@ -365,8 +365,8 @@ class Simulator:
                 measure += [self.world_summary.zero_, self._world_checks[id(p)]]
             nl, coupled = self.model.limit_count, int(self._direct)
             correct_limits, correct_limit_velocities = (
-                self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, limit_count=nl, coupled=coupled,
-                             h=h, body_v=s.body_v, body_w=s.body_w)
+                self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, coupled=coupled, h=h,
+                             body_v=s.body_v, body_w=s.body_w, rows=self._row_arrays())
                 for v in (0, 1)
             )  # fmt: skip
             iterate = iteration = None
@@ -653,13 +653,13 @@ class Simulator:
         elements.rk4_sum_v, elements.rk4_sum_w = self.rk4_sum_v, self.rk4_sum_w
         return elements
 
-    def _row_arrays(self) -> step_kernels.Rows:
+    def _row_arrays(self) -> limit_kernels.Rows:
         """The rows of the correction loop and their scratch, for the fused kernel (empty without)."""
-        rows = step_kernels.Rows()
+        rows = limit_kernels.Rows()
         m, nl = self.model, self.model.limit_count
         if not nl:
             return rows
-        for field in step_kernels.Rows.vars:
+        for field in limit_kernels.Rows.vars:
             source = self if hasattr(self, field) else m
             if hasattr(source, field):
                 setattr(rows, field, getattr(source, field))
