@@ -38,26 +38,56 @@ f64 = wp.float64
 ANGLE_COORDINATE = wp.constant(0)
 
 
+@wp.struct
+class Rows:
+    """A scene's rows of the correction loop for the fused step (`fused(kinds, rows=True)`): joint limits, stiff
+    motors and distance constraints on the table of coordinates, the rows' system S with the joints holding and
+    its scratch (`kernels/limits.py`; `Simulator._limit_system_launches`, `_correct_limits` and
+    `_correct_limit_velocities` are its parallel schedule). `coupling_rows` and `response_rows` are
+    `limit_coupling` and `limit_response` seen as one row of constraint_count entries a limit row."""
+
+    coordinate_kind: wp.array(dtype=int)
+    coordinate_body0: wp.array(dtype=int)
+    coordinate_body1: wp.array(dtype=int)
+    coordinate_anchor0: wp.array(dtype=vec3d)
+    coordinate_anchor1: wp.array(dtype=vec3d)
+    coordinate_axis0: wp.array(dtype=vec3d)
+    coordinate_rest_rotation: wp.array(dtype=quatd)
+    limit_coordinate: wp.array(dtype=int)
+    limit_bounds: wp.array(dtype=wp.vec2d)
+    limit_drive: wp.array(dtype=int)
+    drive_mode: wp.array(dtype=int)
+    drive_max_force: wp.array(dtype=f64)
+    drive_target: wp.array(dtype=f64)
+    limit_impulse: wp.array(dtype=f64)  # accumulated over the step (the position pass)
+    limit_velocity_impulse: wp.array(dtype=f64)
+    limit_value: wp.array(dtype=f64)
+    limit_rate: wp.array(dtype=f64)
+    limit_error: wp.array(dtype=f64)
+    limit_mask: wp.array(dtype=int)
+    limit_low: wp.array(dtype=f64)
+    limit_high: wp.array(dtype=f64)
+    limit_goal: wp.array(dtype=f64)
+    limit_before: wp.array(dtype=f64)
+    limit_rhs: wp.array(dtype=f64)
+    limit_delta: wp.array(dtype=f64)
+    limit_scratch: wp.array(dtype=f64)
+    limit_work: wp.array(dtype=f64)
+    limit_matrix: wp.array(dtype=f64)
+    limit_side_body: wp.array(dtype=int)
+    limit_side_lin: wp.array(dtype=vec3d)
+    limit_side_ang: wp.array(dtype=vec3d)
+    limit_coupling: wp.array(dtype=vec3d)
+    limit_response: wp.array(dtype=vec3d)
+    coupling_rows: wp.array2d(dtype=vec3d)
+    response_rows: wp.array2d(dtype=vec3d)
+
+
 @wp.func
 def limit_error(
     i: int,
-    # Model:
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    limit_bounds: wp.array(dtype=wp.vec2d),
-    limit_drive: wp.array(dtype=int),
-    drive_mode: wp.array(dtype=int),
-    drive_max_force: wp.array(dtype=f64),
-    # Data in: the impulse accumulated this step, the prediction (body_*_in), the state at t0 (start_*)
+    # Data in: the prediction (body_*_in), the state at t0 (start_*)
     h: f64,
-    drive_target: wp.array(dtype=f64),
-    limit_impulse: wp.array(dtype=f64),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
     body_v_in: wp.array(dtype=vec3d),
@@ -66,34 +96,52 @@ def limit_error(
     start_q: wp.array(dtype=quatd),
     start_v: wp.array(dtype=vec3d),
     start_w: wp.array(dtype=vec3d),
-    # Data out: the predicted coordinate, its rate at t0 now, and the error (m or rad)
-    limit_value_out: wp.array(dtype=f64),
-    limit_rate_out: wp.array(dtype=f64),
-    limit_error_out: wp.array(dtype=f64),
+    # Data in/out: the rows; out: the predicted coordinate, its rate at t0 now, the error (m or rad)
+    rows: Rows,
 ):
     """The error of row i at the prediction: a limit's violation, or for an active limit the distance to its
     bound. A stiff motor's value is its offset from its goal, value(t0) + h target or target, its bounds (0, 0).
     Returns the error (m or rad)."""
-    r = limit_coordinate[i]
+    r = rows.limit_coordinate[i]
     value, rate, a, pb = coordinate_row(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
-    )  # fmt: skip
+        r,
+        rows.coordinate_kind,
+        rows.coordinate_body0,
+        rows.coordinate_body1,
+        rows.coordinate_anchor0,
+        rows.coordinate_anchor1,
+        rows.coordinate_axis0,
+        rows.coordinate_rest_rotation,
+        body_x_in,
+        body_q_in,
+        body_v_in,
+        body_w_in,
+    )
     value0, rate0, a0, pb0 = coordinate_row(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, start_x, start_q, start_v, start_w,
-    )  # fmt: skip
-    bounds = limit_bounds[i]
-    lam = limit_impulse[i]
-    motor = limit_drive[i]
+        r,
+        rows.coordinate_kind,
+        rows.coordinate_body0,
+        rows.coordinate_body1,
+        rows.coordinate_anchor0,
+        rows.coordinate_anchor1,
+        rows.coordinate_axis0,
+        rows.coordinate_rest_rotation,
+        start_x,
+        start_q,
+        start_v,
+        start_w,
+    )
+    bounds = rows.limit_bounds[i]
+    lam = rows.limit_impulse[i]
+    motor = rows.limit_drive[i]
     if motor >= 0:
-        goal = drive_target[motor]
-        if drive_mode[motor] == VELOCITY_MODE:
-            goal = value0 + h * drive_target[motor]
+        goal = rows.drive_target[motor]
+        if rows.drive_mode[motor] == VELOCITY_MODE:
+            goal = value0 + h * rows.drive_target[motor]
         value = value - goal
-        if coordinate_kind[r] == ANGLE_COORDINATE:
+        if rows.coordinate_kind[r] == ANGLE_COORDINATE:
             value = wrap_angle(value)
-        cap = drive_max_force[motor] * h
+        cap = rows.drive_max_force[motor] * h
         err = wp.abs(value)
         if (lam >= cap and value < f64(0.0)) or (lam <= -cap and value > f64(0.0)):
             err = f64(0.0)  # saturated: the motor gives all it has
@@ -103,31 +151,16 @@ def limit_error(
             err = wp.abs(value - bounds[0])
         elif lam < f64(0.0):
             err = wp.abs(value - bounds[1])
-    limit_value_out[i] = value
-    limit_rate_out[i] = rate0
-    limit_error_out[i] = err
+    rows.limit_value[i] = value
+    rows.limit_rate[i] = rate0
+    rows.limit_error[i] = err
     return err
 
 
 @wp.kernel
 def limit_errors(
-    # Model:
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    limit_coordinate: wp.array(dtype=int),
-    limit_bounds: wp.array(dtype=wp.vec2d),
-    limit_drive: wp.array(dtype=int),
-    drive_mode: wp.array(dtype=int),
-    drive_max_force: wp.array(dtype=f64),
-    # Data in: the impulse accumulated this step, the prediction (body_*_in), the state at t0 (start_*)
+    # Data in: the prediction (body_*_in), the state at t0 (start_*)
     h: f64,
-    drive_target: wp.array(dtype=f64),
-    limit_impulse: wp.array(dtype=f64),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
     body_v_in: wp.array(dtype=vec3d),
@@ -136,18 +169,11 @@ def limit_errors(
     start_q: wp.array(dtype=quatd),
     start_v: wp.array(dtype=vec3d),
     start_w: wp.array(dtype=vec3d),
-    # Data out: the predicted coordinate, its rate at t0 now, and the error (m or rad)
-    limit_value_out: wp.array(dtype=f64),
-    limit_rate_out: wp.array(dtype=f64),
-    limit_error_out: wp.array(dtype=f64),
+    # Data in/out:
+    rows: Rows,
 ):
     """Every row's error at the prediction (`limit_error`), a thread a row."""
-    limit_error(
-        wp.tid(), coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, limit_coordinate, limit_bounds, limit_drive, drive_mode,
-        drive_max_force, h, drive_target, limit_impulse, body_x_in, body_q_in, body_v_in, body_w_in, start_x, start_q,
-        start_v, start_w, limit_value_out, limit_rate_out, limit_error_out,
-    )  # fmt: skip
+    limit_error(wp.tid(), h, body_x_in, body_q_in, body_v_in, body_w_in, start_x, start_q, start_v, start_w, rows)
 
 
 @wp.func
@@ -708,51 +734,6 @@ def box_pivot(
             if pick < 0:
                 break
             mask[pick] = 1
-
-
-@wp.struct
-class Rows:
-    """A scene's rows of the correction loop for the fused step (`fused(kinds, rows=True)`): joint limits, stiff
-    motors and distance constraints on the table of coordinates, the rows' system S with the joints holding and
-    its scratch (`kernels/limits.py`; `Simulator._limit_system_launches`, `_correct_limits` and
-    `_correct_limit_velocities` are its parallel schedule). `coupling_rows` and `response_rows` are
-    `limit_coupling` and `limit_response` seen as one row of constraint_count entries a limit row."""
-
-    coordinate_kind: wp.array(dtype=int)
-    coordinate_body0: wp.array(dtype=int)
-    coordinate_body1: wp.array(dtype=int)
-    coordinate_anchor0: wp.array(dtype=vec3d)
-    coordinate_anchor1: wp.array(dtype=vec3d)
-    coordinate_axis0: wp.array(dtype=vec3d)
-    coordinate_rest_rotation: wp.array(dtype=quatd)
-    limit_coordinate: wp.array(dtype=int)
-    limit_bounds: wp.array(dtype=wp.vec2d)
-    limit_drive: wp.array(dtype=int)
-    drive_mode: wp.array(dtype=int)
-    drive_max_force: wp.array(dtype=f64)
-    drive_target: wp.array(dtype=f64)
-    limit_impulse: wp.array(dtype=f64)  # accumulated over the step (the position pass)
-    limit_velocity_impulse: wp.array(dtype=f64)
-    limit_value: wp.array(dtype=f64)
-    limit_rate: wp.array(dtype=f64)
-    limit_error: wp.array(dtype=f64)
-    limit_mask: wp.array(dtype=int)
-    limit_low: wp.array(dtype=f64)
-    limit_high: wp.array(dtype=f64)
-    limit_goal: wp.array(dtype=f64)
-    limit_before: wp.array(dtype=f64)
-    limit_rhs: wp.array(dtype=f64)
-    limit_delta: wp.array(dtype=f64)
-    limit_scratch: wp.array(dtype=f64)
-    limit_work: wp.array(dtype=f64)
-    limit_matrix: wp.array(dtype=f64)
-    limit_side_body: wp.array(dtype=int)
-    limit_side_lin: wp.array(dtype=vec3d)
-    limit_side_ang: wp.array(dtype=vec3d)
-    limit_coupling: wp.array(dtype=vec3d)
-    limit_response: wp.array(dtype=vec3d)
-    coupling_rows: wp.array2d(dtype=vec3d)
-    response_rows: wp.array2d(dtype=vec3d)
 
 
 @wp.func

@@ -445,13 +445,7 @@ def limit_errors_all(
     any is)."""
     worst = f64(0.0)
     for i in range(rows.limit_coordinate.shape[0]):
-        err = limit_error(
-            i, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
-            rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
-            rows.limit_bounds, rows.limit_drive, rows.drive_mode, rows.drive_max_force, h, rows.drive_target,
-            rows.limit_impulse, pred_x, pred_q, pred_v, pred_w, body_x, body_q, body_v, body_w, rows.limit_value,
-            rows.limit_rate, rows.limit_error,
-        )  # fmt: skip
+        err = limit_error(i, h, pred_x, pred_q, pred_v, pred_w, body_x, body_q, body_v, body_w, rows)
         worst = max_or_nan(worst, err)
     return worst
 

@@ -359,7 +359,9 @@ class Simulator:
             sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
             # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
             start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
-            limits = self._record(limit_kernels.limit_errors, self.model.limit_count, p, h=h, **start)
+            limits = self._record(
+                limit_kernels.limit_errors, self.model.limit_count, p, h=h, rows=self._row_arrays(), **start
+            )
             measure = [errors, limits, self.summary.zero_, self._check_states[id(p)]]
             if self.batch is not None:
                 measure += [self.world_summary.zero_, self._world_checks[id(p)]]
