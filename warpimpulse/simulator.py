@@ -301,6 +301,7 @@ class Simulator:
 
     def _record_launches(self) -> None:
         s, (nb, nc) = self.state, self._counts
+        self._rows = self._row_arrays()  # one struct for both schedules' row launches
         self._inertia = self._record(rigid_kernels.world_inverse_inertia, nb, s)
         self._frames = self._record(self.kernels.frames, nc, s)
         self._velocity_errors = self._record(self.kernels.velocity_errors, nc, s)
@@ -359,16 +360,14 @@ class Simulator:
             sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
             # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
             start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
-            limits = self._record(
-                limit_kernels.limit_errors, self.model.limit_count, p, h=h, rows=self._row_arrays(), **start
-            )
+            limits = self._record(limit_kernels.limit_errors, self.model.limit_count, p, h=h, rows=self._rows, **start)
             measure = [errors, limits, self.summary.zero_, self._check_states[id(p)]]
             if self.batch is not None:
                 measure += [self.world_summary.zero_, self._world_checks[id(p)]]
             nl, coupled = self.model.limit_count, int(self._direct)
             correct_limits, correct_limit_velocities = (
                 self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, coupled=coupled, h=h,
-                             body_v=s.body_v, body_w=s.body_w, rows=self._row_arrays())
+                             body_v=s.body_v, body_w=s.body_w, rows=self._rows)
                 for v in (0, 1)
             )  # fmt: skip
             iterate = iteration = None
@@ -621,7 +620,6 @@ class Simulator:
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
         self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced, rows)
         self._elements = self._force_elements()
-        self._rows = self._row_arrays()
         self._status = wp.zeros(
             (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
         )
@@ -656,7 +654,8 @@ class Simulator:
         return elements
 
     def _row_arrays(self) -> limit_kernels.Rows:
-        """The rows of the correction loop and their scratch, for the fused kernel (empty without)."""
+        """The rows of the correction loop and their scratch, for the row kernels of both schedules (empty
+        without)."""
         rows = limit_kernels.Rows()
         m, nl = self.model, self.model.limit_count
         if not nl:
