@@ -4,7 +4,8 @@ For each scene: the time of a step by the fused schedule (whole steps, many a la
 `sim.step()` a call), by the parallel schedule, and of MuJoCo's Euler and RK4 steps on the same scene and step
 (`mj_step(nstep=n)` and one `mj_step` a call), medians of interleaved rounds. Then the fused step by stage:
 each serial stage of kernels/step.py (predict every body, joint errors, solve, apply, frames, assemble, factor,
-velocity errors, the NaN/spin summary) launched alone `REPEATS` times, times the number of times a step runs it
+velocity errors, the NaN/spin summary) launched alone, its marginal time a call (launches of `REPEATS` and
+3 `REPEATS` calls), times the number of times a step runs it
 (from the run's StepStats); "other" is the measured step minus their sum. chain10 with a force element on every
 link: fused against parallel. Big trees give the cost per body-step and the set-up time (builder, finalize,
 Simulator). Step times are CPU time of this process (`time.process_time`): on a shared machine, time spent
@@ -217,7 +218,12 @@ def _median_time(fn, rounds: int = ROUNDS, prepare=None) -> float:
     return statistics.median(times)
 
 
-def breakdown(sim: wi.Simulator, stats: list) -> dict:
+def per_step(stats: list, field: str, steps: int) -> float:
+    """A StepStats count a step over `steps` steps, from their own or combined (`Simulator.step(n)`) stats."""
+    return sum(getattr(s, field) for s in stats) / steps
+
+
+def breakdown(sim: wi.Simulator, stats: list, steps: int) -> dict:
     """Seconds a step spends in each serial stage of the fused schedule (stage time x calls a step)."""
     kernels = _stage_kernels(sim._fused)
     p = sim.pred
@@ -225,13 +231,17 @@ def breakdown(sim: wi.Simulator, stats: list) -> dict:
     common = dict(pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, h=sim.dt)
 
     def per_call(name: str, **values) -> float:
-        launch = record(kernels[name], 1, sim.model.device, sources, data_out=sim.state, repeats=REPEATS,
-                        **common, **values)  # fmt: skip
-        launch.launch()  # compile and warm
-        return _median_time(launch.launch) / REPEATS
+        """The marginal time of a call: launches of REPEATS and 3 REPEATS calls, their difference over 2 REPEATS
+        (a launch's own cost, tens of us on the CPU, would otherwise weigh on the small scenes' stages)."""
+        times = []
+        for repeats in (REPEATS, 3 * REPEATS):
+            launch = record(kernels[name], 1, sim.model.device, sources, data_out=sim.state, repeats=repeats,
+                            **common, **values)  # fmt: skip
+            launch.launch()  # compile and warm
+            times.append(_median_time(launch.launch))
+        return (times[1] - times[0]) / (2 * REPEATS)
 
-    it = statistics.mean(s.joint_iterations for s in stats)
-    vel = statistics.mean(s.velocity_iterations for s in stats)
+    it, vel = per_step(stats, "joint_iterations", steps), per_step(stats, "velocity_iterations", steps)
     wp.copy(p.body_x, sim.state.body_x)
     wp.copy(p.body_q, sim.state.body_q)
     assemble = per_call("assemble_factor", factor=0)
@@ -268,7 +278,7 @@ class _Ours:
 
     def run(self, steps: int) -> None:
         if self.batched:
-            self.stats = self.sim._steps(steps)
+            self.stats = [self.sim.step(steps)]  # one StepStats of the steps (substeps: their count)
         else:
             self.stats = [self.sim.step() for _ in range(steps)]
 
@@ -332,9 +342,9 @@ def scene_point(name: str, steps: int) -> dict:
     out.update({f"{key}_us": statistics.median(t) for key, t in times.items()})
     out["mujoco_diverged"] = sorted(k for k, e in engines.items() if isinstance(e, _MuJoCo) and e.diverged())
     fused = engines["fused_batched"]
-    out["joint_iterations"] = statistics.mean(s.joint_iterations for s in fused.stats)
+    out["joint_iterations"] = per_step(fused.stats, "joint_iterations", steps)
     fused.restore()
-    out["stages"] = breakdown(fused.sim, fused.stats)
+    out["stages"] = breakdown(fused.sim, fused.stats, steps)
     out["stages_sum_us"] = sum(s["per_step_us"] for s in out["stages"].values())
     return out
 
@@ -369,8 +379,8 @@ def mechanism_point(kind: str, steps: int, make=None) -> dict:
     fused = engines["fused"].stats
     return {"scene": label, "dt": dt, "steps": steps,
             "fused_batched_us": statistics.median(times["fused"]), "parallel_us": statistics.median(times["parallel"]),
-            "joint_iterations": statistics.mean(s.joint_iterations for s in fused),
-            "velocity_iterations": statistics.mean(s.velocity_iterations for s in fused)}  # fmt: skip
+            "joint_iterations": per_step(fused, "joint_iterations", steps),
+            "velocity_iterations": per_step(fused, "velocity_iterations", steps)}  # fmt: skip
 
 
 def specialization(name: str, steps: int) -> dict:
@@ -385,7 +395,7 @@ def specialization(name: str, steps: int) -> dict:
     times: dict = {True: [], False: []}
     for _ in range(ROUNDS):
         for flag, sim in sims.items():
-            run = lambda sim=sim: sim._steps(steps)  # noqa: E731
+            run = lambda sim=sim: sim.step(steps)  # noqa: E731
             times[flag].append(_median_time(run, rounds=1, prepare=run) / steps * 1e6)
     return {"scene": name, "kinds": list(sims[True]._fused.kinds), "specialized_us": statistics.median(times[True]),
             "all_kinds_us": statistics.median(times[False])}  # fmt: skip

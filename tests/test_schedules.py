@@ -309,6 +309,21 @@ def test_a_batch_of_steps_is_one_launch(monkeypatch):
     assert counts["parallel_steps"] >= 1
 
 
+@pytest.mark.parametrize("case", ["tree31_torque_ends", "spin_split", "chain50_halved", "chain10_limits_order4"])
+def test_step_n_stats_are_the_steps_combined(case):
+    """step(n) builds its stats from the batch's status rows at once (`Simulator._fused_stats`): they are what
+    combining the n steps' own stats gives, also where steps were handed to the host (splits, halvings) or taken
+    at order 2, and the state is the same."""
+    make, dt, steps, options = CASES[case]
+    whole = wi.Simulator(make().finalize(), dt, **options)
+    single = wi.Simulator(make().finalize(), dt, **options)
+    combined = whole.step(steps)
+    assert combined == wi.simulator._combined([single.step() for _ in range(steps)])
+    assert combined.substeps >= steps
+    np.testing.assert_array_equal(whole.positions(), single.positions())
+    assert whole.step_count == single.step_count == steps and whole.time == single.time
+
+
 def test_step_n_is_n_steps():
     a = wi.Simulator(scenes.chain(5).finalize(), 1 / 60)
     b = wi.Simulator(scenes.chain(5).finalize(), 1 / 60)
