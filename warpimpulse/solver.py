@@ -18,6 +18,7 @@ from .diagnose import mass_ratio_note
 from .kernels import assemble as assemble_kernels
 from .kernels import cg as cg_kernels
 from .kernels import cholesky as cholesky_kernels
+from .kernels.constraints import constant_frames
 from .launch import record
 from .model import Model
 from .topology import schedule
@@ -53,10 +54,11 @@ class Frames:
     """Per-step geometry the solvers share: P_i, J_ib and the world inverse inertias."""
 
     def __init__(self, model: Model) -> None:
-        d, nb, nc = model.device, model.body_count, model.constraint_count
-        self.proj = wp.zeros(nc, dtype=wp.mat33d, device=d)
-        self.jac_lin = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
-        self.jac_ang = wp.zeros(2 * nc, dtype=wp.mat33d, device=d)
+        d, nb = model.device, model.body_count
+        proj, jac_lin, jac_ang = constant_frames(model.host.constraint_kind)  # the blocks no pose changes
+        self.proj = wp.array(proj, dtype=wp.mat33d, device=d)
+        self.jac_lin = wp.array(jac_lin, dtype=wp.mat33d, device=d)
+        self.jac_ang = wp.array(jac_ang, dtype=wp.mat33d, device=d)
         self.inv_inertia_world = wp.zeros(nb, dtype=wp.mat33d, device=d)
 
 
