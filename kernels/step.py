@@ -173,6 +173,44 @@ def restore_start(
 
 
 @wp.func
+def traded(
+    state_x: wp.array(dtype=vec3d),
+    state_q: wp.array(dtype=quatd),
+    state_v: wp.array(dtype=vec3d),
+    state_w: wp.array(dtype=vec3d),
+    next_x: wp.array(dtype=vec3d),
+    next_q: wp.array(dtype=quatd),
+    next_v: wp.array(dtype=vec3d),
+    next_w: wp.array(dtype=vec3d),
+):
+    """The two states' arrays, the other way round (Warp assigns `a, b = b, a` in turn: both would be b)."""
+    return next_x, next_q, next_v, next_w, state_x, state_q, state_v, state_w
+
+
+@wp.func
+def settle(
+    body_count: int,
+    state_x: wp.array(dtype=vec3d),
+    state_q: wp.array(dtype=quatd),
+    state_v: wp.array(dtype=vec3d),
+    state_w: wp.array(dtype=vec3d),
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Leave the state where the host reads it. An accepted prediction is not copied into the state: the state
+    and the prediction's arrays trade places (a pass of 104 bytes read and written a body saved every step), so
+    after an odd number of accepted stages the state is in the prediction's arrays, copied back once a launch."""
+    if state_x.ptr != body_x_out.ptr:
+        for b in range(body_count):
+            body_x_out[b] = state_x[b]
+            body_q_out[b] = state_q[b]
+            body_v_out[b] = state_v[b]
+            body_w_out[b] = state_w[b]
+
+
+@wp.func
 def finish(
     status_out: wp.array2d(dtype=f64),
     k: int,
@@ -658,24 +696,6 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 bad += 1
         return bad, spin
 
-    @wp.func(module=module)
-    def accept(
-        body_count: int,
-        pred_x: wp.array(dtype=vec3d),
-        pred_q: wp.array(dtype=quatd),
-        pred_v: wp.array(dtype=vec3d),
-        pred_w: wp.array(dtype=vec3d),
-        body_x: wp.array(dtype=vec3d),
-        body_q: wp.array(dtype=quatd),
-        body_v: wp.array(dtype=vec3d),
-        body_w: wp.array(dtype=vec3d),
-    ):
-        for b in range(body_count):
-            body_x[b] = pred_x[b]
-            body_q[b] = pred_q[b]
-            body_v[b] = pred_v[b]
-            body_w[b] = pred_w[b]
-
     @wp.kernel(module=module)
     def cholesky_steps(
         # Model:
@@ -768,15 +788,21 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule). A
         step is the base steps of stages[i] h in turn (a composition, `composition.py`; some run backwards);
         reach is the largest |stages[i]|, which sizes the spin split."""
+        # The state and the prediction trade arrays on acceptance (`settle`); made by a call, as a plain
+        # assignment would make them the kernel arguments themselves, which the trades would then overwrite.
+        state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w = traded(
+            pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out
+        )  # fmt: skip
         spin = spin_in[0]
         stage_count = stages.shape[0]
         for k in range(batch_in[0]):
             status_out[k, STATUS_SPIN] = spin
             if turns_too_far(spin, reach * h, max_rotation):
                 status_out[k, STATUS_CODE] = f64(SPLIT)
+                settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
                 return
             save_start(
-                body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
+                body_count, stage_count, state_x, state_q, state_v, state_w, x0, q0, v0, w0
             )  # fmt: skip
             if wp.static(forced):
                 if stage_count > 1:  # a later stage's failure undoes the integrals of the stages before it
@@ -796,26 +822,26 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if wp.static(forced):
                     coupled_predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
-                        body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x,
-                        pred_q, pred_v, pred_w,
+                        state_x, state_q, state_v, state_w, body_force_in, body_torque_in, next_x,
+                        next_q, next_v, next_w,
                     )  # fmt: skip
                 else:
                     predict_all(
-                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
-                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                        pred_w,
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, state_x,
+                        state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q, next_v,
+                        next_w,
                     )  # fmt: skip
                 err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                    constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+                    constraint_rest_angle, inv_h, proj, next_x, next_q, errors, rhs,
                 )  # fmt: skip
                 if wp.static(rows):
                     err = max_or_nan(
                         err,
                         limit_errors_all(
-                            hs, limit_rows, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out,
-                            body_w_out,
+                            hs, limit_rows, next_x, next_q, next_v, next_w, state_x, state_q, state_v,
+                            state_w,
                         ),
                     )  # fmt: skip
                 tries = wp.int32(0)
@@ -835,55 +861,55 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if wp.static(forced or rows):  # every impulse first: rows, elements couple the bodies
                         apply_all(
                             body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
-                            inv_inertia_world, jac_lin, jac_ang, impulse, body_v_out, body_w_out,
+                            inv_inertia_world, jac_lin, jac_ang, impulse, state_v, state_w,
                         )  # fmt: skip
                         if wp.static(rows):
                             correct_rows_all(
                                 0, hs, limit_rows, body_inv_mass, constraint_body0, constraint_body1,
-                                inv_inertia_world, jac_lin, jac_ang, body_x_out, body_q_out, body_v_out, body_w_out,
+                                inv_inertia_world, jac_lin, jac_ang, state_x, state_q, state_v, state_w,
                             )  # fmt: skip
                         if wp.static(forced):
                             coupled_predict_all(
                                 body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
-                                body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in,
-                                pred_x, pred_q, pred_v, pred_w,
+                                state_x, state_q, state_v, state_w, body_force_in, body_torque_in,
+                                next_x, next_q, next_v, next_w,
                             )  # fmt: skip
                         else:
                             predict_all(
-                                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
-                                body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q,
-                                pred_v, pred_w,
+                                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, state_x,
+                                state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
+                                next_v, next_w,
                             )  # fmt: skip
                     else:
                         apply_and_predict_all(
                             body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                            body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, body_x_out,
-                            body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q,
-                            pred_v, pred_w,
+                            body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, state_x,
+                            state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
+                            next_v, next_w,
                         )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                        constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+                        constraint_rest_angle, inv_h, proj, next_x, next_q, errors, rhs,
                     )  # fmt: skip
                     if wp.static(rows):
                         err = max_or_nan(
                             err,
                             limit_errors_all(
-                                hs, limit_rows, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out,
-                                body_w_out,
+                                hs, limit_rows, next_x, next_q, next_v, next_w, state_x, state_q, state_v,
+                                state_w,
                             ),
                         )  # fmt: skip
                     tries += 1
                 iterations += tries
                 new_spin = spin
                 if ok:
-                    bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                    bad, new_spin = summary_all(body_count, next_x, next_q, next_v, next_w)
                     if bad > 0 or (final == 0 and turns_too_far(new_spin, hs, max_rotation)):
                         ok = wp.bool(False)
                 if not ok:
                     restore_start(
-                        body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
+                        body_count, stage, x0, q0, v0, w0, state_x, state_q, state_v, state_w
                     )  # fmt: skip
                     if wp.static(forced):
                         if stage > 0:
@@ -891,16 +917,22 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
                     status_out[k, STATUS_JOINT_ERROR] = err
                     status_out[k, STATUS_CODE] = f64(RETRY)
+                    settle(
+                        body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out
+                    )
                     return
                 joint_error = wp.max(joint_error, err)
                 spin = new_spin
-                accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+                # accept the prediction: it becomes the state, whose arrays take the next prediction (`settle`)
+                state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w = traded(
+                    state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w
+                )  # fmt: skip
                 if wp.static(forced):
-                    integrate_drives_all(hs, elements, body_x_out, body_q_out, body_v_out, body_w_out)
+                    integrate_drives_all(hs, elements, state_x, state_q, state_v, state_w)
                 frames_all(
                     body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
                     constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                    body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang,
+                    state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang,
                 )  # fmt: skip
                 for s in range(slot_code.shape[0]):
                     augmented_slot(
@@ -920,8 +952,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                 if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
                     row_couplings_all(
-                        constraint_count, limit_rows, body_inv_mass, constraint_body0, constraint_body1, body_x_out,
-                        body_q_out, body_v_out, body_w_out, inv_inertia_world, jac_lin, jac_ang,
+                        constraint_count, limit_rows, body_inv_mass, constraint_body0, constraint_body1, state_x,
+                        state_q, state_v, state_w, inv_inertia_world, jac_lin, jac_ang,
                     )  # fmt: skip
                     for l in range(limit_rows.limit_coordinate.shape[0]):
                         cholesky_solve(
@@ -932,7 +964,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
                 verr = velocity_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                    body_v_out, body_w_out, errors, rhs,
+                    state_v, state_w, errors, rhs,
                 )  # fmt: skip
                 if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
                     cholesky_solve(
@@ -941,16 +973,16 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                        jac_lin, jac_ang, impulse, body_v_out, body_w_out,
+                        jac_lin, jac_ang, impulse, state_v, state_w,
                     )  # fmt: skip
                     row_solves += 1
                     correct_rows_all(
                         1, hs, limit_rows, body_inv_mass, constraint_body0, constraint_body1, inv_inertia_world,
-                        jac_lin, jac_ang, body_x_out, body_q_out, body_v_out, body_w_out,
+                        jac_lin, jac_ang, state_x, state_q, state_v, state_w,
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        body_v_out, body_w_out, errors, rhs,
+                        state_v, state_w, errors, rhs,
                     )  # fmt: skip
                 if not (verr <= velocity_tolerance):
                     cholesky_solve(
@@ -959,11 +991,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                        jac_lin, jac_ang, impulse, body_v_out, body_w_out,
+                        jac_lin, jac_ang, impulse, state_v, state_w,
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        body_v_out, body_w_out, errors, rhs,
+                        state_v, state_w, errors, rhs,
                     )  # fmt: skip
                     velocity_iterations += 1
                 if singular[0] != 0:  # the host raises: no further stage
@@ -977,7 +1009,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 joint_error, verr, failed, spin,
             )  # fmt: skip
             if code != OK:
+                settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
                 return
+        settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
 
     iterative_steps = None  # the paper's baseline predicts each body alone and has no rows
     if not (forced or rows):
@@ -1040,15 +1074,23 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             baseline: joint sweeps until one meets every constraint within tolerance, the prediction, then velocity
             sweeps (as `Simulator` without a system); a step is the base steps of stages[i] h in turn, as in
             `cholesky_steps`."""
+            # The state and the prediction trade arrays on acceptance (`settle`); made by a call, as a plain
+            # assignment would make them the kernel arguments themselves, which the trades would then overwrite.
+            state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w = traded(
+                pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out
+            )  # fmt: skip
             spin = spin_in[0]
             stage_count = stages.shape[0]
             for k in range(batch_in[0]):
                 status_out[k, STATUS_SPIN] = spin
                 if turns_too_far(spin, reach * h, max_rotation):
                     status_out[k, STATUS_CODE] = f64(SPLIT)
+                    settle(
+                        body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out
+                    )
                     return
                 save_start(
-                    body_count, stage_count, body_x_out, body_q_out, body_v_out, body_w_out, x0, q0, v0, w0
+                    body_count, stage_count, state_x, state_q, state_v, state_w, x0, q0, v0, w0
                 )  # fmt: skip
                 iterations = wp.int32(0)
                 velocity_iterations = wp.int32(0)
@@ -1067,8 +1109,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                             constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                             constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                            tolerance, body_x_out, body_q_out, body_force_in, body_torque_in, inv_inertia_world, proj,
-                            jac_lin, jac_ang, body_v_out, body_w_out,
+                            tolerance, state_x, state_q, body_force_in, body_torque_in, inv_inertia_world, proj,
+                            jac_lin, jac_ang, state_v, state_w,
                         )  # fmt: skip
                         if not wp.isfinite(err):
                             break
@@ -1083,37 +1125,51 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         sweeps += 1
                     iterations += sweeps
                     predict_all(
-                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, body_x_out,
-                        body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                        pred_w,
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, state_x,
+                        state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q, next_v,
+                        next_w,
                     )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                        constraint_rest_angle, inv_h, proj, pred_x, pred_q, errors, rhs,
+                        constraint_rest_angle, inv_h, proj, next_x, next_q, errors, rhs,
                     )  # fmt: skip
                     new_spin = spin
                     if ok:
-                        bad, new_spin = summary_all(body_count, pred_x, pred_q, pred_v, pred_w)
+                        bad, new_spin = summary_all(body_count, next_x, next_q, next_v, next_w)
                         if not (err <= tolerance) or bad > 0:
                             ok = wp.bool(False)
                         elif final == 0 and turns_too_far(new_spin, hs, max_rotation):
                             ok = wp.bool(False)
                     if not ok:
                         restore_start(
-                            body_count, stage, x0, q0, v0, w0, body_x_out, body_q_out, body_v_out, body_w_out
+                            body_count, stage, x0, q0, v0, w0, state_x, state_q, state_v, state_w
                         )  # fmt: skip
                         status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
                         status_out[k, STATUS_JOINT_ERROR] = err
                         status_out[k, STATUS_CODE] = f64(RETRY)
+                        settle(
+                            body_count,
+                            state_x,
+                            state_q,
+                            state_v,
+                            state_w,
+                            body_x_out,
+                            body_q_out,
+                            body_v_out,
+                            body_w_out,
+                        )
                         return
                     joint_error = wp.max(joint_error, err)
                     spin = new_spin
-                    accept(body_count, pred_x, pred_q, pred_v, pred_w, body_x_out, body_q_out, body_v_out, body_w_out)
+                    # accept the prediction: it becomes the state, whose arrays take the next prediction (`settle`)
+                    state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w = traded(
+                        state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w
+                    )  # fmt: skip
                     frames_all(
                         body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
                         constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                        body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang,
+                        state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang,
                     )  # fmt: skip
                     vsweeps = wp.int32(0)
                     vbest = f64(0.0)
@@ -1121,7 +1177,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     while True:
                         verr = sweep_velocities_once(
                             constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                            velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, body_v_out, body_w_out,
+                            velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, state_v, state_w,
                         )  # fmt: skip
                         if vsweeps == 0:
                             vbest = verr
@@ -1139,14 +1195,18 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     velocity_iterations += vsweeps
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        body_v_out, body_w_out, errors, rhs,
+                        state_v, state_w, errors, rhs,
                     )  # fmt: skip
                     if not converged:  # the host raises or warns once the step is done
                         code = VELOCITY
                         failed = max_or_nan(failed, verr)
                 finish(status_out, k, code, iterations, velocity_iterations, 0, joint_error, verr, failed, spin)
                 if code != OK:
+                    settle(
+                        body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out
+                    )
                     return
+            settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
 
     return SimpleNamespace(
         kinds=ck.kinds,
