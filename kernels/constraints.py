@@ -301,21 +301,27 @@ def constraint_velocity(
 ) -> vec3d:
     """J_i v: the rate of change of the constraint's error. A point constraint's J_lin is I on body0 and -I on
     body1 and its J_ang is a skew matrix (`constraint_frame`): its linear part is the velocities themselves, its
-    angular part a cross product (`skew_vector`)."""
+    angular part a cross product (`skew_vector`). A rotational constraint's J_lin is zero: its part is J_ang w."""
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
-    point = constraint_kind[i] == POINT
+    kind = constraint_kind[i]
+    point = kind == POINT
+    translational = is_translational(kind)
     jv = vec3d()
     if b0 >= 0:
         if point:
             jv += body_lin_v[b0] + wp.cross(skew_vector(jac_ang[2 * i]), body_ang_v[b0])
-        else:
+        elif translational:
             jv += jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
+        else:
+            jv += jac_ang[2 * i] * body_ang_v[b0]
     if b1 >= 0:
         if point:
             jv += wp.cross(skew_vector(jac_ang[2 * i + 1]), body_ang_v[b1]) - body_lin_v[b1]
-        else:
+        elif translational:
             jv += jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
+        else:
+            jv += jac_ang[2 * i + 1] * body_ang_v[b1]
     return jv
 
 

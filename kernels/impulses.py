@@ -5,7 +5,7 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 
 import warp as wp
 
-from .constraints import POINT, skew_vector
+from .constraints import POINT, is_translational, skew_vector
 
 wp.set_module_options({"enable_backward": False})
 
@@ -30,7 +30,8 @@ def apply_body(
 ):
     """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows. A point
     constraint's J_lin is +-I and its J_ang a skew matrix [v]x (`constraints.constraint_frame`), so its
-    J_lin^T lambda is +-lambda, the same value without the product, and its J_ang^T lambda = -v x lambda."""
+    J_lin^T lambda is +-lambda, the same value without the product, and its J_ang^T lambda = -v x lambda; a
+    rotational constraint's J_lin is zero, so it adds to w only."""
     dv = vec3d()
     dl = vec3d()
     for k in range(body_rows_start[b], body_rows_start[b + 1]):
@@ -44,7 +45,8 @@ def apply_body(
                 dv -= lam
             dl += wp.cross(lam, skew_vector(jac_ang_in[r]))
         else:
-            dv += wp.transpose(jac_lin_in[r]) * lam
+            if is_translational(constraint_kind[i]):  # a rotational kind's J_lin is zero: nothing to add
+                dv += wp.transpose(jac_lin_in[r]) * lam
             dl += wp.transpose(jac_ang_in[r]) * lam
     body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
     body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl
