@@ -119,12 +119,12 @@ def _stage_kernels(ns):
     def apply(repeats: int, body_count: int, constraint_kind: wp.array(dtype=int), body_inv_mass: wp.array(dtype=f64),
               body_rows_start: wp.array(dtype=int), body_rows: wp.array(dtype=int),
               inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
-              jac_ang: wp.array(dtype=mat33d), impulse: wp.array(dtype=vec3d), pred_v: wp.array(dtype=vec3d),
-              pred_w: wp.array(dtype=vec3d)):  # fmt: skip
+              jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d), impulse: wp.array(dtype=vec3d),
+              pred_v: wp.array(dtype=vec3d), pred_w: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):  # into the scratch prediction: the state stays as it was
             step_kernels.apply_all(
                 body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
-                jac_ang, impulse, pred_v, pred_w,
+                jac_ang, jac_skew, impulse, pred_v, pred_w,
             )  # fmt: skip
 
     @wp.kernel(module=module)
@@ -135,12 +135,12 @@ def _stage_kernels(ns):
                constraint_axis1: wp.array(dtype=vec3d), body_x_out: wp.array(dtype=vec3d),
                body_q_out: wp.array(dtype=quatd), inv_inertia_world: wp.array(dtype=mat33d),
                proj: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
-               jac_ang: wp.array(dtype=mat33d)):  # fmt: skip
+               jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             frames_all(
                 body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
                 constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
-                inv_inertia_world, proj, jac_lin, jac_ang,
+                inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
             )  # fmt: skip
 
     @wp.kernel(module=module)
@@ -179,13 +179,14 @@ def _stage_kernels(ns):
     def velocity_errors(repeats: int, constraint_count: int, constraint_kind: wp.array(dtype=int),
                         constraint_body0: wp.array(dtype=int),
                         constraint_body1: wp.array(dtype=int), jac_lin: wp.array(dtype=mat33d),
-                        jac_ang: wp.array(dtype=mat33d), body_v_out: wp.array(dtype=vec3d),
+                        jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d),
+                        body_v_out: wp.array(dtype=vec3d),
                         body_w_out: wp.array(dtype=vec3d), errors: wp.array(dtype=f64),
                         rhs: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             step_kernels.velocity_errors_all(
-                constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
-                body_w_out, errors, rhs,
+                constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
+                body_v_out, body_w_out, errors, rhs,
             )  # fmt: skip
 
     @wp.kernel(module=module)

@@ -202,13 +202,16 @@ def constraint_frame(
     proj: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ):
     """P_i and J_ib at the current poses: J = s P [I | -r*] (translational, r from each body's centre to the
     joint point B) or s P [0 | I] (rotational).
 
-    Only the blocks that move are written: a point constraint's P = I and J_lin = +-I, a rotation's P = I and
-    J_ang = +-I, and every rotational kind's zero J_lin are the same at every pose, written once where the
-    arrays are made (`constant_frames`), which saves each frames pass up to 360 bytes a constraint."""
+    A point constraint's J_ang = [s]x is also written as s alone (jac_skew, `skew_vector` of the block), which is
+    what the apply and constraint-velocity funcs read. Only the blocks that move are written: a point
+    constraint's P = I and J_lin = +-I, a rotation's P = I and J_ang = +-I, and every rotational kind's zero J_lin
+    are the same at every pose, written once where the arrays are made (`constant_frames`), which saves each
+    frames pass up to 360 bytes a constraint."""
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
     x0 = pose_x(b0, body_x)
@@ -221,8 +224,12 @@ def constraint_frame(
         # Both impulses act at B, equal and opposite, so they add no couple and angular momentum is kept
         # exactly; the paper's A is within the tolerance of B (section 4.2).
         b = x1 + wp.quat_rotate(q1, anchor1[i])
-        jac_ang[2 * i] = -wp.skew(b - x0)
-        jac_ang[2 * i + 1] = wp.skew(b - x1)
+        arm0 = b - x0
+        arm1 = b - x1
+        jac_ang[2 * i] = -wp.skew(arm0)
+        jac_ang[2 * i + 1] = wp.skew(arm1)
+        jac_skew[2 * i] = -arm0  # skew_vector(jac_ang[2 i]), bit for bit
+        jac_skew[2 * i + 1] = arm1
         return
     p = projection(kind, q0, q1, axis0[i], axis1[i])
     proj[i] = p
@@ -296,12 +303,14 @@ def constraint_velocity(
     constraint_body1: wp.array(dtype=int),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     body_lin_v: wp.array(dtype=vec3d),
     body_ang_v: wp.array(dtype=vec3d),
 ) -> vec3d:
     """J_i v: the rate of change of the constraint's error. A point constraint's J_lin is I on body0 and -I on
-    body1 and its J_ang is a skew matrix (`constraint_frame`): its linear part is the velocities themselves, its
-    angular part a cross product (`skew_vector`). A rotational constraint's J_lin is zero: its part is J_ang w."""
+    body1 and its J_ang is a skew matrix [s]x (`constraint_frame`): its linear part is the velocities themselves,
+    its angular part s x w, s read from jac_skew (24 bytes a row where the matrix takes 72). A rotational
+    constraint's J_lin is zero: its part is J_ang w."""
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
     kind = constraint_kind[i]
@@ -310,14 +319,14 @@ def constraint_velocity(
     jv = vec3d()
     if b0 >= 0:
         if point:
-            jv += body_lin_v[b0] + wp.cross(skew_vector(jac_ang[2 * i]), body_ang_v[b0])
+            jv += body_lin_v[b0] + wp.cross(jac_skew[2 * i], body_ang_v[b0])
         elif translational:
             jv += jac_lin[2 * i] * body_lin_v[b0] + jac_ang[2 * i] * body_ang_v[b0]
         else:
             jv += jac_ang[2 * i] * body_ang_v[b0]
     if b1 >= 0:
         if point:
-            jv += wp.cross(skew_vector(jac_ang[2 * i + 1]), body_ang_v[b1]) - body_lin_v[b1]
+            jv += wp.cross(jac_skew[2 * i + 1], body_ang_v[b1]) - body_lin_v[b1]
         elif translational:
             jv += jac_lin[2 * i + 1] * body_lin_v[b1] + jac_ang[2 * i + 1] * body_ang_v[b1]
         else:
@@ -333,6 +342,7 @@ def velocity_error(
     constraint_body1: wp.array(dtype=int),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     body_v_in: wp.array(dtype=vec3d),
     body_w_in: wp.array(dtype=vec3d),
     errors_out: wp.array(dtype=f64),
@@ -340,7 +350,15 @@ def velocity_error(
 ):
     """|J_i v|, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
     jv = constraint_velocity(
-        i, constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in, body_w_in
+        i,
+        constraint_kind,
+        constraint_body0,
+        constraint_body1,
+        jac_lin_in,
+        jac_ang_in,
+        jac_skew_in,
+        body_v_in,
+        body_w_in,
     )
     errors_out[i] = wp.length(jv)
     rhs_out[i] = -jv
@@ -381,6 +399,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         proj_out: wp.array(dtype=mat33d),
         jac_lin_out: wp.array(dtype=mat33d),
         jac_ang_out: wp.array(dtype=mat33d),
+        jac_skew_out: wp.array(dtype=vec3d),
     ):
         """`constraint_frame` of constraint i, for its kind as a compile-time constant."""
         kind = constraint_kind[i]
@@ -389,6 +408,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
                 constraint_frame(
                     wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                     constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out,
+                    jac_skew_out,
                 )  # fmt: skip
 
     @wp.func(module=module)
@@ -437,10 +457,11 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         proj_out: wp.array(dtype=mat33d),
         jac_lin_out: wp.array(dtype=mat33d),
         jac_ang_out: wp.array(dtype=mat33d),
+        jac_skew_out: wp.array(dtype=vec3d),
     ):
         frame(
             wp.tid(), constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-            constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out,
+            constraint_axis0, constraint_axis1, body_x_in, body_q_in, proj_out, jac_lin_out, jac_ang_out, jac_skew_out,
         )  # fmt: skip
 
     @wp.kernel(module=module)
@@ -479,6 +500,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         # Data in:
         jac_lin_in: wp.array(dtype=mat33d),
         jac_ang_in: wp.array(dtype=mat33d),
+        jac_skew_in: wp.array(dtype=vec3d),
         body_v_in: wp.array(dtype=vec3d),
         body_w_in: wp.array(dtype=vec3d),
         # Data out:
@@ -487,8 +509,8 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
     ):
         """The constraint velocity J_i v, and the velocity-correction right-hand side -J_i v (equations 9, 13)."""
         velocity_error(
-            wp.tid(), constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_in,
-            body_w_in, errors_out, rhs_out,
+            wp.tid(), constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, jac_skew_in,
+            body_v_in, body_w_in, errors_out, rhs_out,
         )  # fmt: skip
 
     return SimpleNamespace(

@@ -5,7 +5,7 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 
 import warp as wp
 
-from .constraints import POINT, is_translational, skew_vector
+from .constraints import POINT, is_translational
 
 wp.set_module_options({"enable_backward": False})
 
@@ -24,13 +24,15 @@ def apply_body(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     impulse_in: wp.array(dtype=vec3d),
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
     """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows. A point
     constraint's J_lin is +-I and its J_ang a skew matrix [v]x (`constraints.constraint_frame`), so its
-    J_lin^T lambda is +-lambda, the same value without the product, and its J_ang^T lambda = -v x lambda; a
+    J_lin^T lambda is +-lambda, the same value without the product, and its J_ang^T lambda = -v x lambda = lambda x v,
+    v read from jac_skew; a
     rotational constraint's J_lin is zero, so it adds to w only."""
     dv = vec3d()
     dl = vec3d()
@@ -43,7 +45,7 @@ def apply_body(
                 dv += lam
             else:
                 dv -= lam
-            dl += wp.cross(lam, skew_vector(jac_ang_in[r]))
+            dl += wp.cross(lam, jac_skew_in[r])
         else:
             if is_translational(constraint_kind[i]):  # a rotational kind's J_lin is zero: nothing to add
                 dv += wp.transpose(jac_lin_in[r]) * lam
@@ -63,6 +65,7 @@ def apply_impulses(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     impulse_in: wp.array(dtype=vec3d),
     # Data out (updated in place):
     body_v_out: wp.array(dtype=vec3d),
@@ -71,5 +74,5 @@ def apply_impulses(
     """Every body's impulses (`apply_body`)."""
     apply_body(
         wp.tid(), constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in,
-        jac_ang_in, impulse_in, body_v_out, body_w_out,
+        jac_ang_in, jac_skew_in, impulse_in, body_v_out, body_w_out,
     )  # fmt: skip

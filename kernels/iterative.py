@@ -182,6 +182,7 @@ def sweep_velocities_once(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ) -> f64:
@@ -189,7 +190,15 @@ def sweep_velocities_once(
     worst = f64(0.0)
     for i in range(constraint_count):
         jv = constraint_velocity(
-            i, constraint_kind, constraint_body0, constraint_body1, jac_lin_in, jac_ang_in, body_v_out, body_w_out
+            i,
+            constraint_kind,
+            constraint_body0,
+            constraint_body1,
+            jac_lin_in,
+            jac_ang_in,
+            jac_skew_in,
+            body_v_out,
+            body_w_out,
         )
         e = wp.length(jv)
         worst = wp.max(worst, e)
@@ -214,6 +223,7 @@ def sweep_velocities(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out (velocities updated in place):
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -222,5 +232,5 @@ def sweep_velocities(
     """One velocity-correction sweep; sweep_error_out[0] = the largest |J_i v| met before its correction."""
     sweep_error_out[0] = sweep_velocities_once(
         constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, velocity_tolerance,
-        inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+        inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
     )  # fmt: skip

@@ -78,6 +78,7 @@ def backward_apply(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ):
@@ -88,7 +89,7 @@ def backward_apply(
     for k in range(part_bodies.shape[0]):
         apply_body(
             part_bodies[k], constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
-            jac_ang, impulse, body_v, body_w,
+            jac_ang, jac_skew, impulse, body_v, body_w,
         )  # fmt: skip
 
 
@@ -100,6 +101,7 @@ def velocity_errors_of(
     constraint_body1: wp.array(dtype=int),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
     errors: wp.array(dtype=f64),
@@ -109,7 +111,17 @@ def velocity_errors_of(
     for k in range(part_constraints.shape[0]):
         i = part_constraints[k]
         velocity_error(
-            i, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs
+            i,
+            constraint_kind,
+            constraint_body0,
+            constraint_body1,
+            jac_lin,
+            jac_ang,
+            jac_skew,
+            body_v,
+            body_w,
+            errors,
+            rhs,
         )
         worst = max_or_nan(worst, errors[i])
     return worst
@@ -178,6 +190,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
+        jac_skew: wp.array(dtype=vec3d),
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
         body_v_out: wp.array(dtype=vec3d),
@@ -200,7 +213,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
             backward_apply(
                 part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, diag_inv,
-                work, impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                work, impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
                 body_v_out, body_w_out,
             )  # fmt: skip
         for k in range(part_bodies.shape[0]):
@@ -285,6 +298,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
+        jac_skew: wp.array(dtype=vec3d),
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
         body_v_out: wp.array(dtype=vec3d),
@@ -307,7 +321,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 i = part_constraints[k]
                 frame(
                     i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                    constraint_axis0, constraint_axis1, body_x_out, body_q_out, proj, jac_lin, jac_ang,
+                    constraint_axis0, constraint_axis1, body_x_out, body_q_out, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
         if factor != 0:
             for k in range(part_columns.shape[0]):
@@ -321,8 +335,8 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                     col_sign, col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, part_singular,
                 )  # fmt: skip
             part_out[3] = velocity_errors_of(
-                part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
-                body_w_out, errors, rhs,
+                part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
+                body_v_out, body_w_out, errors, rhs,
             )  # fmt: skip
             if separator == 0:
                 forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
@@ -359,6 +373,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         inv_inertia_world: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
+        jac_skew: wp.array(dtype=vec3d),
         body_v_out: wp.array(dtype=vec3d),
         body_w_out: wp.array(dtype=vec3d),
         part_out: wp.array(dtype=f64),
@@ -369,12 +384,12 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
         backward_apply(
             part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, diag_inv, work,
-            impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, body_v_out,
-            body_w_out,
+            impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+            body_v_out, body_w_out,
         )  # fmt: skip
         part_out[3] = velocity_errors_of(
-            part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v_out,
-            body_w_out, errors, rhs,
+            part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
+            body_v_out, body_w_out, errors, rhs,
         )  # fmt: skip
 
     return SimpleNamespace(correct=correct, refactor=refactor, velocity_fix=velocity_fix)

@@ -393,6 +393,7 @@ def apply_all(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     impulse: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
@@ -400,7 +401,7 @@ def apply_all(
     for b in range(body_count):
         apply_body(
             b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-            impulse, body_v, body_w,
+            jac_skew, impulse, body_v, body_w,
         )  # fmt: skip
 
 
@@ -418,6 +419,7 @@ def apply_and_predict_all(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     impulse: wp.array(dtype=vec3d),
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
@@ -435,7 +437,7 @@ def apply_and_predict_all(
     for b in range(body_count):
         apply_body(
             b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-            impulse, body_v, body_w,
+            jac_skew, impulse, body_v, body_w,
         )  # fmt: skip
         predict_index(
             b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
@@ -451,6 +453,7 @@ def velocity_errors_all(
     constraint_body1: wp.array(dtype=int),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
     errors: wp.array(dtype=f64),
@@ -460,7 +463,17 @@ def velocity_errors_all(
     worst = f64(0.0)
     for i in range(constraint_count):
         velocity_error(
-            i, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, body_v, body_w, errors, rhs
+            i,
+            constraint_kind,
+            constraint_body0,
+            constraint_body1,
+            jac_lin,
+            jac_ang,
+            jac_skew,
+            body_v,
+            body_w,
+            errors,
+            rhs,
         )
         worst = max_or_nan(worst, errors[i])
     return worst
@@ -667,6 +680,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
+        jac_skew: wp.array(dtype=vec3d),
     ):
         """World inverse inertias, P_i and J_ib at the current state."""
         for b in range(body_count):
@@ -674,7 +688,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         for i in range(constraint_count):
             frame(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                constraint_axis0, constraint_axis1, body_x, body_q, proj, jac_lin, jac_ang,
+                constraint_axis0, constraint_axis1, body_x, body_q, proj, jac_lin, jac_ang, jac_skew,
             )  # fmt: skip
 
     @wp.func(module=module)
@@ -777,6 +791,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
+        jac_skew: wp.array(dtype=vec3d),
         # Data out: the state, advanced in place, and a status row a step
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
@@ -861,7 +876,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if wp.static(forced or rows):  # every impulse first: rows, elements couple the bodies
                         apply_all(
                             body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
-                            inv_inertia_world, jac_lin, jac_ang, impulse, state_v, state_w,
+                            inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
                         )  # fmt: skip
                         if wp.static(rows):
                             correct_rows_all(
@@ -883,7 +898,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     else:
                         apply_and_predict_all(
                             body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                            body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, impulse, state_x,
+                            body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_x,
                             state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
                             next_v, next_w,
                         )  # fmt: skip
@@ -932,7 +947,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 frames_all(
                     body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
                     constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                    state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang,
+                    state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
                 for s in range(slot_code.shape[0]):
                     augmented_slot(
@@ -963,7 +978,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
                 verr = velocity_errors_all(
-                    constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                    constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
                     state_v, state_w, errors, rhs,
                 )  # fmt: skip
                 if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
@@ -973,7 +988,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                        jac_lin, jac_ang, impulse, state_v, state_w,
+                        jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
                     )  # fmt: skip
                     row_solves += 1
                     correct_rows_all(
@@ -982,7 +997,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        state_v, state_w, errors, rhs,
+                        jac_skew, state_v, state_w, errors, rhs,
                     )  # fmt: skip
                 if not (verr <= velocity_tolerance):
                     cholesky_solve(
@@ -991,11 +1006,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                        jac_lin, jac_ang, impulse, state_v, state_w,
+                        jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        state_v, state_w, errors, rhs,
+                        jac_skew, state_v, state_w, errors, rhs,
                     )  # fmt: skip
                     velocity_iterations += 1
                 if singular[0] != 0:  # the host raises: no further stage
@@ -1063,6 +1078,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             proj: wp.array(dtype=mat33d),
             jac_lin: wp.array(dtype=mat33d),
             jac_ang: wp.array(dtype=mat33d),
+            jac_skew: wp.array(dtype=vec3d),
             # Data out:
             body_x_out: wp.array(dtype=vec3d),
             body_q_out: wp.array(dtype=quatd),
@@ -1169,7 +1185,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     frames_all(
                         body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
                         constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                        state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang,
+                        state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
                     )  # fmt: skip
                     vsweeps = wp.int32(0)
                     vbest = f64(0.0)
@@ -1177,7 +1193,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     while True:
                         verr = sweep_velocities_once(
                             constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                            velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, state_v, state_w,
+                            velocity_tolerance, inv_inertia_world, jac_lin, jac_ang, jac_skew, state_v, state_w,
                         )  # fmt: skip
                         if vsweeps == 0:
                             vbest = verr
@@ -1195,7 +1211,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     velocity_iterations += vsweeps
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        state_v, state_w, errors, rhs,
+                        jac_skew, state_v, state_w, errors, rhs,
                     )  # fmt: skip
                     if not converged:  # the host raises or warns once the step is done
                         code = VELOCITY

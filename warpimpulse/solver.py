@@ -59,6 +59,8 @@ class Frames:
         self.proj = wp.array(proj, dtype=wp.mat33d, device=d)
         self.jac_lin = wp.array(jac_lin, dtype=wp.mat33d, device=d)
         self.jac_ang = wp.array(jac_ang, dtype=wp.mat33d, device=d)
+        # A point constraint's J_ang = [s]x per row as s alone: what apply and J v read (24 bytes, not 72).
+        self.jac_skew = wp.zeros(2 * model.constraint_count, dtype=wp.vec3d, device=d)
         self.inv_inertia_world = wp.zeros(nb, dtype=wp.mat33d, device=d)
 
 
