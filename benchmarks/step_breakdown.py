@@ -144,7 +144,7 @@ def _stage_kernels(ns):
             )  # fmt: skip
 
     @wp.kernel(module=module)
-    def assemble_factor(repeats: int, factor: int, constraint_kind: wp.array(dtype=int),
+    def assemble_factor(repeats: int, factor: int, augmented: int, constraint_kind: wp.array(dtype=int),
                         constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int),
                         body_inv_mass: wp.array(dtype=f64), slot_row: wp.array(dtype=int),
                         perm: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
@@ -171,7 +171,7 @@ def _stage_kernels(ns):
                     )  # fmt: skip
                 if factor != 0:
                     step_kernels.factor_column(
-                        j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
+                        j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
                     )  # fmt: skip
 

@@ -6,7 +6,7 @@ Scalars live in a small array: [rz, pq, rz_new, rr] so that every kernel reads v
 
 import warp as wp
 
-from .cholesky import cholesky3
+from .cholesky import cholesky3_inverse
 
 wp.set_module_options({"enable_backward": False})
 
@@ -33,7 +33,7 @@ def row_times(i: int, row_start: wp.array(dtype=int), col: wp.array(dtype=int), 
 def diagonal_inverse(diag_slot: wp.array(dtype=int), values: wp.array(dtype=mat33d), precond: wp.array(dtype=mat33d)):
     """The block-Jacobi preconditioner: K_ii^-1 = L^-T L^-1 of each diagonal block."""
     i = wp.tid()
-    l, li, bad = cholesky3(values[diag_slot[i]], f64(0.0), f64(1.0))
+    li, bad = cholesky3_inverse(values[diag_slot[i]], f64(0.0), f64(1.0))
     precond[i] = wp.transpose(li) * li
 
 

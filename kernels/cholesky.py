@@ -2,12 +2,16 @@
 
 S is a fixed diagonal of signs, one per block column: all +1 for K (an SPD L L^T), and -1 for the
 constraint pivots of the augmented body-joint matrix, whose Schur complements are negative definite in the
-host's elimination order (Baraff 1996). Each pivot block is then s_j A_jj = L_jj L_jj^T.
+host's elimination order (Baraff 1996). Each pivot block is then s_j A_jj = L_jj L_jj^T. `signs` (0 for K)
+says whether S has any -1: K's factor and solves skip the signs (multiplying by +1 is exact, so this changes no
+bit).
 
 Columns are in elimination order. The host groups columns so that a group runs in order on one thread
 and the groups of one launch are independent (levels of the elimination tree): on a CPU one group holds
 every column; on a GPU each level is one launch with a column a thread.
-Storage: block column j owns slots col_start[j]..col_start[j+1]-1, the diagonal first.
+Storage: block column j owns slots col_start[j]..col_start[j+1]-1, the diagonal first. The factor overwrites
+the off-diagonal slots with L_ij and writes L_jj^-1 to diag_inv[j] (all the solves read of the diagonal); the
+diagonal slot keeps the block as assembled.
 """
 
 import warp as wp
@@ -20,38 +24,35 @@ f64 = wp.float64
 
 
 @wp.func
-def cholesky3(a: mat33d, tiny: f64, fallback: f64):
-    """Lower Cholesky factor L of an SPD 3x3 block, its inverse, and how many of its pivots were not above
-    `tiny` (each replaced by `fallback`). Each pivot's reciprocal is taken once and serves both: three divisions
-    where dividing by the pivots would take six."""
+def cholesky3_inverse(a: mat33d, tiny: f64, fallback: f64):
+    """The inverse of the lower Cholesky factor L of an SPD 3x3 block (its lower triangle read), and how many of
+    its pivots were not above `tiny` (each replaced by `fallback`). Each pivot's reciprocal is taken once and
+    serves both L's column and its inverse: three divisions where dividing by the pivots would take six. L itself
+    is not returned: nothing reads it (storing it cost ~8 ns a column, chain10 and a 65,535-body tree)."""
     z = f64(0.0)
     d0 = a[0, 0]
     bad = int(0)  # noqa: UP018 (a Warp variable the branches change must not start as a constant)
     if d0 <= tiny:
         bad += 1
         d0 = fallback
-    l00 = wp.sqrt(d0)
-    r0 = f64(1.0) / l00
+    r0 = f64(1.0) / wp.sqrt(d0)
     l10 = a[1, 0] * r0
     l20 = a[2, 0] * r0
     d1 = a[1, 1] - l10 * l10
     if d1 <= tiny:
         bad += 1
         d1 = fallback
-    l11 = wp.sqrt(d1)
-    r1 = f64(1.0) / l11
+    r1 = f64(1.0) / wp.sqrt(d1)
     l21 = (a[2, 1] - l20 * l10) * r1
     d2 = a[2, 2] - l20 * l20 - l21 * l21
     if d2 <= tiny:
         bad += 1
         d2 = fallback
-    l22 = wp.sqrt(d2)
-    r2 = f64(1.0) / l22
-    l = mat33d(l00, z, z, l10, l11, z, l20, l21, l22)
+    r2 = f64(1.0) / wp.sqrt(d2)
     b = -l10 * r0 * r1
     e = -l21 * r1 * r2
     c = -(l20 * r0 + l21 * b) * r2
-    return l, mat33d(r0, z, z, b, r1, z, c, e, r2), bad
+    return mat33d(r0, z, z, b, r1, z, c, e, r2), bad
 
 
 @wp.func
@@ -78,8 +79,32 @@ def times_lower_transpose(a: mat33d, l: mat33d) -> mat33d:
 
 
 @wp.func
+def lower_gram(l: mat33d) -> mat33d:
+    """The lower triangle of l l^T (zeros above): a diagonal block's update, whose upper triangle nothing reads
+    (`cholesky3_inverse` reads the lower one): 18 products where l l^T takes 27."""
+    z = f64(0.0)
+    return mat33d(
+        l[0, 0] * l[0, 0] + l[0, 1] * l[0, 1] + l[0, 2] * l[0, 2], z, z,
+        l[1, 0] * l[0, 0] + l[1, 1] * l[0, 1] + l[1, 2] * l[0, 2],
+        l[1, 0] * l[1, 0] + l[1, 1] * l[1, 1] + l[1, 2] * l[1, 2], z,
+        l[2, 0] * l[0, 0] + l[2, 1] * l[0, 1] + l[2, 2] * l[0, 2],
+        l[2, 0] * l[1, 0] + l[2, 1] * l[1, 1] + l[2, 2] * l[1, 2],
+        l[2, 0] * l[2, 0] + l[2, 1] * l[2, 1] + l[2, 2] * l[2, 2],
+    )  # fmt: skip
+
+
+@wp.func
+def negative_update(signs: int, u: int, update_sign: wp.array(dtype=f64)) -> bool:
+    """Whether update u adds its product (its column's sign is -1); K's (`signs` 0) never do, unread."""
+    if signs != 0:
+        return update_sign[u] < f64(0.0)
+    return False
+
+
+@wp.func
 def factor_column(
     j: int,
+    signs: int,
     col_start: wp.array(dtype=int),
     update_start: wp.array(dtype=int),
     update_target: wp.array(dtype=int),
@@ -94,8 +119,9 @@ def factor_column(
     diag_inv: wp.array(dtype=mat33d),
     singular: wp.array(dtype=int),
 ):
-    """Column j, left-looking: L_tj -= L_ak s_k L_bk^T over its precomputed updates, then
-    L_jj = chol(s_j .), L_ij = L_ij L_jj^-T s_j.
+    """Column j, left-looking, a slot at a time: the slot's block less its updates L_ak s_k L_bk^T (the host
+    sorts a column's updates by target slot, the diagonal's first), held in registers; then
+    L_jj^-1 = chol(s_j .)^-1, and each L_ij = (.) L_jj^-T s_j written once.
 
     `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
     (a degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
@@ -107,35 +133,56 @@ def factor_column(
     against consistent errors, instead of round-off over round-off. `singular[1]` counts those rows:
     information, not an error.
     """
-    assembled = col_sign[j] * values[col_start[j]]  # the diagonal block before elimination
-    for u in range(update_start[j], update_start[j + 1]):
-        values[update_target[u]] = values[update_target[u]] - update_sign[u] * values[update_a[u]] * wp.transpose(
-            values[update_b[u]]
-        )
     d = col_start[j]
-    sign = col_sign[j]
-    a = sign * values[d]
+    u = update_start[j]
+    end = update_start[j + 1]
+    assembled = values[d]  # the diagonal block before elimination
+    a = assembled
+    while u < end:
+        if update_target[u] != d:
+            break
+        if negative_update(signs, u, update_sign):
+            a = a + lower_gram(values[update_a[u]])
+        else:
+            a = a - lower_gram(values[update_a[u]])
+        u += 1
+    negative = False
+    if signs != 0:
+        negative = col_sign[j] < f64(0.0)
+    if negative:
+        a = -a
+        assembled = -assembled
     scale = wp.max(wp.max(a[0, 0], a[1, 1]), a[2, 2])
-    l = mat33d()
     li = mat33d()
     if col_loop[j] != 0:  # relative to the assembled diagonal: the reduced one may be all round-off
         full = wp.max(wp.max(assembled[0, 0], assembled[1, 1]), assembled[2, 2])
-        l, li, redundant = cholesky3(a, loop_tolerance * full, full)
+        li, redundant = cholesky3_inverse(a, loop_tolerance * full, full)
         singular[1] = singular[1] + redundant
     else:
-        l, li, bad = cholesky3(a, pivot_tolerance * scale, f64(1.0))
+        li, bad = cholesky3_inverse(a, pivot_tolerance * scale, f64(1.0))
         if bad != 0 and singular[0] == 0:
             singular[0] = j + 1
-    values[d] = l
     diag_inv[j] = li
-    lis = sign * li
     for s in range(d + 1, col_start[j + 1]):
-        values[s] = times_lower_transpose(values[s], lis)
+        block = values[s]
+        while u < end:
+            if update_target[u] != s:
+                break
+            if negative_update(signs, u, update_sign):
+                block = block + values[update_a[u]] * wp.transpose(values[update_b[u]])
+            else:
+                block = block - values[update_a[u]] * wp.transpose(values[update_b[u]])
+            u += 1
+        block = times_lower_transpose(block, li)
+        if negative:
+            block = -block
+        values[s] = block
 
 
 @wp.kernel
 def factor(
     first_group: int,
+    signs: int,
     group_start: wp.array(dtype=int),
     col_start: wp.array(dtype=int),
     update_start: wp.array(dtype=int),
@@ -156,7 +203,7 @@ def factor(
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
         factor_column(
-            j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
+            j, signs, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
             pivot_tolerance, loop_tolerance, values, diag_inv, singular,
         )  # fmt: skip
 

@@ -8,7 +8,7 @@ repeats sweeps until one finds every constraint within tolerance. Sequential by 
 import warp as wp
 
 from .assemble import diagonal_block
-from .cholesky import cholesky3
+from .cholesky import cholesky3_inverse
 from .constraints import constraint_error, constraint_velocity, pose_q, pose_x, projected_error
 from .rigid import predict_body
 
@@ -22,7 +22,7 @@ f64 = wp.float64
 
 @wp.func
 def solve_block(k: mat33d, rhs: vec3d) -> vec3d:
-    l, li, bad = cholesky3(k, f64(0.0), f64(1.0))
+    li, bad = cholesky3_inverse(k, f64(0.0), f64(1.0))
     return wp.transpose(li) * (li * rhs)
 
 

@@ -962,7 +962,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
                         )  # fmt: skip
                     factor_column(
-                        j, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
+                        j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
                     )  # fmt: skip
                 if wp.static(rows):  # the rows' system S with the joints holding: one solve a row

@@ -161,6 +161,7 @@ class CholeskySolver:
                 d,
                 sources,
                 first_group=first,
+                signs=int(self._augmented),
                 pivot_tolerance=pivot_tolerance,
                 loop_tolerance=loop_tolerance,
             )  # fmt: skip

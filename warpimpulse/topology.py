@@ -368,8 +368,8 @@ def _structure(perm: np.ndarray, pair_u: np.ndarray, pair_v: np.ndarray, unknown
     has = col_start[1:] - col_start[:-1] > 1
     parent[has] = col_row[col_start[:-1][has] + 1]
     height = _heights(parent)
-    # Updates of column k: for its rows j <= i, L_ij -= L_ik L_jk^T, grouped by the target's column j, then k,
-    # then i (the order the factor applies them).
+    # Updates of column k: for its rows j <= i, L_ij -= L_ik L_jk^T, grouped by the target slot (its column j,
+    # then its row i), then k: the order the factor applies them, each target summed in registers.
     size = np.diff(col_start) - 1
     a_group, a_offset = _ranges(size)  # (column k, place a of row j in it)
     b_group, b_extra = _ranges(size[a_group] - a_offset)  # (that pair, place b >= a of row i)
@@ -378,7 +378,7 @@ def _structure(perm: np.ndarray, pair_u: np.ndarray, pair_v: np.ndarray, unknown
     b_slot = a_slot + b_extra
     j, i = col_row[a_slot], col_row[b_slot]
     target = np.searchsorted(slot_key, j * n + i)
-    order = np.lexsort((b_extra, k, j))
+    order = np.lexsort((k, target))
     row_order = np.lexsort((k_of, r_of))
     return dict(
         perm=perm,
