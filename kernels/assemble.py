@@ -10,7 +10,7 @@ Cholesky (fill slots share no body and assemble to zero), assembled a block colu
 import warp as wp
 
 from ..types import Slot
-from .constraints import POINT, constraint_dim, skew_times, skew_vector, times_skew_transpose
+from .constraints import POINT, constraint_dim, is_translational, skew_times, skew_vector, times_skew_transpose
 
 wp.set_module_options({"enable_backward": False})
 
@@ -27,27 +27,53 @@ def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constrai
 
 
 @wp.func
-def row_products(kind: int, inv_mass: f64, inv_inertia_world: mat33d, jac_lin: mat33d, jac_ang: mat33d):
-    """(m^-1 J_lin, J_ang J~^-1) of one side of a constraint of `kind`: that side's factor of every block of K
-    its body is in. A point constraint's J_ang is a skew matrix (`constraints.constraint_frame`): its product is
-    `skew_times`."""
+def row_products(
+    kind: int,
+    side: int,
+    r: int,
+    inv_mass: f64,
+    inv_inertia_world: mat33d,
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+):
+    """(m^-1 J_lin, J_ang J~^-1) of Jacobian row r, side `side` of a constraint of `kind`: that side's factor of
+    every block of K its body is in. A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a
+    skew matrix (`constraints.constraint_frame`): its products are +-m^-1 I, J_lin unread, and `skew_times`. A
+    rotational constraint's J_lin is 0: its linear product is 0, J_lin unread."""
     if kind == POINT:
-        return inv_mass * jac_lin, skew_times(skew_vector(jac_ang), inv_inertia_world)
-    return inv_mass * jac_lin, jac_ang * inv_inertia_world
+        m = inv_mass
+        if side != 0:
+            m = -inv_mass
+        z = f64(0.0)
+        return mat33d(m, z, z, z, m, z, z, z, m), skew_times(skew_vector(jac_ang[r]), inv_inertia_world)
+    if is_translational(kind):
+        return inv_mass * jac_lin[r], jac_ang[r] * inv_inertia_world
+    return mat33d(), jac_ang[r] * inv_inertia_world
 
 
 @wp.func
-def row_block(mass_jac: mat33d, inertia_jac: mat33d, kind: int, side: int, jac_lin: mat33d, jac_ang: mat33d) -> mat33d:
-    """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and row j's Jacobian (constraint j of `kind`, on
+def row_block(
+    mass_jac: mat33d,
+    inertia_jac: mat33d,
+    kind: int,
+    side: int,
+    r: int,
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+) -> mat33d:
+    """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and Jacobian row r of constraint j (of `kind`, on
     its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a skew matrix
     (`constraints.constraint_frame`): there the linear part is +-m^-1 J_lin of row i, the same value without the
-    product, and the angular part is `times_skew_transpose`."""
+    product, and the angular part is `times_skew_transpose`. A rotational constraint's J_lin is 0: no linear part
+    (adding its zeros changed no bit)."""
     if kind == POINT:
-        angular = times_skew_transpose(inertia_jac, skew_vector(jac_ang))
+        angular = times_skew_transpose(inertia_jac, skew_vector(jac_ang[r]))
         if side == 0:
             return mass_jac + angular
         return angular - mass_jac
-    return mass_jac * wp.transpose(jac_lin) + inertia_jac * wp.transpose(jac_ang)
+    if is_translational(kind):
+        return mass_jac * wp.transpose(jac_lin[r]) + inertia_jac * wp.transpose(jac_ang[r])
+    return inertia_jac * wp.transpose(jac_ang[r])
 
 
 @wp.func
@@ -67,10 +93,8 @@ def shared_body_block(
     """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share, from row i's
     products formed for this block alone (CG's slots, the iterative sweeps' blocks)."""
     b = side_body(i, si, constraint_body0, constraint_body1)
-    ri = 2 * i + si
-    rj = 2 * j + sj
-    m, w = row_products(constraint_kind[i], body_inv_mass[b], inv_inertia_world[b], jac_lin[ri], jac_ang[ri])
-    return row_block(m, w, constraint_kind[j], sj, jac_lin[rj], jac_ang[rj])
+    m, w = row_products(constraint_kind[i], si, 2 * i + si, body_inv_mass[b], inv_inertia_world[b], jac_lin, jac_ang)
+    return row_block(m, w, constraint_kind[j], sj, 2 * j + sj, jac_lin, jac_ang)
 
 
 @wp.func
@@ -180,8 +204,9 @@ def side_products(
     b = side_body(c, side, constraint_body0, constraint_body1)
     if b < 0:
         return mat33d(), mat33d()
-    r = 2 * c + side
-    return row_products(constraint_kind[c], body_inv_mass[b], inv_inertia_world[b], jac_lin[r], jac_ang[r])
+    return row_products(
+        constraint_kind[c], side, 2 * c + side, body_inv_mass[b], inv_inertia_world[b], jac_lin, jac_ang
+    )
 
 
 @wp.func
@@ -230,8 +255,7 @@ def assemble_column(
                 if sides[2 * pair + 1] != 0:
                     m = m1
                     w = w1
-                ri = 2 * i + si
-                k += wp.transpose(row_block(m, w, kind, si, jac_lin_in[ri], jac_ang_in[ri]))
+                k += wp.transpose(row_block(m, w, kind, si, 2 * i + si, jac_lin_in, jac_ang_in))
         if i == c:
             k = pad_unused_rows(k, kind)
         values_out[s] = k
