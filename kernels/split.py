@@ -329,9 +329,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                     part_columns[k], perm, col_start, constraint_kind, constraint_body0, constraint_body1,
                     body_inv_mass, slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
                 )  # fmt: skip
-            for k in range(part_columns.shape[0]):
+            for k in range(part_columns.shape[0]):  # K's factor, no signs (only the K formulation is cut)
                 factor_column(
-                    part_columns[k], col_start, update_start, update_target, update_a, update_b, update_sign,
+                    part_columns[k], 0, col_start, update_start, update_target, update_a, update_b, update_sign,
                     col_sign, col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, part_singular,
                 )  # fmt: skip
             part_out[3] = velocity_errors_of(
