@@ -79,21 +79,6 @@ def times_lower_transpose(a: mat33d, l: mat33d) -> mat33d:
 
 
 @wp.func
-def lower_gram(l: mat33d) -> mat33d:
-    """The lower triangle of l l^T (zeros above): a diagonal block's update, whose upper triangle nothing reads
-    (`cholesky3_inverse` reads the lower one): 18 products where l l^T takes 27."""
-    z = f64(0.0)
-    return mat33d(
-        l[0, 0] * l[0, 0] + l[0, 1] * l[0, 1] + l[0, 2] * l[0, 2], z, z,
-        l[1, 0] * l[0, 0] + l[1, 1] * l[0, 1] + l[1, 2] * l[0, 2],
-        l[1, 0] * l[1, 0] + l[1, 1] * l[1, 1] + l[1, 2] * l[1, 2], z,
-        l[2, 0] * l[0, 0] + l[2, 1] * l[0, 1] + l[2, 2] * l[0, 2],
-        l[2, 0] * l[1, 0] + l[2, 1] * l[1, 1] + l[2, 2] * l[1, 2],
-        l[2, 0] * l[2, 0] + l[2, 1] * l[2, 1] + l[2, 2] * l[2, 2],
-    )  # fmt: skip
-
-
-@wp.func
 def negative_update(signs: int, u: int, update_sign: wp.array(dtype=f64)) -> bool:
     """Whether update u adds its product (its column's sign is -1); K's (`signs` 0) never do, unread."""
     if signs != 0:
@@ -141,10 +126,11 @@ def factor_column(
     while u < end:
         if update_target[u] != d:
             break
+        l = values[update_a[u]]  # its update_b: a diagonal block's update is L_jk s_k L_jk^T
         if negative_update(signs, u, update_sign):
-            a = a + lower_gram(values[update_a[u]])
+            a = a + l * wp.transpose(l)
         else:
-            a = a - lower_gram(values[update_a[u]])
+            a = a - l * wp.transpose(l)
         u += 1
     negative = False
     if signs != 0:
