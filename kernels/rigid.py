@@ -1,29 +1,74 @@
-"""Free rigid-body motion over one step (method paper, section 3, equations 1-4)."""
+"""Free rigid-body motion over one step (method paper, section 3, equations 1-4).
+
+On the CPU, bodies are predicted `LANES` at a time: each scalar of the rotation's RK4 holds one value per body
+(`lanes`, a quaternion as the `quat_lanes` rows x, y, z, w), so that the compiler's SLP vectorizer turns the
+four bodies' identical operations into vector instructions (`LANE_COMPILER_FLAGS`). The rotation's maths is
+written once, generic over a scalar (`f64`) or a lane vector (`lanes`): each lane does the scalar code's
+operations in its order, so a body's prediction is the same bit for bit alone or in lanes.
+"""
+
+from typing import Any
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+LANES = 4  # bodies predicted at once: 4 f64 fill a 256-bit vector register
+LANE_COMPILER_FLAGS = (
+    "-march=native -mllvm=-inline-threshold=9000 -mllvm=-inline-cold-callsite-threshold=3000"
+    " -mllvm=-slp-recursion-max-depth=64"
+)
+"""CPU flags of a module that predicts in lanes: Warp's defaults (`wp.config.cpu_compiler_flags`) but a deep SLP
+search. Warp limits it to 4 operations from a vector's store; the RK4 step's 4 stages nest some 40 deep, and
+with the limit clang keeps them scalar (a lane-predicted body then costs the same ~40 ns as alone, 20 ns with
+the deep search)."""
+
+wp.set_module_options({"enable_backward": False, "cpu_compiler_flags": LANE_COMPILER_FLAGS})
 
 vec3d = wp.vec3d
 quatd = wp.quatd
 mat33d = wp.mat33d
 f64 = wp.float64
+lanes = wp.types.vector(length=LANES, dtype=f64)  # one scalar of LANES bodies
+quat_lanes = wp.types.matrix(shape=(4, LANES), dtype=f64)  # rows x, y, z, w; a column is one body's quaternion
+vec3_lanes = wp.types.matrix(shape=(3, LANES), dtype=f64)  # rows x, y, z; a column is one body's vector
+
+
+@wp.func
+def times(a: f64, b: f64) -> f64:
+    """a b (`times` of lanes: lane by lane)."""
+    return a * b
+
+
+@wp.func
+def times(a: lanes, b: lanes) -> lanes:  # noqa: F811 (an overload)
+    return wp.cw_mul(a, b)
+
+
+@wp.func
+def rotation_rate_terms(qx: Any, qy: Any, qz: Any, qw: Any, x: Any, y: Any, z: Any):
+    """q (w_body, 0) = 2 dq/dt: equation 3, with the angular velocity in body space, less its factor 1/2, which
+    `rk4_rotation` folds into its step fractions (scaling by 1/2 is exact: the same values, 4 products fewer). The
+    product is spelled out without the terms of the zero scalar part (Warp's quaternion product in that order).
+    Components of one body (f64) or of LANES bodies (`lanes`)."""
+    return (
+        times(qw, x) + times(qy, z) - times(y, qz),
+        times(qw, y) + times(qz, x) - times(z, qx),
+        times(qw, z) + times(qx, y) - times(x, qy),
+        times(-qx, x) - times(qy, y) - times(qz, z),
+    )
 
 
 @wp.func
 def rotation_rate(q: quatd, w_body: vec3d) -> quatd:
-    """q (w_body, 0) = 2 dq/dt: equation 3, with the angular velocity in body space, less its factor 1/2, which
-    `rk4_rotation` folds into its step fractions (scaling by 1/2 is exact: the same values, 4 products fewer). The
-    product is spelled out without the terms of the zero scalar part (Warp's quaternion product in that order)."""
-    x = w_body[0]
-    y = w_body[1]
-    z = w_body[2]
-    return quatd(
-        q[3] * x + q[1] * z - y * q[2],
-        q[3] * y + q[2] * x - z * q[0],
-        q[3] * z + q[0] * y - x * q[1],
-        -q[0] * x - q[1] * y - q[2] * z,
-    )
+    """`rotation_rate_terms` of one body."""
+    x, y, z, w = rotation_rate_terms(q[0], q[1], q[2], q[3], w_body[0], w_body[1], w_body[2])
+    return quatd(x, y, z, w)
+
+
+@wp.func
+def rotation_rate(q: quat_lanes, w_body: vec3_lanes) -> quat_lanes:  # noqa: F811 (an overload)
+    """`rotation_rate_terms` of LANES bodies."""
+    x, y, z, w = rotation_rate_terms(q[0], q[1], q[2], q[3], w_body[0], w_body[1], w_body[2])
+    return wp.matrix_from_rows(x, y, z, w)
 
 
 @wp.func
@@ -39,21 +84,56 @@ def is_diagonal(m: mat33d) -> bool:
 
 
 @wp.func
-def angular_acceleration(
-    q: quatd, w_body: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, diagonal: bool
-) -> vec3d:
+def euler_coefficients(inertia: mat33d, inv_inertia: mat33d) -> vec3d:
+    """(J_y - J_z) / J_x and cyclic, for a diagonal inertia J (kg m^2): Euler's equations' gyroscopic factors."""
+    return vec3d(
+        (inertia[1, 1] - inertia[2, 2]) * inv_inertia[0, 0],
+        (inertia[2, 2] - inertia[0, 0]) * inv_inertia[1, 1],
+        (inertia[0, 0] - inertia[1, 1]) * inv_inertia[2, 2],
+    )
+
+
+@wp.func
+def euler_terms(c0: Any, c1: Any, c2: Any, wx: Any, wy: Any, wz: Any):
+    """Euler's equations without torque, dw_x/dt = c0 w_y w_z and cyclic (`euler_coefficients`), body space;
+    components of one body (f64) or of LANES bodies (`lanes`)."""
+    return times(times(c0, wy), wz), times(times(c1, wz), wx), times(times(c2, wx), wy)
+
+
+@wp.struct
+class Rotor:
+    """What the rotation's RK4 needs of one body besides its state."""
+
+    inertia: mat33d  # kg m^2, body space
+    inv_inertia: mat33d
+    torque: vec3d  # N m, world frame, held over the step
+    diagonal: bool  # the inertia is (`is_diagonal`)
+
+
+@wp.func
+def rotor(inertia: mat33d, inv_inertia: mat33d, torque: vec3d) -> Rotor:
+    r = Rotor()
+    r.inertia = inertia
+    r.inv_inertia = inv_inertia
+    r.torque = torque
+    r.diagonal = is_diagonal(inertia)
+    return r
+
+
+@wp.func
+def angular_acceleration(q: quatd, w_body: vec3d, body: Rotor) -> vec3d:
     """Equation 4 in body space, with the gyroscopic term; the world torque is held constant over the step.
     A zero torque is not rotated into the body frame. A diagonal inertia (a body built on its principal axes)
-    takes Euler's equations, dw_x/dt = (J_y - J_z) / J_x w_y w_z + tau_x / J_x and cyclic: the gyroscopic term
-    in 6 products where J^-1 (w x J w) takes 18 (its coefficients are the same in the four RK4 stages, and the
-    compiler forms them once), equal up to round-off."""
-    if diagonal:
-        w = w_body
-        acc = vec3d(
-            (inertia[1, 1] - inertia[2, 2]) * inv_inertia[0, 0] * w[1] * w[2],
-            (inertia[2, 2] - inertia[0, 0]) * inv_inertia[1, 1] * w[2] * w[0],
-            (inertia[0, 0] - inertia[1, 1]) * inv_inertia[2, 2] * w[0] * w[1],
-        )
+    takes Euler's equations (`euler_terms`): the gyroscopic term in 6 products where J^-1 (w x J w) takes 18
+    (its coefficients are the same in the four RK4 stages, and the compiler forms them once), equal up to
+    round-off."""
+    inertia = body.inertia
+    inv_inertia = body.inv_inertia
+    torque = body.torque
+    if body.diagonal:
+        c = euler_coefficients(inertia, inv_inertia)
+        ax, ay, az = euler_terms(c[0], c[1], c[2], w_body[0], w_body[1], w_body[2])
+        acc = vec3d(ax, ay, az)
         if torque[0] == f64(0.0) and torque[1] == f64(0.0) and torque[2] == f64(0.0):
             return acc
         return acc + diagonal_times(inv_inertia, wp.quat_rotate_inv(q, torque))
@@ -63,33 +143,75 @@ def angular_acceleration(
     return inv_inertia * (wp.quat_rotate_inv(q, torque) - gyro)
 
 
+@wp.func
+def angular_acceleration(q: quat_lanes, w_body: vec3_lanes, coefficients: vec3_lanes) -> vec3_lanes:  # noqa: F811 (an overload)
+    """Equation 4 of LANES bodies of diagonal inertia without torque (`euler_terms`; rows: `euler_coefficients`)."""
+    ax, ay, az = euler_terms(coefficients[0], coefficients[1], coefficients[2], w_body[0], w_body[1], w_body[2])
+    return wp.matrix_from_rows(ax, ay, az)
+
+
 MAX_SUBSTEP_ROTATION = wp.constant(wp.float64(0.25))  # rad per RK4 substep of the rotation
 MAX_SUBSTEPS = wp.constant(64)
 
 
 @wp.func
-def rk4_rotation(q: quatd, wb: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, h: f64, diagonal: bool):
-    """One classic RK4 step of equations 3 and 4 for (q, body-space w); `diagonal`: the inertia is. The
+def rk4_step(q: Any, wb: Any, body: Any, h: f64):
+    """One classic RK4 step of equations 3 and 4 for (q, body-space w) of one body (quatd, vec3d, `Rotor`) or of
+    LANES bodies (`quat_lanes`, `vec3_lanes`, their `euler_coefficients` as rows), q not yet normalized. The
     quaternion's rates are 2 dq/dt (`rotation_rate`), so its fractions of the step are halved."""
     half = f64(0.5) * h
     quarter = f64(0.5) * half
     k1q = rotation_rate(q, wb)
-    k1w = angular_acceleration(q, wb, inertia, inv_inertia, torque, diagonal)
+    k1w = angular_acceleration(q, wb, body)
     q2 = q + k1q * quarter
     w2 = wb + k1w * half
     k2q = rotation_rate(q2, w2)
-    k2w = angular_acceleration(q2, w2, inertia, inv_inertia, torque, diagonal)
+    k2w = angular_acceleration(q2, w2, body)
     q3 = q + k2q * quarter
     w3 = wb + k2w * half
     k3q = rotation_rate(q3, w3)
-    k3w = angular_acceleration(q3, w3, inertia, inv_inertia, torque, diagonal)
+    k3w = angular_acceleration(q3, w3, body)
     q4 = q + k3q * half
     w4 = wb + k3w * h
     k4q = rotation_rate(q4, w4)
-    k4w = angular_acceleration(q4, w4, inertia, inv_inertia, torque, diagonal)
+    k4w = angular_acceleration(q4, w4, body)
     sixth = h / f64(6.0)
-    q1 = wp.normalize(q + (k1q + k2q * f64(2.0) + k3q * f64(2.0) + k4q) * (f64(0.5) * sixth))
+    q1 = q + (k1q + k2q * f64(2.0) + k3q * f64(2.0) + k4q) * (f64(0.5) * sixth)
     return q1, wb + (k1w + k2w * f64(2.0) + k3w * f64(2.0) + k4w) * sixth
+
+
+@wp.func
+def rk4_rotation(q: quatd, wb: vec3d, body: Rotor, h: f64):
+    """`rk4_step` of one body, q normalized."""
+    q1, w1 = rk4_step(q, wb, body, h)
+    return wp.normalize(q1), w1
+
+
+@wp.func(inline=False)
+def rk4_lanes(q: quat_lanes, wb: vec3_lanes, coefficients: vec3_lanes, h: f64):
+    """`rk4_step` of LANES bodies, kept out of line: its results leave as whole vectors (stores of LANES
+    doubles side by side), which is where clang's SLP vectorizer starts (`LANE_COMPILER_FLAGS`)."""
+    return rk4_step(q, wb, coefficients, h)
+
+
+@wp.func
+def translation(x: vec3d, v: vec3d, inv_mass: f64, force: vec3d, gravity: vec3d, h: f64):
+    """Exact translation over h under gravity and a constant force (equations 1-2): (x, v) at t0 + h."""
+    a = gravity + force * inv_mass
+    return x + v * h + a * (f64(0.5) * h * h), v + a * h
+
+
+@wp.func
+def substeps(w: vec3d, h: f64):
+    """(n, h / n): the RK4 substeps of a body spinning at w (rad/s, world frame) over h, so that each turns at most
+    MAX_SUBSTEP_ROTATION (a fast spin stays on its axis); one for slower bodies, as in the paper."""
+    n = int(1)
+    hs = h
+    if wp.length_sq(w) * (h * h) > MAX_SUBSTEP_ROTATION * MAX_SUBSTEP_ROTATION:  # no root nor division below
+        n = wp.min(int(wp.ceil(wp.length(w) * wp.abs(h) / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)  # h < 0: backwards
+        n = wp.max(n, 1)
+        hs = h / f64(n)
+    return n, hs
 
 
 @wp.func
@@ -106,27 +228,17 @@ def predict_body(
     gravity: vec3d,
     h: f64,
 ):
-    """The state after a step of h: exact translation (equations 1-2), RK4 rotation (equations 3-4).
-
-    A body turning more than MAX_SUBSTEP_ROTATION in the step takes several RK4 substeps, so that a
-    fast spin stays on its axis; slower bodies take exactly one, as in the paper. Static bodies stay put.
-    """
+    """The state after a step of h: exact translation (equations 1-2), RK4 rotation (equations 3-4), in
+    `substeps` of h. Static bodies stay put."""
     if inv_mass == f64(0.0):
         return x, q, v, w
-    a = gravity + force * inv_mass
-    x1 = x + v * h + a * (f64(0.5) * h * h)
-    v1 = v + a * h
+    x1, v1 = translation(x, v, inv_mass, force, gravity, h)
     wb = wp.quat_rotate_inv(q, w)
-    n = int(1)
-    hs = h
-    if wp.length_sq(w) * (h * h) > MAX_SUBSTEP_ROTATION * MAX_SUBSTEP_ROTATION:  # no root nor division below
-        n = wp.min(int(wp.ceil(wp.length(w) * wp.abs(h) / MAX_SUBSTEP_ROTATION)), MAX_SUBSTEPS)  # h < 0: backwards
-        n = wp.max(n, 1)
-        hs = h / f64(n)
+    n, hs = substeps(w, h)
     q1 = q
-    diagonal = is_diagonal(inertia)
+    body = rotor(inertia, inv_inertia, torque)
     for _ in range(n):
-        q1, wb = rk4_rotation(q1, wb, inertia, inv_inertia, torque, hs, diagonal)
+        q1, wb = rk4_rotation(q1, wb, body, hs)
     return x1, q1, v1, wp.quat_rotate(q1, wb)
 
 
@@ -161,6 +273,115 @@ def predict_index(
     body_w_out[b] = w
 
 
+@wp.func
+def fits_lanes(
+    b: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    h: f64,
+    body_w_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+) -> bool:
+    """Whether body b's prediction can take a lane (`predict_lanes`): it is static, or of diagonal inertia
+    without torque, in one RK4 step (`substeps`)."""
+    if body_inv_mass[b] == f64(0.0):
+        return True
+    t = body_torque_in[b]
+    n, hs = substeps(body_w_in[b], h)
+    no_torque = t[0] == f64(0.0) and t[1] == f64(0.0) and t[2] == f64(0.0)
+    return no_torque and n == 1 and is_diagonal(body_inertia[b])
+
+
+@wp.func
+def predict_lanes(
+    b0: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    body_force_in: wp.array(dtype=vec3d),
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """`predict_index` of bodies b0 .. b0 + LANES - 1, which all `fits_lanes`, their rotations in lanes: the
+    same values (a static body's lane is computed and dropped)."""
+    q = quat_lanes()
+    wb = vec3_lanes()
+    coefficients = vec3_lanes()
+    for i in range(LANES):
+        b = b0 + i
+        qi = body_q_in[b]
+        wi = wp.quat_rotate_inv(qi, body_w_in[b])
+        ci = euler_coefficients(body_inertia[b], body_inv_inertia[b])
+        for k in range(3):
+            wb[k, i] = wi[k]
+            coefficients[k, i] = ci[k]
+        for k in range(4):
+            q[k, i] = qi[k]
+    q1, w1 = rk4_lanes(q, wb, coefficients, h)
+    for i in range(LANES):
+        b = b0 + i
+        inv_mass = body_inv_mass[b]
+        if inv_mass == f64(0.0):
+            body_x_out[b] = body_x_in[b]
+            body_q_out[b] = body_q_in[b]
+            body_v_out[b] = body_v_in[b]
+            body_w_out[b] = body_w_in[b]
+        else:
+            x1, v1 = translation(body_x_in[b], body_v_in[b], inv_mass, body_force_in[b], gravity, h)
+            qb = wp.normalize(quatd(q1[0, i], q1[1, i], q1[2, i], q1[3, i]))
+            body_x_out[b] = x1
+            body_q_out[b] = qb
+            body_v_out[b] = v1
+            body_w_out[b] = wp.quat_rotate(qb, vec3d(w1[0, i], w1[1, i], w1[2, i]))
+
+
+@wp.func(inline=True)
+def predict_group(
+    b0: int,
+    count: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    gravity: vec3d,
+    h: f64,
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    body_force_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """`predict_index` of bodies b0 .. b0 + count - 1: in lanes when they are LANES that all `fits_lanes`, else
+    one at a time."""
+    together = count == LANES
+    for i in range(LANES):
+        if together:
+            together = fits_lanes(b0 + i, body_inv_mass, body_inertia, h, body_w_in, body_torque_in)
+    if together:
+        predict_lanes(
+            b0, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
+            body_w_in, body_force_in, body_x_out, body_q_out, body_v_out, body_w_out,
+        )  # fmt: skip
+    else:
+        for b in range(b0, b0 + count):
+            predict_index(
+                b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
+                body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
+            )  # fmt: skip
+
+
 @wp.kernel
 def predict(
     # Model:
@@ -170,6 +391,7 @@ def predict(
     gravity: vec3d,
     # Data in:
     h: f64,
+    group_size: int,
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
     body_v_in: wp.array(dtype=vec3d),
@@ -182,10 +404,13 @@ def predict(
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """Every body's free motion over h from the state in (section 3)."""
-    predict_index(
-        wp.tid(), body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
-        body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
+    """Every body's free motion over h from the state in (section 3), `group_size` bodies a thread
+    (`predict_group`: LANES on the CPU, 1 on a GPU)."""
+    b0 = wp.tid() * group_size
+    predict_group(
+        b0, wp.min(group_size, body_inv_mass.shape[0] - b0), body_inv_mass, body_inertia, body_inv_inertia, gravity,
+        h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out,
+        body_v_out, body_w_out,
     )  # fmt: skip
 
 

@@ -2,7 +2,7 @@
 
 A Warp CPU launch runs on one thread anyway, so on a CPU the step's many launches (and the host's reading of
 errors between them) buy nothing: here the same per-element stage funcs the parallel kernels call
-(`rigid.predict_index`, the constraint funcs of `constraints.specialized`, `assemble.assemble_column`,
+(`rigid.predict_group`, the constraint funcs of `constraints.specialized`, `assemble.assemble_column`,
 `augmented_slot`, `cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps
 of `iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
 apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
@@ -38,7 +38,7 @@ from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
-from .rigid import body_summary, predict_index, world_inverse_inertia_of
+from .rigid import LANE_COMPILER_FLAGS, LANES, body_summary, predict_group, world_inverse_inertia_of
 
 wp.set_module_options({"enable_backward": False})
 
@@ -254,10 +254,11 @@ def predict_all(
     pred_v: wp.array(dtype=vec3d),
     pred_w: wp.array(dtype=vec3d),
 ):
-    for b in range(body_count):
-        predict_index(
-            b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
-            body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+    """Every body's prediction (`predict_group`: LANES bodies at a time)."""
+    for b0 in range(0, body_count, LANES):
+        predict_group(
+            b0, wp.min(LANES, body_count - b0), body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x,
+            body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
         )  # fmt: skip
 
 
@@ -433,14 +434,17 @@ def apply_and_predict_all(
     pred_w: wp.array(dtype=vec3d),
 ):
     """`apply_all` then `predict_all` in one pass over the bodies: a body's prediction reads only its own
-    velocities, which only its own impulses change, so the result is the two passes' bit for bit."""
-    for b in range(body_count):
-        apply_body(
-            b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-            jac_skew, impulse, body_v, body_w,
-        )  # fmt: skip
-        predict_index(
-            b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
+    velocities, which only its own impulses change, so the result is the two passes' bit for bit. The bodies
+    go LANES at a time (`predict_group`)."""
+    for b0 in range(0, body_count, LANES):
+        count = wp.min(LANES, body_count - b0)
+        for b in range(b0, b0 + count):
+            apply_body(
+                b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                jac_skew, impulse, body_v, body_w,
+            )  # fmt: skip
+        predict_group(
+            b0, count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
             body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
         )  # fmt: skip
 
@@ -628,7 +632,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     takes such steps at order 2: impacts and saturation are not reversible). The iterative baseline has none."""
     ck = specialized(kinds)
     module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}{'_rows' if rows else ''}"
-    wp.set_module_options({"enable_backward": False}, module)
+    wp.set_module_options({"enable_backward": False, "cpu_compiler_flags": LANE_COMPILER_FLAGS}, module)
     frame = ck.frame
     position_error = ck.position_error
 

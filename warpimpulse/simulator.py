@@ -354,7 +354,8 @@ class Simulator:
             if self._forced:
                 predict = self._coupled_prediction(h)
             else:
-                predict = self._record(rigid_kernels.predict, nb, s, p, h=h)
+                group = rigid_kernels.LANES if self.model.device.is_cpu else 1  # bodies a thread
+                predict = self._record(rigid_kernels.predict, -(-nb // group), s, p, h=h, group_size=group)
             integrate = self._record(force_kernels.integrate_drives, self.model.drive_count, s, h=h)
             errors = self._record(self.kernels.position_errors, nc, p, inv_h=1.0 / h)
             sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
