@@ -1,8 +1,8 @@
 """Free rigid-body motion over one step (method paper, section 3, equations 1-4).
 
 On the CPU, bodies are predicted `LANES` at a time: each scalar of the rotation's RK4 holds one value per body
-(`lanes`, a quaternion as the `quat_lanes` rows x, y, z, w), so that the compiler's SLP vectorizer turns the
-four bodies' identical operations into vector instructions (`LANE_COMPILER_FLAGS`). The rotation's maths is
+(`lanes`, a quaternion as the `quat_lanes` rows x, y, z, w), so that clang's SLP vectorizer turns the four
+bodies' identical operations into vector instructions (`rk4_lanes`). The rotation's maths is
 written once, generic over a scalar (`f64`) or a lane vector (`lanes`): each lane does the scalar code's
 operations in its order, so a body's prediction is the same bit for bit alone or in lanes.
 """
@@ -12,16 +12,7 @@ from typing import Any
 import warp as wp
 
 LANES = 4  # bodies predicted at once: 4 f64 fill a 256-bit vector register
-LANE_COMPILER_FLAGS = (
-    "-march=native -mllvm=-inline-threshold=9000 -mllvm=-inline-cold-callsite-threshold=3000"
-    " -mllvm=-slp-recursion-max-depth=64"
-)
-"""CPU flags of a module that predicts in lanes: Warp's defaults (`wp.config.cpu_compiler_flags`) but a deep SLP
-search. Warp limits it to 4 operations from a vector's store; the RK4 step's 4 stages nest some 40 deep, and
-with the limit clang keeps them scalar (a lane-predicted body then costs the same ~40 ns as alone, 20 ns with
-the deep search)."""
-
-wp.set_module_options({"enable_backward": False, "cpu_compiler_flags": LANE_COMPILER_FLAGS})
+wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
 quatd = wp.quatd
@@ -190,7 +181,9 @@ def rk4_rotation(q: quatd, wb: vec3d, body: Rotor, h: f64):
 @wp.func(inline=False)
 def rk4_lanes(q: quat_lanes, wb: vec3_lanes, coefficients: vec3_lanes, h: f64):
     """`rk4_step` of LANES bodies, kept out of line: its results leave as whole vectors (stores of LANES
-    doubles side by side), which is where clang's SLP vectorizer starts (`LANE_COMPILER_FLAGS`)."""
+    doubles side by side), which is where clang's SLP vectorizer starts: inlined, the lanes feed scalar code
+    (normalization, rotation to world space), and clang leaves them scalar (a body in lanes then costs the same
+    ~40 ns as alone; ~30 ns out of line)."""
     return rk4_step(q, wb, coefficients, h)
 
 

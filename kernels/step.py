@@ -38,7 +38,7 @@ from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
-from .rigid import LANE_COMPILER_FLAGS, LANES, body_summary, predict_group, world_inverse_inertia_of
+from .rigid import LANES, body_summary, predict_group, world_inverse_inertia_of
 
 wp.set_module_options({"enable_backward": False})
 
@@ -632,7 +632,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     takes such steps at order 2: impacts and saturation are not reversible). The iterative baseline has none."""
     ck = specialized(kinds)
     module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}{'_rows' if rows else ''}"
-    wp.set_module_options({"enable_backward": False, "cpu_compiler_flags": LANE_COMPILER_FLAGS}, module)
+    wp.set_module_options({"enable_backward": False}, module)
     frame = ck.frame
     position_error = ck.position_error
 
