@@ -35,6 +35,60 @@ def times(a: lanes, b: lanes) -> lanes:  # noqa: F811 (an overload)
 
 
 @wp.func
+def less_one(a: f64) -> f64:
+    """a - 1 (`less_one` of lanes: lane by lane)."""
+    return a - f64(1.0)
+
+
+@wp.func
+def less_one(a: lanes) -> lanes:  # noqa: F811 (an overload)
+    return a - lanes(f64(1.0))
+
+
+@wp.func
+def rotation_terms(qx: Any, qy: Any, qz: Any, qw: Any, x: Any, y: Any, z: Any):
+    """The two parts (a, b) of a vector v rotated by a unit quaternion q: q v q^-1 = a + b, q^-1 v q = a - b,
+    with Warp's `quat_rotate` / `quat_rotate_inv` operations in their order (so `rotate` and `rotate_inv` equal
+    them bit for bit). Components of one body (f64) or of LANES bodies (`lanes`)."""
+    c = less_one(times(qw * f64(2.0), qw))
+    d = (times(qx, x) + times(qy, y) + times(qz, z)) * f64(2.0)
+    return (
+        times(x, c) + times(qx, d),
+        times(y, c) + times(qy, d),
+        times(z, c) + times(qz, d),
+        times(times(qy, z) - times(qz, y), qw) * f64(2.0),
+        times(times(qz, x) - times(qx, z), qw) * f64(2.0),
+        times(times(qx, y) - times(qy, x), qw) * f64(2.0),
+    )
+
+
+@wp.func
+def rotate(q: quatd, v: vec3d) -> vec3d:
+    """q v q^-1 (`rotation_terms`): body to world space."""
+    ax, ay, az, bx, by, bz = rotation_terms(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
+    return vec3d(ax + bx, ay + by, az + bz)
+
+
+@wp.func
+def rotate(q: quat_lanes, v: vec3_lanes) -> vec3_lanes:  # noqa: F811 (an overload)
+    ax, ay, az, bx, by, bz = rotation_terms(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
+    return wp.matrix_from_rows(ax + bx, ay + by, az + bz)
+
+
+@wp.func
+def rotate_inv(q: quatd, v: vec3d) -> vec3d:
+    """q^-1 v q (`rotation_terms`): world to body space."""
+    ax, ay, az, bx, by, bz = rotation_terms(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
+    return vec3d(ax - bx, ay - by, az - bz)
+
+
+@wp.func
+def rotate_inv(q: quat_lanes, v: vec3_lanes) -> vec3_lanes:  # noqa: F811 (an overload)
+    ax, ay, az, bx, by, bz = rotation_terms(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
+    return wp.matrix_from_rows(ax - bx, ay - by, az - bz)
+
+
+@wp.func
 def rotation_rate_terms(qx: Any, qy: Any, qz: Any, qw: Any, x: Any, y: Any, z: Any):
     """q (w_body, 0) = 2 dq/dt: equation 3, with the angular velocity in body space, less its factor 1/2, which
     `rk4_rotation` folds into its step fractions (scaling by 1/2 is exact: the same values, 4 products fewer). The
@@ -179,12 +233,19 @@ def rk4_rotation(q: quatd, wb: vec3d, body: Rotor, h: f64):
 
 
 @wp.func(inline=False)
-def rk4_lanes(q: quat_lanes, wb: vec3_lanes, coefficients: vec3_lanes, h: f64):
-    """`rk4_step` of LANES bodies, kept out of line: its results leave as whole vectors (stores of LANES
-    doubles side by side), which is where clang's SLP vectorizer starts: inlined, the lanes feed scalar code
-    (normalization, rotation to world space), and clang leaves them scalar (a body in lanes then costs the same
-    ~40 ns as alone; ~30 ns out of line)."""
-    return rk4_step(q, wb, coefficients, h)
+def rk4_lanes(q: quat_lanes, w: vec3_lanes, coefficients: vec3_lanes, h: f64):
+    """`rk4_step` of LANES bodies from their world angular velocities (rad/s), returning q not yet normalized
+    and w in body space. Kept out of line, like `rotate_lanes`: its results leave as whole vectors (stores of
+    LANES doubles side by side), which is where clang's SLP vectorizer starts; inlined, the lanes feed scalar
+    code (normalization, the stores of each body), and clang leaves them scalar (a body in lanes then costs the
+    same ~40 ns as alone)."""
+    return rk4_step(q, rotate_inv(q, w), coefficients, h)
+
+
+@wp.func(inline=False)
+def rotate_lanes(q: quat_lanes, v: vec3_lanes) -> vec3_lanes:
+    """`rotate` of LANES bodies, out of line (`rk4_lanes`)."""
+    return rotate(q, v)
 
 
 @wp.func
@@ -226,13 +287,13 @@ def predict_body(
     if inv_mass == f64(0.0):
         return x, q, v, w
     x1, v1 = translation(x, v, inv_mass, force, gravity, h)
-    wb = wp.quat_rotate_inv(q, w)
+    wb = rotate_inv(q, w)
     n, hs = substeps(w, h)
     q1 = q
     body = rotor(inertia, inv_inertia, torque)
     for _ in range(n):
         q1, wb = rk4_rotation(q1, wb, body, hs)
-    return x1, q1, v1, wp.quat_rotate(q1, wb)
+    return x1, q1, v1, rotate(q1, wb)
 
 
 @wp.func
@@ -306,19 +367,24 @@ def predict_lanes(
     """`predict_index` of bodies b0 .. b0 + LANES - 1, which all `fits_lanes`, their rotations in lanes: the
     same values (a static body's lane is computed and dropped)."""
     q = quat_lanes()
-    wb = vec3_lanes()
+    w = vec3_lanes()
     coefficients = vec3_lanes()
     for i in range(LANES):
         b = b0 + i
         qi = body_q_in[b]
-        wi = wp.quat_rotate_inv(qi, body_w_in[b])
+        wi = body_w_in[b]
         ci = euler_coefficients(body_inertia[b], body_inv_inertia[b])
         for k in range(3):
-            wb[k, i] = wi[k]
+            w[k, i] = wi[k]
             coefficients[k, i] = ci[k]
         for k in range(4):
             q[k, i] = qi[k]
-    q1, w1 = rk4_lanes(q, wb, coefficients, h)
+    q1, wb1 = rk4_lanes(q, w, coefficients, h)
+    for i in range(LANES):
+        qi = wp.normalize(quatd(q1[0, i], q1[1, i], q1[2, i], q1[3, i]))
+        for k in range(4):
+            q1[k, i] = qi[k]
+    w1 = rotate_lanes(q1, wb1)
     for i in range(LANES):
         b = b0 + i
         inv_mass = body_inv_mass[b]
@@ -329,11 +395,10 @@ def predict_lanes(
             body_w_out[b] = body_w_in[b]
         else:
             x1, v1 = translation(body_x_in[b], body_v_in[b], inv_mass, body_force_in[b], gravity, h)
-            qb = wp.normalize(quatd(q1[0, i], q1[1, i], q1[2, i], q1[3, i]))
             body_x_out[b] = x1
-            body_q_out[b] = qb
+            body_q_out[b] = quatd(q1[0, i], q1[1, i], q1[2, i], q1[3, i])
             body_v_out[b] = v1
-            body_w_out[b] = wp.quat_rotate(qb, vec3d(w1[0, i], w1[1, i], w1[2, i]))
+            body_w_out[b] = vec3d(w1[0, i], w1[1, i], w1[2, i])
 
 
 @wp.func(inline=True)
