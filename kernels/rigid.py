@@ -145,37 +145,14 @@ def euler_terms(c0: Any, c1: Any, c2: Any, wx: Any, wy: Any, wz: Any):
     return times(times(c0, wy), wz), times(times(c1, wz), wx), times(times(c2, wx), wy)
 
 
-@wp.struct
-class Rotor:
-    """What the rotation's RK4 needs of one body besides its state."""
-
-    inertia: mat33d  # kg m^2, body space
-    inv_inertia: mat33d
-    torque: vec3d  # N m, world frame, held over the step
-    diagonal: bool  # the inertia is (`is_diagonal`)
-
-
 @wp.func
-def rotor(inertia: mat33d, inv_inertia: mat33d, torque: vec3d) -> Rotor:
-    r = Rotor()
-    r.inertia = inertia
-    r.inv_inertia = inv_inertia
-    r.torque = torque
-    r.diagonal = is_diagonal(inertia)
-    return r
-
-
-@wp.func
-def angular_acceleration(q: quatd, w_body: vec3d, body: Rotor) -> vec3d:
+def angular_acceleration(q: quatd, w_body: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d) -> vec3d:
     """Equation 4 in body space, with the gyroscopic term; the world torque is held constant over the step.
     A zero torque is not rotated into the body frame. A diagonal inertia (a body built on its principal axes)
     takes Euler's equations (`euler_terms`): the gyroscopic term in 6 products where J^-1 (w x J w) takes 18
     (its coefficients are the same in the four RK4 stages, and the compiler forms them once), equal up to
     round-off."""
-    inertia = body.inertia
-    inv_inertia = body.inv_inertia
-    torque = body.torque
-    if body.diagonal:
+    if is_diagonal(inertia):
         c = euler_coefficients(inertia, inv_inertia)
         ax, ay, az = euler_terms(c[0], c[1], c[2], w_body[0], w_body[1], w_body[2])
         acc = vec3d(ax, ay, az)
@@ -189,9 +166,10 @@ def angular_acceleration(q: quatd, w_body: vec3d, body: Rotor) -> vec3d:
 
 
 @wp.func
-def angular_acceleration(q: quat_lanes, w_body: vec3_lanes, coefficients: vec3_lanes) -> vec3_lanes:  # noqa: F811 (an overload)
-    """Equation 4 of LANES bodies of diagonal inertia without torque (`euler_terms`; rows: `euler_coefficients`)."""
-    ax, ay, az = euler_terms(coefficients[0], coefficients[1], coefficients[2], w_body[0], w_body[1], w_body[2])
+def angular_acceleration(q: quat_lanes, w_body: vec3_lanes, c0: lanes, c1: lanes, c2: lanes) -> vec3_lanes:  # noqa: F811 (an overload)
+    """Equation 4 of LANES bodies of diagonal inertia without torque (`euler_terms`, c0 c1 c2 their
+    `euler_coefficients`)."""
+    ax, ay, az = euler_terms(c0, c1, c2, w_body[0], w_body[1], w_body[2])
     return wp.matrix_from_rows(ax, ay, az)
 
 
@@ -200,46 +178,47 @@ MAX_SUBSTEPS = wp.constant(64)
 
 
 @wp.func
-def rk4_step(q: Any, wb: Any, body: Any, h: f64):
-    """One classic RK4 step of equations 3 and 4 for (q, body-space w) of one body (quatd, vec3d, `Rotor`) or of
-    LANES bodies (`quat_lanes`, `vec3_lanes`, their `euler_coefficients` as rows), q not yet normalized. The
-    quaternion's rates are 2 dq/dt (`rotation_rate`), so its fractions of the step are halved."""
+def rk4_step(q: Any, wb: Any, p0: Any, p1: Any, p2: Any, h: f64):
+    """One classic RK4 step of equations 3 and 4 for (q, body-space w), q not yet normalized: of one body
+    (quatd, vec3d; p0 p1 p2 its inertia, inverse inertia and world torque) or of LANES bodies (`quat_lanes`,
+    `vec3_lanes`; p0 p1 p2 their `euler_coefficients`). The quaternion's rates are 2 dq/dt (`rotation_rate`), so
+    its fractions of the step are halved."""
     half = f64(0.5) * h
     quarter = f64(0.5) * half
     k1q = rotation_rate(q, wb)
-    k1w = angular_acceleration(q, wb, body)
+    k1w = angular_acceleration(q, wb, p0, p1, p2)
     q2 = q + k1q * quarter
     w2 = wb + k1w * half
     k2q = rotation_rate(q2, w2)
-    k2w = angular_acceleration(q2, w2, body)
+    k2w = angular_acceleration(q2, w2, p0, p1, p2)
     q3 = q + k2q * quarter
     w3 = wb + k2w * half
     k3q = rotation_rate(q3, w3)
-    k3w = angular_acceleration(q3, w3, body)
+    k3w = angular_acceleration(q3, w3, p0, p1, p2)
     q4 = q + k3q * half
     w4 = wb + k3w * h
     k4q = rotation_rate(q4, w4)
-    k4w = angular_acceleration(q4, w4, body)
+    k4w = angular_acceleration(q4, w4, p0, p1, p2)
     sixth = h / f64(6.0)
     q1 = q + (k1q + k2q * f64(2.0) + k3q * f64(2.0) + k4q) * (f64(0.5) * sixth)
     return q1, wb + (k1w + k2w * f64(2.0) + k3w * f64(2.0) + k4w) * sixth
 
 
 @wp.func
-def rk4_rotation(q: quatd, wb: vec3d, body: Rotor, h: f64):
+def rk4_rotation(q: quatd, wb: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, h: f64):
     """`rk4_step` of one body, q normalized."""
-    q1, w1 = rk4_step(q, wb, body, h)
+    q1, w1 = rk4_step(q, wb, inertia, inv_inertia, torque, h)
     return wp.normalize(q1), w1
 
 
 @wp.func(inline=False)
-def rk4_lanes(q: quat_lanes, w: vec3_lanes, coefficients: vec3_lanes, h: f64):
+def rk4_lanes(q: quat_lanes, w: vec3_lanes, c0: lanes, c1: lanes, c2: lanes, h: f64):
     """`rk4_step` of LANES bodies from their world angular velocities (rad/s), returning q not yet normalized
     and w in body space. Kept out of line, like `rotate_lanes`: its results leave as whole vectors (stores of
     LANES doubles side by side), which is where clang's SLP vectorizer starts; inlined, the lanes feed scalar
     code (normalization, the stores of each body), and clang leaves them scalar (a body in lanes then costs the
     same ~40 ns as alone)."""
-    return rk4_step(q, rotate_inv(q, w), coefficients, h)
+    return rk4_step(q, rotate_inv(q, w), c0, c1, c2, h)
 
 
 @wp.func(inline=False)
@@ -290,9 +269,8 @@ def predict_body(
     wb = rotate_inv(q, w)
     n, hs = substeps(w, h)
     q1 = q
-    body = rotor(inertia, inv_inertia, torque)
     for _ in range(n):
-        q1, wb = rk4_rotation(q1, wb, body, hs)
+        q1, wb = rk4_rotation(q1, wb, inertia, inv_inertia, torque, hs)
     return x1, q1, v1, rotate(q1, wb)
 
 
@@ -368,7 +346,9 @@ def predict_lanes(
     same values (a static body's lane is computed and dropped)."""
     q = quat_lanes()
     w = vec3_lanes()
-    coefficients = vec3_lanes()
+    c0 = lanes()
+    c1 = lanes()
+    c2 = lanes()
     for i in range(LANES):
         b = b0 + i
         qi = body_q_in[b]
@@ -376,10 +356,12 @@ def predict_lanes(
         ci = euler_coefficients(body_inertia[b], body_inv_inertia[b])
         for k in range(3):
             w[k, i] = wi[k]
-            coefficients[k, i] = ci[k]
         for k in range(4):
             q[k, i] = qi[k]
-    q1, wb1 = rk4_lanes(q, w, coefficients, h)
+        c0[i] = ci[0]
+        c1[i] = ci[1]
+        c2[i] = ci[2]
+    q1, wb1 = rk4_lanes(q, w, c0, c1, c2, h)
     for i in range(LANES):
         qi = wp.normalize(quatd(q1[0, i], q1[1, i], q1[2, i], q1[3, i]))
         for k in range(4):

@@ -235,7 +235,7 @@ def finish(
     status_out[k, STATUS_CODE] = f64(code)
 
 
-@wp.func
+@wp.func(inline=True)
 def predict_all(
     body_count: int,
     body_inv_mass: wp.array(dtype=f64),
