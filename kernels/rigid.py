@@ -1,18 +1,20 @@
 """Free rigid-body motion over one step (method paper, section 3, equations 1-4).
 
-On the CPU, bodies are predicted `LANES` at a time: each scalar of the rotation's RK4 holds one value per body
-(`lanes`, a quaternion as the `quat_lanes` rows x, y, z, w), so that clang's SLP vectorizer turns the four
-bodies' identical operations into vector instructions (`rk4_lanes`). The rotation's maths is
-written once, generic over a scalar (`f64`) or a lane vector (`lanes`): each lane does the scalar code's
-operations in its order, so a body's prediction is the same bit for bit alone or in lanes.
+On the CPU, bodies are predicted `LANES` at a time (`predict_group`): each scalar of the rotation's RK4 holds one
+value per body (`lanes`, a quaternion as the `quat_lanes` rows x, y, z, w), so that clang's SLP vectorizer turns
+the four bodies' identical operations into vector instructions (`rk4_lanes`). The rotation's maths is written
+once, generic over a scalar (`f64`) or a lane vector (`lanes`): each lane does the scalar code's operations in
+its order, so a body's prediction is the same bit for bit alone or in lanes (docs/architecture.md, "Predictions
+in lanes").
 """
 
 from typing import Any
 
 import warp as wp
 
-LANES = 4  # bodies predicted at once: 4 f64 fill a 256-bit vector register
 wp.set_module_options({"enable_backward": False})
+
+LANES = 4  # bodies predicted at once: 4 f64 fill a 256-bit vector register
 
 vec3d = wp.vec3d
 quatd = wp.quatd
