@@ -752,9 +752,9 @@ class Simulator:
 
     @staticmethod
     def _fused_stats(status: np.ndarray, order: int, fallback: str, combine: bool) -> list[StepStats]:
-        """The StepStats of fused steps that went OK, one a status row, built a column at a time (a Python loop
-        over the rows, a batch of up to FUSED_BATCH steps, cost ~0.8 us a step: as much as a small scene's whole
-        step); with `combine`, one StepStats of them all, as `_combined` would make it."""
+        """The StepStats of fused steps that went OK, one a status row; with `combine`, one StepStats of them all
+        from column sums, as `_combined` would make it (a StepStats a step costs ~0.5 us, a fifth of the double
+        pendulum's step). A row at a time is the cheapest for one step (1.0 us; column-wise lists 5.3 us)."""
         c = step_kernels
         count = len(status)
         if combine:
@@ -764,11 +764,12 @@ class Simulator:
                 float(status[:, c.STATUS_JOINT_ERROR].max()), float(status[-1, c.STATUS_VELOCITY_ERROR]), True,
                 int(total[c.STATUS_LINEAR_ITERATIONS]), count, order, fallback,
             )]  # fmt: skip
-        counts = status[:, [c.STATUS_JOINT_ITERATIONS, c.STATUS_VELOCITY_ITERATIONS, c.STATUS_LINEAR_ITERATIONS]]
-        joint, velocity, linear = counts.astype(np.int64).T.tolist()
-        errors = status[:, [c.STATUS_JOINT_ERROR, c.STATUS_VELOCITY_ERROR]].T.tolist()
-        return list(map(StepStats, joint, velocity, errors[0], errors[1], [True] * count, linear, [1] * count,
-                        [order] * count, [fallback] * count))  # fmt: skip
+        return [
+            StepStats(int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]),
+                      row[c.STATUS_JOINT_ERROR], row[c.STATUS_VELOCITY_ERROR], True,
+                      int(row[c.STATUS_LINEAR_ITERATIONS]), 1, order, fallback)
+            for row in status.tolist()
+        ]  # fmt: skip
 
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
