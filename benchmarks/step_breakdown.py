@@ -313,6 +313,22 @@ class _MuJoCo:
         return bool(self.runner.scene.diverged(self.runner.data))
 
 
+def _interleaved(engines: dict, steps: int) -> dict:
+    """Each engine's us a step in ROUNDS rounds of blocks of `steps` steps, the engines taking turns, every block
+    from the same state: run once untimed, restored, then timed."""
+    times: dict = {key: [] for key in engines}
+    for _ in range(ROUNDS):
+        for key, engine in engines.items():
+            engine.restore()
+
+            def warm(engine=engine) -> None:
+                engine.run(steps)
+                engine.restore()
+
+            times[key].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
+    return times
+
+
 def scene_point(name: str, steps: int) -> dict:
     """Every engine from the same state (the scene at 1.1 s), `steps` steps a block, blocks interleaved."""
     make, dt, tolerance = SCENES[name]
@@ -329,16 +345,7 @@ def scene_point(name: str, steps: int) -> dict:
                 )
     except ImportError:
         pass
-    times: dict = {key: [] for key in engines}
-    for _ in range(ROUNDS):
-        for key, engine in engines.items():
-            engine.restore()
-
-            def warm(engine=engine) -> None:  # the block once untimed, then timed from the same state
-                engine.run(steps)
-                engine.restore()
-
-            times[key].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
+    times = _interleaved(engines, steps)
     out: dict = {"scene": name, "dt": dt, "tolerance": tolerance, "steps": steps}
     out.update({f"{key}_us": statistics.median(t) for key, t in times.items()})
     out["mujoco_diverged"] = sorted(k for k, e in engines.items() if isinstance(e, _MuJoCo) and e.diverged())
@@ -367,16 +374,7 @@ def mechanism_point(kind: str, steps: int, make=None) -> dict:
     make = make or _chain(kind)
     engines = {s: _Ours(make, dt, 1e-6, s, s == "fused") for s in ("fused", "parallel")}
     assert engines["fused"].sim.schedule == "fused", engines["fused"].sim.schedule_note
-    times: dict = {key: [] for key in engines}
-    for _ in range(ROUNDS):
-        for key, engine in engines.items():
-            engine.restore()
-
-            def warm(engine=engine) -> None:
-                engine.run(steps)
-                engine.restore()
-
-            times[key].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
+    times = _interleaved(engines, steps)
     fused = engines["fused"].stats
     return {"scene": label, "dt": dt, "steps": steps,
             "fused_batched_us": statistics.median(times["fused"]), "parallel_us": statistics.median(times["parallel"]),
@@ -390,16 +388,7 @@ def specialization(name: str, steps: int) -> dict:
     chain10 whips into split steps that the parallel schedule takes)."""
     make, dt, tolerance = SCENES[name]
     engines = {flag: _Ours(make, dt, tolerance, "fused", True, specialize=flag) for flag in (True, False)}
-    times: dict = {True: [], False: []}
-    for _ in range(ROUNDS):
-        for flag, engine in engines.items():
-            engine.restore()
-
-            def warm(engine=engine) -> None:
-                engine.run(steps)
-                engine.restore()
-
-            times[flag].append(_median_time(lambda e=engine: e.run(steps), rounds=1, prepare=warm) / steps * 1e6)
+    times = _interleaved(engines, steps)
     kinds = list(engines[True].sim._fused.kinds)
     return {"scene": name, "kinds": kinds, "specialized_us": statistics.median(times[True]),
             "all_kinds_us": statistics.median(times[False])}  # fmt: skip
