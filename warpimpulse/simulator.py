@@ -717,10 +717,8 @@ class Simulator:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
             status = self._run_fused(batch)[:batch]  # the one read-back of the batch
-            codes = status[:, columns.STATUS_CODE]
-            first = (
-                int(np.flatnonzero(codes)[0]) if codes.any() else batch
-            )  # OK is 0; the kernel stops at the first not OK
+            codes = status[:, columns.STATUS_CODE].tolist()  # OK is 0; the kernel stops at the first step not OK
+            first = next(i for i, code in enumerate(codes) if code) if any(codes) else batch
             if first:
                 out += self._fused_stats(status[:first], order, fallback, combine)
             self._advance_clock(first)
