@@ -84,6 +84,23 @@ class Rows:
 
 
 @wp.func
+def rows_coordinate(
+    r: int,
+    rows: Rows,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """`coordinate_row` r of the rows' coordinates at the given state: (value, rate, axis, point)."""
+    return coordinate_row(
+        r, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
+        rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, body_x, body_q, body_v,
+        body_w,
+    )  # fmt: skip
+
+
+@wp.func
 def limit_error(
     i: int,
     # Data in: the prediction (body_*_in), the state at t0 (start_*)
@@ -103,34 +120,8 @@ def limit_error(
     bound. A stiff motor's value is its offset from its goal, value(t0) + h target or target, its bounds (0, 0).
     Returns the error (m or rad)."""
     r = rows.limit_coordinate[i]
-    value, rate, a, pb = coordinate_row(
-        r,
-        rows.coordinate_kind,
-        rows.coordinate_body0,
-        rows.coordinate_body1,
-        rows.coordinate_anchor0,
-        rows.coordinate_anchor1,
-        rows.coordinate_axis0,
-        rows.coordinate_rest_rotation,
-        body_x_in,
-        body_q_in,
-        body_v_in,
-        body_w_in,
-    )
-    value0, rate0, a0, pb0 = coordinate_row(
-        r,
-        rows.coordinate_kind,
-        rows.coordinate_body0,
-        rows.coordinate_body1,
-        rows.coordinate_anchor0,
-        rows.coordinate_anchor1,
-        rows.coordinate_axis0,
-        rows.coordinate_rest_rotation,
-        start_x,
-        start_q,
-        start_v,
-        start_w,
-    )
+    value, rate, a, pb = rows_coordinate(r, rows, body_x_in, body_q_in, body_v_in, body_w_in)
+    value0, rate0, a0, pb0 = rows_coordinate(r, rows, start_x, start_q, start_v, start_w)
     bounds = rows.limit_bounds[i]
     lam = rows.limit_impulse[i]
     motor = rows.limit_drive[i]
@@ -769,20 +760,7 @@ def correct_all(
     n = rows.limit_coordinate.shape[0]
     for i in range(n):
         r = rows.limit_coordinate[i]
-        value, rate, a, pb = coordinate_row(
-            r,
-            rows.coordinate_kind,
-            rows.coordinate_body0,
-            rows.coordinate_body1,
-            rows.coordinate_anchor0,
-            rows.coordinate_anchor1,
-            rows.coordinate_axis0,
-            rows.coordinate_rest_rotation,
-            body_x_in,
-            body_q_in,
-            body_v,
-            body_w,
-        )
+        value, rate, a, pb = rows_coordinate(r, rows, body_x_in, body_q_in, body_v, body_w)
         current = rate
         if velocity == 0:
             current = rows.limit_value[i] + h * (rate - rows.limit_rate[i])
