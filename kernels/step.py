@@ -14,9 +14,10 @@ velocity correction, with the funcs of `limits.py`. The batch and the
 starting spin are read from arrays, so the launch is fixed and replays as a captured graph (a 71-argument launch
 costs ~15 us to pack on a CPU; a replay ~1 us).
 
-Each step writes one status row (`STATUS_*` columns). A step the fused schedule does not finish itself stops the
-launch with a code, and the host takes that step by the parallel schedule, which splits, halves, raises or
-warns exactly as it always has:
+Each step writes one status row (`STATUS_*` columns), and the status array's last row sums up the launch's
+steps that went OK (`finish`): the one record the host reads of a batch that went through. A step the fused
+schedule does not finish itself stops the launch with a code, and the host takes that step by the parallel
+schedule, which splits, halves, raises or warns exactly as it always has:
 - SPLIT: a body spins so fast that the step must be split (nothing was changed);
 - RETRY: the joint correction of a stage failed (iteration limit, divergence, NaN/Inf, or a body turned further
   than max_rotation): the state of the step's start is restored (after a first stage, the host recomputes its
@@ -56,7 +57,7 @@ STATUS_VELOCITY_ERROR = wp.constant(4)
 STATUS_LINEAR_ITERATIONS = wp.constant(5)
 STATUS_SPIN = wp.constant(6)  # rad/s: the largest |w| of the step's last prediction (of t0 when not taken)
 STATUS_FAILED_VELOCITY = wp.constant(7)  # the largest velocity error over the tolerance among the stages (VELOCITY)
-STATUS_WIDTH = 8
+STATUS_WIDTH = wp.constant(8)
 # Status codes.
 OK = wp.constant(0)
 SPLIT = wp.constant(1)
@@ -224,7 +225,8 @@ def finish(
     spin: f64,
 ):
     """Step k's status row, as `Simulator` combines a composed step's stages (`simulator._combined`): iterations
-    summed, the largest joint error, the last velocity error."""
+    summed, the largest joint error, the last velocity error; an OK step is also added to the summary row, the
+    same way over the steps (errors are >= 0: the largest starts at 0)."""
     status_out[k, STATUS_JOINT_ITERATIONS] = f64(joint_iterations)
     status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(velocity_iterations)
     status_out[k, STATUS_LINEAR_ITERATIONS] = f64(linear_iterations)
@@ -233,6 +235,23 @@ def finish(
     status_out[k, STATUS_FAILED_VELOCITY] = failed_velocity
     status_out[k, STATUS_SPIN] = spin
     status_out[k, STATUS_CODE] = f64(code)
+    if code == OK:  # the summary row: the OK steps' count, as `Simulator._fused_stats` combines them
+        s = status_out.shape[0] - 1
+        status_out[s, STATUS_CODE] = status_out[s, STATUS_CODE] + f64(1.0)
+        status_out[s, STATUS_JOINT_ITERATIONS] = status_out[s, STATUS_JOINT_ITERATIONS] + f64(joint_iterations)
+        status_out[s, STATUS_VELOCITY_ITERATIONS] = status_out[s, STATUS_VELOCITY_ITERATIONS] + f64(velocity_iterations)
+        status_out[s, STATUS_LINEAR_ITERATIONS] = status_out[s, STATUS_LINEAR_ITERATIONS] + f64(linear_iterations)
+        status_out[s, STATUS_JOINT_ERROR] = wp.max(status_out[s, STATUS_JOINT_ERROR], joint_error)
+        status_out[s, STATUS_VELOCITY_ERROR] = velocity_error
+        status_out[s, STATUS_SPIN] = spin
+
+
+@wp.func
+def begin_summary(status_out: wp.array2d(dtype=f64)):
+    """Zero the status array's summary row (its last) for a new launch (`finish` adds each OK step to it)."""
+    s = status_out.shape[0] - 1
+    for c in range(STATUS_WIDTH):
+        status_out[s, c] = f64(0.0)
 
 
 @wp.func(inline=True)
@@ -814,6 +833,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         )  # fmt: skip
         spin = spin_in[0]
         stage_count = stages.shape[0]
+        begin_summary(status_out)
         for k in range(batch_in[0]):
             status_out[k, STATUS_SPIN] = spin
             if turns_too_far(spin, reach * h, max_rotation):
@@ -1101,6 +1121,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             )  # fmt: skip
             spin = spin_in[0]
             stage_count = stages.shape[0]
+            begin_summary(status_out)
             for k in range(batch_in[0]):
                 status_out[k, STATUS_SPIN] = spin
                 if turns_too_far(spin, reach * h, max_rotation):

@@ -40,6 +40,18 @@ def test_split_step_is_the_fused_step_bit_for_bit(threads):
     split.close()
 
 
+def test_split_step_n_sums_up_as_the_fused_step():
+    """step(n) takes its stats from the launch's summary row, which the fused kernel writes and the split step
+    writes on the host: the same figures, and the same state."""
+    model = wi.scenes.binary_tree(63).finalize()
+    one, split = Simulator(model, DT), SplitSimulator(model, DT, threads=2)
+    a, b = one.step(30), split.step(30)
+    assert a == b and b.substeps == 30 and b.joint_iterations > 30
+    for x, y in zip(state_of(one), state_of(split)):
+        assert np.array_equal(x, y)
+    split.close()
+
+
 def test_split_hands_hard_steps_to_the_parallel_schedule_as_the_fused_step_does():
     """A leaf spinning fast: its steps split into substeps (handed back, taken by the parallel schedule), then
     go on in the split step; still the fused run bit for bit."""

@@ -583,6 +583,8 @@ class Simulator:
     def _update_forces(self) -> None:
         """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
         h = self.model.host
+        if not len(h.force_until) and self._active_forces is not None:  # no model forces: ~1 us a call saved
+            return
         active = self.time < h.force_until
         key = tuple(active.tolist())
         if key == self._active_forces:
@@ -621,8 +623,9 @@ class Simulator:
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
         self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced, rows)
         self._elements = self._force_elements()
+        # A row a step, and the launch's OK steps summed up in the last (`kernels/step.py` `finish`).
         self._status = wp.zeros(
-            (self.FUSED_BATCH, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
+            (self.FUSED_BATCH + 1, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
         )
         # The batch size and the starting spin of a launch, written by the host before each replay.
         self._batch = wp.zeros(1, dtype=wp.int32, device=self.model.device)
@@ -716,11 +719,11 @@ class Simulator:
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status = self._run_fused(batch)[:batch]  # the one read-back of the batch
-            codes = status[:, columns.STATUS_CODE].tolist()  # OK is 0; the kernel stops at the first step not OK
-            first = next(i for i, code in enumerate(codes) if code) if any(codes) else batch
+            status = self._run_fused(batch)  # the one read-back of the batch
+            summary = status[-1].tolist()  # the OK steps, which the kernel stops after
+            first = int(summary[columns.STATUS_CODE])
             if first:
-                out += self._fused_stats(status[:first], order, fallback, combine)
+                out += self._fused_stats(status[:first], summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
@@ -735,7 +738,7 @@ class Simulator:
                 else:
                     if code == columns.SINGULAR:
                         self.linear.check()
-                    stats = self._fused_stats(status[first : first + 1], order, fallback, False)[0]
+                    stats = self._status_stats(row.tolist(), 1, order, fallback)
                     if code == columns.VELOCITY:
                         self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
                         stats.converged = False
@@ -743,31 +746,30 @@ class Simulator:
                     self._advance_clock(1)
                     done += 1
             elif first:
-                self._spin = float(status[first - 1, columns.STATUS_SPIN])
+                self._spin = summary[columns.STATUS_SPIN]
             if self.linear is not None:
                 self.linear.check()  # and the redundant loop rows of the last factorization
         return done
 
+    @classmethod
+    def _fused_stats(
+        cls, status: np.ndarray, summary: list[float], order: int, fallback: str, combine: bool
+    ) -> list[StepStats]:
+        """The StepStats of fused steps that went OK, one a status row; with `combine` (or one step), one StepStats
+        of them all: the kernel's summary row, which sums them up as `_combined` would (the host's numpy
+        reductions of a batch cost ~12 us a launch, a StepStats a step ~0.5 us)."""
+        if combine or len(status) == 1:
+            return [cls._status_stats(summary, len(status), order, fallback)]
+        return [cls._status_stats(row, 1, order, fallback) for row in status.tolist()]
+
     @staticmethod
-    def _fused_stats(status: np.ndarray, order: int, fallback: str, combine: bool) -> list[StepStats]:
-        """The StepStats of fused steps that went OK, one a status row; with `combine`, one StepStats of them all
-        from column sums, as `_combined` would make it (a StepStats a step costs ~0.5 us, a fifth of the double
-        pendulum's step). A row at a time is the cheapest for one step (1.0 us; column-wise lists 5.3 us)."""
+    def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
+        """A StepStats of a status row (or of the summary row of `steps` steps)."""
         c = step_kernels
-        count = len(status)
-        if combine:
-            total = status.sum(axis=0).tolist()
-            return [StepStats(
-                int(total[c.STATUS_JOINT_ITERATIONS]), int(total[c.STATUS_VELOCITY_ITERATIONS]),
-                float(status[:, c.STATUS_JOINT_ERROR].max()), float(status[-1, c.STATUS_VELOCITY_ERROR]), True,
-                int(total[c.STATUS_LINEAR_ITERATIONS]), count, order, fallback,
-            )]  # fmt: skip
-        return [
-            StepStats(int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]),
-                      row[c.STATUS_JOINT_ERROR], row[c.STATUS_VELOCITY_ERROR], True,
-                      int(row[c.STATUS_LINEAR_ITERATIONS]), 1, order, fallback)
-            for row in status.tolist()
-        ]  # fmt: skip
+        return StepStats(
+            int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]), row[c.STATUS_JOINT_ERROR],
+            row[c.STATUS_VELOCITY_ERROR], True, int(row[c.STATUS_LINEAR_ITERATIONS]), steps, order, fallback,
+        )  # fmt: skip
 
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""

@@ -281,9 +281,27 @@ class SplitSimulator(Simulator):
 
     def _run_fused(self, batch: int) -> np.ndarray:
         """Up to `batch` steps of dt, each as `kernels/step.py`'s `cholesky_steps` takes it, with the status
-        rows it writes."""
+        rows it writes and their summary row."""
         if self.threads == 1:
             return super()._run_fused(batch)
+        status = self._threaded_steps(batch)
+        s = step_kernels
+        ok = 0
+        while ok < batch and status[ok, s.STATUS_CODE] == s.OK:
+            ok += 1
+        rows, summary = status[:ok], status[-1]
+        summary[:] = 0.0  # as `finish` sums the OK steps up
+        summary[s.STATUS_CODE] = ok
+        for column in (s.STATUS_JOINT_ITERATIONS, s.STATUS_VELOCITY_ITERATIONS, s.STATUS_LINEAR_ITERATIONS):
+            summary[column] = rows[:, column].sum()
+        if ok:
+            summary[s.STATUS_JOINT_ERROR] = max(0.0, rows[:, s.STATUS_JOINT_ERROR].max())
+            summary[s.STATUS_VELOCITY_ERROR] = rows[-1, s.STATUS_VELOCITY_ERROR]
+            summary[s.STATUS_SPIN] = rows[-1, s.STATUS_SPIN]
+        return status
+
+    def _threaded_steps(self, batch: int) -> np.ndarray:
+        """`_run_fused`'s steps, their status rows written here."""
         s = step_kernels
         status = self._views[0]
         h, spin = self.dt, self._spin
