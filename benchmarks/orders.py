@@ -67,11 +67,15 @@ class Ours:
         self.linear_iterations = self.steps = 0
 
     def step(self) -> None:
+        self.run(1)
+
+    def run(self, steps: int) -> None:
+        """`steps` steps in one step(n) call (`warpimpulse.bench.runner.advance`)."""
         try:
-            self.linear_iterations += self.sim.step().linear_iterations
+            self.linear_iterations += self.sim.step(steps).linear_iterations
         except SimulationError as e:
             raise StepFailed(str(e).split(";")[0]) from e
-        self.steps += 1
+        self.steps += steps
 
     def poses(self):
         return self.sim.positions(), self.sim.orientations()
@@ -83,6 +87,8 @@ class Richardson(Ours):
     the combination is locally O(h^5): order 4), then projected back onto the joints (positions by
     impulse-sized displacements, Newton with K re-assembled, then the exact velocity projection).
     Three base steps and a projection a step; the projection runs from Python, so its time is an upper bound."""
+
+    run = None  # no call for many steps: each is three base steps and a projection from Python
 
     def __init__(self, model, rate: int, tolerance: float | None = None) -> None:
         super().__init__(model, rate, "base", tolerance or composition.default_tolerance(1.0 / rate, 4))

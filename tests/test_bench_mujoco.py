@@ -10,6 +10,7 @@ import pytest
 from warpimpulse import SceneBuilder, scenes
 from warpimpulse.bench import harness, report
 from warpimpulse.bench.peers.mujoco import MujocoScene, to_mjcf
+from warpimpulse.bench.runner import advance
 from warpimpulse.transforms import quat_from_axis_angle, quat_to_matrix
 
 mujoco = pytest.importorskip("mujoco")
@@ -144,6 +145,31 @@ def test_forces_stop_on_the_same_step_as_ours() -> None:
         mujoco.mj_step(scene.model, data)
     assert active == 30
     assert math.isclose(data.time, 40 / 30.0)
+
+
+@pytest.mark.parametrize("first", [0, 7, 30, 31])
+def test_runs_of_steps_are_the_steps(first: int) -> None:
+    """The timed loop's calls for many steps (`runner.advance`): MuJoCo's mj_step with nstep, split where the
+    tree's start torque switches off (step 30 at h = 1/30), and our step(n), give the states of one step() at a
+    time, wherever the run starts."""
+    builder = scenes.binary_tree(7)
+    one = harness.MujocoRunner(MujocoScene.from_builder(builder, 1.0 / 30.0), "RK4", 30)
+    many = harness.MujocoRunner(MujocoScene.from_builder(builder, 1.0 / 30.0), "RK4", 30)
+    ours_one = harness.WarpimpulseRunner(builder, 30, 1e-8)
+    ours_many = harness.WarpimpulseRunner(builder, 30, 1e-8)
+    for runner in (one, many, ours_one, ours_many):
+        for _ in range(first):
+            runner.step()
+    for _ in range(40):
+        one.step()
+        ours_one.step()
+    advance(many, 40)
+    advance(ours_many, 40)
+    assert many.steps == one.steps == first + 40
+    np.testing.assert_array_equal(many.data.qpos, one.data.qpos)
+    np.testing.assert_array_equal(many.data.qvel, one.data.qvel)
+    assert ours_many.steps == ours_one.steps and ours_many.joint_iterations == ours_one.joint_iterations
+    np.testing.assert_array_equal(ours_many.poses()[0], ours_one.poses()[0])
 
 
 def test_benchmark_harness_end_to_end(tmp_path) -> None:

@@ -38,11 +38,12 @@ import numpy as np
 from .. import scenes
 from ..builder import WORLD, SceneBuilder
 from ..simulator import SimulationError, Simulator
+from ..steps import StepStats
 from ..transforms import quat_rotate
 from .peers.mujoco import INTEGRATORS as MUJOCO_INTEGRATORS
 from .peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
 from .peers.pinocchio import PinocchioRunner, PinocchioScene, pinocchio_available
-from .runner import Runner, StepFailed
+from .runner import Runner, StepFailed, advance
 
 SWEEP_RATES = (30, 60, 120, 300)  # steps per second: h = 1/30 ... 1/300
 SWEEP_TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
@@ -173,16 +174,21 @@ class WarpimpulseRunner:
         self.steps = 0
 
     def step(self) -> None:
+        stats = self.run(1)
+        self.max_joint_iterations = max(self.max_joint_iterations, stats.joint_iterations)
+        self.max_step_error = max(self.max_step_error, stats.max_joint_error)
+
+    def run(self, steps: int) -> StepStats:
+        """`steps` steps in one step(n) call, their stats combined (`step` keeps the per-step maxima)."""
         try:
-            stats = self.sim.step()
+            stats = self.sim.step(steps)
         except SimulationError as e:
             raise StepFailed(str(e).split(";")[0]) from e
-        self.steps += 1
+        self.steps += steps
         self.joint_iterations += stats.joint_iterations
         self.velocity_iterations += stats.velocity_iterations
         self.linear_iterations += stats.linear_iterations
-        self.max_joint_iterations = max(self.max_joint_iterations, stats.joint_iterations)
-        self.max_step_error = max(self.max_step_error, stats.max_joint_error)
+        return stats
 
     def check(self) -> None:
         """SimulationError in step() already covers NaN and non-convergence."""
@@ -236,15 +242,22 @@ def accuracy_run(runner: Runner, rate: int, probe: Probe, duration: float) -> di
     return out
 
 
+TIMING = (
+    "Run time: the median over repeats of the first {error_time:g} s from the scene's start, each engine's steps in "
+    "one call where it has one (our `step(n)`, MuJoCo's `mj_step` with nstep), pinocchio's one step a call"
+)
+
+
 def time_steps(
     factory: Callable[[], Runner], rate: int, repeats: int, duration: float = ERROR_TIME, min_total: float = 0.5
 ) -> list[float]:
     """Seconds per step for each repeat of the first `duration` seconds, from a fresh state each time.
 
-    One extra run first is the warm-up (kernels loaded, caches warm) and is discarded. Cheap runs are
-    repeated until `min_total` seconds are timed (at most 100 repeats), so a short interruption by another
-    process moves the median little. Python's garbage collector is off inside the timed loop, which holds
-    nothing but step().
+    The n steps are one call where the engine has one (`runner.advance`: our step(n), MuJoCo's mj_step with
+    nstep, split where a force switches off), else one step() a step. One extra run first is the warm-up
+    (kernels loaded, caches warm) and is discarded. Cheap runs are repeated until `min_total` seconds are timed
+    (at most 100 repeats), so a short interruption by another process moves the median little. Python's garbage
+    collector is off inside the timed loop, which holds nothing but the steps.
     """
     n = int(round(duration * rate))
     per_step: list[float] = []
@@ -255,8 +268,7 @@ def time_steps(
         gc.disable()
         try:
             start = time.perf_counter()
-            for _ in range(n):
-                runner.step()
+            advance(runner, n)
             elapsed = time.perf_counter() - start
         except StepFailed:
             return []
@@ -429,7 +441,7 @@ def run_vs_error(
                 bar.advance(f"{name} {engine} {variant} 1/{rate}" + (f" tol {tol:g}" if tol else "")
                             + (f" order {order}" if order not in (None, 2) else ""))  # fmt: skip
     missing = {"mujoco": mujoco_missing, "pinocchio": pin_missing}
-    return {"references": refs, "runs": rows, "missing": missing}
+    return {"references": refs, "runs": rows, "missing": missing, "timing": TIMING}
 
 
 def scaling(

@@ -274,6 +274,17 @@ class MujocoRunner:
         self._mj.mj_step(self.model, self.data)
         self.steps += 1
 
+    def run(self, steps: int) -> None:
+        """`steps` steps as mj_step calls with nstep, one between each two force switches."""
+        end = self.steps + steps
+        while self.steps < end:
+            if self.steps == self._next_switch:
+                self.step()
+                continue
+            stop = end if self._next_switch < self.steps else min(end, self._next_switch)
+            self._mj.mj_step(self.model, self.data, nstep=stop - self.steps)
+            self.steps = stop
+
     def check(self) -> None:
         if self.scene.diverged(self.data):
             raise StepFailed(f"MuJoCo diverged (bad qacc) before t = {self.steps / self.rate:.4g} s")
