@@ -140,6 +140,25 @@ def euler_coefficients(inertia: mat33d, inv_inertia: mat33d) -> vec3d:
     )
 
 
+@wp.kernel
+def principal_terms(
+    # Model:
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    # Data out:
+    body_principal_out: wp.array(dtype=int),
+    body_euler_out: wp.array(dtype=vec3d),
+):
+    """Whether each body's inertia is diagonal (a body built on its principal axes), and then its
+    `euler_coefficients`: all a lane prediction reads of its inertia (`Model.set_masses` runs this)."""
+    b = wp.tid()
+    body_principal_out[b] = int(0)
+    body_euler_out[b] = vec3d()
+    if is_diagonal(body_inertia[b]):
+        body_principal_out[b] = int(1)
+        body_euler_out[b] = euler_coefficients(body_inertia[b], body_inv_inertia[b])
+
+
 @wp.func
 def euler_terms(c0: Any, c1: Any, c2: Any, wx: Any, wy: Any, wz: Any):
     """Euler's equations without torque, dw_x/dt = c0 w_y w_z and cyclic (`euler_coefficients`), body space;
@@ -311,27 +330,26 @@ def predict_index(
 def fits_lanes(
     b: int,
     body_inv_mass: wp.array(dtype=f64),
-    body_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
     h: f64,
     body_w_in: wp.array(dtype=vec3d),
     body_torque_in: wp.array(dtype=vec3d),
 ) -> bool:
     """Whether body b's prediction can take a lane (`predict_lanes`): it is static, or of diagonal inertia
-    without torque, in one RK4 step (`substeps`)."""
+    (`principal_terms`) without torque, in one RK4 step (`substeps`)."""
     if body_inv_mass[b] == f64(0.0):
         return True
     t = body_torque_in[b]
     n, hs = substeps(body_w_in[b], h)
     no_torque = t[0] == f64(0.0) and t[1] == f64(0.0) and t[2] == f64(0.0)
-    return no_torque and n == 1 and is_diagonal(body_inertia[b])
+    return no_torque and n == 1 and body_principal[b] != 0
 
 
 @wp.func
 def predict_lanes(
     b0: int,
     body_inv_mass: wp.array(dtype=f64),
-    body_inertia: wp.array(dtype=mat33d),
-    body_inv_inertia: wp.array(dtype=mat33d),
+    body_euler: wp.array(dtype=vec3d),
     gravity: vec3d,
     h: f64,
     body_x_in: wp.array(dtype=vec3d),
@@ -345,7 +363,8 @@ def predict_lanes(
     body_w_out: wp.array(dtype=vec3d),
 ):
     """`predict_index` of bodies b0 .. b0 + LANES - 1, which all `fits_lanes`, their rotations in lanes: the
-    same values (a static body's lane is computed and dropped)."""
+    same values (a static body's lane is computed and dropped). A body's inertia comes as its Euler coefficients
+    (`principal_terms`): 24 bytes read, where the two inertia matrices are 144."""
     q = quat_lanes()
     w = vec3_lanes()
     c0 = lanes()
@@ -355,7 +374,7 @@ def predict_lanes(
         b = b0 + i
         qi = body_q_in[b]
         wi = body_w_in[b]
-        ci = euler_coefficients(body_inertia[b], body_inv_inertia[b])
+        ci = body_euler[b]
         for k in range(3):
             w[k, i] = wi[k]
         for k in range(4):
@@ -392,6 +411,8 @@ def predict_group(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
     gravity: vec3d,
     h: f64,
     body_x_in: wp.array(dtype=vec3d),
@@ -410,11 +431,11 @@ def predict_group(
     together = count == LANES
     for i in range(LANES):
         if together:
-            together = fits_lanes(b0 + i, body_inv_mass, body_inertia, h, body_w_in, body_torque_in)
+            together = fits_lanes(b0 + i, body_inv_mass, body_principal, h, body_w_in, body_torque_in)
     if together:
         predict_lanes(
-            b0, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
-            body_w_in, body_force_in, body_x_out, body_q_out, body_v_out, body_w_out,
+            b0, body_inv_mass, body_euler, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in,
+            body_x_out, body_q_out, body_v_out, body_w_out,
         )  # fmt: skip
     else:
         for b in range(b0, b0 + count):
@@ -430,6 +451,8 @@ def predict(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
     gravity: vec3d,
     # Data in:
     h: f64,
@@ -450,9 +473,9 @@ def predict(
     (`predict_group`: LANES on the CPU, 1 on a GPU)."""
     b0 = wp.tid() * group_size
     predict_group(
-        b0, wp.min(group_size, body_inv_mass.shape[0] - b0), body_inv_mass, body_inertia, body_inv_inertia, gravity,
-        h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out,
-        body_v_out, body_w_out,
+        b0, wp.min(group_size, body_inv_mass.shape[0] - b0), body_inv_mass, body_inertia, body_inv_inertia,
+        body_principal, body_euler, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in,
+        body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
 
 

@@ -260,6 +260,8 @@ def predict_all(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
     gravity: vec3d,
     h: f64,
     body_x: wp.array(dtype=vec3d),
@@ -276,8 +278,9 @@ def predict_all(
     """Every body's prediction (`predict_group`: LANES bodies at a time)."""
     for b0 in range(0, body_count, LANES):
         predict_group(
-            b0, wp.min(LANES, body_count - b0), body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x,
-            body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+            b0, wp.min(LANES, body_count - b0), body_inv_mass, body_inertia, body_inv_inertia, body_principal,
+            body_euler, gravity, h, body_x, body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v,
+            pred_w,
         )  # fmt: skip
 
 
@@ -432,6 +435,8 @@ def apply_and_predict_all(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
     gravity: vec3d,
     h: f64,
     body_rows_start: wp.array(dtype=int),
@@ -463,8 +468,8 @@ def apply_and_predict_all(
                 jac_skew, impulse, body_v, body_w,
             )  # fmt: skip
         predict_group(
-            b0, count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x, body_q, body_v, body_w,
-            body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+            b0, count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, gravity, h, body_x,
+            body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
         )  # fmt: skip
 
 
@@ -741,6 +746,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         body_inv_mass: wp.array(dtype=f64),
         body_inertia: wp.array(dtype=mat33d),
         body_inv_inertia: wp.array(dtype=mat33d),
+        body_principal: wp.array(dtype=int),
+        body_euler: wp.array(dtype=vec3d),
         gravity: vec3d,
         body_rows_start: wp.array(dtype=int),
         body_rows: wp.array(dtype=int),
@@ -866,7 +873,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                 else:
                     predict_all(
-                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, state_x,
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
+                        gravity, hs, state_x,
                         state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q, next_v,
                         next_w,
                     )  # fmt: skip
@@ -915,13 +923,15 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             )  # fmt: skip
                         else:
                             predict_all(
-                                body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, state_x,
+                                body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
+                                body_euler, gravity, hs, state_x,
                                 state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
                                 next_v, next_w,
                             )  # fmt: skip
                     else:
                         apply_and_predict_all(
-                            body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
+                            body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
+                            body_euler, gravity, hs,
                             body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_x,
                             state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
                             next_v, next_w,
@@ -1063,6 +1073,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             body_inv_mass: wp.array(dtype=f64),
             body_inertia: wp.array(dtype=mat33d),
             body_inv_inertia: wp.array(dtype=mat33d),
+            body_principal: wp.array(dtype=int),
+            body_euler: wp.array(dtype=vec3d),
             gravity: vec3d,
             constraint_kind: wp.array(dtype=int),
             constraint_body0: wp.array(dtype=int),
@@ -1166,7 +1178,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         sweeps += 1
                     iterations += sweeps
                     predict_all(
-                        body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, state_x,
+                        body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
+                        gravity, hs, state_x,
                         state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q, next_v,
                         next_w,
                     )  # fmt: skip

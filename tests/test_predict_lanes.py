@@ -33,6 +33,9 @@ def bodies(n: int, seed: int, mixed: bool) -> tuple[list, list]:
         w[kind == 4] *= 40.0
     inv_inertia = np.linalg.inv(inertia)
     model = [wp.array(inv_mass, dtype=F64), wp.array(inertia, dtype=MAT33), wp.array(inv_inertia, dtype=MAT33)]
+    principal, euler = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=VEC3)  # as `Model.set_masses` makes them
+    wp.launch(rigid.principal_terms, n, inputs=model[1:], outputs=[principal, euler], device="cpu")
+    model += [principal, euler]
     state = [
         wp.array(rng.normal(size=(n, 3)), dtype=VEC3),
         wp.array(q, dtype=QUAT),

@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from . import checks
+from .kernels import rigid as rigid_kernels
 from .shapes import Colliders
 from .topology import Graph, Topology, analyze
 from .types import COORDINATES, DISTANCE_COORDINATE, ConstraintKind
@@ -208,6 +209,8 @@ class Model:
         self.body_inv_mass = wp.zeros(self.body_count, dtype=wp.float64, device=d)
         self.body_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
         self.body_inv_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
+        self.body_principal = wp.zeros(self.body_count, dtype=wp.int32, device=d)  # 1: inertia diagonal
+        self.body_euler = wp.zeros(self.body_count, dtype=wp.vec3d, device=d)  # its Euler coefficients (dimensionless)
         self.set_masses(h.body_mass, h.body_inertia)
         self.body_rows_start = _array(self.topology.body_rows_start, wp.int32, d)
         self.body_rows = _array(self.topology.body_rows, wp.int32, d)
@@ -337,7 +340,8 @@ class Model:
 
     def set_masses(self, mass: np.ndarray, inertia: np.ndarray) -> None:
         """Every body's mass (kg) and inertia ((n, 3, 3) kg m^2, body frame about the centre of mass), on the
-        host and the device (inverses included); static bodies keep zero inverses. Checked by the caller
+        host and the device (inverses included, and what the lane prediction reads instead of the inertia:
+        `rigid.principal_terms`); static bodies keep zero inverses. Checked by the caller
         (`Simulator.set_masses`, the builder)."""
         h, dynamic = self.host, ~self.host.body_static
         h.body_mass[:] = mass
@@ -347,6 +351,10 @@ class Model:
         self.body_inv_mass.assign(np.where(dynamic, 1.0 / np.where(dynamic, h.body_mass, 1.0), 0.0))
         self.body_inertia.assign(h.body_inertia)
         self.body_inv_inertia.assign(inv_inertia)
+        wp.launch(
+            rigid_kernels.principal_terms, self.body_count, inputs=[self.body_inertia, self.body_inv_inertia],
+            outputs=[self.body_principal, self.body_euler], device=self.body_inertia.device,
+        )  # fmt: skip
 
     def state(self) -> State:
         """A new State at the initial poses and velocities."""
