@@ -152,7 +152,8 @@ def _stage_kernels(ns):
                         perm: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
                         slot_code: wp.array(dtype=int), slot_ref: wp.array(dtype=int),
                         inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
-                        jac_ang: wp.array(dtype=mat33d), pivot_tolerance: f64, loop_tolerance: f64,
+                        jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d), pivot_tolerance: f64,
+                        loop_tolerance: f64,
                         col_loop: wp.array(dtype=int), col_start: wp.array(dtype=int),
                         update_start: wp.array(dtype=int), update_target: wp.array(dtype=int),
                         update_a: wp.array(dtype=int), update_b: wp.array(dtype=int),
@@ -163,13 +164,13 @@ def _stage_kernels(ns):
             for s in range(slot_code.shape[0]):
                 step_kernels.augmented_slot(
                     s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
-                    values,
+                    jac_skew, values,
                 )  # fmt: skip
             for j in range(col_start.shape[0] - 1):  # as the fused step: each column assembled, then factored
                 if slot_row.shape[0] > 0:
                     step_kernels.assemble_column(
                         j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                        slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                        slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, jac_skew, values,
                     )  # fmt: skip
                 if factor != 0:
                     step_kernels.factor_column(

@@ -10,20 +10,13 @@ Cholesky (fill slots share no body and assemble to zero), assembled a block colu
 import warp as wp
 
 from ..types import Slot
-from .constraints import POINT, constraint_dim, is_translational, skew_times, skew_vector, times_skew_transpose
+from .constraints import POINT, constraint_dim, is_translational, side_body, skew_times, times_skew_transpose
 
 wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
 mat33d = wp.mat33d
 f64 = wp.float64
-
-
-@wp.func
-def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int)):
-    if side == 0:
-        return constraint_body0[i]
-    return constraint_body1[i]
 
 
 @wp.func
@@ -35,17 +28,19 @@ def row_products(
     inv_inertia_world: mat33d,
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ):
     """(m^-1 J_lin, J_ang J~^-1) of Jacobian row r, side `side` of a constraint of `kind`: that side's factor of
     every block of K its body is in. A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a
-    skew matrix (`constraints.constraint_frame`): its products are +-m^-1 I, J_lin unread, and `skew_times`. A
-    rotational constraint's J_lin is 0: its linear product is 0, J_lin unread."""
+    skew matrix [s]x, s kept alone (`constraints.constraint_frame`): its products are +-m^-1 I, J_lin unread, and
+    `skew_times` of s (24 bytes read where the block takes 72). A rotational constraint's J_lin is 0: its linear
+    product is 0, J_lin unread."""
     if kind == POINT:
         m = inv_mass
         if side != 0:
             m = -inv_mass
         z = f64(0.0)
-        return mat33d(m, z, z, z, m, z, z, z, m), skew_times(skew_vector(jac_ang[r]), inv_inertia_world)
+        return mat33d(m, z, z, z, m, z, z, z, m), skew_times(jac_skew[r], inv_inertia_world)
     if is_translational(kind):
         return inv_mass * jac_lin[r], jac_ang[r] * inv_inertia_world
     return mat33d(), jac_ang[r] * inv_inertia_world
@@ -60,14 +55,15 @@ def row_block(
     r: int,
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ) -> mat33d:
     """J_ib M_b^-1 J_jb^T from row i's products (`row_products`) and Jacobian row r of constraint j (of `kind`, on
-    its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a skew matrix
-    (`constraints.constraint_frame`): there the linear part is +-m^-1 J_lin of row i, the same value without the
-    product, and the angular part is `times_skew_transpose`. A rotational constraint's J_lin is 0: no linear part
-    (adding its zeros changed no bit)."""
+    its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a skew matrix [s]x, s
+    kept alone (`constraints.constraint_frame`): there the linear part is +-m^-1 J_lin of row i, the same value
+    without the product, and the angular part is `times_skew_transpose` of s. A rotational constraint's J_lin is
+    0: no linear part (adding its zeros changed no bit)."""
     if kind == POINT:
-        angular = times_skew_transpose(inertia_jac, skew_vector(jac_ang[r]))
+        angular = times_skew_transpose(inertia_jac, jac_skew[r])
         if side == 0:
             return mass_jac + angular
         return angular - mass_jac
@@ -89,12 +85,15 @@ def shared_body_block(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ) -> mat33d:
     """J_ib M_b^-1 J_jb^T for the body b that side si of constraint i and side sj of j share, from row i's
     products formed for this block alone (CG's slots, the iterative sweeps' blocks)."""
     b = side_body(i, si, constraint_body0, constraint_body1)
-    m, w = row_products(constraint_kind[i], si, 2 * i + si, body_inv_mass[b], inv_inertia_world[b], jac_lin, jac_ang)
-    return row_block(m, w, constraint_kind[j], sj, 2 * j + sj, jac_lin, jac_ang)
+    m, w = row_products(
+        constraint_kind[i], si, 2 * i + si, body_inv_mass[b], inv_inertia_world[b], jac_lin, jac_ang, jac_skew
+    )
+    return row_block(m, w, constraint_kind[j], sj, 2 * j + sj, jac_lin, jac_ang, jac_skew)
 
 
 @wp.func
@@ -115,6 +114,7 @@ def diagonal_block(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ) -> mat33d:
     """K_ii: the matrix of one constraint alone (equations 8 and 12)."""
     k = mat33d()
@@ -122,7 +122,7 @@ def diagonal_block(
         if side_body(i, side, constraint_body0, constraint_body1) >= 0:
             k += shared_body_block(
                 i, side, i, side, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+                body_inv_mass, inv_inertia_world, jac_lin, jac_ang, jac_skew,
             )  # fmt: skip
     return pad_unused_rows(k, constraint_kind[i])
 
@@ -140,6 +140,7 @@ def assemble_slot(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     values_out: wp.array(dtype=mat33d),
 ):
     """Slot s of K: the sum over the (at most two) bodies its row and column constraints share
@@ -151,12 +152,12 @@ def assemble_slot(
     if sides[0] >= 0:
         k += shared_body_block(
             i, sides[0], j, sides[1], constraint_kind, constraint_body0, constraint_body1,
-            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in,
         )  # fmt: skip
     if sides[2] >= 0:
         k += shared_body_block(
             i, sides[2], j, sides[3], constraint_kind, constraint_body0, constraint_body1,
-            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+            body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in,
         )  # fmt: skip
     if i == j:
         k = pad_unused_rows(k, constraint_kind[i])
@@ -178,13 +179,14 @@ def assemble(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
     """Every slot of K (`assemble_slot`)."""
     assemble_slot(
         wp.tid(), constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row, slot_col, slot_sides,
-        inv_inertia_world_in, jac_lin_in, jac_ang_in, values_out,
+        inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, values_out,
     )  # fmt: skip
 
 
@@ -199,13 +201,14 @@ def side_products(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ):
     """`row_products` of side `side` of constraint c; zeros for the world's side (never read: no slot lists it)."""
     b = side_body(c, side, constraint_body0, constraint_body1)
     if b < 0:
         return mat33d(), mat33d()
     return row_products(
-        constraint_kind[c], side, 2 * c + side, body_inv_mass[b], inv_inertia_world[b], jac_lin, jac_ang
+        constraint_kind[c], side, 2 * c + side, body_inv_mass[b], inv_inertia_world[b], jac_lin, jac_ang, jac_skew
     )
 
 
@@ -223,6 +226,7 @@ def assemble_column(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     values_out: wp.array(dtype=mat33d),
 ):
     """Block column j (in elimination order) of K's factor pattern: its column constraint c's two `row_products`,
@@ -238,20 +242,20 @@ def assemble_column(
     c = perm[j]
     m0, w0 = side_products(
         c, 0, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
-        jac_ang_in,
+        jac_ang_in, jac_skew_in,
     )  # fmt: skip
     m1, w1 = side_products(
         c, 1, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
-        jac_ang_in,
+        jac_ang_in, jac_skew_in,
     )  # fmt: skip
     d = col_start[j]
     kind_c = constraint_kind[c]
     own = slot_sides[d]  # (0, 0) then (1, 1), for the sides whose body is dynamic
     diagonal = mat33d()
     if own[0] == 0:
-        diagonal += wp.transpose(row_block(m0, w0, kind_c, 0, 2 * c, jac_lin_in, jac_ang_in))
+        diagonal += wp.transpose(row_block(m0, w0, kind_c, 0, 2 * c, jac_lin_in, jac_ang_in, jac_skew_in))
     if own[0] == 1 or own[2] == 1:
-        diagonal += wp.transpose(row_block(m1, w1, kind_c, 1, 2 * c + 1, jac_lin_in, jac_ang_in))
+        diagonal += wp.transpose(row_block(m1, w1, kind_c, 1, 2 * c + 1, jac_lin_in, jac_ang_in, jac_skew_in))
     values_out[d] = pad_unused_rows(diagonal, kind_c)
     for s in range(d + 1, col_start[j + 1]):
         i = slot_row[s]
@@ -266,7 +270,7 @@ def assemble_column(
                 if sides[2 * pair + 1] != 0:
                     m = m1
                     w = w1
-                k += wp.transpose(row_block(m, w, kind, si, 2 * i + si, jac_lin_in, jac_ang_in))
+                k += wp.transpose(row_block(m, w, kind, si, 2 * i + si, jac_lin_in, jac_ang_in, jac_skew_in))
         values_out[s] = k
 
 
@@ -286,13 +290,14 @@ def assemble_columns(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
     """Every block column of K's factor pattern (`assemble_column`), a column a thread."""
     assemble_column(
         wp.tid(), perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row,
-        slot_sides, inv_inertia_world_in, jac_lin_in, jac_ang_in, values_out,
+        slot_sides, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, values_out,
     )  # fmt: skip
 
 
@@ -307,6 +312,15 @@ SLOT_PAD = wp.constant(int(Slot.PAD))
 
 
 @wp.func
+def angular_block(kind: int, r: int, jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d)) -> mat33d:
+    """J_ang of Jacobian row r (2 i + side) of a constraint of `kind` as a block: a point constraint's is [s]x of
+    its s alone (`constraints.constraint_frame`)."""
+    if kind == POINT:
+        return wp.skew(jac_skew[r])
+    return jac_ang[r]
+
+
+@wp.func
 def augmented_slot(
     s: int,
     constraint_kind: wp.array(dtype=int),
@@ -316,6 +330,7 @@ def augmented_slot(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     values_out: wp.array(dtype=mat33d),
 ):
     """Slot s of [[M, J^T], [J, 0]] (Baraff 1996): a body's mass and world inertia, a constraint's Jacobian on
@@ -330,11 +345,11 @@ def augmented_slot(
     elif code == SLOT_JLIN:
         k = jac_lin_in[r]
     elif code == SLOT_JANG:
-        k = jac_ang_in[r]
+        k = angular_block(constraint_kind[r // 2], r, jac_ang_in, jac_skew_in)
     elif code == SLOT_JLIN_T:
         k = wp.transpose(jac_lin_in[r])
     elif code == SLOT_JANG_T:
-        k = wp.transpose(jac_ang_in[r])
+        k = wp.transpose(angular_block(constraint_kind[r // 2], r, jac_ang_in, jac_skew_in))
     elif code == SLOT_PAD:
         for row in range(constraint_dim(constraint_kind[r]), 3):
             k[row, row] = f64(-1.0)
@@ -353,11 +368,12 @@ def assemble_augmented(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out:
     values_out: wp.array(dtype=mat33d),
 ):
     """Every slot of the augmented matrix (`augmented_slot`)."""
     augmented_slot(
         wp.tid(), constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world_in, jac_lin_in,
-        jac_ang_in, values_out,
+        jac_ang_in, jac_skew_in, values_out,
     )  # fmt: skip

@@ -46,6 +46,14 @@ def is_translational(kind: int) -> bool:
 
 
 @wp.func
+def side_body(i: int, side: int, constraint_body0: wp.array(dtype=int), constraint_body1: wp.array(dtype=int)):
+    """Constraint i's body on side `side` (0: body0, 1: body1); < 0 for the world."""
+    if side == 0:
+        return constraint_body0[i]
+    return constraint_body1[i]
+
+
+@wp.func
 def pose_x(b: int, xs: wp.array(dtype=vec3d)) -> vec3d:
     if b < 0:
         return vec3d()
@@ -77,13 +85,6 @@ def single_row(n: vec3d) -> mat33d:
 
 
 @wp.func
-def skew_vector(s: mat33d) -> vec3d:
-    """v of a skew-symmetric s = [v]x, so that s u = v x u: a point constraint's J_ang (`constraint_frame`).
-    Its products are then cross products, 3 loads and 6 products each where the matrix takes 9 and 9."""
-    return vec3d(s[2, 1], s[0, 2], s[1, 0])
-
-
-@wp.func
 def skew_times(v: vec3d, a: mat33d) -> mat33d:
     """[v]x a, row by row: a's rows combined as in v x u (18 products where the matrix product takes 27)."""
     a0 = a[0]
@@ -96,6 +97,28 @@ def skew_times(v: vec3d, a: mat33d) -> mat33d:
 def times_skew_transpose(a: mat33d, v: vec3d) -> mat33d:
     """a [v]x^T = -a [v]x: row m is v x a_m (18 products where the matrix product takes 27)."""
     return wp.matrix_from_rows(wp.cross(v, a[0]), wp.cross(v, a[1]), wp.cross(v, a[2]))
+
+
+@wp.func
+def angular_times(
+    kind: int, r: int, jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d), u: vec3d
+) -> vec3d:
+    """J_ang u of Jacobian row r (2 i + side) of a constraint of `kind`. A point constraint's J_ang = [s]x is
+    kept as s alone (`constraint_frame` writes no block for it): s x u, 3 loads where the block takes 9."""
+    if kind == POINT:
+        return wp.cross(jac_skew[r], u)
+    return jac_ang[r] * u
+
+
+@wp.func
+def angular_transpose_times(
+    kind: int, r: int, jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d), lam: vec3d
+) -> vec3d:
+    """J_ang^T lam of Jacobian row r (2 i + side) of a constraint of `kind`: a point constraint's
+    [s]x^T lam = -s x lam = lam x s, s read from jac_skew (`angular_times`)."""
+    if kind == POINT:
+        return wp.cross(lam, jac_skew[r])
+    return wp.transpose(jac_ang[r]) * lam
 
 
 @wp.func
@@ -207,11 +230,12 @@ def constraint_frame(
     """P_i and J_ib at the current poses: J = s P [I | -r*] (translational, r from each body's centre to the
     joint point B) or s P [0 | I] (rotational).
 
-    A point constraint's J_ang = [s]x is also written as s alone (jac_skew, `skew_vector` of the block), which is
-    what the apply and constraint-velocity funcs read. Only the blocks that move are written: a point
-    constraint's P = I and J_lin = +-I, a rotation's P = I and J_ang = +-I, and every rotational kind's zero J_lin
-    are the same at every pose, written once where the arrays are made (`constant_frames`), which saves each
-    frames pass up to 360 bytes a constraint."""
+    A point constraint's J_ang = [s]x is written as s alone (jac_skew, 24 bytes a row where the block takes 72):
+    every reader takes its products from s (`angular_times`, `angular_transpose_times`, `assemble.row_products`),
+    and its jac_ang rows are never written nor read. Only the blocks that move are written: a point constraint's
+    P = I and J_lin = +-I, a rotation's P = I and J_ang = +-I, and every rotational kind's zero J_lin are the same
+    at every pose, written once where the arrays are made (`constant_frames`), which saves each frames pass up to
+    360 bytes a constraint, and a point's 144 bytes of J_ang more."""
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
     x0 = pose_x(b0, body_x)
@@ -226,9 +250,7 @@ def constraint_frame(
         b = x1 + wp.quat_rotate(q1, anchor1[i])
         arm0 = b - x0
         arm1 = b - x1
-        jac_ang[2 * i] = -wp.skew(arm0)
-        jac_ang[2 * i + 1] = wp.skew(arm1)
-        jac_skew[2 * i] = -arm0  # skew_vector(jac_ang[2 i]), bit for bit
+        jac_skew[2 * i] = -arm0  # J_ang = -[arm0]x on body0, [arm1]x on body1
         jac_skew[2 * i + 1] = arm1
         return
     p = projection(kind, q0, q1, axis0[i], axis1[i])
@@ -247,7 +269,9 @@ def constraint_frame(
 def constant_frames(kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The frames' blocks that no pose changes (`constraint_frame` leaves them alone), for constraints of the
     given kinds: (P (n, 3, 3), J_lin (2n, 3, 3), J_ang (2n, 3, 3)), every other block zero. The signs are
-    those the kernel wrote when it wrote them (-I has -0.0 off its diagonal), so nothing changes bit for bit."""
+    those the kernel wrote when it wrote them (-I has -0.0 off its diagonal), so nothing changes bit for bit.
+    A point constraint's J_ang rows stay zero: its J_ang lives in `Frames.jac_skew` (`constraint_frame`); they
+    keep their place so that row r of every Jacobian array is 2 i + side."""
     n = len(kinds)
     eye = np.eye(3)
     point = np.asarray(kinds) == int(ConstraintKind.POINT)

@@ -24,7 +24,7 @@ import warp as wp
 from . import collide
 from .contact_solve import relative_velocity
 from .forces import coordinate_row
-from .limits import compensate, factor_masked, fix_furthest_out, limit_side, row_setup, solve_factored
+from .limits import compensate, coupling_through, factor_masked, fix_furthest_out, limit_side, row_setup, solve_factored
 
 wp.set_module_options({"enable_backward": False})
 
@@ -178,12 +178,14 @@ def row_side(
 def row_coupling(
     # Model:
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     # Data in:
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     row_count: wp.array(dtype=int),
     row_body: wp.array(dtype=wp.vec2i),
     row_lin0: wp.array(dtype=vec3d),
@@ -193,7 +195,7 @@ def row_coupling(
     # Data out: c of row r for constraint i at r * constraint_count + i
     row_coupling_out: wp.array(dtype=vec3d),
 ):
-    """c_i = sum over the bodies that row r and constraint i share of J_ib M_b^-1 g_b^T."""
+    """c_i = sum over the bodies that row r and constraint i share of J_ib M_b^-1 g_b^T (`coupling_through`)."""
     r, i = wp.tid()
     nc = constraint_body0.shape[0]
     c = vec3d()
@@ -201,14 +203,10 @@ def row_coupling(
         for side in range(2):
             b, g_lin, g_ang = row_side(r, side, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
             if b >= 0:
-                if constraint_body0[i] == b:
-                    c += jac_lin_in[2 * i] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i] * (
-                        inv_inertia_world_in[b] * g_ang
-                    )
-                if constraint_body1[i] == b:
-                    c += jac_lin_in[2 * i + 1] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i + 1] * (
-                        inv_inertia_world_in[b] * g_ang
-                    )
+                c += coupling_through(
+                    i, b, g_lin, g_ang, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                    inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in,
+                )  # fmt: skip
     row_coupling_out[r * nc + i] = c
 
 
@@ -362,6 +360,7 @@ def solve_rows(
     h: f64,
     limit_count: int,
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     coordinate_kind: wp.array(dtype=int),
@@ -385,6 +384,7 @@ def solve_rows(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     limit_value_in: wp.array(dtype=f64),
     limit_rate_in: wp.array(dtype=f64),
     body_x_in: wp.array(dtype=vec3d),
@@ -564,8 +564,9 @@ def solve_rows(
         if amount != f64(0.0):
             push_row(r, amount, row_body, row_lin0, row_ang0, row_lin1, row_ang1, body_inv_mass,
                      inv_inertia_world_in, body_v, body_w)  # fmt: skip
-            compensate(r, amount, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in,
-                       jac_ang_in, row_response, body_v, body_w)  # fmt: skip
+            compensate(r, amount, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                       inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, row_response, body_v,
+                       body_w)  # fmt: skip
     for i in range(nl):
         if velocity == 0:
             limit_impulse[i] = limit_impulse[i] + row_delta[i]

@@ -5,7 +5,7 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 
 import warp as wp
 
-from .constraints import POINT, is_translational
+from .constraints import POINT, angular_transpose_times, is_translational
 
 wp.set_module_options({"enable_backward": False})
 
@@ -76,3 +76,25 @@ def apply_impulses(
         wp.tid(), constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in,
         jac_ang_in, jac_skew_in, impulse_in, body_v_out, body_w_out,
     )  # fmt: skip
+
+
+@wp.func
+def apply_to_body(
+    b: int,
+    kind: int,
+    r: int,
+    lam: vec3d,
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Impulse lam of Jacobian row r (2 i + side) of a constraint of `kind` onto body b at once (none for the
+    world, b < 0): v += m^-1 J_lin^T lam, w += J~^-1 J_ang^T lam (`angular_transpose_times`). For the serial
+    sweeps and the rows' reaction (`limits.compensate`), which apply one constraint's impulse at a time."""
+    if b >= 0:
+        body_v[b] = body_v[b] + wp.transpose(jac_lin[r]) * lam * body_inv_mass[b]
+        body_w[b] = body_w[b] + inv_inertia_world[b] * angular_transpose_times(kind, r, jac_ang, jac_skew, lam)

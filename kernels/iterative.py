@@ -9,7 +9,8 @@ import warp as wp
 
 from .assemble import diagonal_block
 from .cholesky import cholesky3_inverse
-from .constraints import constraint_error, constraint_velocity, pose_q, pose_x, projected_error
+from .constraints import constraint_error, constraint_velocity, pose_q, pose_x, projected_error, side_body
+from .impulses import apply_to_body
 from .rigid import predict_body
 
 wp.set_module_options({"enable_backward": False})
@@ -27,23 +28,6 @@ def solve_block(k: mat33d, rhs: vec3d) -> vec3d:
 
 
 @wp.func
-def apply_to_body(
-    b: int,
-    r: int,
-    lam: vec3d,
-    body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-):
-    if b >= 0:
-        body_v[b] = body_v[b] + wp.transpose(jac_lin[r]) * lam * body_inv_mass[b]
-        body_w[b] = body_w[b] + inv_inertia_world[b] * (wp.transpose(jac_ang[r]) * lam)
-
-
-@wp.func
 def correct_alone(
     i: int,
     rhs: vec3d,
@@ -54,18 +38,22 @@ def correct_alone(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ):
     """Solve K_ii lambda = rhs for constraint i alone and apply lambda to its two bodies at once."""
     k = diagonal_block(
-        i, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin, jac_ang
-    )
+        i, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
+        jac_skew,
+    )  # fmt: skip
     lam = solve_block(k, rhs)
-    apply_to_body(constraint_body0[i], 2 * i, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w)
-    apply_to_body(
-        constraint_body1[i], 2 * i + 1, lam, body_inv_mass, inv_inertia_world, jac_lin, jac_ang, body_v, body_w
-    )
+    kind = constraint_kind[i]
+    for side in range(2):
+        apply_to_body(
+            side_body(i, side, constraint_body0, constraint_body1), kind, 2 * i + side, lam, body_inv_mass,
+            inv_inertia_world, jac_lin, jac_ang, jac_skew, body_v, body_w,
+        )  # fmt: skip
 
 
 @wp.func
@@ -94,6 +82,7 @@ def sweep_positions_once(
     proj_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ) -> f64:
@@ -124,7 +113,7 @@ def sweep_positions_once(
             rhs = -projected_error(constraint_kind[i], proj_in[i], d) / h
             correct_alone(
                 i, rhs, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
             )  # fmt: skip
     return worst
 
@@ -157,6 +146,7 @@ def sweep_positions(
     proj_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out (velocities updated in place):
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
@@ -167,7 +157,7 @@ def sweep_positions(
         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle,
         body_inv_mass, body_inertia, body_inv_inertia, gravity, h, tolerance, body_x_in, body_q_in, body_force_in,
-        body_torque_in, inv_inertia_world_in, proj_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+        body_torque_in, inv_inertia_world_in, proj_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
     )  # fmt: skip
 
 
@@ -205,7 +195,7 @@ def sweep_velocities_once(
         if e > velocity_tolerance:
             correct_alone(
                 i, -jv, constraint_kind, constraint_body0, constraint_body1,
-                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, body_v_out, body_w_out,
+                body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
             )  # fmt: skip
     return worst
 

@@ -25,8 +25,9 @@ wrapped for angles, with an impulse of at most max_force h either way. A saturat
 
 import warp as wp
 
-from .constraints import pose_x
+from .constraints import angular_times, pose_x, side_body
 from .forces import VELOCITY_MODE, coordinate_row, wrap_angle
+from .impulses import apply_to_body
 
 wp.set_module_options({"enable_backward": False})
 
@@ -199,11 +200,39 @@ def limit_side(
 
 
 @wp.func
+def coupling_through(
+    i: int,
+    b: int,
+    g_lin: vec3d,
+    g_ang: vec3d,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=mat33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+) -> vec3d:
+    """J_ib M_b^-1 g_b^T: what a row's Jacobian g = [g_lin | g_ang] on body b (>= 0) couples to constraint i
+    through b, zero if i is not on b (a constraint's two bodies differ: one side at most)."""
+    kind = constraint_kind[i]
+    for side in range(2):
+        r = 2 * i + side
+        if side_body(i, side, constraint_body0, constraint_body1) == b:
+            return jac_lin[r] * g_lin * body_inv_mass[b] + angular_times(
+                kind, r, jac_ang, jac_skew, inv_inertia_world[b] * g_ang
+            )
+    return vec3d()
+
+
+@wp.func
 def coupling_entry(
     l: int,
     i: int,
     # Model:
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     # Data in: the rows' Jacobians (`row_sides`), the frames
@@ -213,25 +242,21 @@ def coupling_entry(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out: c of limit l for constraint i at l * constraint_count + i
     limit_coupling_out: wp.array(dtype=vec3d),
 ):
-    """c_i = sum over the bodies that limit l and constraint i share of J_ib M_b^-1 g_b^T."""
+    """c_i = sum over the bodies that limit l and constraint i share of J_ib M_b^-1 g_b^T (`coupling_through`)."""
     nc = constraint_body0.shape[0]
     c = vec3d()
     for side in range(2):
         b = limit_side_body_in[2 * l + side]
-        g_lin = limit_side_lin_in[2 * l + side]
-        g_ang = limit_side_ang_in[2 * l + side]
         if b >= 0:
-            if constraint_body0[i] == b:
-                c += jac_lin_in[2 * i] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i] * (
-                    inv_inertia_world_in[b] * g_ang
-                )
-            if constraint_body1[i] == b:
-                c += jac_lin_in[2 * i + 1] * g_lin * body_inv_mass[b] + jac_ang_in[2 * i + 1] * (
-                    inv_inertia_world_in[b] * g_ang
-                )
+            c += coupling_through(
+                i, b, limit_side_lin_in[2 * l + side], limit_side_ang_in[2 * l + side], constraint_kind,
+                constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+                jac_skew_in,
+            )  # fmt: skip
     limit_coupling_out[l * nc + i] = c
 
 
@@ -303,6 +328,7 @@ def limit_sides(
 def limit_coupling(
     # Model:
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     # Data in:
@@ -312,14 +338,16 @@ def limit_coupling(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     # Data out: c of limit l for constraint i at l * constraint_count + i
     limit_coupling_out: wp.array(dtype=vec3d),
 ):
     """Every row's coupling to every constraint (`coupling_entry`), a thread an entry."""
     l, i = wp.tid()
     coupling_entry(
-        l, i, body_inv_mass, constraint_body0, constraint_body1, limit_side_body_in, limit_side_lin_in,
-        limit_side_ang_in, inv_inertia_world_in, jac_lin_in, jac_ang_in, limit_coupling_out,
+        l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, limit_side_body_in,
+        limit_side_lin_in, limit_side_ang_in, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in,
+        limit_coupling_out,
     )  # fmt: skip
 
 
@@ -471,12 +499,14 @@ def solve_masked(
 def compensate(
     l: int,
     amount: f64,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     limit_response: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
@@ -485,14 +515,11 @@ def compensate(
     nc = constraint_body0.shape[0]
     for i in range(nc):
         lam = limit_response[l * nc + i] * (-amount)
-        b0 = constraint_body0[i]
-        b1 = constraint_body1[i]
-        if b0 >= 0:
-            body_v[b0] = body_v[b0] + wp.transpose(jac_lin[2 * i]) * lam * body_inv_mass[b0]
-            body_w[b0] = body_w[b0] + inv_inertia_world[b0] * (wp.transpose(jac_ang[2 * i]) * lam)
-        if b1 >= 0:
-            body_v[b1] = body_v[b1] + wp.transpose(jac_lin[2 * i + 1]) * lam * body_inv_mass[b1]
-            body_w[b1] = body_w[b1] + inv_inertia_world[b1] * (wp.transpose(jac_ang[2 * i + 1]) * lam)
+        for side in range(2):
+            apply_to_body(
+                side_body(i, side, constraint_body0, constraint_body1), constraint_kind[i], 2 * i + side, lam,
+                body_inv_mass, inv_inertia_world, jac_lin, jac_ang, jac_skew, body_v, body_w,
+            )  # fmt: skip
 
 
 @wp.func
@@ -507,11 +534,13 @@ def apply_row(
     coordinate_body0: wp.array(dtype=int),
     coordinate_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     limit_response: wp.array(dtype=vec3d),
     body_x: wp.array(dtype=vec3d),
     body_v: wp.array(dtype=vec3d),
@@ -532,8 +561,8 @@ def apply_row(
     push_side(kind, b1, f64(1.0), amount, a, pb - pose_x(b1, body_x), body_inv_mass, inv1, body_v, body_w)
     if coupled != 0:
         compensate(
-            i, amount, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin, jac_ang,
-            limit_response, body_v, body_w,
+            i, amount, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, inv_inertia_world, jac_lin,
+            jac_ang, jac_skew, limit_response, body_v, body_w,
         )  # fmt: skip
 
 
@@ -574,11 +603,13 @@ def apply_fixed(
     coordinate_rest_rotation: wp.array(dtype=quatd),
     limit_coordinate: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     limit_response: wp.array(dtype=vec3d),
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
@@ -594,8 +625,8 @@ def apply_fixed(
     )  # fmt: skip
     apply_row(
         i, r, amount, a, pb, coupled, coordinate_kind, coordinate_body0, coordinate_body1, body_inv_mass,
-        constraint_body0, constraint_body1, inv_inertia_world, jac_lin, jac_ang, limit_response, body_x, body_v,
-        body_w,
+        constraint_kind, constraint_body0, constraint_body1, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+        limit_response, body_x, body_v, body_w,
     )  # fmt: skip
 
 
@@ -733,6 +764,7 @@ def correct_all(
     coupled: int,
     # Model:
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     # Data in:
@@ -740,6 +772,7 @@ def correct_all(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
     # Data in/out: the state at t0's (or t0 + h's) velocities; the rows, their impulses and scratch
@@ -816,11 +849,13 @@ def correct_all(
                 rows.coordinate_rest_rotation,
                 rows.limit_coordinate,
                 body_inv_mass,
+                constraint_kind,
                 constraint_body0,
                 constraint_body1,
                 inv_inertia_world_in,
                 jac_lin_in,
                 jac_ang_in,
+                jac_skew_in,
                 rows.limit_response,
                 body_x_in,
                 body_q_in,
@@ -835,6 +870,7 @@ def correct_rows(
     coupled: int,
     # Model:
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     # Data in:
@@ -842,6 +878,7 @@ def correct_rows(
     inv_inertia_world_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
     # Data in/out:
@@ -851,6 +888,6 @@ def correct_rows(
 ):
     """All rows at once on one thread (`correct_all`)."""
     correct_all(
-        velocity, coupled, body_inv_mass, constraint_body0, constraint_body1, h, inv_inertia_world_in, jac_lin_in,
-        jac_ang_in, body_x_in, body_q_in, body_v, body_w, rows,
+        velocity, coupled, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, h, inv_inertia_world_in,
+        jac_lin_in, jac_ang_in, jac_skew_in, body_x_in, body_q_in, body_v, body_w, rows,
     )  # fmt: skip

@@ -327,7 +327,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             for k in range(part_columns.shape[0]):
                 assemble_column(
                     part_columns[k], perm, col_start, constraint_kind, constraint_body0, constraint_body1,
-                    body_inv_mass, slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                    body_inv_mass, slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, jac_skew, values,
                 )  # fmt: skip
             for k in range(part_columns.shape[0]):  # K's factor, no signs (only the K formulation is cut)
                 factor_column(

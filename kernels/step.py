@@ -535,11 +535,13 @@ def correct_rows_all(
     h: f64,
     rows: Rows,
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
     body_v: wp.array(dtype=vec3d),
@@ -547,8 +549,8 @@ def correct_rows_all(
 ):
     """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`correct_all`)."""
     correct_all(
-        velocity, 1, body_inv_mass, constraint_body0, constraint_body1, h, inv_inertia_world, jac_lin, jac_ang,
-        body_x, body_q, body_v, body_w, rows,
+        velocity, 1, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, h, inv_inertia_world,
+        jac_lin, jac_ang, jac_skew, body_x, body_q, body_v, body_w, rows,
     )  # fmt: skip
 
 
@@ -557,6 +559,7 @@ def row_couplings_all(
     constraint_count: int,
     rows: Rows,
     body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_x: wp.array(dtype=vec3d),
@@ -566,6 +569,7 @@ def row_couplings_all(
     inv_inertia_world: wp.array(dtype=mat33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
 ):
     """Every row's Jacobian g at the state (`row_sides`), then c = J M^-1 g^T of every row and constraint
     (`coupling_entry`)."""
@@ -579,8 +583,9 @@ def row_couplings_all(
     for l in range(nl):
         for i in range(constraint_count):
             coupling_entry(
-                l, i, body_inv_mass, constraint_body0, constraint_body1, rows.limit_side_body, rows.limit_side_lin,
-                rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, rows.limit_coupling,
+                l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, rows.limit_side_body,
+                rows.limit_side_lin, rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+                rows.limit_coupling,
             )  # fmt: skip
 
 
@@ -912,8 +917,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                         if wp.static(rows):
                             correct_rows_all(
-                                0, hs, limit_rows, body_inv_mass, constraint_body0, constraint_body1,
-                                inv_inertia_world, jac_lin, jac_ang, state_x, state_q, state_v, state_w,
+                                0, hs, limit_rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
+                                inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v, state_w,
                             )  # fmt: skip
                         if wp.static(forced):
                             coupled_predict_all(
@@ -986,14 +991,14 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 for s in range(slot_code.shape[0]):
                     augmented_slot(
                         s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
-                        values,
+                        jac_skew, values,
                     )  # fmt: skip
                 singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
                 for j in range(col_start.shape[0] - 1):  # left-looking: column j assembled just before its factor
                     if slot_row.shape[0] > 0:
                         assemble_column(
                             j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                            slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, values,
+                            slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, jac_skew, values,
                         )  # fmt: skip
                     factor_column(
                         j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
@@ -1001,8 +1006,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                 if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
                     row_couplings_all(
-                        constraint_count, limit_rows, body_inv_mass, constraint_body0, constraint_body1, state_x,
-                        state_q, state_v, state_w, inv_inertia_world, jac_lin, jac_ang,
+                        constraint_count, limit_rows, body_inv_mass, constraint_kind, constraint_body0,
+                        constraint_body1, state_x, state_q, state_v, state_w, inv_inertia_world, jac_lin, jac_ang,
+                        jac_skew,
                     )  # fmt: skip
                     for l in range(limit_rows.limit_coordinate.shape[0]):
                         cholesky_solve(
@@ -1026,8 +1032,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     row_solves += 1
                     correct_rows_all(
-                        1, hs, limit_rows, body_inv_mass, constraint_body0, constraint_body1, inv_inertia_world,
-                        jac_lin, jac_ang, state_x, state_q, state_v, state_w,
+                        1, hs, limit_rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
+                        inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v, state_w,
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
@@ -1163,7 +1169,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                             constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
                             tolerance, state_x, state_q, body_force_in, body_torque_in, inv_inertia_world, proj,
-                            jac_lin, jac_ang, state_v, state_w,
+                            jac_lin, jac_ang, jac_skew, state_v, state_w,
                         )  # fmt: skip
                         if not wp.isfinite(err):
                             break
