@@ -14,6 +14,7 @@ from warpimpulse.kernels import step as step_kernels
 import warpimpulse as wi
 from warpimpulse import scenes
 from warpimpulse.bench import stress
+from warpimpulse.split import SplitSimulator
 
 
 def _spinning_pendulum(omega: float) -> wi.SceneBuilder:
@@ -525,3 +526,58 @@ def test_stiff_motor_targets_set_between_batches_agree():
     for a, b in zip(results[0][1], results[1][1]):
         np.testing.assert_array_equal(a, b)
     assert results[0][2][0] < 0.0  # it turned to the new target's side
+
+
+# Every reader of a point constraint's J_ang: K's column and slot assembly, the augmented matrix, the serial sweeps,
+# the rows' coupling and reaction, contacts on jointed bodies, the split systems, one tree on several threads.
+POINT_READERS = {
+    "chain10": (CASES["chain10"], ("fused", "parallel")),
+    "star31_body_matrix": (CASES["star31_body_matrix"], ("fused", "parallel")),
+    "tree15_iterative": (CASES["tree15_iterative"], ("fused", "parallel")),
+    "chain10_limits": (CASES["chain10_limits"], ("fused", "parallel")),
+    "chain6_distances": (CASES["chain6_distances"], ("fused", "parallel")),
+    "tree31_cg": ((lambda: scenes.binary_tree(31), 1 / 60, 20, {"solver": "cg"}), ("parallel",)),
+    "car_on_ground": ((lambda: scenes.car(ground=True), 1 / 60, 20, {}), ("parallel",)),
+    "four_bar_split_systems": ((scenes.four_bar, 1 / 60, 20, {"formulation": "split"}), ("parallel",)),
+}
+
+
+def _without_point_blocks(sim: wi.Simulator) -> None:
+    """NaN in every point constraint's rows of jac_ang, which no frames pass writes: a point's J_ang lives in
+    jac_skew alone (`constraints.constraint_frame`), so a reader of these rows makes the step NaN."""
+    point = np.repeat(sim.model.host.constraint_kind == int(wi.types.ConstraintKind.POINT), 2)
+    assert point.any()
+    blocks = sim.frames.jac_ang.numpy()
+    blocks[point] = np.nan
+    sim.frames.jac_ang.assign(blocks)
+
+
+def _states(sim, steps: int, dt: float) -> list[np.ndarray]:
+    sim.simulate(steps * dt)
+    return [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"]
+
+
+@pytest.mark.parametrize(("case", "schedule"), [(c, s) for c, (_, ss) in POINT_READERS.items() for s in ss])
+def test_point_constraints_read_no_angular_block(case, schedule):
+    """The steps are those of the same simulator with NaN in its points' jac_ang rows, bit for bit."""
+    (make, dt, steps, options), _ = POINT_READERS[case]
+    plain = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
+    blind = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
+    _without_point_blocks(blind)
+    assert blind.schedule == schedule
+    for a, b in zip(_states(plain, steps, dt), _states(blind, steps, dt)):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.fused
+def test_one_tree_on_several_threads_reads_no_angular_block():
+    """As above, for the split step (`warpimpulse/split.py`) of a 127-body tree on 2 threads."""
+    model = scenes.binary_tree(127).finalize()
+    plain = SplitSimulator(model, 1 / 60, threads=2)
+    blind = SplitSimulator(model, 1 / 60, threads=2)
+    _without_point_blocks(blind)
+    assert blind.threads == 2, blind.split_note
+    for a, b in zip(_states(plain, 20, 1 / 60), _states(blind, 20, 1 / 60)):
+        np.testing.assert_array_equal(a, b)
+    plain.close()
+    blind.close()
