@@ -108,13 +108,13 @@ def _stage_kernels(ns):
     def solve(repeats: int, augmented: int, offset: int, constraint_count: int, perm: wp.array(dtype=int),
               col_start: wp.array(dtype=int), col_row: wp.array(dtype=int), col_sign: wp.array(dtype=f64),
               row_start: wp.array(dtype=int), row_slot: wp.array(dtype=int), row_col: wp.array(dtype=int),
-              values: wp.array(dtype=mat33d), diag_inv: wp.array(dtype=mat33d), work: wp.array(dtype=vec3d),
+              values: wp.array(dtype=mat33d), work: wp.array(dtype=vec3d),
               aug_rhs: wp.array(dtype=vec3d), aug_x: wp.array(dtype=vec3d), rhs: wp.array(dtype=vec3d),
               impulse: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             step_kernels.cholesky_solve(
                 augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
-                row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                row_col, values, work, aug_rhs, aug_x, rhs, impulse,
             )  # fmt: skip
 
     @wp.kernel(module=module)
@@ -158,8 +158,7 @@ def _stage_kernels(ns):
                         update_start: wp.array(dtype=int), update_target: wp.array(dtype=int),
                         update_a: wp.array(dtype=int), update_b: wp.array(dtype=int),
                         update_sign: wp.array(dtype=f64), col_sign: wp.array(dtype=f64),
-                        values: wp.array(dtype=mat33d), diag_inv: wp.array(dtype=mat33d),
-                        singular: wp.array(dtype=int)):  # fmt: skip
+                        values: wp.array(dtype=mat33d), singular: wp.array(dtype=int)):  # fmt: skip
         for _ in range(repeats):
             for s in range(slot_code.shape[0]):
                 step_kernels.augmented_slot(
@@ -175,7 +174,7 @@ def _stage_kernels(ns):
                 if factor != 0:
                     step_kernels.factor_column(
                         j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
-                        col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
+                        col_loop, pivot_tolerance, loop_tolerance, values, singular,
                     )  # fmt: skip
 
     @wp.kernel(module=module)

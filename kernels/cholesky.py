@@ -101,12 +101,12 @@ def factor_column(
     pivot_tolerance: f64,
     loop_tolerance: f64,
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     singular: wp.array(dtype=int),
 ):
     """Column j, left-looking, a slot at a time: the slot's block less its updates L_ak s_k L_bk^T (the host
     sorts a column's updates by target slot, the diagonal's first), held in registers; then
-    L_jj^-1 = chol(s_j .)^-1, and each L_ij = (.) L_jj^-T s_j written once.
+    L_jj^-1 = chol(s_j .)^-1, written over the assembled diagonal block (read first: the loop scale below needs
+    it), and each L_ij = (.) L_jj^-T s_j written once.
 
     `singular[0]` gets 1 + the first column whose pivot fell below pivot_tolerance times its diagonal
     (a degenerate constraint); that pivot is replaced by 1 so the solve stays finite.
@@ -148,7 +148,7 @@ def factor_column(
         li, bad = cholesky3_inverse(a, pivot_tolerance * scale, f64(1.0))
         if bad != 0 and singular[0] == 0:
             singular[0] = j + 1
-    diag_inv[j] = li
+    values[d] = li  # the assembled block is read above: the solves need only the inverse
     for s in range(d + 1, col_start[j + 1]):
         block = values[s]
         while u < end:
@@ -182,7 +182,6 @@ def factor(
     loop_tolerance: f64,
     # data in/out
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     singular: wp.array(dtype=int),
 ):
     """The columns of one group in order (`factor_column`)."""
@@ -190,7 +189,7 @@ def factor(
     for j in range(group_start[g], group_start[g + 1]):
         factor_column(
             j, signs, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
-            pivot_tolerance, loop_tolerance, values, diag_inv, singular,
+            pivot_tolerance, loop_tolerance, values, singular,
         )  # fmt: skip
 
 
@@ -198,19 +197,19 @@ def factor(
 def forward_row(
     j: int,
     perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
 ):
-    """Row j of L y = P b: y_j = L_jj^-1 (b_perm(j) - sum_k L_jk y_k)."""
+    """Row j of L y = P b: y_j = L_jj^-1 (b_perm(j) - sum_k L_jk y_k), L_jj^-1 from column j's diagonal slot."""
     s = rhs[perm[j]]
     for k in range(row_start[j], row_start[j + 1]):
         s -= values[row_slot[k]] * y[row_col[k]]
-    y[j] = lower_times(diag_inv[j], s)
+    y[j] = lower_times(values[col_start[j]], s)
 
 
 @wp.kernel
@@ -218,18 +217,18 @@ def solve_forward(
     first_group: int,
     group_start: wp.array(dtype=int),
     perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
 ):
     """L y = P b, the rows of one group in order (`forward_row`)."""
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
-        forward_row(j, perm, row_start, row_slot, row_col, values, diag_inv, rhs, y)
+        forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, y)
 
 
 @wp.func
@@ -240,7 +239,6 @@ def backward_column(
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
 ):
@@ -248,10 +246,11 @@ def backward_column(
 
     z overwrites y in place: every z_i it reads (i > j) is final, every y_j it has not yet overwritten.
     """
+    d = col_start[j]
     s = col_sign[j] * y[j]
-    for k in range(col_start[j] + 1, col_start[j + 1]):
+    for k in range(d + 1, col_start[j + 1]):
         s -= wp.transpose(values[k]) * y[col_row[k]]
-    z = lower_transpose_times(diag_inv[j], s)
+    z = lower_transpose_times(values[d], s)
     y[j] = z
     x[perm[j]] = z
 
@@ -265,7 +264,6 @@ def solve_backward(
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
 ):
@@ -273,7 +271,7 @@ def solve_backward(
     g = first_group + wp.tid()
     begin = group_start[g]
     for jj in range(group_start[g + 1] - begin):
-        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, values, diag_inv, y, x)
+        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, values, y, x)
 
 
 @wp.kernel

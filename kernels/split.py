@@ -46,17 +46,17 @@ OUT_WIDTH = 4
 def forward_rows(
     part_columns: wp.array(dtype=int),
     perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     work: wp.array(dtype=vec3d),
 ):
     """L y = P rhs on the part's rows, in elimination order."""
     for k in range(part_columns.shape[0]):
-        forward_row(part_columns[k], perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+        forward_row(part_columns[k], perm, col_start, row_start, row_slot, row_col, values, rhs, work)
 
 
 @wp.func
@@ -69,7 +69,6 @@ def backward_apply(
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     work: wp.array(dtype=vec3d),
     impulse: wp.array(dtype=vec3d),
     body_inv_mass: wp.array(dtype=f64),
@@ -85,7 +84,7 @@ def backward_apply(
     """L^T z = S y on the part's columns (last first), then the impulses onto the part's bodies."""
     n = part_columns.shape[0]
     for k in range(n):
-        backward_column(part_columns[n - 1 - k], perm, col_start, col_row, col_sign, values, diag_inv, work, impulse)
+        backward_column(part_columns[n - 1 - k], perm, col_start, col_row, col_sign, values, work, impulse)
     for k in range(part_bodies.shape[0]):
         apply_body(
             part_bodies[k], constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
@@ -184,7 +183,6 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         rhs: wp.array(dtype=vec3d),
         impulse: wp.array(dtype=vec3d),
         values: wp.array(dtype=mat33d),
-        diag_inv: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
         inv_inertia_world: wp.array(dtype=mat33d),
         proj: wp.array(dtype=mat33d),
@@ -210,9 +208,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 w0[b] = body_w_out[b]
         else:
             if separator != 0:
-                forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+                forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
             backward_apply(
-                part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, diag_inv,
+                part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values,
                 work, impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
                 body_v_out, body_w_out,
             )  # fmt: skip
@@ -244,7 +242,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             part_out[1] = f64(bad)
             part_out[2] = spin
         if separator == 0:
-            forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+            forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
 
     @wp.kernel(module=module)
     def refactor(
@@ -291,7 +289,6 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         errors: wp.array(dtype=f64),
         rhs: wp.array(dtype=vec3d),
         values: wp.array(dtype=mat33d),
-        diag_inv: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
         part_singular: wp.array(dtype=int),
         inv_inertia_world: wp.array(dtype=mat33d),
@@ -332,14 +329,14 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             for k in range(part_columns.shape[0]):  # K's factor, no signs (only the K formulation is cut)
                 factor_column(
                     part_columns[k], 0, col_start, update_start, update_target, update_a, update_b, update_sign,
-                    col_sign, col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, part_singular,
+                    col_sign, col_loop, pivot_tolerance, loop_tolerance, values, part_singular,
                 )  # fmt: skip
             part_out[3] = velocity_errors_of(
                 part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
                 body_v_out, body_w_out, errors, rhs,
             )  # fmt: skip
             if separator == 0:
-                forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+                forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
 
     @wp.kernel(module=module)
     def velocity_fix(
@@ -368,7 +365,6 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         rhs: wp.array(dtype=vec3d),
         impulse: wp.array(dtype=vec3d),
         values: wp.array(dtype=mat33d),
-        diag_inv: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
         inv_inertia_world: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
@@ -381,9 +377,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         """One part's share of the velocity correction: the solve (the separator's forward rows, then
         backward, before the parts'), the impulses on its bodies, its velocity errors again."""
         if separator != 0:
-            forward_rows(part_columns, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+            forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
         backward_apply(
-            part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, diag_inv, work,
+            part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, work,
             impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
             body_v_out, body_w_out,
         )  # fmt: skip

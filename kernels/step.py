@@ -622,7 +622,6 @@ def cholesky_solve(
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
     values: wp.array(dtype=mat33d),
-    diag_inv: wp.array(dtype=mat33d),
     work: wp.array(dtype=vec3d),
     aug_rhs: wp.array(dtype=vec3d),
     aug_x: wp.array(dtype=vec3d),
@@ -636,16 +635,16 @@ def cholesky_solve(
         for i in range(constraint_count):
             aug_rhs[offset + i] = f64(-1.0) * rhs[i]
         for j in range(n):
-            forward_row(j, perm, row_start, row_slot, row_col, values, diag_inv, aug_rhs, work)
+            forward_row(j, perm, col_start, row_start, row_slot, row_col, values, aug_rhs, work)
         for jj in range(n):
-            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, diag_inv, work, aug_x)
+            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, aug_x)
         for i in range(constraint_count):
             impulse[i] = f64(1.0) * aug_x[offset + i]
     else:
         for j in range(n):
-            forward_row(j, perm, row_start, row_slot, row_col, values, diag_inv, rhs, work)
+            forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
         for jj in range(n):
-            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, diag_inv, work, impulse)
+            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, impulse)
 
 
 @functools.cache
@@ -816,7 +815,6 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         rhs: wp.array(dtype=vec3d),
         impulse: wp.array(dtype=vec3d),
         values: wp.array(dtype=mat33d),
-        diag_inv: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
         aug_rhs: wp.array(dtype=vec3d),
         aug_x: wp.array(dtype=vec3d),
@@ -908,7 +906,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         break
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     if wp.static(forced or rows):  # every impulse first: rows, elements couple the bodies
                         apply_all(
@@ -1002,7 +1000,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                     factor_column(
                         j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
-                        col_loop, pivot_tolerance, loop_tolerance, values, diag_inv, singular,
+                        col_loop, pivot_tolerance, loop_tolerance, values, singular,
                     )  # fmt: skip
                 if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
                     row_couplings_all(
@@ -1013,7 +1011,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     for l in range(limit_rows.limit_coordinate.shape[0]):
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                            row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
+                            row_slot, row_col, values, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
                             limit_rows.response_rows[l],
                         )  # fmt: skip
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
@@ -1024,7 +1022,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
@@ -1042,7 +1040,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if not (verr <= velocity_tolerance):
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, values, diag_inv, work, aug_rhs, aug_x, rhs, impulse,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,

@@ -104,7 +104,6 @@ class CholeskySolver:
         self.pattern = pat
         n = len(pat.perm)
         self.values = wp.zeros(len(pat.col_row), dtype=wp.mat33d, device=d)
-        self.diag_inv = wp.zeros(n, dtype=wp.mat33d, device=d)
         self.singular = wp.zeros(2, dtype=wp.int32, device=d)  # first degenerate column + 1, redundant rows
         self._singular_host = None if d.is_cuda else self.singular.numpy()  # CPU memory, read without a copy
         self.redundant_rows = 0
