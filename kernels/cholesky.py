@@ -10,8 +10,11 @@ Columns are in elimination order. The host groups columns so that a group runs i
 and the groups of one launch are independent (levels of the elimination tree): on a CPU one group holds
 every column; on a GPU each level is one launch with a column a thread.
 Storage: block column j owns slots col_start[j]..col_start[j+1]-1, the diagonal first. The factor overwrites
-the off-diagonal slots with L_ij and writes L_jj^-1 to diag_inv[j] (all the solves read of the diagonal); the
-diagonal slot keeps the block as assembled.
+the off-diagonal slots with L_ij and the diagonal slot with L_jj^-1 (all the solves read of the diagonal; the
+assembled block is read before, and nothing reads it after: every factor follows a fresh assembly). So a
+backward column streams its slots as one run of one array: a solve of the 65,535-body tree took 2.10 ms, not
+2.28 with L_jj^-1 in an array of its own (-8 %), the factor 3.21 ms, not 3.36, and its step 0.541 us a body-step,
+not 0.586; tree127 and chain10, cache resident, unchanged (docs/architecture.md, "Cheaper stages").
 """
 
 import warp as wp
