@@ -13,7 +13,7 @@ Storage: block column j owns slots col_start[j]..col_start[j+1]-1, the diagonal 
 the off-diagonal slots with L_ij and the diagonal slot with L_jj^-1 (all the solves read of the diagonal; the
 assembled block is read before, and nothing reads it after: every factor follows a fresh assembly). So a
 backward column streams its slots as one run of one array: a solve of the 65,535-body tree took 2.10 ms, not
-2.28 with L_jj^-1 in an array of its own (-8 %), the factor 3.21 ms, not 3.36, and its step 0.541 us a body-step,
+2.28 with L_jj^-1 in an array of its own (-8 %), the factor 3.21 ms, not 3.36, and its step 0.551 us a body-step,
 not 0.586; tree127 and chain10, cache resident, unchanged (docs/architecture.md, "Cheaper stages").
 """
 
