@@ -877,9 +877,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 else:
                     predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
-                        gravity, hs, state_x,
-                        state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q, next_v,
-                        next_w,
+                        gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in, next_x,
+                        next_q, next_v, next_w,
                     )  # fmt: skip
                 err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
@@ -927,17 +926,15 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         else:
                             predict_all(
                                 body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
-                                body_euler, gravity, hs, state_x,
-                                state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
-                                next_v, next_w,
+                                body_euler, gravity, hs, state_x, state_q, state_v, state_w, body_force_in,
+                                body_torque_in, next_x, next_q, next_v, next_w,
                             )  # fmt: skip
                     else:
                         apply_and_predict_all(
                             body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
-                            body_euler, gravity, hs,
-                            body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_x,
-                            state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q,
-                            next_v, next_w,
+                            body_euler, gravity, hs, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                            jac_skew, impulse, state_x, state_q, state_v, state_w, body_force_in, body_torque_in,
+                            next_x, next_q, next_v, next_w,
                         )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
@@ -1183,9 +1180,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     iterations += sweeps
                     predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
-                        gravity, hs, state_x,
-                        state_q, state_v, state_w, body_force_in, body_torque_in, next_x, next_q, next_v,
-                        next_w,
+                        gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in, next_x,
+                        next_q, next_v, next_w,
                     )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,

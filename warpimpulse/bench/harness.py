@@ -242,9 +242,9 @@ def accuracy_run(runner: Runner, rate: int, probe: Probe, duration: float) -> di
     return out
 
 
-TIMING = (
-    "Run time: the median over repeats of the first {error_time:g} s from the scene's start, each engine's steps in "
-    "one call where it has one (our `step(n)`, MuJoCo's `mj_step` with nstep), pinocchio's one step a call"
+TIMING = (  # how `time_steps` times a configuration, as the report states it
+    f"Run time: the median over repeats of the first {ERROR_TIME:g} s from the scene's start, each engine's steps "
+    "in one call where it has one (our `step(n)`, MuJoCo's `mj_step` with nstep), pinocchio's one step a call"
 )
 
 

@@ -318,7 +318,7 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
                   f"plots, [RESULTS.md]({plots_dir}/RESULTS.md) and this section) runs {grid} "
                   f"on {', '.join(sweep['references'])} against {peers}, with MuJoCo RK4 at h = 1/{REFERENCE_RATE} as "
                   f"the reference (checked against h = 1/{CHECK_RATE} and against pinocchio)."
-                  + (f" {sweep['timing'].format(error_time=ERROR_TIME)}." if sweep.get("timing") else ""),
+                  + (f" {sweep['timing']}." if sweep.get("timing") else ""),
                   "",
                   *_provenance(sweep), *summary_markdown(sweep, "###"), *bar_markdown(runs, level="###")]  # fmt: skip
         lines += [f"![Pareto {name}]({plots_dir}/pareto_{name}.png)" for name in sweep["references"]]
