@@ -211,6 +211,30 @@ def projected_error(kind: int, p: mat33d, d: vec3d) -> vec3d:
 
 
 @wp.func
+def point_arms(x0: vec3d, x1: vec3d, q1: quatd, anchor1: vec3d):
+    """A point constraint's J_ang as its two vectors s (J_ang = [s]x): -(B - x0) on body0, B - x1 on body1, B
+    body1's anchor in the world (m). Both impulses act at B, equal and opposite, so they add no couple and
+    angular momentum is kept exactly; the paper's A is within the tolerance of B (section 4.2)."""
+    b = x1 + wp.quat_rotate(q1, anchor1)
+    arm0 = b - x0
+    arm1 = b - x1
+    return -arm0, arm1
+
+
+@wp.func
+def moving_blocks(
+    kind: int, x0: vec3d, q0: quatd, x1: vec3d, q1: quatd, anchor0: vec3d, anchor1: vec3d, axis0: vec3d, axis1: vec3d
+):
+    """The blocks of a LINE, PLANE, AXIS or ANGLE constraint that move with the poses: (P, body0's J_lin (body1's
+    is its negative; zero for a rotational kind), body0's J_ang, body1's J_ang)."""
+    p = projection(kind, q0, q1, axis0, axis1)
+    if is_translational(kind):
+        a, b = joint_points(kind, x0, q0, x1, q1, anchor0, anchor1, axis0)
+        return p, p, -p * wp.skew(b - x0), p * wp.skew(b - x1)
+    return p, mat33d(), p, -p
+
+
+@wp.func
 def constraint_frame(
     kind: int,
     i: int,
@@ -245,25 +269,17 @@ def constraint_frame(
     if kind == ROTATION:
         return
     if kind == POINT:  # P = I: the angular blocks without the products
-        # Both impulses act at B, equal and opposite, so they add no couple and angular momentum is kept
-        # exactly; the paper's A is within the tolerance of B (section 4.2).
-        b = x1 + wp.quat_rotate(q1, anchor1[i])
-        arm0 = b - x0
-        arm1 = b - x1
-        jac_skew[2 * i] = -arm0  # J_ang = -[arm0]x on body0, [arm1]x on body1
-        jac_skew[2 * i + 1] = arm1
+        s0, s1 = point_arms(x0, x1, q1, anchor1[i])
+        jac_skew[2 * i] = s0
+        jac_skew[2 * i + 1] = s1
         return
-    p = projection(kind, q0, q1, axis0[i], axis1[i])
+    p, lin, ang0, ang1 = moving_blocks(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i])
     proj[i] = p
     if is_translational(kind):
-        a, b = joint_points(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i])
-        jac_lin[2 * i] = p
-        jac_lin[2 * i + 1] = -p
-        jac_ang[2 * i] = -p * wp.skew(b - x0)
-        jac_ang[2 * i + 1] = p * wp.skew(b - x1)
-    else:
-        jac_ang[2 * i] = p
-        jac_ang[2 * i + 1] = -p
+        jac_lin[2 * i] = lin
+        jac_lin[2 * i + 1] = -lin
+    jac_ang[2 * i] = ang0
+    jac_ang[2 * i + 1] = ang1
 
 
 def constant_frames(kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -391,6 +407,60 @@ def velocity_error(
 ALL_KINDS = frozenset((POINT, LINE, PLANE, ROTATION, AXIS, ANGLE))
 
 
+@wp.func
+def arm_correction(
+    kind: int,
+    i: int,
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    anchor0: wp.array(dtype=vec3d),
+    anchor1: wp.array(dtype=vec3d),
+    axis0: wp.array(dtype=vec3d),
+    axis1: wp.array(dtype=vec3d),
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+    response_v: wp.array(dtype=vec3d),
+    response_w: wp.array(dtype=vec3d),
+) -> vec3d:
+    """E_i du = (J_i(t0+h) - J_i(t0)) du: how much more the predicted error of constraint i moves, per unit of
+    h, under the bodies' velocity changes du at t0 (`impulses.impulse_response`) than K models (m/s, rad/s).
+
+    K = J(t0) M^-1 J(t0)^T takes a velocity change dw at t0 to move a joint point by h dw x r with the arm r of
+    the step's start, but the point moves by h dw x r(t0+h): the error answers an impulse through K + E, not K,
+    so the paper's iteration shrinks the error linearly, by about the rotation of a body in a step (docs/
+    architecture.md, "Fewer joint iterations"). J(t0+h) is the frame (`constraint_frame`) at the prediction;
+    a ROTATION's blocks do not move (E = 0)."""
+    if kind == ROTATION:
+        return vec3d()
+    b0 = constraint_body0[i]
+    b1 = constraint_body1[i]
+    x0 = pose_x(b0, pred_x)
+    q0 = pose_q(b0, pred_q)
+    x1 = pose_x(b1, pred_x)
+    q1 = pose_q(b1, pred_q)
+    dv0 = vec3d()
+    dw0 = vec3d()
+    dv1 = vec3d()
+    dw1 = vec3d()
+    if b0 >= 0:
+        dv0 = response_v[b0]
+        dw0 = response_w[b0]
+    if b1 >= 0:
+        dv1 = response_v[b1]
+        dw1 = response_w[b1]
+    if kind == POINT:  # J_lin = +-I does not move; J_ang = [s]x
+        s0, s1 = point_arms(x0, x1, q1, anchor1[i])
+        return wp.cross(s0 - jac_skew[2 * i], dw0) + wp.cross(s1 - jac_skew[2 * i + 1], dw1)
+    p, lin, ang0, ang1 = moving_blocks(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i])
+    e = (ang0 - jac_ang[2 * i]) * dw0 + (ang1 - jac_ang[2 * i + 1]) * dw1
+    if is_translational(kind):
+        e += (lin - jac_lin[2 * i]) * dv0 - (lin + jac_lin[2 * i + 1]) * dv1
+    return e
+
+
 @functools.cache
 def specialized(kinds: frozenset[int]) -> SimpleNamespace:
     """The constraint kernels compiled for the constraint kinds in `kinds` only: `frames`, `position_errors`,
@@ -463,6 +533,36 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
                     constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h,
                     proj_in, body_x_in, body_q_in, errors_out, rhs_out,
                 )  # fmt: skip
+
+    @wp.func(module=module)
+    def arm_correction_of(
+        i: int,
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        jac_lin_in: wp.array(dtype=mat33d),
+        jac_ang_in: wp.array(dtype=mat33d),
+        jac_skew_in: wp.array(dtype=vec3d),
+        response_v_in: wp.array(dtype=vec3d),
+        response_w_in: wp.array(dtype=vec3d),
+    ) -> vec3d:
+        """`arm_correction` of constraint i, for its kind as a compile-time constant."""
+        kind = constraint_kind[i]
+        e = vec3d()
+        for k in range(wp.static(len(ks))):
+            if kind == wp.static(ks[k]):
+                e = arm_correction(
+                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                    constraint_axis0, constraint_axis1, pred_x, pred_q, jac_lin_in, jac_ang_in, jac_skew_in,
+                    response_v_in, response_w_in,
+                )  # fmt: skip
+        return e
 
     @wp.kernel(module=module)
     def frames(
@@ -537,6 +637,36 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
             body_v_in, body_w_in, errors_out, rhs_out,
         )  # fmt: skip
 
+    @wp.kernel(module=module)
+    def arm_corrections(
+        # Model:
+        constraint_kind: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        # Data in: the prediction, the frames of t0, the bodies' velocity changes from the impulses, the rhs
+        body_x_in: wp.array(dtype=vec3d),
+        body_q_in: wp.array(dtype=quatd),
+        jac_lin_in: wp.array(dtype=mat33d),
+        jac_ang_in: wp.array(dtype=mat33d),
+        jac_skew_in: wp.array(dtype=vec3d),
+        response_v_in: wp.array(dtype=vec3d),
+        response_w_in: wp.array(dtype=vec3d),
+        rhs_in: wp.array(dtype=vec3d),
+        # Data out:
+        newton_rhs_out: wp.array(dtype=vec3d),
+    ):
+        """The Newton step's right-hand side, rhs - E lambda (`arm_correction`, du from the impulses lambda)."""
+        i = wp.tid()
+        newton_rhs_out[i] = rhs_in[i] - arm_correction_of(
+            i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+            constraint_axis0, constraint_axis1, body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in, response_v_in,
+            response_w_in,
+        )  # fmt: skip
+
     return SimpleNamespace(
         kinds=ks,
         module=module,
@@ -545,4 +675,6 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         frames=frames,
         position_errors=position_errors,
         velocity_errors=velocity_errors,
+        arm_correction=arm_correction_of,
+        arm_corrections=arm_corrections,
     )

@@ -15,7 +15,7 @@ f64 = wp.float64
 
 
 @wp.func
-def apply_body(
+def impulse_response(
     b: int,
     constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
@@ -26,14 +26,12 @@ def apply_body(
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
     impulse_in: wp.array(dtype=vec3d),
-    body_v_out: wp.array(dtype=vec3d),
-    body_w_out: wp.array(dtype=vec3d),
 ):
-    """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows. A point
-    constraint's J_lin is +-I and its J_ang a skew matrix [v]x (`constraints.constraint_frame`), so its
-    J_lin^T lambda is +-lambda, the same value without the product, and its J_ang^T lambda = -v x lambda = lambda x v,
-    v read from jac_skew; a
-    rotational constraint's J_lin is zero, so it adds to w only."""
+    """Body b's velocity change from the impulses, (m^-1 sum J_lin^T lambda, J~^-1 sum J_ang^T lambda) over its
+    Jacobian rows (m/s, rad/s; world frame). A point constraint's J_lin is +-I and its J_ang a skew matrix [v]x
+    (`constraints.constraint_frame`), so its J_lin^T lambda is +-lambda, the same value without the product, and
+    its J_ang^T lambda = -v x lambda = lambda x v, v read from jac_skew; a rotational constraint's J_lin is zero,
+    so it adds to w only."""
     dv = vec3d()
     dl = vec3d()
     for k in range(body_rows_start[b], body_rows_start[b + 1]):
@@ -50,8 +48,32 @@ def apply_body(
             if is_translational(constraint_kind[i]):  # a rotational kind's J_lin is zero: nothing to add
                 dv += wp.transpose(jac_lin_in[r]) * lam
             dl += wp.transpose(jac_ang_in[r]) * lam
-    body_v_out[b] = body_v_out[b] + dv * body_inv_mass[b]
-    body_w_out[b] = body_w_out[b] + inv_inertia_world_in[b] * dl
+    return dv * body_inv_mass[b], inv_inertia_world_in[b] * dl
+
+
+@wp.func
+def apply_body(
+    b: int,
+    constraint_kind: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    body_rows_start: wp.array(dtype=int),
+    body_rows: wp.array(dtype=int),
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
+    impulse_in: wp.array(dtype=vec3d),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Body b: v += m^-1 J_lin^T lambda, w += J~^-1 J_ang^T lambda, summed over its Jacobian rows
+    (`impulse_response`)."""
+    dv, dw = impulse_response(
+        b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+        jac_skew_in, impulse_in,
+    )  # fmt: skip
+    body_v_out[b] = body_v_out[b] + dv
+    body_w_out[b] = body_w_out[b] + dw
 
 
 @wp.kernel
@@ -76,6 +98,34 @@ def apply_impulses(
         wp.tid(), constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in,
         jac_ang_in, jac_skew_in, impulse_in, body_v_out, body_w_out,
     )  # fmt: skip
+
+
+@wp.kernel
+def impulse_responses(
+    # Model:
+    constraint_kind: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    body_rows_start: wp.array(dtype=int),
+    body_rows: wp.array(dtype=int),
+    # Data in:
+    inv_inertia_world_in: wp.array(dtype=mat33d),
+    jac_lin_in: wp.array(dtype=mat33d),
+    jac_ang_in: wp.array(dtype=mat33d),
+    jac_skew_in: wp.array(dtype=vec3d),
+    impulse_in: wp.array(dtype=vec3d),
+    # Data out:
+    response_v_out: wp.array(dtype=vec3d),
+    response_w_out: wp.array(dtype=vec3d),
+):
+    """Every body's velocity change from the impulses (`impulse_response`), the bodies left as they are: the
+    first iteration's Newton step (`constraints.arm_correction`) reads it."""
+    b = wp.tid()
+    dv, dw = impulse_response(
+        b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in, jac_ang_in,
+        jac_skew_in, impulse_in,
+    )  # fmt: skip
+    response_v_out[b] = dv
+    response_w_out[b] = dw
 
 
 @wp.func

@@ -36,7 +36,7 @@ from .assemble import assemble_column, augmented_slot
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
-from .impulses import apply_body
+from .impulses import apply_body, impulse_response
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
 from .rigid import LANES, body_summary, predict_group, world_inverse_inertia_of
@@ -663,6 +663,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     wp.set_module_options({"enable_backward": False}, module)
     frame = ck.frame
     position_error = ck.position_error
+    arm_correction = ck.arm_correction
 
     @wp.func(module=module)
     def position_errors_all(
@@ -721,6 +722,47 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             frame(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                 constraint_axis0, constraint_axis1, body_x, body_q, proj, jac_lin, jac_ang, jac_skew,
+            )  # fmt: skip
+
+    @wp.func(module=module)
+    def newton_rhs_all(
+        body_count: int,
+        constraint_count: int,
+        constraint_kind: wp.array(dtype=int),
+        body_inv_mass: wp.array(dtype=f64),
+        body_rows_start: wp.array(dtype=int),
+        body_rows: wp.array(dtype=int),
+        constraint_body0: wp.array(dtype=int),
+        constraint_body1: wp.array(dtype=int),
+        constraint_anchor0: wp.array(dtype=vec3d),
+        constraint_anchor1: wp.array(dtype=vec3d),
+        constraint_axis0: wp.array(dtype=vec3d),
+        constraint_axis1: wp.array(dtype=vec3d),
+        inv_inertia_world: wp.array(dtype=mat33d),
+        jac_lin: wp.array(dtype=mat33d),
+        jac_ang: wp.array(dtype=mat33d),
+        jac_skew: wp.array(dtype=vec3d),
+        impulse: wp.array(dtype=vec3d),
+        pred_x: wp.array(dtype=vec3d),
+        pred_q: wp.array(dtype=quatd),
+        rhs: wp.array(dtype=vec3d),
+        response_v: wp.array(dtype=vec3d),
+        response_w: wp.array(dtype=vec3d),
+        newton_rhs: wp.array(dtype=vec3d),
+    ):
+        """The Newton step's right-hand side rhs - E lambda of the impulses just solved (`impulse_response`,
+        `arm_correction`); solved with K, it gives the first iteration's impulses."""
+        for b in range(body_count):
+            dv, dw = impulse_response(
+                b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+                jac_skew, impulse,
+            )  # fmt: skip
+            response_v[b] = dv
+            response_w[b] = dw
+        for i in range(constraint_count):
+            newton_rhs[i] = rhs[i] - arm_correction(
+                i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                constraint_axis0, constraint_axis1, pred_x, pred_q, jac_lin, jac_ang, jac_skew, response_v, response_w,
             )  # fmt: skip
 
     @wp.func(module=module)
@@ -825,6 +867,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
         jac_skew: wp.array(dtype=vec3d),
+        # The first iteration's Newton step (`newton` != 0): the bodies' response to its impulses, its rhs
+        newton: int,
+        response_v: wp.array(dtype=vec3d),
+        response_w: wp.array(dtype=vec3d),
+        newton_rhs: wp.array(dtype=vec3d),
         # Data out: the state, advanced in place, and a status row a step
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
@@ -860,6 +907,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 zero_values(limit_rows.limit_impulse)  # the rows' impulses accumulate over the step
             iterations = wp.int32(0)  # summed over the stages, as are the velocity iterations
             row_solves = wp.int32(0)  # the velocity corrections before the rows' (`rows`)
+            newton_solves = wp.int32(0)  # the Newton steps' second solves
             velocity_iterations = wp.int32(0)
             joint_error = f64(0.0)  # the largest over the stages
             verr = f64(0.0)  # the last stage's
@@ -907,6 +955,18 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
+                    if tries == 0 and newton != 0:  # solve again with rhs - E lambda: K + E is the error's answer
+                        newton_rhs_all(
+                            body_count, constraint_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
+                            constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                            constraint_axis0, constraint_axis1, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+                            impulse, next_x, next_q, rhs, response_v, response_w, newton_rhs,
+                        )  # fmt: skip
+                        cholesky_solve(
+                            augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                            row_slot, row_col, values, work, aug_rhs, aug_x, newton_rhs, impulse,
+                        )  # fmt: skip
+                        newton_solves += 1
                     if wp.static(forced or rows):  # every impulse first: rows, elements couple the bodies
                         apply_all(
                             body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
@@ -1055,7 +1115,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     code = VELOCITY
                     failed = max_or_nan(failed, verr)
             finish(
-                status_out, k, code, iterations, velocity_iterations, iterations + velocity_iterations + row_solves,
+                status_out, k, code, iterations, velocity_iterations,
+                iterations + velocity_iterations + row_solves + newton_solves,
                 joint_error, verr, failed, spin,
             )  # fmt: skip
             if code != OK:

@@ -179,6 +179,16 @@ CASES = {
     "chain10_limits_order4": (_limited_chain, 1 / 60, 40, {"order": 4}),
     "chain10_limits_body_matrix_order6": (_limited_chain, 1 / 60, 30, {"order": 6, "formulation": "body"}),
     "chain50_limits_halved": (lambda: _limited_chain(50, 0.5), 1 / 20, 30, {}),
+    # The first iteration's Newton step (`newton`): every kind, both formulations, rows, force elements, a loop's
+    # redundant rows, compositions, halved steps.
+    "chain10_newton": (lambda: scenes.chain(10), 1 / 60, 60, {"newton": True}),
+    "mixed_kinds_newton": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 60, {"newton": True}),
+    "star31_body_matrix_newton": (lambda: scenes.star(31), 1 / 60, 30, {"formulation": "body", "newton": True}),
+    "loop_redundant_rows_newton": (_welded_hinge, 1 / 60, 60, {"newton": True}),
+    "chain50_halved_newton": (lambda: scenes.chain(50), 1 / 30, 60, {"newton": True}),
+    "mixed_kinds_order4_newton": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 20, {"order": 4, "newton": True}),
+    "servo_chain_newton": (_servo_chain, 1 / 60, 60, {"newton": True}),
+    "chain10_limits_newton": (_limited_chain, 1 / 60, 90, {"newton": True}),
 }
 
 

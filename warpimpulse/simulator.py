@@ -39,6 +39,7 @@ from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
+NEWTON_BODIES = 16384  # bodies from which `newton` is on by default (benchmarks/step_breakdown.py, big trees)
 ROWS_FALLBACK = "joint limits, stiff motors or distance rows (impacts and saturation are not reversible)"
 """Why a scene with such rows takes its steps at order 2 whatever order was asked: a composed step would run
 them backwards in its negative substeps (`StepStats.fallback`)."""
@@ -99,6 +100,7 @@ class Simulator:
         broad_phase: str = "bvh",
         contact_sweeps: int = 30,
         schedule: str = "auto",
+        newton: bool | None = None,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -142,6 +144,15 @@ class Simulator:
             predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
             impulses settle to a tenth of `velocity_tolerance`, at most `contacts.VELOCITY_SWEEPS` (2) times as
             many.
+        schedule: "auto", "fused" or "parallel" (`types.SCHEDULES`): the fused schedule runs a step, or many,
+            as one kernel on a CPU; the parallel one launches each stage (a GPU's).
+        newton: the first joint iteration of each step takes a Newton step: its impulses solved again with the
+            right-hand side less E lambda, E the change of the Jacobian over the step (the arms at the
+            prediction; `constraints.arm_correction`), so that the error falls quadratically, not linearly
+            (`newton_solves`). It costs a solve and two passes over the scene and saves about one iteration
+            where the step takes two: it pays where a prediction costs more than a solve, on scenes of
+            `NEWTON_BODIES` bodies or more, whose arrays stream from memory. None (the default) takes it there,
+            with the cholesky solver; threads (`split.SplitSimulator`) and the other solvers never take it.
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
@@ -170,6 +181,13 @@ class Simulator:
             raise ValueError(f"unknown schedule {schedule!r}; expected one of {SCHEDULES}")
         if not isinstance(on_max_iterations, str) or on_max_iterations not in POLICIES:
             raise ValueError(f"on_max_iterations must be one of {POLICIES}, got {on_max_iterations!r}")
+        if newton not in (None, True, False):
+            raise ValueError(
+                f"newton must be True, False or None (on for {NEWTON_BODIES} bodies or more), got {newton!r}"
+            )
+        if newton and (solver not in ("auto", "cholesky") or model.constraint_count == 0):
+            raise ValueError(f"newton needs joints and the cholesky solver; got solver {solver!r} and "
+                             f"{model.constraint_count} constraints")  # fmt: skip
         if verbose:
             show_warp_messages()
         if solver == "iterative" and model.limit_count:
@@ -210,6 +228,12 @@ class Simulator:
         self.rhs = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.impulse = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.sweep_error = wp.zeros(1, dtype=wp.float64, device=d)
+        self.newton = bool(newton if newton is not None else model.body_count >= NEWTON_BODIES)
+        self.newton = self.newton and self.solver_name == "cholesky" and nc > 0
+        # The Newton step's scratch: the bodies' velocity changes from its impulses, its right-hand side.
+        self.response_v = wp.zeros(model.body_count if self.newton else 0, dtype=wp.vec3d, device=d)
+        self.response_w = wp.zeros_like(self.response_v)
+        self.newton_rhs = wp.zeros(nc if self.newton else 0, dtype=wp.vec3d, device=d)
         self.linear = None
         if nc == 0:  # free bodies only: nothing to solve
             pass
@@ -371,16 +395,25 @@ class Simulator:
                              body_v=s.body_v, body_w=s.body_w, rows=self._rows)
                 for v in (0, 1)
             )  # fmt: skip
-            iterate = iteration = None
+            iterate = iteration = iterate_first = first_iteration = None
             if self._direct:  # solve, apply at t0, predict again, measure
                 solve = self.linear.solve_launches(self.rhs, self.impulse)
                 iteration = (*self._mask, *solve, self._apply, correct_limits, predict, *measure)
-                iterate = self._capture(*iteration)
+                iterate = iterate_first = self._capture(*iteration)
+                first_iteration = iteration
+                if self.newton:  # the first solves again with rhs - E lambda (`newton`)
+                    newton = (
+                        self._record(impulse_kernels.impulse_responses, nb, s),
+                        self._record(self.kernels.arm_corrections, nc, p),
+                        *self.linear.solve_launches(self.newton_rhs, self.impulse),
+                    )
+                    first_iteration = (*self._mask, *solve, *newton, self._apply, correct_limits, predict, *measure)
+                    iterate_first = self._capture(*first_iteration)
             self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
-                                      ((predict, *measure), iteration), integrate, correct_limits,
-                                      correct_limit_velocities)  # fmt: skip
+                                      iterate_first, ((predict, *measure), first_iteration, iteration), integrate,
+                                      correct_limits, correct_limit_velocities)  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
-         self._loop_work, self._integrate_drives, self._correct_limits,
+         self._iterate_first, self._loop_work, self._integrate_drives, self._correct_limits,
          self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
         self._h = h
 
@@ -393,9 +426,10 @@ class Simulator:
         if not self._direct or self.batch is not None or self.schedule != "parallel":
             return None
         if self._h not in self._loops_by_h:
-            first, iteration = self._loop_work
+            first, first_iteration, iteration = self._loop_work
             errors = ((self.errors, self.model.constraint_world), (self.limit_error, self._limit_world))
-            correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations)
+            correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations,
+                                         first_iteration=first_iteration)  # fmt: skip
             finish = None
             if not self.model.limit_count and getattr(self.linear.pattern, "formulation", "") != "split":
                 first = (*self._accept_work, self._integrate_drives, self._velocity_errors)
@@ -404,12 +438,13 @@ class Simulator:
         return self._loops_by_h[self._h]
 
     def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int,
-                      **loop) -> wp.Graph:  # fmt: skip
+                      first_iteration: tuple | None = None, **loop) -> wp.Graph:  # fmt: skip
         """A correction loop as one graph (`kernels/loop.py`): the work `first` (which measures), then
         `iteration` (which measures again) while, in any world, the largest of the `errors` ((error array, the
         world of each error) pairs) is over `tolerance` and the policy allows (at most `limit` iterations),
-        decided on the device; the host reads the records after it (`_loop_record`). `loop`: the per-world
-        records of batched worlds (`worlds.Batch`), else the one world's."""
+        decided on the device; the host reads the records after it (`_loop_record`). `first_iteration`, when
+        it is other work, takes the first iteration's place (the Newton step's, `newton`). `loop`: the
+        per-world records of batched worlds (`worlds.Batch`), else the one world's."""
         worlds = self.model.world_count if loop else 1
         decide = [
             *(self._record(loop_kernels.loop_reduce, e.shape[0], errors=e, error_world=w, **loop) for e, w in errors),
@@ -420,7 +455,11 @@ class Simulator:
         if not loop:  # the one world starts in the loop (batched worlds: the host writes which)
             start.append(lambda: self.loop_batch.fill_(1))
         body = (*iteration, *decide)
-        return self._capture(*start, *first, *decide, lambda: wp.capture_while(self.loop_go, lambda: run(*body)))
+        loop_work = [lambda: wp.capture_while(self.loop_go, lambda: run(*body))]
+        if first_iteration is not None and first_iteration is not iteration:
+            once = (*first_iteration, *decide)
+            loop_work.insert(0, lambda: wp.capture_if(self.loop_go, lambda: run(*once)))
+        return self._capture(*start, *first, *decide, *loop_work)
 
     def _loop_record(self) -> tuple[float, float, int]:
         """(largest error, best error, iterations) of the one-world loop graph just replayed."""
@@ -687,7 +726,7 @@ class Simulator:
                 max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
                 pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
                 q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
-                limit_rows=self._rows,
+                limit_rows=self._rows, newton=int(self.newton),
             )  # fmt: skip
             self._fused_by_h[h] = self._capture(launch)
         return self._fused_by_h[h]
@@ -1012,8 +1051,8 @@ class Simulator:
             if not self._may_iterate(iterations, err, "joint", best, final):
                 return iterations, err, linear_iterations, final
             if self._direct:
-                wp.capture_launch(self._iterate)
-                linear_iterations += 1
+                wp.capture_launch(self._iterate_first if iterations == 0 else self._iterate)
+                linear_iterations += 1 + int(self.newton and iterations == 0)
             else:
                 if self.linear is not None:  # else only limits and distance constraints: no system to solve
                     linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
@@ -1029,10 +1068,11 @@ class Simulator:
         err, best, iterations = self._loop_record()
         if not math.isfinite(err):
             self._max_error("joint")  # raises, naming the bodies with a NaN or Inf
+        solves = iterations + int(self.newton and iterations > 0)
         if err <= self.tolerance:
-            return iterations, err, iterations, True
+            return iterations, err, solves, True
         self._may_iterate(iterations, err, "joint", best, final)  # stopped: on the final try raise or warn
-        return iterations, err, iterations, final
+        return iterations, err, solves, final
 
     def _joint_iteration(self) -> int:
         """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns

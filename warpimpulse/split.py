@@ -195,9 +195,14 @@ class SplitSimulator(Simulator):
     def __init__(self, model: Model, dt: float, threads: int = 2, **settings) -> None:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
+        if threads > 1:  # the parts' steps have no Newton step: by default none
+            settings.setdefault("newton", False)
         super().__init__(model, dt, **settings)
         self.threads, self.split_note = 1, ""
         if threads == 1:
+            return
+        if self.newton:
+            self.split_note = "the first iteration's Newton step (newton=True) runs on one thread"
             return
         if self.schedule != "fused" or self.linear is None or model.device.is_cuda:
             self.split_note = f"the fused schedule does not run: {self.schedule_note or 'a GPU or free bodies'}"

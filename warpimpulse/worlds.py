@@ -180,10 +180,11 @@ class Batch:
         that do (`world_active` masks the others' right-hand sides); a world that fails leaves the batch."""
         sim = self.sim
         if sim._h not in self._loops_by_h:
-            first, iteration = sim._loop_work
+            first, first_iteration, iteration = sim._loop_work
             self._loops_by_h[sim._h] = sim._capture_loop(
                 first, iteration, ((sim.errors, sim.model.constraint_world),), sim.tolerance, sim.max_iterations,
-                loop_state_out=self.world_loop, loop_batch_out=self.world_batch, loop_active_out=sim.world_active,
+                first_iteration=first_iteration, loop_state_out=self.world_loop, loop_batch_out=self.world_batch,
+                loop_active_out=sim.world_active,
             )  # fmt: skip
         return self._loops_by_h[sim._h]
 
@@ -220,7 +221,8 @@ class Batch:
         stats.velocity_iterations[batch] += fix[batch]
         stats.max_joint_error[batch] = np.maximum(stats.max_joint_error[batch], err[batch])
         stats.max_velocity_error[batch] = verr[batch]
-        stats.linear_iterations[batch] += iterations[batch] + fix[batch]
+        newton = int(sim.newton) * (iterations > 0)  # the Newton step's second solve
+        stats.linear_iterations[batch] += iterations[batch] + fix[batch] + newton[batch]
         stats.substeps[batch] += 1
 
     # ---------------------------------------------------------------- a world alone
@@ -233,7 +235,7 @@ class Batch:
                 velocity_tolerance=sim.velocity_tolerance, solver=sim.solver_name, max_iterations=sim.max_iterations,
                 on_max_iterations=sim.on_max_iterations, max_substep_depth=sim.max_substep_depth,
                 formulation=sim.linear.pattern.formulation if sim.linear is not None else "auto",
-                max_rotation=sim.max_rotation, specialize=sim.specialized,
+                max_rotation=sim.max_rotation, specialize=sim.specialized, newton=sim.newton,
             )  # fmt: skip
         return self._solos[world]
 
