@@ -663,8 +663,8 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         i = wp.tid()
         newton_rhs_out[i] = rhs_in[i] - arm_correction_of(
             i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-            constraint_axis0, constraint_axis1, body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in, response_v_in,
-            response_w_in,
+            constraint_axis0, constraint_axis1, body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in,
+            response_v_in, response_w_in,
         )  # fmt: skip
 
     return SimpleNamespace(
