@@ -222,19 +222,6 @@ def point_arms(x0: vec3d, x1: vec3d, q1: quatd, anchor1: vec3d):
 
 
 @wp.func
-def moving_blocks(
-    kind: int, x0: vec3d, q0: quatd, x1: vec3d, q1: quatd, anchor0: vec3d, anchor1: vec3d, axis0: vec3d, axis1: vec3d
-):
-    """The blocks of a LINE, PLANE, AXIS or ANGLE constraint that move with the poses: (P, body0's J_lin (body1's
-    is its negative; zero for a rotational kind), body0's J_ang, body1's J_ang)."""
-    p = projection(kind, q0, q1, axis0, axis1)
-    if is_translational(kind):
-        a, b = joint_points(kind, x0, q0, x1, q1, anchor0, anchor1, axis0)
-        return p, p, -p * wp.skew(b - x0), p * wp.skew(b - x1)
-    return p, mat33d(), p, -p
-
-
-@wp.func
 def constraint_frame(
     kind: int,
     i: int,
@@ -273,13 +260,17 @@ def constraint_frame(
         jac_skew[2 * i] = s0
         jac_skew[2 * i + 1] = s1
         return
-    p, lin, ang0, ang1 = moving_blocks(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i])
+    p = projection(kind, q0, q1, axis0[i], axis1[i])
     proj[i] = p
     if is_translational(kind):
-        jac_lin[2 * i] = lin
-        jac_lin[2 * i + 1] = -lin
-    jac_ang[2 * i] = ang0
-    jac_ang[2 * i + 1] = ang1
+        a, b = joint_points(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i])
+        jac_lin[2 * i] = p
+        jac_lin[2 * i + 1] = -p
+        jac_ang[2 * i] = -p * wp.skew(b - x0)
+        jac_ang[2 * i + 1] = p * wp.skew(b - x1)
+    else:
+        jac_ang[2 * i] = p
+        jac_ang[2 * i + 1] = -p
 
 
 def constant_frames(kinds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -408,15 +399,31 @@ ALL_KINDS = frozenset((POINT, LINE, PLANE, ROTATION, AXIS, ANGLE))
 
 
 @wp.func
+def shifted_pose(b: int, x: vec3d, q: quatd, response_v: wp.array(dtype=vec3d), response_w: wp.array(dtype=vec3d),
+                 h: f64):  # fmt: skip
+    """Body b's predicted pose moved as a velocity change du at t0 moves it, to first order: by h dv, and turned
+    by h dw (world frame) at the step's end. The world (b < 0) stays."""
+    if b < 0:
+        return x, q
+    dw = response_w[b] * (f64(0.5) * h)
+    return x + response_v[b] * h, wp.normalize(q + quatd(dw[0], dw[1], dw[2], f64(0.0)) * q)
+
+
+@wp.func
 def arm_correction(
     kind: int,
     i: int,
+    constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     anchor0: wp.array(dtype=vec3d),
     anchor1: wp.array(dtype=vec3d),
     axis0: wp.array(dtype=vec3d),
     axis1: wp.array(dtype=vec3d),
+    rest_rotation: wp.array(dtype=quatd),
+    rest_angle: wp.array(dtype=f64),
+    h: f64,
+    proj: wp.array(dtype=mat33d),
     pred_x: wp.array(dtype=vec3d),
     pred_q: wp.array(dtype=quatd),
     jac_lin: wp.array(dtype=mat33d),
@@ -425,14 +432,16 @@ def arm_correction(
     response_v: wp.array(dtype=vec3d),
     response_w: wp.array(dtype=vec3d),
 ) -> vec3d:
-    """E_i du = (J_i(t0+h) - J_i(t0)) du: how much more the predicted error of constraint i moves, per unit of
-    h, under the bodies' velocity changes du at t0 (`impulses.impulse_response`) than K models (m/s, rad/s).
+    """E_i du: how much more constraint i's projected predicted error moves, per unit of h, under the bodies'
+    velocity changes du at t0 (`impulses.impulse_response`) than K models (J_i(t0) du; m/s, rad/s).
 
     K = J(t0) M^-1 J(t0)^T takes a velocity change dw at t0 to move a joint point by h dw x r with the arm r of
-    the step's start, but the point moves by h dw x r(t0+h): the error answers an impulse through K + E, not K,
-    so the paper's iteration shrinks the error linearly, by about the rotation of a body in a step (docs/
-    architecture.md, "Fewer joint iterations"). J(t0+h) is the frame (`constraint_frame`) at the prediction;
-    a ROTATION's blocks do not move (E = 0)."""
+    the step's start, but the point moves by h dw x r(t0+h), and axes, lines and planes turn: the error answers
+    an impulse through K + E, so the paper's iteration shrinks it linearly, by about the rotation of a body in a
+    step (docs/architecture.md, "Fewer joint iterations"). A point constraint's E du is that arm change in
+    closed form, (s(t0+h) - s(t0)) x dw on each side (`point_arms`); the other kinds' is the change of
+    P d / h (`projected_error`, P of t0 as in the right-hand side) between the prediction and the prediction
+    moved by du (`shifted_pose`), less J(t0) du. A ROTATION's error is linear in the turn: E = 0."""
     if kind == ROTATION:
         return vec3d()
     b0 = constraint_body0[i]
@@ -441,24 +450,27 @@ def arm_correction(
     q0 = pose_q(b0, pred_q)
     x1 = pose_x(b1, pred_x)
     q1 = pose_q(b1, pred_q)
-    dv0 = vec3d()
-    dw0 = vec3d()
-    dv1 = vec3d()
-    dw1 = vec3d()
-    if b0 >= 0:
-        dv0 = response_v[b0]
-        dw0 = response_w[b0]
-    if b1 >= 0:
-        dv1 = response_v[b1]
-        dw1 = response_w[b1]
     if kind == POINT:  # J_lin = +-I does not move; J_ang = [s]x
         s0, s1 = point_arms(x0, x1, q1, anchor1[i])
-        return wp.cross(s0 - jac_skew[2 * i], dw0) + wp.cross(s1 - jac_skew[2 * i + 1], dw1)
-    p, lin, ang0, ang1 = moving_blocks(kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i])
-    e = (ang0 - jac_ang[2 * i]) * dw0 + (ang1 - jac_ang[2 * i + 1]) * dw1
-    if is_translational(kind):
-        e += (lin - jac_lin[2 * i]) * dv0 - (lin + jac_lin[2 * i + 1]) * dv1
-    return e
+        e = vec3d()
+        if b0 >= 0:
+            e += wp.cross(s0 - jac_skew[2 * i], response_w[b0])
+        if b1 >= 0:
+            e += wp.cross(s1 - jac_skew[2 * i + 1], response_w[b1])
+        return e
+    d = constraint_error(
+        kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i]
+    )
+    y0, r0 = shifted_pose(b0, x0, q0, response_v, response_w, h)
+    y1, r1 = shifted_pose(b1, x1, q1, response_v, response_w, h)
+    moved = constraint_error(
+        kind, y0, r0, y1, r1, anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i]
+    )
+    p = proj[i]
+    change = (projected_error(kind, p, moved) - projected_error(kind, p, d)) / h
+    return change - constraint_velocity(
+        i, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew, response_v, response_w
+    )
 
 
 @functools.cache
@@ -544,6 +556,10 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         constraint_anchor1: wp.array(dtype=vec3d),
         constraint_axis0: wp.array(dtype=vec3d),
         constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        h: f64,
+        proj_in: wp.array(dtype=mat33d),
         pred_x: wp.array(dtype=vec3d),
         pred_q: wp.array(dtype=quatd),
         jac_lin_in: wp.array(dtype=mat33d),
@@ -558,8 +574,9 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         for k in range(wp.static(len(ks))):
             if kind == wp.static(ks[k]):
                 e = arm_correction(
-                    wp.static(ks[k]), i, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                    constraint_axis0, constraint_axis1, pred_x, pred_q, jac_lin_in, jac_ang_in, jac_skew_in,
+                    wp.static(ks[k]), i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
+                    constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
+                    constraint_rest_angle, h, proj_in, pred_x, pred_q, jac_lin_in, jac_ang_in, jac_skew_in,
                     response_v_in, response_w_in,
                 )  # fmt: skip
         return e
@@ -647,9 +664,13 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         constraint_anchor1: wp.array(dtype=vec3d),
         constraint_axis0: wp.array(dtype=vec3d),
         constraint_axis1: wp.array(dtype=vec3d),
-        # Data in: the prediction, the frames of t0, the bodies' velocity changes from the impulses, the rhs
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        # Data in: the step, the prediction, the frames of t0, the bodies' velocity changes from the impulses
+        h: f64,
         body_x_in: wp.array(dtype=vec3d),
         body_q_in: wp.array(dtype=quatd),
+        proj_in: wp.array(dtype=mat33d),
         jac_lin_in: wp.array(dtype=mat33d),
         jac_ang_in: wp.array(dtype=mat33d),
         jac_skew_in: wp.array(dtype=vec3d),
@@ -663,8 +684,8 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         i = wp.tid()
         newton_rhs_out[i] = rhs_in[i] - arm_correction_of(
             i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-            constraint_axis0, constraint_axis1, body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in,
-            response_v_in, response_w_in,
+            constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, h, proj_in,
+            body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in, response_v_in, response_w_in,
         )  # fmt: skip
 
     return SimpleNamespace(

@@ -738,6 +738,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         constraint_anchor1: wp.array(dtype=vec3d),
         constraint_axis0: wp.array(dtype=vec3d),
         constraint_axis1: wp.array(dtype=vec3d),
+        constraint_rest_rotation: wp.array(dtype=quatd),
+        constraint_rest_angle: wp.array(dtype=f64),
+        h: f64,
+        proj: wp.array(dtype=mat33d),
         inv_inertia_world: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
@@ -762,7 +766,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         for i in range(constraint_count):
             newton_rhs[i] = rhs[i] - arm_correction(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                constraint_axis0, constraint_axis1, pred_x, pred_q, jac_lin, jac_ang, jac_skew, response_v, response_w,
+                constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, h, proj, pred_x,
+                pred_q, jac_lin, jac_ang, jac_skew, response_v, response_w,
             )  # fmt: skip
 
     @wp.func(module=module)
@@ -959,8 +964,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         newton_rhs_all(
                             body_count, constraint_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
                             constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                            constraint_axis0, constraint_axis1, inv_inertia_world, jac_lin, jac_ang, jac_skew,
-                            impulse, next_x, next_q, rhs, response_v, response_w, newton_rhs,
+                            constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, hs,
+                            proj, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, next_x, next_q, rhs,
+                            response_v, response_w, newton_rhs,
                         )  # fmt: skip
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,

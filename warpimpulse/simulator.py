@@ -404,7 +404,7 @@ class Simulator:
                 if self.newton:  # the first solves again with rhs - E lambda (`newton`)
                     newton = (
                         self._record(impulse_kernels.impulse_responses, nb, s),
-                        self._record(self.kernels.arm_corrections, nc, p),
+                        self._record(self.kernels.arm_corrections, nc, p, h=h),
                         *self.linear.solve_launches(self.newton_rhs, self.impulse),
                     )
                     first_iteration = (*self._mask, *solve, *newton, self._apply, correct_limits, predict, *measure)
