@@ -8,8 +8,9 @@ velocity errors, the NaN/spin summary) launched alone, its marginal time a call 
 3 `REPEATS` calls), times the number of times a step runs it
 (from the run's StepStats); "other" is the measured step minus their sum. chain10 with a force element on every
 link: fused against parallel. Big trees give the cost per body-step and the set-up time (builder, finalize,
-Simulator). Step times are CPU time of this process (`time.process_time`): on a shared machine, time spent
-descheduled is not the engine's.
+Simulator). The first iteration's Newton step (`Simulator(newton=...)`) off and on, interleaved, on the small
+scenes and two big trees: where it pays places `simulator.NEWTON_BODIES`. Step times are CPU time of this
+process (`time.process_time`): on a shared machine, time spent descheduled is not the engine's.
 
 `--mechanisms`: only the mechanisms, fused against parallel, interleaved blocks from the same state, into their own
 JSON: chain10 with a force element on every link, and the scenes with rows of the correction loop (kernels/limits.py):
@@ -403,6 +404,23 @@ def specialization(name: str, steps: int) -> dict:
             "all_kinds_us": statistics.median(times[False])}  # fmt: skip
 
 
+def newton_point(name: str, steps: int) -> dict:
+    """The fused step without and with the first iteration's Newton step (`Simulator(newton=...)`), interleaved
+    rounds, every block from the same state: a scene of SCENES, or the binary tree of `name` bodies (an int,
+    h = 1/60, the default tolerance), at 1.1 s. The default takes it from `simulator.NEWTON_BODIES` bodies: this
+    is the measurement that places that line."""
+    make, dt, tolerance = SCENES[name] if name in SCENES else (lambda: scenes.binary_tree(name), 1 / 60, 1e-6)
+    engines = {flag: _Ours(make, dt, tolerance, "fused", True, newton=flag) for flag in (False, True)}
+    times = _interleaved(engines, steps)
+    out = {"scene": name if name in SCENES else f"tree{name}", "bodies": engines[False].sim.model.body_count,
+           "steps": steps}  # fmt: skip
+    for flag, key in ((False, "off"), (True, "on")):
+        out[f"{key}_us"] = statistics.median(times[flag])
+        out[f"{key}_iterations"] = per_step(engines[flag].stats, "joint_iterations", steps)
+    out["rounds_faster"] = sum(a < b for a, b in zip(times[True], times[False]))
+    return out
+
+
 def big_point(bodies: int, steps: int) -> dict:
     t0 = time.process_time()
     builder = scenes.binary_tree(bodies)
@@ -480,6 +498,15 @@ def table(result: dict) -> str:
                   "|---|" + "---:|" * len(result["specialization"])]  # fmt: skip
         for key, label in (("specialized_us", "the scene's kinds"), ("all_kinds_us", "all six kinds")):
             lines.append(f"| {label} | " + " | ".join(f"{p[key]:.1f} µs" for p in result["specialization"]) + " |")
+    if result.get("newton"):
+        points = result["newton"]
+        lines += ["", "| first iteration's Newton step | " + " | ".join(p["scene"] for p in points) + " |",
+                  "|---|" + "---:|" * len(points)]  # fmt: skip
+        for key, label in (("off", "off: µs a step (iterations)"), ("on", "on: µs a step (iterations)")):
+            lines.append(f"| {label} | " + " | ".join(f"{p[key + '_us']:.1f} ({p[key + '_iterations']:.2f})"
+                                                     for p in points) + " |")  # fmt: skip
+        lines.append("| on / off (rounds faster) | " + " | ".join(
+            f"{p['on_us'] / p['off_us']:.3f} ({p['rounds_faster']} of {ROUNDS})" for p in points) + " |")  # fmt: skip
     meta = result["meta"]
     lines += ["", f"{meta['machine']}; {meta['versions']}; {meta['date']}; `python benchmarks/step_breakdown.py`."]
     return "\n".join(lines)
@@ -533,6 +560,10 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result["mechanisms"]), file=sys.stderr)
         result["specialization"] = [specialization(name, steps) for name in ("tree127", "chain10")]
         print(json.dumps(result["specialization"]), file=sys.stderr)
+        trees = [(16383, 10), (65535, 5)] if not args.quick else []
+        result["newton"] = [newton_point(name, steps) for name in ("tree127", "double_pendulum", "chain10")]
+        result["newton"] += [newton_point(bodies, n) for bodies, n in trees]
+        print(json.dumps(result["newton"]), file=sys.stderr)
         for bodies in BIG[:1] if args.quick else BIG:
             result["big"].append(big_point(bodies, 5 if bodies > 10000 else 40))
             print(json.dumps(result["big"][-1]), file=sys.stderr)
