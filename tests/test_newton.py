@@ -133,6 +133,7 @@ def test_newton_needs_the_factor_and_says_so():
         wi.Simulator(model, 1 / 60, newton="yes")
 
 
+@pytest.mark.fused  # the split runs the fused step's stages
 def test_threads_leave_the_newton_step_to_one_thread():
     model = scenes.binary_tree(63).finalize()
     split = SplitSimulator(model, 1 / 60, threads=2)
