@@ -122,6 +122,9 @@ def test_newton_is_on_by_default_from_newton_bodies():
     assert wi.Simulator(big, 1 / 60).newton
     assert not wi.Simulator(big, 1 / 60, newton=False).newton
     assert not wi.Simulator(big, 1 / 60, solver="cg").newton  # the Newton step needs the factor
+    looped = scenes.binary_tree(2**levels - 1)
+    looped.add_joint_ball(2**levels - 3, 2**levels - 2, looped.bodies[2**levels - 2].position, name="loop")
+    assert not wi.Simulator(looped.finalize(), 1 / 60).newton  # redundant rows: off (docs/architecture.md)
 
 
 def test_newton_needs_the_factor_and_says_so():
