@@ -256,3 +256,15 @@ def test_order_is_recorded(order, tmp_path, capsys):
     assert data["warpimpulse:order"] == order
     assert data["warpimpulse:composition"] == composition.DEFAULT[order]
     assert data["warpimpulse:tolerance"] == composition.default_tolerance(1 / 30, order)
+
+
+@pytest.mark.parametrize(("flag", "taken"), [("auto", False), ("on", True), ("off", False)])
+def test_newton_flag_is_taken_and_recorded(flag, taken, tmp_path, capsys):
+    """`--newton` sets `Simulator(newton=...)` (auto: off for a chain of a few bodies) and the file records what
+    ran (customLayerData warpimpulse:newton)."""
+    from pxr import Sdf
+
+    out = tmp_path / "x.usda"
+    code, _ = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--newton", flag], capsys)
+    assert code == 0
+    assert Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:newton"] is taken

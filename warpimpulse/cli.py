@@ -59,6 +59,12 @@ def _add_simulate(sub) -> None:
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
     p.add_argument("--solver", choices=SOLVERS, default="auto", help="auto = cholesky (see types.SOLVERS)")
     p.add_argument("--max-iterations", type=_positive(int), default=100)
+    p.add_argument(
+        "--newton",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="the first joint iteration's Newton step (auto: on from 16,384 bodies without loops)",
+    )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
     p.add_argument("--max-rotation", type=_positive(float), default=0.5,
@@ -234,6 +240,7 @@ def _simulate(args) -> int:
         on_max_iterations=args.on_max_iterations,
         max_rotation=None if args.whole_steps else args.max_rotation,
         order=args.order,
+        newton={"auto": None, "on": True, "off": False}[args.newton],
     )
     if sim.split_note:
         print(f"warpimpulse: one thread: {sim.split_note}", file=sys.stderr)

@@ -63,6 +63,7 @@ def settings(sim: Any) -> dict[str, Any]:
         "max_rotation": sim.max_rotation or 0.0,  # 0: whole steps
         "order": sim.order,  # in time: 2 the paper's step, 4 and 6 its compositions
         "composition": sim.scheme.name,
+        "newton": sim.newton,  # the first joint iteration's Newton step
     }
 
 
