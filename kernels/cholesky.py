@@ -27,11 +27,11 @@ f64 = wp.float64
 
 
 @wp.func
-def cholesky3_inverse(a: mat33d, tiny: f64, fallback: f64):
-    """The inverse of the lower Cholesky factor L of an SPD 3x3 block (its lower triangle read), and how many of
-    its pivots were not above `tiny` (each replaced by `fallback`). Each pivot's reciprocal is taken once and
-    serves both L's column and its inverse: three divisions where dividing by the pivots would take six. L itself
-    is not returned: nothing reads it (storing it cost ~8 ns a column, chain10 and a 65,535-body tree)."""
+def cholesky3_inverse_in_turn(a: mat33d, tiny: f64, fallback: f64):
+    """`cholesky3_inverse` eliminating in turn, each pivot not above `tiny` replaced by `fallback` before the next
+    is formed (the bad blocks' path). Each pivot's reciprocal is taken once and serves both L's column and its
+    inverse: three divisions where dividing by the pivots would take six. L itself is not returned: nothing reads
+    it (storing it cost ~8 ns a column, chain10 and a 65,535-body tree)."""
     z = f64(0.0)
     d0 = a[0, 0]
     bad = int(0)  # noqa: UP018 (a Warp variable the branches change must not start as a constant)
@@ -56,6 +56,39 @@ def cholesky3_inverse(a: mat33d, tiny: f64, fallback: f64):
     e = -l21 * r1 * r2
     c = -(l20 * r0 + l21 * b) * r2
     return mat33d(r0, z, z, b, r1, z, c, e, r2), bad
+
+
+@wp.func
+def cholesky3_inverse(a: mat33d, tiny: f64, fallback: f64):
+    """The inverse of the lower Cholesky factor L of an SPD 3x3 block (its lower triangle read), and how many of
+    its pivots were not above `tiny` (each replaced by `fallback`, `cholesky3_inverse_in_turn`).
+
+    The squared pivots are ratios of the leading minors, d_i = M_i / M_(i-1), so their three divisions and three
+    square roots wait on none of each other: a column of a chain's factor waits on one division and one square
+    root where eliminating in turn waits on three of each."""
+    m1 = a[0, 0]
+    m2 = a[0, 0] * a[1, 1] - a[1, 0] * a[1, 0]
+    c = a[0, 0] * a[2, 1] - a[1, 0] * a[2, 0]  # M1 times L's (2, 1) entry times its pivot
+    m3 = (
+        a[0, 0] * (a[1, 1] * a[2, 2] - a[2, 1] * a[2, 1])
+        - a[1, 0] * (a[1, 0] * a[2, 2] - a[2, 1] * a[2, 0])
+        + a[2, 0] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0])
+    )
+    q1 = f64(1.0) / m1
+    q2 = f64(1.0) / m2
+    q3 = f64(1.0) / m3
+    if m1 > tiny and m2 * q1 > tiny and m3 * q2 > tiny:
+        z = f64(0.0)
+        r0 = wp.sqrt(q1)
+        r1 = wp.sqrt(m1 * q2)
+        r2 = wp.sqrt(m2 * q3)
+        l10 = a[1, 0] * r0
+        l20 = a[2, 0] * r0
+        l21 = c * q1 * r1
+        b = -l10 * r0 * r1
+        e = -l21 * r1 * r2
+        return mat33d(r0, z, z, b, r1, z, -(l20 * r0 + l21 * b) * r2, e, r2), int(0)
+    return cholesky3_inverse_in_turn(a, tiny, fallback)
 
 
 @wp.func
