@@ -15,6 +15,15 @@ assembled block is read before, and nothing reads it after: every factor follows
 backward column streams its slots as one run of one array: a solve of the 65,535-body tree took 2.10 ms, not
 2.28 with L_jj^-1 in an array of its own (-8 %), the factor 3.21 ms, not 3.36, and its step 0.551 us a body-step,
 not 0.586; tree127 and chain10, cache resident, unchanged (docs/architecture.md, "Cheaper stages").
+L_jj^-1 is lower triangular (its upper three entries 0, never read); the solves apply it with `lower_times` and
+`lower_transpose_times`.
+
+The factor of a chain waits on each column's pivot block before the next column can start, so
+`cholesky3_inverse` forms its three pivots from the leading minors, their divisions and square roots independent
+(chain10's factor ~1.3 -> ~1.05 us). A block L D L^T (unit L, so one product a column on a solve's dependent
+chain instead of two, and no square root) was measured and not kept: chain10's solve went from ~617 to ~602 ns
+(a solve is bound by its arithmetic, not by that chain) while its factor, whose updates L_ik D_k L_jk^T need
+D_k as well as D_k^-1, went from ~1.3 to ~1.9 us (docs/architecture.md, "Cheaper stages").
 """
 
 import warp as wp
