@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 from warpimpulse.kernels import step as step_kernels
+from warpimpulse.kernels.inertia import sym33d
 
 import warpimpulse as wi
 from warpimpulse import scenes
@@ -121,7 +122,7 @@ def _stage_kernels(ns):
     @wp.kernel(module=module)
     def apply(repeats: int, body_count: int, constraint_kind: wp.array(dtype=int), body_inv_mass: wp.array(dtype=f64),
               body_rows_start: wp.array(dtype=int), body_rows: wp.array(dtype=int),
-              inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
+              inv_inertia_world: wp.array(dtype=sym33d), jac_lin: wp.array(dtype=mat33d),
               jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d), impulse: wp.array(dtype=vec3d),
               pred_v: wp.array(dtype=vec3d), pred_w: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):  # into the scratch prediction: the state stays as it was
@@ -131,19 +132,20 @@ def _stage_kernels(ns):
             )  # fmt: skip
 
     @wp.kernel(module=module)
-    def frames(repeats: int, body_count: int, constraint_count: int, body_inv_inertia: wp.array(dtype=mat33d),
+    def frames(repeats: int, body_count: int, constraint_count: int, body_principal: wp.array(dtype=int),
+               body_inv_principal: wp.array(dtype=vec3d), body_inv_inertia: wp.array(dtype=mat33d),
                constraint_kind: wp.array(dtype=int), constraint_body0: wp.array(dtype=int),
                constraint_body1: wp.array(dtype=int), constraint_anchor0: wp.array(dtype=vec3d),
                constraint_anchor1: wp.array(dtype=vec3d), constraint_axis0: wp.array(dtype=vec3d),
                constraint_axis1: wp.array(dtype=vec3d), body_x_out: wp.array(dtype=vec3d),
-               body_q_out: wp.array(dtype=quatd), inv_inertia_world: wp.array(dtype=mat33d),
+               body_q_out: wp.array(dtype=quatd), inv_inertia_world: wp.array(dtype=sym33d),
                proj: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
                jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             frames_all(
-                body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0, constraint_body1,
-                constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1, body_x_out, body_q_out,
-                inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
+                body_count, constraint_count, body_principal, body_inv_principal, body_inv_inertia, constraint_kind,
+                constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0,
+                constraint_axis1, body_x_out, body_q_out, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
             )  # fmt: skip
 
     @wp.kernel(module=module)
@@ -152,7 +154,7 @@ def _stage_kernels(ns):
                         body_inv_mass: wp.array(dtype=f64), slot_row: wp.array(dtype=int),
                         perm: wp.array(dtype=int), slot_sides: wp.array(dtype=wp.vec4i),
                         slot_code: wp.array(dtype=int), slot_ref: wp.array(dtype=int),
-                        inv_inertia_world: wp.array(dtype=mat33d), jac_lin: wp.array(dtype=mat33d),
+                        inv_inertia_world: wp.array(dtype=sym33d), jac_lin: wp.array(dtype=mat33d),
                         jac_ang: wp.array(dtype=mat33d), jac_skew: wp.array(dtype=vec3d), pivot_tolerance: f64,
                         loop_tolerance: f64,
                         col_loop: wp.array(dtype=int), col_start: wp.array(dtype=int),

@@ -11,6 +11,7 @@ import warp as wp
 
 from ..types import Slot
 from .constraints import POINT, constraint_dim, is_translational, side_body, skew_times, times_skew_transpose
+from .inertia import sym33d, symmetric_matrix
 
 wp.set_module_options({"enable_backward": False})
 
@@ -25,7 +26,7 @@ def row_products(
     side: int,
     r: int,
     inv_mass: f64,
-    inv_inertia_world: mat33d,
+    inv_inertia_world: sym33d,
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -40,10 +41,10 @@ def row_products(
         if side != 0:
             m = -inv_mass
         z = f64(0.0)
-        return mat33d(m, z, z, z, m, z, z, z, m), skew_times(jac_skew[r], inv_inertia_world)
+        return mat33d(m, z, z, z, m, z, z, z, m), skew_times(jac_skew[r], symmetric_matrix(inv_inertia_world))
     if is_translational(kind):
-        return inv_mass * jac_lin[r], jac_ang[r] * inv_inertia_world
-    return mat33d(), jac_ang[r] * inv_inertia_world
+        return inv_mass * jac_lin[r], jac_ang[r] * symmetric_matrix(inv_inertia_world)
+    return mat33d(), jac_ang[r] * symmetric_matrix(inv_inertia_world)
 
 
 @wp.func
@@ -82,7 +83,7 @@ def shared_body_block(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -111,7 +112,7 @@ def diagonal_block(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -137,7 +138,7 @@ def assemble_slot(
     slot_row: wp.array(dtype=int),
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -176,7 +177,7 @@ def assemble(
     slot_col: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -198,7 +199,7 @@ def side_products(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -223,7 +224,7 @@ def assemble_column(
     body_inv_mass: wp.array(dtype=f64),
     slot_row: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -287,7 +288,7 @@ def assemble_columns(
     slot_row: wp.array(dtype=int),
     slot_sides: wp.array(dtype=wp.vec4i),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -327,7 +328,7 @@ def augmented_slot(
     body_inv_mass: wp.array(dtype=f64),
     slot_code: wp.array(dtype=int),
     slot_ref: wp.array(dtype=int),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -341,7 +342,7 @@ def augmented_slot(
     if code == SLOT_MASS:
         k = wp.identity(3, dtype=f64) / body_inv_mass[r]
     elif code == SLOT_INERTIA:
-        k = wp.inverse(inv_inertia_world_in[r])
+        k = wp.inverse(symmetric_matrix(inv_inertia_world_in[r]))
     elif code == SLOT_JLIN:
         k = jac_lin_in[r]
     elif code == SLOT_JANG:
@@ -365,7 +366,7 @@ def assemble_augmented(
     slot_code: wp.array(dtype=int),
     slot_ref: wp.array(dtype=int),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),

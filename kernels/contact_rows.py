@@ -24,6 +24,7 @@ import warp as wp
 from . import collide
 from .contact_solve import relative_velocity
 from .forces import coordinate_row
+from .inertia import sym33d, symmetric_times
 from .limits import compensate, coupling_through, factor_masked, fix_furthest_out, limit_side, row_setup, solve_factored
 
 wp.set_module_options({"enable_backward": False})
@@ -182,7 +183,7 @@ def row_coupling(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -216,7 +217,7 @@ def row_matrix(
     body_inv_mass: wp.array(dtype=f64),
     constraint_body0: wp.array(dtype=int),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     row_count: wp.array(dtype=int),
     row_body: wp.array(dtype=wp.vec2i),
     row_lin0: wp.array(dtype=vec3d),
@@ -241,7 +242,8 @@ def row_matrix(
             for sl in range(2):
                 bl, gll, gal = row_side(l, sl, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
                 if bl == bk:
-                    free += body_inv_mass[bk] * wp.dot(glk, gll) + wp.dot(gak, inv_inertia_world_in[bk] * gal)
+                    angular = wp.dot(gak, symmetric_times(inv_inertia_world_in[bk], gal))
+                    free += body_inv_mass[bk] * wp.dot(glk, gll) + angular
     held = free
     nc = constraint_body0.shape[0]
     for i in range(nc):
@@ -261,7 +263,7 @@ def push_row(
     row_lin1: wp.array(dtype=vec3d),
     row_ang1: wp.array(dtype=vec3d),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ):
@@ -270,7 +272,7 @@ def push_row(
         b, g_lin, g_ang = row_side(r, side, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
         if b >= 0:
             body_v[b] = body_v[b] + g_lin * (amount * body_inv_mass[b])
-            body_w[b] = body_w[b] + inv_inertia_world[b] * (g_ang * amount)
+            body_w[b] = body_w[b] + symmetric_times(inv_inertia_world[b], g_ang * amount)
 
 
 @wp.func
@@ -381,7 +383,7 @@ def solve_rows(
     bounce_speed: f64,
     # Data in:
     drive_target: wp.array(dtype=f64),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),

@@ -21,6 +21,7 @@ A Gauss-Seidel sweep updates bodies one contact at a time, so the sweep kernels 
 import warp as wp
 
 from . import collide
+from .inertia import sym33d, symmetric_matrix
 
 wp.set_module_options({"enable_backward": False})
 
@@ -413,14 +414,14 @@ def plane_phase(
 
 # ------------------------------------------------------------------------------------------ impulses
 @wp.func
-def inverse_inertia(b: int, inv_inertia_world: wp.array(dtype=mat33d)) -> mat33d:
+def inverse_inertia(b: int, inv_inertia_world: wp.array(dtype=sym33d)) -> mat33d:
     if b < 0:
         return mat33d()
-    return inv_inertia_world[b]
+    return symmetric_matrix(inv_inertia_world[b])
 
 
 @wp.func
-def pair_inverses(a: int, b: int, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=mat33d)):
+def pair_inverses(a: int, b: int, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=sym33d)):
     """(1/m_a, 1/m_b, I_a^-1, I_b^-1) of a contact's two bodies (world frame; zeros for the world, index < 0)."""
     return (body_inv_mass_of(a, body_inv_mass), body_inv_mass_of(b, body_inv_mass),
             inverse_inertia(a, inv_inertia_world), inverse_inertia(b, inv_inertia_world))  # fmt: skip
@@ -618,7 +619,7 @@ def warm_positions(
     # Model:
     body_inv_mass: wp.array(dtype=f64),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     contact_count: wp.array(dtype=int),
     contact_body: wp.array(dtype=wp.vec2i),
     contact_normal: wp.array(dtype=vec3d),
@@ -685,7 +686,7 @@ def contact_masses(
     ra: vec3d,
     rb: vec3d,
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
 ) -> wp.vec2d:
     """(n . K n, the largest eigenvalue of K on the tangent plane): the relative point velocity from a unit
     impulse along the normal, and the most from a unit tangential one (K: the contact's mass matrix). Fixed
@@ -743,7 +744,7 @@ def measure(
     inv_h: f64,
     body_inv_mass: wp.array(dtype=f64),
     # Data in: the state at t0 (velocities as corrected so far) and the prediction
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     body_x_in: wp.array(dtype=vec3d),
     body_v_in: wp.array(dtype=vec3d),
     body_w_in: wp.array(dtype=vec3d),
@@ -805,7 +806,7 @@ def solve_positions(
     slop: f64,
     parity: int,
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     contact_count: wp.array(dtype=int),
     contact_body: wp.array(dtype=wp.vec2i),
     contact_normal: wp.array(dtype=vec3d),
@@ -880,7 +881,7 @@ def solve_velocities(
     # Data in:
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     contact_count: wp.array(dtype=int),
     contact_body: wp.array(dtype=wp.vec2i),
     contact_anchor_a: wp.array(dtype=vec3d),

@@ -6,6 +6,7 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 import warp as wp
 
 from .constraints import POINT, angular_transpose_times, is_translational
+from .inertia import sym33d, symmetric_times
 
 wp.set_module_options({"enable_backward": False})
 
@@ -21,7 +22,7 @@ def impulse_response(
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -48,7 +49,7 @@ def impulse_response(
             if is_translational(constraint_kind[i]):  # a rotational kind's J_lin is zero: nothing to add
                 dv += wp.transpose(jac_lin_in[r]) * lam
             dl += wp.transpose(jac_ang_in[r]) * lam
-    return dv * body_inv_mass[b], inv_inertia_world_in[b] * dl
+    return dv * body_inv_mass[b], symmetric_times(inv_inertia_world_in[b], dl)
 
 
 @wp.func
@@ -58,7 +59,7 @@ def apply_body(
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -84,7 +85,7 @@ def apply_impulses(
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -108,7 +109,7 @@ def impulse_responses(
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
     # Data in:
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -135,7 +136,7 @@ def apply_to_body(
     r: int,
     lam: vec3d,
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -147,4 +148,5 @@ def apply_to_body(
     sweeps and the rows' reaction (`limits.compensate`), which apply one constraint's impulse at a time."""
     if b >= 0:
         body_v[b] = body_v[b] + wp.transpose(jac_lin[r]) * lam * body_inv_mass[b]
-        body_w[b] = body_w[b] + inv_inertia_world[b] * angular_transpose_times(kind, r, jac_ang, jac_skew, lam)
+        dl = angular_transpose_times(kind, r, jac_ang, jac_skew, lam)
+        body_w[b] = body_w[b] + symmetric_times(inv_inertia_world[b], dl)

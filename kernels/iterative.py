@@ -11,6 +11,7 @@ from .assemble import diagonal_block
 from .cholesky import cholesky3_inverse
 from .constraints import constraint_error, constraint_velocity, pose_q, pose_x, projected_error, side_body
 from .impulses import apply_to_body
+from .inertia import sym33d
 from .rigid import predict_body
 
 wp.set_module_options({"enable_backward": False})
@@ -35,7 +36,7 @@ def correct_alone(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -78,7 +79,7 @@ def sweep_positions_once(
     body_q_in: wp.array(dtype=quatd),
     body_force_in: wp.array(dtype=vec3d),
     body_torque_in: wp.array(dtype=vec3d),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     proj_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
@@ -142,7 +143,7 @@ def sweep_positions(
     body_q_in: wp.array(dtype=quatd),
     body_force_in: wp.array(dtype=vec3d),
     body_torque_in: wp.array(dtype=vec3d),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     proj_in: wp.array(dtype=mat33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
@@ -169,7 +170,7 @@ def sweep_velocities_once(
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
     velocity_tolerance: f64,
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -210,7 +211,7 @@ def sweep_velocities(
     body_inv_mass: wp.array(dtype=f64),
     # Data in:
     velocity_tolerance: f64,
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),

@@ -28,6 +28,7 @@ import warp as wp
 from .constraints import angular_times, pose_x, side_body
 from .forces import VELOCITY_MODE, coordinate_row, wrap_angle
 from .impulses import apply_to_body
+from .inertia import sym33d, symmetric_times
 
 wp.set_module_options({"enable_backward": False})
 
@@ -209,7 +210,7 @@ def coupling_through(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -221,7 +222,7 @@ def coupling_through(
         r = 2 * i + side
         if side_body(i, side, constraint_body0, constraint_body1) == b:
             return jac_lin[r] * g_lin * body_inv_mass[b] + angular_times(
-                kind, r, jac_ang, jac_skew, inv_inertia_world[b] * g_ang
+                kind, r, jac_ang, jac_skew, symmetric_times(inv_inertia_world[b], g_ang)
             )
     return vec3d()
 
@@ -239,7 +240,7 @@ def coupling_entry(
     limit_side_body_in: wp.array(dtype=int),
     limit_side_lin_in: wp.array(dtype=vec3d),
     limit_side_ang_in: wp.array(dtype=vec3d),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -335,7 +336,7 @@ def limit_coupling(
     limit_side_body_in: wp.array(dtype=int),
     limit_side_lin_in: wp.array(dtype=vec3d),
     limit_side_ang_in: wp.array(dtype=vec3d),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -362,7 +363,7 @@ def matrix_entry(
     limit_side_body_in: wp.array(dtype=int),
     limit_side_lin_in: wp.array(dtype=vec3d),
     limit_side_ang_in: wp.array(dtype=vec3d),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     limit_coupling_in: wp.array(dtype=vec3d),
     limit_response_in: wp.array(dtype=vec3d),
     # Data out: S, row-major (rows k, l)
@@ -383,7 +384,8 @@ def matrix_entry(
                 gll = limit_side_lin_in[2 * l + sl]
                 gal = limit_side_ang_in[2 * l + sl]
                 if bl == bk:
-                    free += body_inv_mass[bk] * wp.dot(glk, gll) + wp.dot(gak, inv_inertia_world_in[bk] * gal)
+                    angular = wp.dot(gak, symmetric_times(inv_inertia_world_in[bk], gal))
+                    free += body_inv_mass[bk] * wp.dot(glk, gll) + angular
     held = free
     if coupled != 0:
         nc = limit_coupling_in.shape[0] // nl
@@ -403,7 +405,7 @@ def limit_matrix(
     limit_side_body_in: wp.array(dtype=int),
     limit_side_lin_in: wp.array(dtype=vec3d),
     limit_side_ang_in: wp.array(dtype=vec3d),
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     limit_coupling_in: wp.array(dtype=vec3d),
     limit_response_in: wp.array(dtype=vec3d),
     # Data out: S, row-major (rows k, l)
@@ -503,7 +505,7 @@ def compensate(
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -537,7 +539,7 @@ def apply_row(
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -551,8 +553,8 @@ def apply_row(
     kind = coordinate_kind[r]
     b0 = coordinate_body0[r]
     b1 = coordinate_body1[r]
-    inv0 = mat33d()
-    inv1 = mat33d()
+    inv0 = sym33d()
+    inv1 = sym33d()
     if b0 >= 0:
         inv0 = inv_inertia_world[b0]
     if b1 >= 0:
@@ -575,7 +577,7 @@ def push_side(
     a: vec3d,
     arm: vec3d,
     body_inv_mass: wp.array(dtype=f64),
-    inv_inertia: mat33d,
+    inv_inertia: sym33d,
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ):
@@ -583,10 +585,10 @@ def push_side(
     if b < 0:
         return
     if kind == ANGLE_COORDINATE:
-        body_w[b] = body_w[b] + inv_inertia * a * (sign * lam)
+        body_w[b] = body_w[b] + symmetric_times(inv_inertia, a) * (sign * lam)
     else:
         body_v[b] = body_v[b] + a * (sign * lam * body_inv_mass[b])
-        body_w[b] = body_w[b] + inv_inertia * wp.cross(arm, a) * (sign * lam)
+        body_w[b] = body_w[b] + symmetric_times(inv_inertia, wp.cross(arm, a)) * (sign * lam)
 
 
 @wp.func
@@ -606,7 +608,7 @@ def apply_fixed(
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -769,7 +771,7 @@ def correct_all(
     constraint_body1: wp.array(dtype=int),
     # Data in:
     h: f64,
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),
@@ -875,7 +877,7 @@ def correct_rows(
     constraint_body1: wp.array(dtype=int),
     # Data in:
     h: f64,
-    inv_inertia_world_in: wp.array(dtype=mat33d),
+    inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
     jac_skew_in: wp.array(dtype=vec3d),

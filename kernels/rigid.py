@@ -148,15 +148,21 @@ def principal_terms(
     # Data out:
     body_principal_out: wp.array(dtype=int),
     body_euler_out: wp.array(dtype=vec3d),
+    body_inv_principal_out: wp.array(dtype=vec3d),
 ):
     """Whether each body's inertia is diagonal (a body built on its principal axes), and then its
-    `euler_coefficients`: all a lane prediction reads of its inertia (`Model.set_masses` runs this)."""
+    `euler_coefficients` (all a lane prediction reads of its inertia) and its inverse inertia's diagonal
+    (1 / (kg m^2), body frame: all the world inverse inertia reads, `inertia.world_inverse_inertia_of`);
+    `Model.set_masses` runs this."""
     b = wp.tid()
     body_principal_out[b] = int(0)
     body_euler_out[b] = vec3d()
+    body_inv_principal_out[b] = vec3d()
     if is_diagonal(body_inertia[b]):
+        inv = body_inv_inertia[b]
         body_principal_out[b] = int(1)
-        body_euler_out[b] = euler_coefficients(body_inertia[b], body_inv_inertia[b])
+        body_euler_out[b] = euler_coefficients(body_inertia[b], inv)
+        body_inv_principal_out[b] = vec3d(inv[0, 0], inv[1, 1], inv[2, 2])
 
 
 @wp.func
@@ -477,31 +483,6 @@ def predict(
         body_principal, body_euler, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in,
         body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
-
-
-@wp.func
-def world_inverse_inertia_of(
-    b: int,
-    body_inv_inertia: wp.array(dtype=mat33d),
-    body_q_in: wp.array(dtype=quatd),
-    inv_inertia_world_out: wp.array(dtype=mat33d),
-):
-    """J~^-1 = R J^-1 R^T of body b at its current orientation (section 4.1); zero for static bodies."""
-    r = wp.quat_to_matrix(body_q_in[b])
-    inv_inertia_world_out[b] = r * body_inv_inertia[b] * wp.transpose(r)
-
-
-@wp.kernel
-def world_inverse_inertia(
-    # Model:
-    body_inv_inertia: wp.array(dtype=mat33d),
-    # Data in:
-    body_q_in: wp.array(dtype=quatd),
-    # Data out:
-    inv_inertia_world_out: wp.array(dtype=mat33d),
-):
-    """J~^-1 of every body (`world_inverse_inertia_of`)."""
-    world_inverse_inertia_of(wp.tid(), body_inv_inertia, body_q_in, inv_inertia_world_out)
 
 
 @wp.func

@@ -24,7 +24,8 @@ from .assemble import assemble_column
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .impulses import apply_body
-from .rigid import body_summary, predict_index, world_inverse_inertia_of
+from .inertia import sym33d, world_inverse_inertia_of
+from .rigid import body_summary, predict_index
 from .step import max_or_nan
 
 wp.set_module_options({"enable_backward": False})
@@ -74,7 +75,7 @@ def backward_apply(
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -184,7 +185,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         impulse: wp.array(dtype=vec3d),
         values: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
-        inv_inertia_world: wp.array(dtype=mat33d),
+        inv_inertia_world: wp.array(dtype=sym33d),
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
@@ -248,6 +249,8 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
     def refactor(
         # Model:
         body_inv_mass: wp.array(dtype=f64),
+        body_principal: wp.array(dtype=int),
+        body_inv_principal: wp.array(dtype=vec3d),
         body_inv_inertia: wp.array(dtype=mat33d),
         constraint_kind: wp.array(dtype=int),
         constraint_body0: wp.array(dtype=int),
@@ -291,7 +294,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         values: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
         part_singular: wp.array(dtype=int),
-        inv_inertia_world: wp.array(dtype=mat33d),
+        inv_inertia_world: wp.array(dtype=sym33d),
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
@@ -313,7 +316,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 body_q_out[b] = pred_q[b]
                 body_v_out[b] = pred_v[b]
                 body_w_out[b] = pred_w[b]
-                world_inverse_inertia_of(b, body_inv_inertia, body_q_out, inv_inertia_world)
+                world_inverse_inertia_of(
+                    b, body_principal, body_inv_principal, body_inv_inertia, body_q_out, inv_inertia_world
+                )
             for k in range(part_constraints.shape[0]):
                 i = part_constraints[k]
                 frame(
@@ -366,7 +371,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         impulse: wp.array(dtype=vec3d),
         values: wp.array(dtype=mat33d),
         work: wp.array(dtype=vec3d),
-        inv_inertia_world: wp.array(dtype=mat33d),
+        inv_inertia_world: wp.array(dtype=sym33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
         jac_skew: wp.array(dtype=vec3d),

@@ -37,9 +37,10 @@ from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body, impulse_response
+from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
-from .rigid import LANES, body_summary, predict_group, world_inverse_inertia_of
+from .rigid import LANES, body_summary, predict_group
 
 wp.set_module_options({"enable_backward": False})
 
@@ -413,7 +414,7 @@ def apply_all(
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -441,7 +442,7 @@ def apply_and_predict_all(
     h: f64,
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -538,7 +539,7 @@ def correct_rows_all(
     constraint_kind: wp.array(dtype=int),
     constraint_body0: wp.array(dtype=int),
     constraint_body1: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -566,7 +567,7 @@ def row_couplings_all(
     body_q: wp.array(dtype=quatd),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
-    inv_inertia_world: wp.array(dtype=mat33d),
+    inv_inertia_world: wp.array(dtype=sym33d),
     jac_lin: wp.array(dtype=mat33d),
     jac_ang: wp.array(dtype=mat33d),
     jac_skew: wp.array(dtype=vec3d),
@@ -590,7 +591,7 @@ def row_couplings_all(
 
 
 @wp.func
-def row_matrix_all(rows: Rows, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=mat33d)):
+def row_matrix_all(rows: Rows, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=sym33d)):
     """The rows' system S with the joints holding, from g, c and K^-1 c (`matrix_entry`)."""
     nl = rows.limit_coordinate.shape[0]
     for k in range(nl):
@@ -699,6 +700,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     def frames_all(
         body_count: int,
         constraint_count: int,
+        body_principal: wp.array(dtype=int),
+        body_inv_principal: wp.array(dtype=vec3d),
         body_inv_inertia: wp.array(dtype=mat33d),
         constraint_kind: wp.array(dtype=int),
         constraint_body0: wp.array(dtype=int),
@@ -709,7 +712,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         constraint_axis1: wp.array(dtype=vec3d),
         body_x: wp.array(dtype=vec3d),
         body_q: wp.array(dtype=quatd),
-        inv_inertia_world: wp.array(dtype=mat33d),
+        inv_inertia_world: wp.array(dtype=sym33d),
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
@@ -717,7 +720,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     ):
         """World inverse inertias, P_i and J_ib at the current state."""
         for b in range(body_count):
-            world_inverse_inertia_of(b, body_inv_inertia, body_q, inv_inertia_world)
+            world_inverse_inertia_of(b, body_principal, body_inv_principal, body_inv_inertia, body_q, inv_inertia_world)
         for i in range(constraint_count):
             frame(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
@@ -742,7 +745,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         constraint_rest_angle: wp.array(dtype=f64),
         h: f64,
         proj: wp.array(dtype=mat33d),
-        inv_inertia_world: wp.array(dtype=mat33d),
+        inv_inertia_world: wp.array(dtype=sym33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
         jac_skew: wp.array(dtype=vec3d),
@@ -799,6 +802,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         body_inv_inertia: wp.array(dtype=mat33d),
         body_principal: wp.array(dtype=int),
         body_euler: wp.array(dtype=vec3d),
+        body_inv_principal: wp.array(dtype=vec3d),
         gravity: vec3d,
         body_rows_start: wp.array(dtype=int),
         body_rows: wp.array(dtype=int),
@@ -867,7 +871,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         aug_x: wp.array(dtype=vec3d),
         singular: wp.array(dtype=int),
         # Frames at t0, then at each new state:
-        inv_inertia_world: wp.array(dtype=mat33d),
+        inv_inertia_world: wp.array(dtype=sym33d),
         proj: wp.array(dtype=mat33d),
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
@@ -1045,9 +1049,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if wp.static(forced):
                     integrate_drives_all(hs, elements, state_x, state_q, state_v, state_w)
                 frames_all(
-                    body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
-                    constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                    state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
+                    body_count, constraint_count, body_principal, body_inv_principal, body_inv_inertia, constraint_kind,
+                    constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0,
+                    constraint_axis1, state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
                 for s in range(slot_code.shape[0]):
                     augmented_slot(
@@ -1143,6 +1147,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             body_inv_inertia: wp.array(dtype=mat33d),
             body_principal: wp.array(dtype=int),
             body_euler: wp.array(dtype=vec3d),
+            body_inv_principal: wp.array(dtype=vec3d),
             gravity: vec3d,
             constraint_kind: wp.array(dtype=int),
             constraint_body0: wp.array(dtype=int),
@@ -1178,7 +1183,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             errors: wp.array(dtype=f64),
             rhs: wp.array(dtype=vec3d),
             # Frames:
-            inv_inertia_world: wp.array(dtype=mat33d),
+            inv_inertia_world: wp.array(dtype=sym33d),
             proj: wp.array(dtype=mat33d),
             jac_lin: wp.array(dtype=mat33d),
             jac_ang: wp.array(dtype=mat33d),
@@ -1288,9 +1293,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         state_x, state_q, state_v, state_w, next_x, next_q, next_v, next_w
                     )  # fmt: skip
                     frames_all(
-                        body_count, constraint_count, body_inv_inertia, constraint_kind, constraint_body0,
-                        constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0, constraint_axis1,
-                        state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
+                        body_count, constraint_count, body_principal, body_inv_principal, body_inv_inertia,
+                        constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
+                        constraint_axis0, constraint_axis1, state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang,
+                        jac_skew,
                     )  # fmt: skip
                     vsweeps = wp.int32(0)
                     vbest = f64(0.0)

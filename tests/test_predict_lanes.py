@@ -34,7 +34,8 @@ def bodies(n: int, seed: int, mixed: bool) -> tuple[list, list]:
     inv_inertia = np.linalg.inv(inertia)
     model = [wp.array(inv_mass, dtype=F64), wp.array(inertia, dtype=MAT33), wp.array(inv_inertia, dtype=MAT33)]
     principal, euler = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=VEC3)  # as `Model.set_masses` makes them
-    wp.launch(rigid.principal_terms, n, inputs=model[1:], outputs=[principal, euler], device="cpu")
+    inv_principal = wp.zeros(n, dtype=VEC3)
+    wp.launch(rigid.principal_terms, n, inputs=model[1:], outputs=[principal, euler, inv_principal], device="cpu")
     model += [principal, euler]
     state = [
         wp.array(rng.normal(size=(n, 3)), dtype=VEC3),

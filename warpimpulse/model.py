@@ -211,6 +211,7 @@ class Model:
         self.body_inv_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
         self.body_principal = wp.zeros(self.body_count, dtype=wp.int32, device=d)  # 1: inertia diagonal
         self.body_euler = wp.zeros(self.body_count, dtype=wp.vec3d, device=d)  # its Euler coefficients (dimensionless)
+        self.body_inv_principal = wp.zeros(self.body_count, dtype=wp.vec3d, device=d)  # its inverse's diagonal
         self.set_masses(h.body_mass, h.body_inertia)
         self.body_rows_start = _array(self.topology.body_rows_start, wp.int32, d)
         self.body_rows = _array(self.topology.body_rows, wp.int32, d)
@@ -353,7 +354,7 @@ class Model:
         self.body_inv_inertia.assign(inv_inertia)
         wp.launch(
             rigid_kernels.principal_terms, self.body_count, inputs=[self.body_inertia, self.body_inv_inertia],
-            outputs=[self.body_principal, self.body_euler], device=self.body_inertia.device,
+            outputs=[self.body_principal, self.body_euler, self.body_inv_principal], device=self.body_inertia.device,
         )  # fmt: skip
 
     def state(self) -> State:

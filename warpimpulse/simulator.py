@@ -23,6 +23,7 @@ from .files import write_atomically
 from .kernels import constraints as constraint_kernels
 from .kernels import forces as force_kernels
 from .kernels import impulses as impulse_kernels
+from .kernels import inertia as inertia_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import limits as limit_kernels
 from .kernels import loop as loop_kernels
@@ -329,7 +330,7 @@ class Simulator:
     def _record_launches(self) -> None:
         s, (nb, nc) = self.state, self._counts
         self._rows = self._row_arrays()  # one struct for both schedules' row launches
-        self._inertia = self._record(rigid_kernels.world_inverse_inertia, nb, s)
+        self._inertia = self._record(inertia_kernels.world_inverse_inertia, nb, s)
         self._frames = self._record(self.kernels.frames, nc, s)
         self._velocity_errors = self._record(self.kernels.velocity_errors, nc, s)
         self._apply = self._record(impulse_kernels.apply_impulses, nb, data_out=s)

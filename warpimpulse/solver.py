@@ -19,6 +19,7 @@ from .kernels import assemble as assemble_kernels
 from .kernels import cg as cg_kernels
 from .kernels import cholesky as cholesky_kernels
 from .kernels.constraints import constant_frames
+from .kernels.inertia import sym33d
 from .launch import record
 from .model import Model
 from .topology import schedule
@@ -61,7 +62,8 @@ class Frames:
         self.jac_ang = wp.array(jac_ang, dtype=wp.mat33d, device=d)
         # A point constraint's J_ang = [s]x per row as s alone: what apply and J v read (24 bytes, not 72).
         self.jac_skew = wp.zeros(2 * model.constraint_count, dtype=wp.vec3d, device=d)
-        self.inv_inertia_world = wp.zeros(nb, dtype=wp.mat33d, device=d)
+        # J~^-1 of every body as its upper triangle (`kernels/inertia.py`: 48 bytes, not 72).
+        self.inv_inertia_world = wp.zeros(nb, dtype=sym33d, device=d)
 
 
 def _int(values, device) -> wp.array:
