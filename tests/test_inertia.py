@@ -12,7 +12,6 @@ import warp as wp
 from numpy_checks import Internals, rotations
 from reference import numpy_k
 from rigs import Rig
-
 from warpimpulse.kernels import inertia, rigid
 
 F64, VEC3, QUAT, MAT33 = wp.float64, wp.vec3d, wp.quatd, wp.mat33d
