@@ -29,6 +29,14 @@ def unpacked(
     product_out[b] = inertia.symmetric_times(packed[b], u[b])
 
 
+@wp.kernel
+def full_product(inv_inertia: wp.array(dtype=MAT33), q: wp.array(dtype=QUAT), out: wp.array(dtype=MAT33)):
+    """R J^-1 R^T as one 3x3, Warp's matrix products (what the frames pass stored before it kept 6 numbers)."""
+    b = wp.tid()
+    r = wp.quat_to_matrix(q[b])
+    out[b] = r * inv_inertia[b] * wp.transpose(r)
+
+
 def bodies(n: int, seed: int):
     """Random bodies a third each diagonal (principal axes), non-diagonal and static (zero inverse), random
     orientations; the Model's arrays of them (`Model.set_masses`: `rigid.principal_terms`)."""
@@ -81,14 +89,17 @@ def test_packed_world_inverse_inertia_is_r_j_inverse_r_t():
     assert np.abs(packed[kind == 1][:, [1, 2, 4]]).min() > 1e-6  # the non-diagonal bodies' products of inertia
 
 
-def test_principal_bodies_get_the_general_paths_bits():
+def test_packed_triangle_holds_the_full_products_bits():
     """R diag(d) from the diagonal alone is the matrix product's R J^-1 bit for bit (its terms with the zeros
-    add nothing), so a diagonal body's J~^-1 is the same read either way."""
+    add nothing), so a diagonal body's J~^-1 is the same read either way; and either way the stored triangle is
+    that of the full product R J^-1 R^T, bit for bit."""
     kind, inv, q, principal, inv_principal, inv_inertia = bodies(60, 5)
+    packed = world_inverse(principal, inv_principal, inv_inertia, q)
     general = wp.zeros_like(principal)
-    assert np.array_equal(
-        world_inverse(principal, inv_principal, inv_inertia, q), world_inverse(general, inv_principal, inv_inertia, q)
-    )
+    assert np.array_equal(packed, world_inverse(general, inv_principal, inv_inertia, q))
+    full = wp.zeros(len(q), dtype=MAT33)
+    wp.launch(full_product, len(q), inputs=[inv_inertia, wp.array(q, dtype=QUAT)], outputs=[full], device="cpu")
+    assert np.array_equal(packed, full.numpy()[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]])
 
 
 @pytest.mark.parametrize("joint", ["ball", "revolute", "universal"])
