@@ -9,7 +9,7 @@ velocity errors, the NaN/spin summary) launched alone, its marginal time a call 
 (from the run's StepStats); "other" is the measured step minus their sum. chain10 with a force element on every
 link: fused against parallel. Big trees give the cost per body-step and the set-up time (builder, finalize,
 Simulator). The first iteration's Newton step (`Simulator(newton=...)`) off and on, interleaved, on the small
-scenes and two big trees: where it pays places `simulator.NEWTON_BODIES`. Step times are CPU time of this
+scenes and two big trees: where it pays places `types.NEWTON_BODIES`. Step times are CPU time of this
 process (`time.process_time`): on a shared machine, time spent descheduled is not the engine's.
 
 `--mechanisms`: only the mechanisms, fused against parallel, interleaved blocks from the same state, into their own
@@ -409,7 +409,7 @@ def specialization(name: str, steps: int) -> dict:
 def newton_point(name: str, steps: int) -> dict:
     """The fused step without and with the first iteration's Newton step (`Simulator(newton=...)`), interleaved
     rounds, every block from the same state: a scene of SCENES, or the binary tree of `name` bodies (an int,
-    h = 1/60, the default tolerance), at 1.1 s. The default takes it from `simulator.NEWTON_BODIES` bodies: this
+    h = 1/60, the default tolerance), at 1.1 s. The default takes it from `types.NEWTON_BODIES` bodies: this
     is the measurement that places that line."""
     make, dt, tolerance = SCENES[name] if name in SCENES else (lambda: scenes.binary_tree(name), 1 / 60, 1e-6)
     engines = {flag: _Ours(make, dt, tolerance, "fused", True, newton=flag) for flag in (False, True)}

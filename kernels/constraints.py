@@ -458,6 +458,8 @@ def arm_correction(
         if b1 >= 0:
             e += wp.cross(s1 - jac_skew[2 * i + 1], response_w[b1])
         return e
+    # d again, not from rhs: a batched world that is done has its rhs zeroed (`worlds.mask_worlds`), and its
+    # E du must be zero too (du = 0 there), not P d / h.
     d = constraint_error(
         kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i]
     )

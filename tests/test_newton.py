@@ -17,9 +17,8 @@ import pytest
 
 import warpimpulse as wi
 from warpimpulse import scenes
-from warpimpulse.simulator import NEWTON_BODIES
 from warpimpulse.split import SplitSimulator
-from warpimpulse.types import ConstraintKind
+from warpimpulse.types import NEWTON_BODIES, ConstraintKind
 
 
 def _swinging_pair(joint: str) -> wi.SceneBuilder:

@@ -22,7 +22,7 @@ from .builder import SceneError
 from .cliutil import EXIT_USAGE, ArgumentParser, check_writable
 from .files import Interrupted, WriteError, same_file, signals_interrupt
 from .scenes import SCENES
-from .types import SOLVERS
+from .types import NEWTON_BODIES, SOLVERS
 
 DEFAULT_DURATION = 10.0  # s, without --duration and without a time range in the scene file
 DEFAULT_FPS = 30.0  # without --fps, for built-in scenes
@@ -63,7 +63,7 @@ def _add_simulate(sub) -> None:
         "--newton",
         choices=("auto", "on", "off"),
         default="auto",
-        help="the first joint iteration's Newton step (auto: on from 16,384 bodies without loops)",
+        help=f"the first joint iteration's Newton step (auto: on from {NEWTON_BODIES:,} bodies without loops)",
     )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip

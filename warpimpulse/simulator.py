@@ -35,12 +35,11 @@ from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
 from .steps import SimulationError, StepStats
 from .transforms import quat_rotate, quat_to_matrix
-from .types import DRIVE_MODES, FORMULATIONS, SCHEDULES, SOLVERS
+from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
-NEWTON_BODIES = 16384  # bodies from which `newton` is on by default (benchmarks/step_breakdown.py, big trees)
 ROWS_FALLBACK = "joint limits, stiff motors or distance rows (impacts and saturation are not reversible)"
 """Why a scene with such rows takes its steps at order 2 whatever order was asked: a composed step would run
 them backwards in its negative substeps (`StepStats.fallback`)."""
@@ -150,11 +149,11 @@ class Simulator:
         newton: the first joint iteration of each step takes a Newton step: its impulses solved again with the
             right-hand side less E lambda, E the change of the Jacobian over the step (the arms at the
             prediction; `constraints.arm_correction`), so that the error falls quadratically, not linearly
-            (`newton_solves`). It costs a solve and two passes over the scene and saves about one iteration
-            where the step takes two: it pays where a prediction costs more than a solve, on scenes of
-            `NEWTON_BODIES` bodies or more, whose arrays stream from memory. None (the default) takes it there,
-            with the cholesky solver, in scenes without kinematic loops (whose redundant rows it leaves
-            inconsistent: the walking machine 2.32 -> 2.83 iterations a step); threads
+            (`StepStats.linear_iterations` counts its second solve). It costs a solve and two passes over the
+            scene and saves about one iteration where the step takes two: it pays where a prediction costs more
+            than a solve, on scenes of `types.NEWTON_BODIES` bodies or more, whose arrays stream from memory.
+            None (the default) takes it there, with the cholesky solver, in scenes without kinematic loops (whose
+            redundant rows it leaves inconsistent: the walking machine 2.32 -> 2.83 iterations a step); threads
             (`split.SplitSimulator`) and the other solvers never take it.
         """
         if not isinstance(model, Model):
@@ -232,8 +231,8 @@ class Simulator:
         self.impulse = wp.zeros(nc, dtype=wp.vec3d, device=d)
         self.sweep_error = wp.zeros(1, dtype=wp.float64, device=d)
         loops = bool(model.topology.loop_joints)  # their redundant rows take E's approximation worse (docs)
-        self.newton = bool(newton if newton is not None else model.body_count >= NEWTON_BODIES and not loops)
-        self.newton = self.newton and self.solver_name == "cholesky" and nc > 0
+        wanted = newton if newton is not None else model.body_count >= NEWTON_BODIES and not loops
+        self.newton = bool(wanted and self.solver_name == "cholesky" and nc > 0)
         # The Newton step's scratch: the bodies' velocity changes from its impulses, its right-hand side.
         self.response_v = wp.zeros(model.body_count if self.newton else 0, dtype=wp.vec3d, device=d)
         self.response_w = wp.zeros_like(self.response_v)
@@ -1072,11 +1071,16 @@ class Simulator:
         err, best, iterations = self._loop_record()
         if not math.isfinite(err):
             self._max_error("joint")  # raises, naming the bodies with a NaN or Inf
-        solves = iterations + int(self.newton and iterations > 0)
+        solves = iterations + self._newton_solves(iterations)
         if err <= self.tolerance:
             return iterations, err, solves, True
         self._may_iterate(iterations, err, "joint", best, final)  # stopped: on the final try raise or warn
         return iterations, err, solves, final
+
+    def _newton_solves(self, iterations):
+        """The Newton step's second solves in joint corrections of `iterations` iterations (an int, or an array
+        of them a world): one where a correction iterated at all, when `newton` is on."""
+        return int(self.newton) * (iterations > 0)
 
     def _joint_iteration(self) -> int:
         """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns

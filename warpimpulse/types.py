@@ -99,3 +99,9 @@ SCHEDULES = ("auto", "fused", "parallel")
 thread, the stages' funcs in serial loops (`kernels/step.py`); "parallel" launches each stage over its bodies,
 constraints or columns, replayed as captured graphs, the host deciding between them. "auto" is fused on a CPU
 (where a launch is one thread anyway) and parallel on a GPU."""
+
+NEWTON_BODIES = 16384
+"""Bodies from which `Simulator(newton=None)` takes the first joint iteration's Newton step (scenes without
+kinematic loops): below, a scene's arrays stay in cache and the correction costs about the iteration it saves;
+about here it starts to pay (`benchmarks/step_breakdown.py`'s Newton table: the 65,535-body tree 0.89 of the
+time, the 16,383-body tree faster in two of three runs, the 4,095-body tree not)."""

@@ -221,8 +221,8 @@ class Batch:
         stats.velocity_iterations[batch] += fix[batch]
         stats.max_joint_error[batch] = np.maximum(stats.max_joint_error[batch], err[batch])
         stats.max_velocity_error[batch] = verr[batch]
-        newton = int(sim.newton) * (iterations > 0)  # the Newton step's second solve
-        stats.linear_iterations[batch] += iterations[batch] + fix[batch] + newton[batch]
+        solves = iterations + fix + sim._newton_solves(iterations)
+        stats.linear_iterations[batch] += solves[batch]
         stats.substeps[batch] += 1
 
     # ---------------------------------------------------------------- a world alone
