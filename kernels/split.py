@@ -21,6 +21,7 @@ from types import SimpleNamespace
 import warp as wp
 
 from .assemble import assemble_column
+from .carry import carry_into, carry_measure
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .impulses import apply_body
@@ -169,6 +170,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         separator: int,
         # What this launch does:
         start: int,
+        first: int,
         h: f64,
         tolerance: f64,
         body_force_in: wp.array(dtype=vec3d),
@@ -190,6 +192,10 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         jac_lin: wp.array(dtype=mat33d),
         jac_ang: wp.array(dtype=mat33d),
         jac_skew: wp.array(dtype=vec3d),
+        # The first iteration's carried right-hand side (`carrying` != 0; kernels/carry.py):
+        carrying: int,
+        carry: wp.array(dtype=vec3d),
+        carry_next: wp.array(dtype=vec3d),
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
         body_v_out: wp.array(dtype=vec3d),
@@ -199,9 +205,10 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         """One part's share of the joint correction. At the start of a step (`start`): keep the velocities of
         t0, predict. Else one iteration: the separator forward-solves its rows (after every part's) and
         solves backward; a part solves backward (after the separator); each applies the impulses to its bodies
-        and predicts them again. Then the part's joint errors; where they hold to `tolerance` (as they must
-        everywhere if the step has converged) the NaN/spin summary of its prediction; and, for a part, its
-        forward rows of the next solve (wasted when the step has converged)."""
+        and predicts them again. Then the part's joint errors (`carrying`: at the start, the first solve's right-hand
+        sides take c; after the `first` iteration, c's next value is measured); where they hold to `tolerance` (as
+        they must everywhere if the step has converged) the NaN/spin summary of its prediction; and, for a part,
+        its forward rows of the next solve (wasted when the step has converged)."""
         if start != 0:
             for k in range(part_bodies.shape[0]):
                 b = part_bodies[k]
@@ -230,6 +237,11 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 pred_x, pred_q, errors, rhs,
             )  # fmt: skip
             worst = max_or_nan(worst, errors[i])
+            if carrying != 0:
+                if start != 0:
+                    carry_into(i, carry, rhs)
+                elif first != 0:
+                    carry_measure(i, carry, rhs, carry_next)
         part_out[0] = worst
         if worst <= tolerance:  # the step may have converged: the NaN/spin summary of the prediction
             bad = int(0)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)

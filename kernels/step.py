@@ -33,6 +33,7 @@ from types import SimpleNamespace
 import warp as wp
 
 from .assemble import assemble_column, augmented_slot
+from .carry import carry_into, carry_measure, commit_carry
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
@@ -881,6 +882,12 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         response_v: wp.array(dtype=vec3d),
         response_w: wp.array(dtype=vec3d),
         newton_rhs: wp.array(dtype=vec3d),
+        # The first iteration's carried right-hand side (`carrying` != 0, kernels/carry.py): a row of c for each
+        # stage's step size (stage_carry[stage]), and the rows measured this step, taken when it is accepted
+        carrying: int,
+        stage_carry: wp.array(dtype=int),
+        carry: wp.array2d(dtype=vec3d),
+        carry_next: wp.array2d(dtype=vec3d),
         # Data out: the state, advanced in place, and a status row a step
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
@@ -918,6 +925,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             row_solves = wp.int32(0)  # the velocity corrections before the rows' (`rows`)
             newton_solves = wp.int32(0)  # the Newton steps' second solves
             velocity_iterations = wp.int32(0)
+            measured = wp.int32(0)  # a bit a carry row measured in this step (`carrying`)
             joint_error = f64(0.0)  # the largest over the stages
             verr = f64(0.0)  # the last stage's
             failed = f64(0.0)  # the largest velocity error over the tolerance
@@ -925,6 +933,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             for stage in range(stage_count):
                 hs = stages[stage] * h
                 inv_h = f64(1.0) / hs
+                row = stage_carry[stage]
                 if wp.static(forced):
                     coupled_predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
@@ -960,6 +969,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         break
                     if tries >= max_iterations or (tries >= 3 and err > f64(1.0e3) * best):
                         break
+                    if tries == 0 and carrying != 0:
+                        for i in range(constraint_count):
+                            carry_into(i, carry[row], rhs)
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
@@ -1011,6 +1023,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                         constraint_rest_angle, inv_h, proj, next_x, next_q, errors, rhs,
                     )  # fmt: skip
+                    if tries == 0 and carrying != 0:
+                        for i in range(constraint_count):
+                            carry_measure(i, carry[row], rhs, carry_next[row])
+                        measured = measured | (1 << row)
                     if wp.static(rows):
                         err = max_or_nan(
                             err,
@@ -1124,6 +1140,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if not (verr <= velocity_tolerance):  # the host raises or warns once the step is done
                     code = VELOCITY
                     failed = max_or_nan(failed, verr)
+            if code == OK or code == VELOCITY:  # the step is kept: its carry rows are taken
+                commit_carry(measured, constraint_count, carry, carry_next)
             finish(
                 status_out, k, code, iterations, velocity_iterations,
                 iterations + velocity_iterations + row_solves + newton_solves,

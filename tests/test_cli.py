@@ -258,6 +258,21 @@ def test_order_is_recorded(order, tmp_path, capsys):
     assert data["warpimpulse:tolerance"] == composition.default_tolerance(1 / 30, order)
 
 
+@pytest.mark.parametrize(("flag", "taken"), [("auto", True), ("on", True), ("off", False)])
+def test_carry_flag_is_taken_and_recorded(flag, taken, tmp_path, capsys):
+    """`--carry` sets `Simulator(carry=...)` (auto: on with the cholesky solver and no contacts) and the file records
+    what ran (customLayerData warpimpulse:carry); asked for where it cannot run, one line and exit 2."""
+    from pxr import Sdf
+
+    out = tmp_path / "x.usda"
+    code, _ = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--carry", flag], capsys)
+    assert code == 0
+    assert Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:carry"] is taken
+    code, lines = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--carry", "on",
+                       "--solver", "cg"], capsys)  # fmt: skip
+    assert code == 2 and any("carry needs" in line and "'cg'" in line for line in lines), lines
+
+
 @pytest.mark.parametrize(("flag", "taken"), [("auto", False), ("on", True), ("off", False)])
 def test_newton_flag_is_taken_and_recorded(flag, taken, tmp_path, capsys):
     """`--newton` sets `Simulator(newton=...)` (auto: off for a chain of a few bodies) and the file records what

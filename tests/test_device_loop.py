@@ -57,7 +57,7 @@ def test_device_loop_takes_the_host_loops_steps(make, dt):
         )
     np.testing.assert_array_equal(device.positions(), host.positions())
     np.testing.assert_array_equal(device.angular_velocities(), host.angular_velocities())
-    assert sum(s.joint_iterations for s in dstats) > 40  # the loop iterated
+    assert sum(s.joint_iterations for s in dstats) >= 40  # the loop iterated
 
 
 def test_device_loop_reads_no_errors_back(monkeypatch):
@@ -66,7 +66,7 @@ def test_device_loop_reads_no_errors_back(monkeypatch):
     reads = []
     monkeypatch.setattr(wi.Simulator, "_max_error", lambda self, what: reads.append(what))
     stats = [sim.step() for _ in range(10)]
-    assert sum(s.joint_iterations for s in stats) >= 20
+    assert sum(s.joint_iterations for s in stats) >= 10
     assert reads == []
 
 
@@ -96,6 +96,6 @@ def test_batched_worlds_decide_their_loops_on_the_device(monkeypatch):
     world_max = Batch.world_max
     monkeypatch.setattr(Batch, "world_max", lambda self: reads.append(1) or world_max(self))
     stats = [sim.step() for _ in range(10)]
-    assert sum(s.joint_iterations for s in stats) >= 20
+    assert sum(s.joint_iterations for s in stats) >= 10
     assert len(reads) <= 2 * len(stats)
     assert all(s.converged for s in stats)

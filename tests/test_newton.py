@@ -52,7 +52,13 @@ def _errors_after_one_iteration(make, dt: float, newton: bool, before: int) -> t
     steps, and the constraints' kinds (the joint correction alone: the velocity pass would overwrite the
     errors)."""
     sim = wi.Simulator(
-        make().finalize(), dt, newton=newton, max_iterations=1, on_max_iterations="warn", schedule="parallel"
+        make().finalize(),
+        dt,
+        newton=newton,
+        max_iterations=1,
+        on_max_iterations="warn",
+        schedule="parallel",
+        carry=False,
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # one iteration stops short of the tolerance
@@ -97,7 +103,7 @@ def test_the_newton_step_saves_iterations_and_ends_where_the_plain_one_does(make
     two of swinging), and each step's second solve counted in `linear_iterations`."""
     runs = {}
     for newton in (False, True):
-        sim = wi.Simulator(make().finalize(), dt, tolerance=1e-6, newton=newton)
+        sim = wi.Simulator(make().finalize(), dt, tolerance=1e-6, newton=newton, carry=False)
         stats = [sim.step() for _ in range(steps)]
         runs[newton] = (sim, stats)
     (plain, plain_stats), (fast, fast_stats) = runs[False], runs[True]

@@ -65,6 +65,12 @@ def _add_simulate(sub) -> None:
         default="auto",
         help=f"the first joint iteration's Newton step (auto: on from {NEWTON_BODIES:,} bodies without loops)",
     )
+    p.add_argument(
+        "--carry",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="the first joint iteration takes what the last step's left (auto: on with the cholesky solver, no contacts)",
+    )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
     p.add_argument("--max-rotation", type=_positive(float), default=0.5,
@@ -241,6 +247,7 @@ def _simulate(args) -> int:
         max_rotation=None if args.whole_steps else args.max_rotation,
         order=args.order,
         newton={"auto": None, "on": True, "off": False}[args.newton],
+        carry={"auto": None, "on": True, "off": False}[args.carry],
     )
     if sim.split_note:
         print(f"warpimpulse: one thread: {sim.split_note}", file=sys.stderr)

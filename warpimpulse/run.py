@@ -64,6 +64,7 @@ def settings(sim: Any) -> dict[str, Any]:
         "order": sim.order,  # in time: 2 the paper's step, 4 and 6 its compositions
         "composition": sim.scheme.name,
         "newton": sim.newton,  # the first joint iteration's Newton step
+        "carry": sim.carry,  # the first joint iteration's carried right-hand side
     }
 
 

@@ -240,7 +240,9 @@ class SplitSimulator(Simulator):
         self._singular = wp.zeros((count, 2), dtype=wp.int32, device=d)
         self._out_view, self._singular_view = self._out.numpy(), self._singular.numpy()
         p = self.pred
-        scratch = dict(pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, v0=self._v0, w0=self._w0)
+        c, c_next = self._carry_arrays(self.dt) if self.carry else (self.rhs, self.rhs)  # (`Simulator.carry`)
+        scratch = dict(pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, v0=self._v0, w0=self._w0,
+                       carrying=int(self.carry), carry=c, carry_next=c_next)  # fmt: skip
         sources = (self.linear.fused_args, self.model, self.frames, self.control, self, self.linear.device_pattern,
                    self.linear)  # fmt: skip
 
@@ -259,8 +261,9 @@ class SplitSimulator(Simulator):
             return capture(d, launch)
 
         rows = range(count)
-        self._start_graphs = [graphs(r, k.correct, start=1, h=self.dt) for r in rows]
-        self._iterate_graphs = [graphs(r, k.correct, start=0, h=self.dt) for r in rows]
+        self._start_graphs = [graphs(r, k.correct, start=1, first=0, h=self.dt) for r in rows]
+        self._first_graphs = [graphs(r, k.correct, start=0, first=1, h=self.dt) for r in rows]
+        self._iterate_graphs = [graphs(r, k.correct, start=0, first=0, h=self.dt) for r in rows]
         self._split_accept = graphs(0, k.refactor, accept=1, factor=0)
         self._refactor_graphs = [graphs(r, k.refactor, accept=int(r > 0), factor=1) for r in rows]
         self._velocity_graphs = [graphs(r, k.velocity_fix) for r in rows]
@@ -333,7 +336,7 @@ class SplitSimulator(Simulator):
                     break
                 if iterations >= self.max_iterations or (iterations >= 3 and err > 1.0e3 * best):
                     break
-                self._phase(self._iterate_graphs)
+                self._phase(self._iterate_graphs if iterations else self._first_graphs)
                 err = self._combined(OUT_ERROR)
                 iterations += 1
             new_spin = spin
@@ -374,6 +377,8 @@ class SplitSimulator(Simulator):
                 code = s.VELOCITY
             row[s.STATUS_FAILED_VELOCITY] = _max_or_nan(0.0, verr) if code == s.VELOCITY else 0.0
             row[s.STATUS_CODE] = code
+            if self.carry and iterations and code in (s.OK, s.VELOCITY):  # the step is kept: so is its c
+                wp.copy(*self._carry_arrays(self.dt))
             if code != s.OK:
                 return status
         return status

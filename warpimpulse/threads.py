@@ -288,9 +288,10 @@ class ThreadedSimulator:
 
 
 class _Snapshot:
-    """What a one-world Simulator carries from step to step, to go back to: its state, drive integrals, clock,
-    spin and pending fallback. The copies are captured graphs, made before the threads start (a copy each way
-    costs a few us per world; a world of 31 bodies takes about 18 us a step)."""
+    """What a one-world Simulator carries from step to step, to go back to: its state, drive integrals, carried
+    right-hand sides (`Simulator.carry`, of every step size: `prepare_substeps` made them), clock, spin and
+    pending fallback. The copies are captured graphs, made before the threads start (a copy each way costs a few
+    us per world; a world of 31 bodies takes about 18 us a step)."""
 
     def __init__(self, sim: Simulator) -> None:
         self.state, integral = sim.model.state(), wp.clone(sim.drive_integral)
@@ -299,6 +300,7 @@ class _Snapshot:
         ]
         if integral.size:
             pairs.append((integral, sim.drive_integral))
+        pairs += [(wp.clone(c), c) for c in sim._carries().values()]
         self._take = capture(sim.model.device, *(functools.partial(wp.copy, a, b) for a, b in pairs))
         self._back = capture(sim.model.device, *(functools.partial(wp.copy, b, a) for a, b in pairs))
         self.clock = (sim.time, sim.step_count, sim._spin, sim._fallback)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .kernels import carry as carry_kernels
 from .kernels import loop as loop_kernels
 from .model import State
 from .solver import SingularSystemError
@@ -79,6 +80,9 @@ class Batch:
         self.world_loop = wp.zeros((self.count, loop_kernels.LOOP_WIDTH), dtype=wp.float64, device=m.device)
         self.world_batch = wp.zeros(self.count, dtype=wp.int32, device=m.device)
         self._loops_by_h: dict[float, wp.Graph] = {}
+        # The worlds that keep the c their step measured (`Simulator.carry`), and the launch that keeps it, a step size
+        self.world_take = wp.zeros(self.count, dtype=wp.int32, device=m.device)
+        self._commits: dict[float, wp.Launch] = {}
 
     # ---------------------------------------------------------------- per-world reductions
     def world_max(self) -> np.ndarray:
@@ -224,6 +228,13 @@ class Batch:
         solves = iterations + fix + sim._newton_solves(iterations)
         stats.linear_iterations[batch] += solves[batch]
         stats.substeps[batch] += 1
+        if sim.carry:  # the worlds kept whose first solve ran keep the c it measured (`Simulator.carry`)
+            if h not in self._commits:
+                c, c_next = sim._carry_arrays(h)
+                self._commits[h] = sim._record(carry_kernels.carry_commit, sim.model.constraint_count,
+                                               world_take=self.world_take, carry_next=c_next, carry_out=c)  # fmt: skip
+            self.world_take.assign((batch & (iterations > 0)).astype(np.int32))
+            self._commits[h].launch()
 
     # ---------------------------------------------------------------- a world alone
     def _solo(self, world: int):
@@ -235,7 +246,7 @@ class Batch:
                 velocity_tolerance=sim.velocity_tolerance, solver=sim.solver_name, max_iterations=sim.max_iterations,
                 on_max_iterations=sim.on_max_iterations, max_substep_depth=sim.max_substep_depth,
                 formulation=sim.linear.pattern.formulation if sim.linear is not None else "auto",
-                max_rotation=sim.max_rotation, specialize=sim.specialized, newton=sim.newton,
+                max_rotation=sim.max_rotation, specialize=sim.specialized, newton=sim.newton, carry=sim.carry,
             )  # fmt: skip
         return self._solos[world]
 
@@ -255,6 +266,9 @@ class Batch:
         solo.time, solo.step_count = sim.time, sim.step_count
         solo._update_frames()
         solo._spin = self._spin0[world]
+        nc = sim.model.constraint_count // self.count
+        for h, c in sim._carries().items():  # the world's c of every step size (`Simulator.carry`)
+            wp.copy(solo._carry_arrays(h)[0], c, 0, world * nc, nc)
         try:
             result = solo.step()
         except (SimulationError, SingularSystemError) as exc:
@@ -264,6 +278,8 @@ class Batch:
             return
         for name in ("body_x", "body_q", "body_v", "body_w"):
             wp.copy(getattr(sim.state, name), getattr(solo.state, name), world * n, 0, n)
+        for h, c in solo._carries().items():
+            wp.copy(sim._carry_arrays(h)[0], c, world * nc, 0, nc)
         if self._drives:
             wp.copy(sim.drive_integral, solo.drive_integral, drives.start, 0, self._drives)
         self.spin[world] = solo._spin

@@ -1,0 +1,122 @@
+"""The first joint iteration's carried right-hand side (`Simulator(carry=...)`, kernels/carry.py).
+
+The first solve of a step leaves about -E lambda unsolved (the arms turn over the step); that changes little from
+one step to the next, so the first solve takes the last step's as an offset. These tests measure it against the
+plain iteration: the error left after the first iteration, the iterations saved, the motion (the same to the
+tolerance), and that a step's history is all it depends on (reset, set_state, checkpoints). That both schedules,
+batched worlds and the split step take it bit for bit is tests/test_schedules.py's, tests/test_worlds.py's and
+tests/test_split.py's (it is on by default there).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+from warpimpulse import scenes
+
+
+def _first_iteration_error(carry: bool) -> float:
+    """The largest joint error after the first iteration of chain10's step from t = 1.1 s (swinging), the step
+    before it taken in full (so the carry has a value)."""
+    sim = wi.Simulator(scenes.chain(10).finalize("cpu"), 1 / 60, carry=carry, schedule="parallel")
+    sim.step(66)
+    sim.max_iterations, sim.on_max_iterations = 1, "warn"
+    sim._loops_by_h.clear()  # the device loop, captured again with the limit of one iteration
+    sim._use_step_size(sim.dt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # one iteration stops short of the tolerance
+        iterations, error, *_ = sim._correct_joints(final=True)
+    assert iterations == 1
+    return error
+
+
+def test_the_carry_leaves_a_fraction_of_the_first_iterations_error():
+    """On a swinging chain the first solve leaves about half the plain one's error (measured on this step: 1.9e-4
+    m against 3.4e-4); a carry of the wrong sign, or one never taken, leaves as much or more."""
+    plain, carried = _first_iteration_error(False), _first_iteration_error(True)
+    assert plain > 1e-5, plain  # the plain first iteration leaves something to correct
+    assert carried < 0.75 * plain, (carried, plain)
+
+
+@pytest.mark.parametrize(
+    ("make", "dt", "most"),
+    [
+        (lambda: scenes.chain(10), 1 / 60, 0.97),
+        (scenes.double_pendulum, 1 / 120, 0.85),
+        (lambda: scenes.chain(50), 1 / 60, 0.95),
+    ],
+)
+def test_the_carry_saves_iterations_and_ends_where_the_plain_one_does(make, dt, most):
+    """Fewer joint iterations over a second of swinging (measured: chain10 3.88 -> 3.65 a step from 1.1 s, the
+    double pendulum 2.14 -> 1.56, chain50 2.52 -> 2.22), every step held to the tolerance, and the motion the
+    plain iteration's to within what the tolerance lets a second of chaos drift."""
+    runs = {}
+    for carry in (False, True):
+        sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=1e-6, carry=carry)
+        sim.step(int(round(1.1 / dt)))
+        stats = [sim.step() for _ in range(int(round(1.0 / dt)))]
+        runs[carry] = (sim, stats)
+    (plain, plain_stats), (carried, carried_stats) = runs[False], runs[True]
+    assert carried.carry and not plain.carry
+    plain_its = sum(s.joint_iterations for s in plain_stats)
+    carried_its = sum(s.joint_iterations for s in carried_stats)
+    assert carried_its < most * plain_its, (carried_its, plain_its)
+    for s in carried_stats:
+        assert s.converged and s.max_joint_error <= 1e-6
+    np.testing.assert_allclose(carried.positions(), plain.positions(), atol=1e-3)
+
+
+def test_a_run_depends_on_its_steps_only():
+    """reset() and set_state() forget the carry: the next steps are a fresh simulator's, bit for bit; a
+    checkpoint keeps it: the run resumed from one is the run that went on."""
+    make = lambda: scenes.chain(6).finalize("cpu")  # noqa: E731
+    fresh = wi.Simulator(make(), 1 / 60)
+    fresh.step(30)
+    sim = wi.Simulator(make(), 1 / 60)
+    sim.step(17)
+    sim.reset()
+    sim.step(30)
+    for a, b in zip(
+        (fresh.positions(), fresh.angular_velocities()), (sim.positions(), sim.angular_velocities()), strict=True
+    ):
+        assert np.array_equal(a, b)
+    state = sim.positions(), sim.orientations(), sim.linear_velocities(), sim.angular_velocities()
+    other = wi.Simulator(make(), 1 / 60)
+    other.set_state(*state)
+    other.time, other.step_count = sim.time, sim.step_count
+    sim.set_state(*state)
+    sim.step(10), other.step(10)
+    assert np.array_equal(sim.positions(), other.positions())
+
+
+def test_a_checkpoint_keeps_the_carry(tmp_path):
+    make = lambda: scenes.chain(6).finalize("cpu")  # noqa: E731
+    sim = wi.Simulator(make(), 1 / 60, order=4)  # a row of c a stage's step size
+    sim.step(20)
+    sim.save_checkpoint(tmp_path / "c.npz")
+    resumed = wi.Simulator(make(), 1 / 60, order=4)
+    resumed.load_checkpoint(tmp_path / "c.npz")
+    sim.step(20), resumed.step(20)
+    assert np.array_equal(sim.positions(), resumed.positions())
+    assert np.array_equal(sim.angular_velocities(), resumed.angular_velocities())
+
+
+def test_where_the_carry_is_taken():
+    chain = scenes.chain(4).finalize("cpu")
+    assert wi.Simulator(chain, 1 / 60).carry
+    assert not wi.Simulator(chain, 1 / 60, carry=False).carry
+    assert not wi.Simulator(chain, 1 / 60, solver="cg").carry
+    assert not wi.Simulator(chain, 1 / 60, solver="iterative").carry
+    for solver in ("cg", "iterative"):
+        with pytest.raises(ValueError, match=f"carry needs joints, the cholesky solver.*'{solver}'"):
+            wi.Simulator(chain, 1 / 60, solver=solver, carry=True)
+    with pytest.raises(ValueError, match="carry must be True, False or None"):
+        wi.Simulator(chain, 1 / 60, carry="yes")
+    stack = scenes.box_stack(2).finalize("cpu")  # contacts: their loop does not carry
+    assert not wi.Simulator(stack, 1 / 60).carry
+    with pytest.raises(ValueError, match="carry needs.*colliders"):
+        wi.Simulator(stack, 1 / 60, carry=True)
