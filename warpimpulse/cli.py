@@ -69,7 +69,7 @@ def _add_simulate(sub) -> None:
         "--carry",
         choices=("auto", "on", "off"),
         default="auto",
-        help="the first joint iteration takes what the last step's left (auto: on with the cholesky solver, no contacts)",
+        help="the first joint iteration takes what the last step's left (auto: on with cholesky, no contacts)",
     )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
