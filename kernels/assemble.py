@@ -18,6 +18,32 @@ wp.set_module_options({"enable_backward": False})
 vec3d = wp.vec3d
 mat33d = wp.mat33d
 f64 = wp.float64
+# The two leading rows of a Jacobian block of a constraint of dimension < 3, and their transpose.
+mat23d = wp.types.matrix(shape=(2, 3), dtype=f64)
+mat32d = wp.types.matrix(shape=(3, 2), dtype=f64)
+
+
+@wp.func
+def leading_rows_times(j: mat33d, a: mat33d, dim: int) -> mat33d:
+    """j a for a Jacobian block j of a constraint of dimension `dim`, whose rows dim..2 are 0: a constraint of
+    dimension < 3 multiplies its two leading rows alone (2 x 3 by 3 x 3, 18 products, not 27; Warp fuses them as it
+    does j a's, so the same bits) and leaves row 2 zero."""
+    if dim == 3:
+        return j * a
+    t = mat23d(j[0, 0], j[0, 1], j[0, 2], j[1, 0], j[1, 1], j[1, 2]) * a
+    z = f64(0.0)
+    return mat33d(t[0, 0], t[0, 1], t[0, 2], t[1, 0], t[1, 1], t[1, 2], z, z, z)
+
+
+@wp.func
+def times_leading_transpose(a: mat33d, j: mat33d, dim: int) -> mat33d:
+    """a j^T for a Jacobian block j of a constraint of dimension `dim` (`leading_rows_times`): column 2 stays
+    zero below dimension 3."""
+    if dim == 3:
+        return a * wp.transpose(j)
+    t = a * mat32d(j[0, 0], j[1, 0], j[0, 1], j[1, 1], j[0, 2], j[1, 2])
+    z = f64(0.0)
+    return mat33d(t[0, 0], t[0, 1], z, t[1, 0], t[1, 1], z, t[2, 0], t[2, 1], z)
 
 
 @wp.func
@@ -35,16 +61,18 @@ def row_products(
     every block of K its body is in. A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a
     skew matrix [s]x, s kept alone (`constraints.constraint_frame`): its products are +-m^-1 I, J_lin unread, and
     `skew_times` of s (24 bytes read where the block takes 72). A rotational constraint's J_lin is 0: its linear
-    product is 0, J_lin unread."""
+    product is 0, J_lin unread. A constraint of dimension < 3 multiplies only its Jacobian's leading rows
+    (`leading_rows_times`)."""
     if kind == POINT:
         m = inv_mass
         if side != 0:
             m = -inv_mass
         z = f64(0.0)
         return mat33d(m, z, z, z, m, z, z, z, m), skew_times(jac_skew[r], symmetric_matrix(inv_inertia_world))
+    inertia = leading_rows_times(jac_ang[r], symmetric_matrix(inv_inertia_world), constraint_dim(kind))
     if is_translational(kind):
-        return inv_mass * jac_lin[r], jac_ang[r] * symmetric_matrix(inv_inertia_world)
-    return mat33d(), jac_ang[r] * symmetric_matrix(inv_inertia_world)
+        return inv_mass * jac_lin[r], inertia
+    return mat33d(), inertia
 
 
 @wp.func
@@ -62,15 +90,18 @@ def row_block(
     its `side`). A point constraint's J_lin is I on side 0 and -I on side 1 and its J_ang a skew matrix [s]x, s
     kept alone (`constraints.constraint_frame`): there the linear part is +-m^-1 J_lin of row i, the same value
     without the product, and the angular part is `times_skew_transpose` of s. A rotational constraint's J_lin is
-    0: no linear part (adding its zeros changed no bit)."""
+    0: no linear part (adding its zeros changed no bit). Row j's constraint of dimension < 3 leaves the block's
+    columns from its dimension on zero, unformed (`times_leading_transpose`)."""
     if kind == POINT:
         angular = times_skew_transpose(inertia_jac, jac_skew[r])
         if side == 0:
             return mass_jac + angular
         return angular - mass_jac
+    dim = constraint_dim(kind)
+    angular = times_leading_transpose(inertia_jac, jac_ang[r], dim)
     if is_translational(kind):
-        return mass_jac * wp.transpose(jac_lin[r]) + inertia_jac * wp.transpose(jac_ang[r])
-    return inertia_jac * wp.transpose(jac_ang[r])
+        return times_leading_transpose(mass_jac, jac_lin[r], dim) + angular
+    return angular
 
 
 @wp.func

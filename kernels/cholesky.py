@@ -33,6 +33,9 @@ wp.set_module_options({"enable_backward": False})
 vec3d = wp.vec3d
 mat33d = wp.mat33d
 f64 = wp.float64
+# The leading two columns of a block whose column unknown has 2 rows, and their transpose (`times_transpose`).
+mat32d = wp.types.matrix(shape=(3, 2), dtype=f64)
+mat23d = wp.types.matrix(shape=(2, 3), dtype=f64)
 
 
 @wp.func
@@ -101,6 +104,58 @@ def cholesky3_inverse(a: mat33d, tiny: f64, fallback: f64):
 
 
 @wp.func
+def cholesky_inverse(a: mat33d, rows: int, tiny: f64, fallback: f64):
+    """`cholesky3_inverse` of a pivot block whose unknown has `rows` < 3 rows: its padded rows and columns are
+    0 but for a unit diagonal (`assemble.pad_unused_rows`), so only the leading rows x rows minors are formed and
+    the padded pivots are 1. The same operations as `cholesky3_inverse` for the leading part, so the same bits
+    (its padded pivot there is M_3 / M_2 = 1 to round-off, read only against zeros)."""
+    if rows == 3:
+        return cholesky3_inverse(a, tiny, fallback)
+    z = f64(0.0)
+    one = f64(1.0)
+    m1 = a[0, 0]
+    q1 = one / m1
+    if rows == 2:
+        m2 = a[0, 0] * a[1, 1] - a[1, 0] * a[1, 0]
+        q2 = one / m2
+        if m1 > tiny and m2 * q1 > tiny and one > tiny:
+            r0 = wp.sqrt(q1)
+            r1 = wp.sqrt(m1 * q2)
+            l10 = a[1, 0] * r0
+            b = -l10 * r0 * r1
+            return mat33d(r0, z, z, b, r1, z, z, z, one), int(0)
+    elif m1 > tiny and one > tiny:
+        return mat33d(wp.sqrt(q1), z, z, z, one, z, z, z, one), int(0)
+    return cholesky3_inverse_in_turn(a, tiny, fallback)
+
+
+@wp.func
+def shaped_times(m: mat33d, v: vec3d, shape: wp.vec2i) -> vec3d:
+    """m v for a block whose columns >= shape[1] are structurally zero (`slot_shape`): the products of its
+    leading columns alone, each sum in the order m v takes it (column by column), so m v's bits but for the sign
+    of a zero."""
+    if shape[1] == 3:
+        return m * v
+    if shape[1] == 2:
+        return vec3d(m[0, 0] * v[0] + m[0, 1] * v[1], m[1, 0] * v[0] + m[1, 1] * v[1], m[2, 0] * v[0] + m[2, 1] * v[1])
+    return vec3d(m[0, 0] * v[0], m[1, 0] * v[0], m[2, 0] * v[0])
+
+
+@wp.func
+def times_transpose(a: mat33d, b: mat33d, inner: int) -> mat33d:
+    """a b^T for blocks whose columns >= `inner` are structurally zero: the product of their leading columns
+    (3 x inner times inner x 3), which Warp fuses as it does a b^T's (one column: their outer product, each
+    entry one product as the fused one rounds it), so a b^T's bits but for the sign of a zero."""
+    if inner == 3:
+        return a * wp.transpose(b)
+    if inner == 2:
+        return mat32d(a[0, 0], a[0, 1], a[1, 0], a[1, 1], a[2, 0], a[2, 1]) * mat23d(
+            b[0, 0], b[1, 0], b[2, 0], b[0, 1], b[1, 1], b[2, 1]
+        )
+    return wp.outer(vec3d(a[0, 0], a[1, 0], a[2, 0]), vec3d(b[0, 0], b[1, 0], b[2, 0]))
+
+
+@wp.func
 def lower_times(l: mat33d, v: vec3d) -> vec3d:
     """l v for a lower triangular l, its zeros skipped."""
     return vec3d(l[0, 0] * v[0], l[1, 0] * v[0] + l[1, 1] * v[1], l[2, 0] * v[0] + l[2, 1] * v[1] + l[2, 2] * v[2])
@@ -143,6 +198,7 @@ def factor_column(
     update_sign: wp.array(dtype=f64),
     col_sign: wp.array(dtype=f64),
     col_loop: wp.array(dtype=int),
+    slot_shape: wp.array(dtype=wp.vec2i),
     pivot_tolerance: f64,
     loop_tolerance: f64,
     values: wp.array(dtype=mat33d),
@@ -172,10 +228,11 @@ def factor_column(
         if update_target[u] != d:
             break
         l = values[update_a[u]]  # its update_b: a diagonal block's update is L_jk s_k L_jk^T
+        update = times_transpose(l, l, slot_shape[update_a[u]][1])
         if negative_update(signs, u, update_sign):
-            a = a + l * wp.transpose(l)
+            a = a + update
         else:
-            a = a - l * wp.transpose(l)
+            a = a - update
         u += 1
     negative = False
     if signs != 0:
@@ -187,10 +244,10 @@ def factor_column(
     li = mat33d()
     if col_loop[j] != 0:  # relative to the assembled diagonal: the reduced one may be all round-off
         full = wp.max(wp.max(assembled[0, 0], assembled[1, 1]), assembled[2, 2])
-        li, redundant = cholesky3_inverse(a, loop_tolerance * full, full)
+        li, redundant = cholesky_inverse(a, slot_shape[d][0], loop_tolerance * full, full)
         singular[1] = singular[1] + redundant
     else:
-        li, bad = cholesky3_inverse(a, pivot_tolerance * scale, f64(1.0))
+        li, bad = cholesky_inverse(a, slot_shape[d][0], pivot_tolerance * scale, f64(1.0))
         if bad != 0 and singular[0] == 0:
             singular[0] = j + 1
     values[d] = li  # the assembled block is read above: the solves need only the inverse
@@ -199,10 +256,11 @@ def factor_column(
         while u < end:
             if update_target[u] != s:
                 break
+            update = times_transpose(values[update_a[u]], values[update_b[u]], slot_shape[update_a[u]][1])
             if negative_update(signs, u, update_sign):
-                block = block + values[update_a[u]] * wp.transpose(values[update_b[u]])
+                block = block + update
             else:
-                block = block - values[update_a[u]] * wp.transpose(values[update_b[u]])
+                block = block - update
             u += 1
         block = times_lower_transpose(block, li)
         if negative:
@@ -223,6 +281,7 @@ def factor(
     update_sign: wp.array(dtype=f64),
     col_sign: wp.array(dtype=f64),
     col_loop: wp.array(dtype=int),
+    slot_shape: wp.array(dtype=wp.vec2i),
     pivot_tolerance: f64,
     loop_tolerance: f64,
     # data in/out
@@ -234,7 +293,7 @@ def factor(
     for j in range(group_start[g], group_start[g + 1]):
         factor_column(
             j, signs, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
-            pivot_tolerance, loop_tolerance, values, singular,
+            slot_shape, pivot_tolerance, loop_tolerance, values, singular,
         )  # fmt: skip
 
 
@@ -246,6 +305,7 @@ def forward_row(
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
+    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
@@ -266,6 +326,7 @@ def solve_forward(
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
+    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
@@ -273,7 +334,7 @@ def solve_forward(
     """L y = P b, the rows of one group in order (`forward_row`)."""
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
-        forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, y)
+        forward_row(j, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, y)
 
 
 @wp.func
@@ -283,6 +344,7 @@ def backward_column(
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
+    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
@@ -308,6 +370,7 @@ def solve_backward(
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
+    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
@@ -316,7 +379,7 @@ def solve_backward(
     g = first_group + wp.tid()
     begin = group_start[g]
     for jj in range(group_start[g + 1] - begin):
-        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, values, y, x)
+        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, slot_shape, values, y, x)
 
 
 @wp.kernel

@@ -23,6 +23,7 @@ from .kernels.inertia import sym33d
 from .launch import record
 from .model import Model
 from .topology import schedule
+from .types import ConstraintKind
 
 LOOP_TOLERANCE_FLOOR = 1e-6
 """The smallest `loop_tolerance`: a loop row's pivot below this fraction of its diagonal is redundant at any
@@ -118,6 +119,7 @@ class CholeskySolver:
             group_start=_int(group_start, d),
             col_sign=_float(pat.col_sign, d),
             col_loop=_int(self._loop_columns(model, pat), d),
+            slot_shape=wp.array(self._slot_shape(model, pat), dtype=wp.vec2i, device=d),
             update_sign=_float(pat.update_sign, d),
             **{name: _int(getattr(pat, name), d) for name in ints},
         )
@@ -190,6 +192,20 @@ class CholeskySolver:
         loops = np.zeros(model.joint_count, dtype=bool)
         loops[model.topology.loop_joints] = True
         return loops[model.constraint_joint[pat.perm]].astype(np.int32)
+
+    @staticmethod
+    def _slot_shape(model: Model, pat) -> np.ndarray:
+        """(rows, columns) of each slot's block that are not structurally zero: its row unknown's dimension by
+        its column unknown's. A constraint of dimension k < 3 is padded to 3 rows with a unit pivot and zeros
+        elsewhere (`assemble.pad_unused_rows`, `Slot.PAD`), so rows k..2 of its blocks in L, and columns k..2,
+        stay zero through the factor; the factor and the solves skip them (kernels/cholesky.py). A body's
+        unknowns (the augmented matrix) have 3 rows."""
+        dims = np.array([kind.dim for kind in ConstraintKind], dtype=np.int32)[model.host.constraint_kind]
+        if pat.formulation == "body":
+            dims = np.concatenate([np.full(2 * model.body_count, 3, dtype=np.int32), dims])
+        dim = dims[pat.perm]  # by elimination position
+        col = np.repeat(np.arange(len(pat.perm)), np.diff(pat.col_start))
+        return np.ascontiguousarray(np.stack([dim[pat.col_row], dim[col]], axis=1), dtype=np.int32)
 
     def check(self) -> None:
         """Raise SingularSystemError naming the joint (or body) whose pivot the last factorization lost; note
