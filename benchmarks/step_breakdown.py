@@ -110,13 +110,13 @@ def _stage_kernels(ns):
     def solve(repeats: int, augmented: int, offset: int, constraint_count: int, perm: wp.array(dtype=int),
               col_start: wp.array(dtype=int), col_row: wp.array(dtype=int), col_sign: wp.array(dtype=f64),
               row_start: wp.array(dtype=int), row_slot: wp.array(dtype=int), row_col: wp.array(dtype=int),
-              slot_shape: wp.array(dtype=wp.vec2i), values: wp.array(dtype=mat33d), work: wp.array(dtype=vec3d),
+              values: wp.array(dtype=mat33d), work: wp.array(dtype=vec3d),
               aug_rhs: wp.array(dtype=vec3d), aug_x: wp.array(dtype=vec3d), rhs: wp.array(dtype=vec3d),
               impulse: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             step_kernels.cholesky_solve(
                 augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot,
-                row_col, slot_shape, values, work, aug_rhs, aug_x, rhs, impulse,
+                row_col, values, work, aug_rhs, aug_x, rhs, impulse,
             )  # fmt: skip
 
     @wp.kernel(module=module)

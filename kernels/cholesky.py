@@ -130,18 +130,6 @@ def cholesky_inverse(a: mat33d, rows: int, tiny: f64, fallback: f64):
 
 
 @wp.func
-def shaped_times(m: mat33d, v: vec3d, shape: wp.vec2i) -> vec3d:
-    """m v for a block whose columns >= shape[1] are structurally zero (`slot_shape`): the products of its
-    leading columns alone, each sum in the order m v takes it (column by column), so m v's bits but for the sign
-    of a zero."""
-    if shape[1] == 3:
-        return m * v
-    if shape[1] == 2:
-        return vec3d(m[0, 0] * v[0] + m[0, 1] * v[1], m[1, 0] * v[0] + m[1, 1] * v[1], m[2, 0] * v[0] + m[2, 1] * v[1])
-    return vec3d(m[0, 0] * v[0], m[1, 0] * v[0], m[2, 0] * v[0])
-
-
-@wp.func
 def times_transpose(a: mat33d, b: mat33d, inner: int) -> mat33d:
     """a b^T for blocks whose columns >= `inner` are structurally zero: the product of their leading columns
     (3 x inner times inner x 3), which Warp fuses as it does a b^T's (one column: their outer product, each
@@ -305,7 +293,6 @@ def forward_row(
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
@@ -326,7 +313,6 @@ def solve_forward(
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     y: wp.array(dtype=vec3d),
@@ -334,7 +320,7 @@ def solve_forward(
     """L y = P b, the rows of one group in order (`forward_row`)."""
     g = first_group + wp.tid()
     for j in range(group_start[g], group_start[g + 1]):
-        forward_row(j, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, y)
+        forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, y)
 
 
 @wp.func
@@ -344,7 +330,6 @@ def backward_column(
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
@@ -370,7 +355,6 @@ def solve_backward(
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     y: wp.array(dtype=vec3d),
     x: wp.array(dtype=vec3d),
@@ -379,7 +363,7 @@ def solve_backward(
     g = first_group + wp.tid()
     begin = group_start[g]
     for jj in range(group_start[g + 1] - begin):
-        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, slot_shape, values, y, x)
+        backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, values, y, x)
 
 
 @wp.kernel

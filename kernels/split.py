@@ -52,14 +52,13 @@ def forward_rows(
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     rhs: wp.array(dtype=vec3d),
     work: wp.array(dtype=vec3d),
 ):
     """L y = P rhs on the part's rows, in elimination order."""
     for k in range(part_columns.shape[0]):
-        forward_row(part_columns[k], perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, work)
+        forward_row(part_columns[k], perm, col_start, row_start, row_slot, row_col, values, rhs, work)
 
 
 @wp.func
@@ -71,7 +70,6 @@ def backward_apply(
     col_start: wp.array(dtype=int),
     col_row: wp.array(dtype=int),
     col_sign: wp.array(dtype=f64),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     work: wp.array(dtype=vec3d),
     impulse: wp.array(dtype=vec3d),
@@ -88,7 +86,7 @@ def backward_apply(
     """L^T z = S y on the part's columns (last first), then the impulses onto the part's bodies."""
     n = part_columns.shape[0]
     for k in range(n):
-        backward_column(part_columns[n - 1 - k], perm, col_start, col_row, col_sign, slot_shape, values, work, impulse)
+        backward_column(part_columns[n - 1 - k], perm, col_start, col_row, col_sign, values, work, impulse)
     for k in range(part_bodies.shape[0]):
         apply_body(
             part_bodies[k], constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
@@ -165,7 +163,6 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         row_start: wp.array(dtype=int),
         row_slot: wp.array(dtype=int),
         row_col: wp.array(dtype=int),
-        slot_shape: wp.array(dtype=wp.vec2i),
         # The part:
         part_bodies: wp.array(dtype=int),
         part_constraints: wp.array(dtype=int),
@@ -219,9 +216,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 w0[b] = body_w_out[b]
         else:
             if separator != 0:
-                forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, work)
+                forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
             backward_apply(
-                part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, slot_shape, values,
+                part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values,
                 work, impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
                 body_v_out, body_w_out,
             )  # fmt: skip
@@ -258,7 +255,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
             part_out[1] = f64(bad)
             part_out[2] = spin
         if separator == 0:
-            forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, work)
+            forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
 
     @wp.kernel(module=module)
     def refactor(
@@ -357,7 +354,7 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 body_v_out, body_w_out, errors, rhs,
             )  # fmt: skip
             if separator == 0:
-                forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, work)
+                forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
 
     @wp.kernel(module=module)
     def velocity_fix(
@@ -376,7 +373,6 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         row_start: wp.array(dtype=int),
         row_slot: wp.array(dtype=int),
         row_col: wp.array(dtype=int),
-        slot_shape: wp.array(dtype=wp.vec2i),
         # The part:
         part_bodies: wp.array(dtype=int),
         part_constraints: wp.array(dtype=int),
@@ -399,9 +395,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         """One part's share of the velocity correction: the solve (the separator's forward rows, then
         backward, before the parts'), the impulses on its bodies, its velocity errors again."""
         if separator != 0:
-            forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, work)
+            forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
         backward_apply(
-            part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, slot_shape, values, work,
+            part_columns, part_bodies, constraint_kind, perm, col_start, col_row, col_sign, values, work,
             impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
             body_v_out, body_w_out,
         )  # fmt: skip

@@ -623,7 +623,6 @@ def cholesky_solve(
     row_start: wp.array(dtype=int),
     row_slot: wp.array(dtype=int),
     row_col: wp.array(dtype=int),
-    slot_shape: wp.array(dtype=wp.vec2i),
     values: wp.array(dtype=mat33d),
     work: wp.array(dtype=vec3d),
     aug_rhs: wp.array(dtype=vec3d),
@@ -638,16 +637,16 @@ def cholesky_solve(
         for i in range(constraint_count):
             aug_rhs[offset + i] = f64(-1.0) * rhs[i]
         for j in range(n):
-            forward_row(j, perm, col_start, row_start, row_slot, row_col, slot_shape, values, aug_rhs, work)
+            forward_row(j, perm, col_start, row_start, row_slot, row_col, values, aug_rhs, work)
         for jj in range(n):
-            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, slot_shape, values, work, aug_x)
+            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, aug_x)
         for i in range(constraint_count):
             impulse[i] = f64(1.0) * aug_x[offset + i]
     else:
         for j in range(n):
-            forward_row(j, perm, col_start, row_start, row_slot, row_col, slot_shape, values, rhs, work)
+            forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
         for jj in range(n):
-            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, slot_shape, values, work, impulse)
+            backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, impulse)
 
 
 @functools.cache
@@ -976,7 +975,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             carry_into(i, carry[row], rhs)
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, slot_shape, values, work, aug_rhs, aug_x, rhs, impulse,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     if tries == 0 and newton != 0:  # solve again with rhs - E lambda: K + E is the error's answer
                         newton_rhs_all(
@@ -988,7 +987,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                            row_slot, row_col, slot_shape, values, work, aug_rhs, aug_x, newton_rhs, impulse,
+                            row_slot, row_col, values, work, aug_rhs, aug_x, newton_rhs, impulse,
                         )  # fmt: skip
                         newton_solves += 1
                     if wp.static(forced or rows):  # every impulse first: rows, elements couple the bodies
@@ -1096,7 +1095,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     for l in range(limit_rows.limit_coordinate.shape[0]):
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                            row_slot, row_col, slot_shape, values, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
+                            row_slot, row_col, values, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
                             limit_rows.response_rows[l],
                         )  # fmt: skip
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
@@ -1107,7 +1106,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, slot_shape, values, work, aug_rhs, aug_x, rhs, impulse,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
@@ -1125,7 +1124,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if not (verr <= velocity_tolerance):
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, slot_shape, values, work, aug_rhs, aug_x, rhs, impulse,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
                     )  # fmt: skip
                     apply_all(
                         body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
