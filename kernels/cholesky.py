@@ -18,6 +18,13 @@ not 0.586; tree127 and chain10, cache resident, unchanged (docs/architecture.md,
 L_jj^-1 is lower triangular (its upper three entries 0, never read); the solves apply it with `lower_times` and
 `lower_transpose_times`.
 
+A constraint of fewer than 3 rows is padded to 3 with a unit pivot, so its blocks' padded rows and columns stay
+zero in L. The factor skips them by each slot's shape (`slot_shape`: its row unknown's rows by its column
+unknown's): an update L_ik L_jk^T multiplies the column's rows only (`times_transpose`), a pivot of 2 or 1 rows is
+a 2x2 or 1x1 (`cholesky_inverse`), the same bits (chain10's factor ~970 -> ~860 ns). The solves keep full 3x3
+products: a branch there, per block or per row, cost more than the products it saved (docs/architecture.md,
+"Cheaper stages").
+
 The factor of a chain waits on each column's pivot block before the next column can start, so
 `cholesky3_inverse` forms its three pivots from the leading minors, their divisions and square roots independent
 (chain10's factor ~1.3 -> ~1.05 us). A block L D L^T (unit L, so one product a column on a solve's dependent
@@ -105,10 +112,10 @@ def cholesky3_inverse(a: mat33d, tiny: f64, fallback: f64):
 
 @wp.func
 def cholesky_inverse(a: mat33d, rows: int, tiny: f64, fallback: f64):
-    """`cholesky3_inverse` of a pivot block whose unknown has `rows` < 3 rows: its padded rows and columns are
-    0 but for a unit diagonal (`assemble.pad_unused_rows`), so only the leading rows x rows minors are formed and
-    the padded pivots are 1. The same operations as `cholesky3_inverse` for the leading part, so the same bits
-    (its padded pivot there is M_3 / M_2 = 1 to round-off, read only against zeros)."""
+    """`cholesky3_inverse` of a pivot block whose unknown has `rows` rows (`CholeskySolver._slot_shape`). Below 3
+    its padded rows and columns are 0 but for a unit diagonal (`assemble.pad_unused_rows`), so only the leading
+    minors are formed and the padded pivots are 1: the same operations as `cholesky3_inverse` for the leading
+    part, so the same bits (its padded pivot there is M_3 / M_2 = 1 to round-off, read only against zeros)."""
     if rows == 3:
         return cholesky3_inverse(a, tiny, fallback)
     z = f64(0.0)
@@ -193,7 +200,8 @@ def factor_column(
     singular: wp.array(dtype=int),
 ):
     """Column j, left-looking, a slot at a time: the slot's block less its updates L_ak s_k L_bk^T (the host
-    sorts a column's updates by target slot, the diagonal's first), held in registers; then
+    sorts a column's updates by target slot, the diagonal's first; each on column k's rows, `slot_shape`), held in
+    registers; then
     L_jj^-1 = chol(s_j .)^-1, written over the assembled diagonal block (read first: the loop scale below needs
     it), and each L_ij = (.) L_jj^-T s_j written once.
 

@@ -198,8 +198,8 @@ class CholeskySolver:
         """(rows, columns) of each slot's block that are not structurally zero: its row unknown's dimension by
         its column unknown's. A constraint of dimension k < 3 is padded to 3 rows with a unit pivot and zeros
         elsewhere (`assemble.pad_unused_rows`, `Slot.PAD`), so rows k..2 of its blocks in L, and columns k..2,
-        stay zero through the factor; the factor and the solves skip them (kernels/cholesky.py). A body's
-        unknowns (the augmented matrix) have 3 rows."""
+        stay zero through the factor, which skips them (kernels/cholesky.py; the solves keep their full
+        products: docs/architecture.md, "Cheaper stages"). A body's unknowns (the augmented matrix) have 3 rows."""
         dims = np.array([kind.dim for kind in ConstraintKind], dtype=np.int32)[model.host.constraint_kind]
         if pat.formulation == "body":
             dims = np.concatenate([np.full(2 * model.body_count, 3, dtype=np.int32), dims])
