@@ -169,7 +169,8 @@ def _stage_kernels(ns):
                     s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
                     jac_skew, values,
                 )  # fmt: skip
-            for j in range(col_start.shape[0] - 1):  # as the fused step: each column assembled, then factored
+            j = wp.int32(0)  # as the fused step: each column assembled, then factored (a while loop, as there)
+            while j < col_start.shape[0] - 1:
                 if slot_row.shape[0] > 0:
                     step_kernels.assemble_column(
                         j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
@@ -180,6 +181,7 @@ def _stage_kernels(ns):
                         j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, slot_shape, pivot_tolerance, loop_tolerance, values, singular,
                     )  # fmt: skip
+                j += 1
 
     @wp.kernel(module=module)
     def velocity_errors(repeats: int, constraint_count: int, constraint_kind: wp.array(dtype=int),

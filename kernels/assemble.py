@@ -289,7 +289,9 @@ def assemble_column(
     if own[0] == 1 or own[2] == 1:
         diagonal += wp.transpose(row_block(m1, w1, kind_c, 1, 2 * c + 1, jac_lin_in, jac_ang_in, jac_skew_in))
     values_out[d] = pad_unused_rows(diagonal, kind_c)
-    for s in range(d + 1, col_start[j + 1]):
+    s = d + 1
+    stop = col_start[j + 1]
+    while s < stop:
         i = slot_row[s]
         kind = constraint_kind[i]
         sides = slot_sides[s]
@@ -304,6 +306,7 @@ def assemble_column(
                     w = w1
                 k += wp.transpose(row_block(m, w, kind, si, 2 * i + si, jac_lin_in, jac_ang_in, jac_skew_in))
         values_out[s] = k
+        s += 1
 
 
 @wp.kernel

@@ -247,7 +247,9 @@ def factor_column(
         if bad != 0 and singular[0] == 0:
             singular[0] = j + 1
     values[d] = li  # the assembled block is read above: the solves need only the inverse
-    for s in range(d + 1, col_start[j + 1]):
+    s = d + 1
+    stop = col_start[j + 1]
+    while s < stop:
         block = values[s]
         while u < end:
             if update_target[u] != s:
@@ -262,6 +264,7 @@ def factor_column(
         if negative:
             block = -block
         values[s] = block
+        s += 1
 
 
 @wp.kernel
@@ -286,11 +289,14 @@ def factor(
 ):
     """The columns of one group in order (`factor_column`)."""
     g = first_group + wp.tid()
-    for j in range(group_start[g], group_start[g + 1]):
+    j = group_start[g]
+    stop = group_start[g + 1]
+    while j < stop:
         factor_column(
             j, signs, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
             slot_shape, pivot_tolerance, loop_tolerance, values, singular,
         )  # fmt: skip
+        j += 1
 
 
 @wp.func
@@ -307,8 +313,11 @@ def forward_row(
 ):
     """Row j of L y = P b: y_j = L_jj^-1 (b_perm(j) - sum_k L_jk y_k), L_jj^-1 from column j's diagonal slot."""
     s = rhs[perm[j]]
-    for k in range(row_start[j], row_start[j + 1]):
+    k = row_start[j]
+    stop = row_start[j + 1]
+    while k < stop:
         s -= values[row_slot[k]] * y[row_col[k]]
+        k += 1
     y[j] = lower_times(values[col_start[j]], s)
 
 
@@ -327,8 +336,11 @@ def solve_forward(
 ):
     """L y = P b, the rows of one group in order (`forward_row`)."""
     g = first_group + wp.tid()
-    for j in range(group_start[g], group_start[g + 1]):
+    j = group_start[g]
+    stop = group_start[g + 1]
+    while j < stop:
         forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, y)
+        j += 1
 
 
 @wp.func
@@ -348,8 +360,11 @@ def backward_column(
     """
     d = col_start[j]
     s = col_sign[j] * y[j]
-    for k in range(d + 1, col_start[j + 1]):
+    k = d + 1
+    stop = col_start[j + 1]
+    while k < stop:
         s -= wp.transpose(values[k]) * y[col_row[k]]
+        k += 1
     z = lower_transpose_times(values[d], s)
     y[j] = z
     x[perm[j]] = z

@@ -35,7 +35,9 @@ def impulse_response(
     so it adds to w only."""
     dv = vec3d()
     dl = vec3d()
-    for k in range(body_rows_start[b], body_rows_start[b + 1]):
+    k = body_rows_start[b]
+    end = body_rows_start[b + 1]
+    while k < end:  # not `for k in range(...)`: Warp's range loops cost more in short loops (docs/architecture.md)
         r = body_rows[k]
         i = r // 2
         lam = impulse_in[i]
@@ -49,6 +51,7 @@ def impulse_response(
             if is_translational(constraint_kind[i]):  # a rotational kind's J_lin is zero: nothing to add
                 dv += wp.transpose(jac_lin_in[r]) * lam
             dl += wp.transpose(jac_ang_in[r]) * lam
+        k += 1
     return dv * body_inv_mass[b], symmetric_times(inv_inertia_world_in[b], dl)
 
 

@@ -130,13 +130,17 @@ def save_start(
 ):
     """Keep what a failed step must restore: the velocities of t0, and for a composed step (stage_count > 1),
     whose later stages start from moved bodies, the poses too."""
-    for b in range(body_count):
+    b = wp.int32(0)
+    while b < body_count:
         v0[b] = body_v[b]
         w0[b] = body_w[b]
+        b += 1
     if stage_count > 1:
-        for b in range(body_count):
+        b = wp.int32(0)
+        while b < body_count:
             x0[b] = body_x[b]
             q0[b] = body_q[b]
+            b += 1
 
 
 @wp.func
@@ -166,13 +170,17 @@ def restore_start(
 ):
     """Undo a step that failed in its stage `stage`: the velocities of t0, and the poses after a first stage
     (the frames then are those of the last stage taken: the host recomputes them)."""
-    for b in range(body_count):
+    b = wp.int32(0)
+    while b < body_count:
         body_v[b] = v0[b]
         body_w[b] = w0[b]
+        b += 1
     if stage > 0:
-        for b in range(body_count):
+        b = wp.int32(0)
+        while b < body_count:
             body_x[b] = x0[b]
             body_q[b] = q0[b]
+            b += 1
 
 
 @wp.func
@@ -206,11 +214,13 @@ def settle(
     and the prediction's arrays trade places (a pass of 104 bytes read and written a body saved every step), so
     after an odd number of accepted stages the state is in the prediction's arrays, copied back once a launch."""
     if state_x.ptr != body_x_out.ptr:
-        for b in range(body_count):
+        b = wp.int32(0)
+        while b < body_count:
             body_x_out[b] = state_x[b]
             body_q_out[b] = state_q[b]
             body_v_out[b] = state_v[b]
             body_w_out[b] = state_w[b]
+            b += 1
 
 
 @wp.func
@@ -278,12 +288,14 @@ def predict_all(
     pred_w: wp.array(dtype=vec3d),
 ):
     """Every body's prediction (`predict_group`: LANES bodies at a time)."""
-    for b0 in range(0, body_count, LANES):
+    b0 = wp.int32(0)
+    while b0 < body_count:
         predict_group(
             b0, wp.min(LANES, body_count - b0), body_inv_mass, body_inertia, body_inv_inertia, body_principal,
             body_euler, gravity, h, body_x, body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v,
             pred_w,
         )  # fmt: skip
+        b0 += LANES
 
 
 @wp.func
@@ -336,13 +348,15 @@ def rk4_stage_all(
     out_v: wp.array(dtype=vec3d),
     out_w: wp.array(dtype=vec3d),
 ):
-    for b in range(body_count):
+    b = wp.int32(0)
+    while b < body_count:
         rk4_stage_body(
             b, stage, h, body_inv_mass, body_inertia, body_inv_inertia, gravity, el.body_wrench_start,
             el.body_wrench_rows, start_x, start_q, start_v, start_w, body_x, body_q, body_v, body_w, body_force,
             body_torque, el.wrench_force, el.wrench_torque, el.rk4_sum_x, el.rk4_sum_q, el.rk4_sum_v, el.rk4_sum_w,
             out_x, out_q, out_v, out_w,
         )  # fmt: skip
+        b += 1
 
 
 @wp.func
@@ -423,11 +437,13 @@ def apply_all(
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ):
-    for b in range(body_count):
+    b = wp.int32(0)
+    while b < body_count:
         apply_body(
             b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
             jac_skew, impulse, body_v, body_w,
         )  # fmt: skip
+        b += 1
 
 
 @wp.func
@@ -462,17 +478,21 @@ def apply_and_predict_all(
     """`apply_all` then `predict_all` in one pass over the bodies: a body's prediction reads only its own
     velocities, which only its own impulses change, so the result is the two passes' bit for bit. The bodies
     go LANES at a time (`predict_group`)."""
-    for b0 in range(0, body_count, LANES):
+    b0 = wp.int32(0)
+    while b0 < body_count:
         count = wp.min(LANES, body_count - b0)
-        for b in range(b0, b0 + count):
+        b = b0
+        while b < b0 + count:
             apply_body(
                 b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
                 jac_skew, impulse, body_v, body_w,
             )  # fmt: skip
+            b += 1
         predict_group(
             b0, count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, gravity, h, body_x,
             body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
         )  # fmt: skip
+        b0 += LANES
 
 
 @wp.func
@@ -491,7 +511,8 @@ def velocity_errors_all(
 ) -> f64:
     """|J_i v| and -J_i v of every constraint; returns the largest (NaN if any is)."""
     worst = f64(0.0)
-    for i in range(constraint_count):
+    i = wp.int32(0)
+    while i < constraint_count:
         velocity_error(
             i,
             constraint_kind,
@@ -506,6 +527,7 @@ def velocity_errors_all(
             rhs,
         )
         worst = max_or_nan(worst, errors[i])
+        i += 1
     return worst
 
 
@@ -583,12 +605,14 @@ def row_couplings_all(
             body_x, body_q, body_v, body_w, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
         )  # fmt: skip
     for l in range(nl):
-        for i in range(constraint_count):
+        i = wp.int32(0)
+        while i < constraint_count:
             coupling_entry(
                 l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, rows.limit_side_body,
                 rows.limit_side_lin, rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, jac_skew,
                 rows.limit_coupling,
             )  # fmt: skip
+            i += 1
 
 
 @wp.func
@@ -634,19 +658,31 @@ def cholesky_solve(
     augmented matrix takes [0; -rhs] and gives the impulses in its constraint part."""
     n = col_start.shape[0] - 1
     if augmented != 0:
-        for i in range(constraint_count):
+        i = wp.int32(0)
+        while i < constraint_count:
             aug_rhs[offset + i] = f64(-1.0) * rhs[i]
-        for j in range(n):
+            i += 1
+        j = wp.int32(0)
+        while j < n:
             forward_row(j, perm, col_start, row_start, row_slot, row_col, values, aug_rhs, work)
-        for jj in range(n):
+            j += 1
+        jj = wp.int32(0)
+        while jj < n:
             backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, aug_x)
-        for i in range(constraint_count):
+            jj += 1
+        i = wp.int32(0)
+        while i < constraint_count:
             impulse[i] = f64(1.0) * aug_x[offset + i]
+            i += 1
     else:
-        for j in range(n):
+        j = wp.int32(0)
+        while j < n:
             forward_row(j, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
-        for jj in range(n):
+            j += 1
+        jj = wp.int32(0)
+        while jj < n:
             backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, impulse)
+            jj += 1
 
 
 @functools.cache
@@ -688,13 +724,15 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     ) -> f64:
         """The joint errors of the prediction and -P d / h; returns the largest (NaN if any is)."""
         worst = f64(0.0)
-        for i in range(constraint_count):
+        i = wp.int32(0)
+        while i < constraint_count:
             position_error(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                 constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, inv_h, proj,
                 pred_x, pred_q, errors, rhs,
             )  # fmt: skip
             worst = max_or_nan(worst, errors[i])
+            i += 1
         return worst
 
     @wp.func(module=module)
@@ -720,13 +758,17 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         jac_skew: wp.array(dtype=vec3d),
     ):
         """World inverse inertias, P_i and J_ib at the current state."""
-        for b in range(body_count):
+        b = wp.int32(0)
+        while b < body_count:
             world_inverse_inertia_of(b, body_principal, body_inv_principal, body_inv_inertia, body_q, inv_inertia_world)
-        for i in range(constraint_count):
+            b += 1
+        i = wp.int32(0)
+        while i < constraint_count:
             frame(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                 constraint_axis0, constraint_axis1, body_x, body_q, proj, jac_lin, jac_ang, jac_skew,
             )  # fmt: skip
+            i += 1
 
     @wp.func(module=module)
     def newton_rhs_all(
@@ -760,19 +802,23 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     ):
         """The Newton step's right-hand side rhs - E lambda of the impulses just solved (`impulse_response`,
         `arm_correction`); solved with K, it gives the first iteration's impulses."""
-        for b in range(body_count):
+        b = wp.int32(0)
+        while b < body_count:
             dv, dw = impulse_response(
                 b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
                 jac_skew, impulse,
             )  # fmt: skip
             response_v[b] = dv
             response_w[b] = dw
-        for i in range(constraint_count):
+            b += 1
+        i = wp.int32(0)
+        while i < constraint_count:
             newton_rhs[i] = rhs[i] - arm_correction(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                 constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, h, proj, pred_x,
                 pred_q, jac_lin, jac_ang, jac_skew, response_v, response_w,
             )  # fmt: skip
+            i += 1
 
     @wp.func(module=module)
     def summary_all(
@@ -785,12 +831,14 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         """(bodies with a NaN or Inf, the largest finite |w|) of the prediction (`rigid.summarize_state`)."""
         bad = wp.int32(0)
         spin = f64(0.0)
-        for b in range(body_count):
+        b = wp.int32(0)
+        while b < body_count:
             finite, w = body_summary(b, pred_x, pred_q, pred_v, pred_w)
             if finite:
                 spin = wp.max(spin, w)
             else:
                 bad += 1
+            b += 1
         return bad, spin
 
     @wp.kernel(module=module)
@@ -971,8 +1019,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if tries >= max_iterations or (tries >= 3 and err > f64(1.0e3) * best):
                         break
                     if tries == 0 and carrying != 0:
-                        for i in range(constraint_count):
+                        i = wp.int32(0)
+                        while i < constraint_count:
                             carry_into(i, carry[row], rhs)
+                            i += 1
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
@@ -1025,8 +1075,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         constraint_rest_angle, inv_h, proj, next_x, next_q, errors, rhs,
                     )  # fmt: skip
                     if tries == 0 and carrying != 0:
-                        for i in range(constraint_count):
+                        i = wp.int32(0)
+                        while i < constraint_count:
                             carry_measure(i, carry[row], rhs, carry_next[row])
+                            i += 1
                         measured = measured | (1 << row)
                     if wp.static(rows):
                         err = max_or_nan(
@@ -1076,7 +1128,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         jac_skew, values,
                     )  # fmt: skip
                 singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
-                for j in range(col_start.shape[0] - 1):  # left-looking: column j assembled just before its factor
+                j = wp.int32(0)
+                columns = col_start.shape[0] - 1
+                while j < columns:
                     if slot_row.shape[0] > 0:
                         assemble_column(
                             j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
@@ -1086,6 +1140,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
                         col_loop, slot_shape, pivot_tolerance, loop_tolerance, values, singular,
                     )  # fmt: skip
+                    j += 1
                 if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
                     row_couplings_all(
                         constraint_count, limit_rows, body_inv_mass, constraint_kind, constraint_body0,
