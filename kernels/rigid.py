@@ -296,8 +296,10 @@ def predict_body(
     wb = rotate_inv(q, w)
     n, hs = substeps(w, h)
     q1 = q
-    for _ in range(n):
+    k = wp.int32(0)
+    while k < n:
         q1, wb = rk4_rotation(q1, wb, inertia, inv_inertia, torque, hs)
+        k += 1
     return x1, q1, v1, rotate(q1, wb)
 
 
@@ -444,11 +446,13 @@ def predict_group(
             body_x_out, body_q_out, body_v_out, body_w_out,
         )  # fmt: skip
     else:
-        for b in range(b0, b0 + count):
+        b = b0
+        while b < b0 + count:
             predict_index(
                 b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
                 body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
             )  # fmt: skip
+            b += 1
 
 
 @wp.kernel

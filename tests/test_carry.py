@@ -14,6 +14,7 @@ import warnings
 
 import numpy as np
 import pytest
+from option_runs import assert_saves_iterations, off_and_on
 
 import warpimpulse as wi
 from warpimpulse import scenes
@@ -54,20 +55,9 @@ def test_the_carry_saves_iterations_and_ends_where_the_plain_one_does(make, dt, 
     """Fewer joint iterations over a second of swinging (measured: chain10 3.88 -> 3.65 a step from 1.1 s, the
     double pendulum 2.14 -> 1.56, chain50 2.52 -> 2.22), every step held to the tolerance, and the motion the
     plain iteration's to within what the tolerance lets a second of chaos drift."""
-    runs = {}
-    for carry in (False, True):
-        sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=1e-6, carry=carry)
-        sim.step(int(round(1.1 / dt)))
-        stats = [sim.step() for _ in range(int(round(1.0 / dt)))]
-        runs[carry] = (sim, stats)
-    (plain, plain_stats), (carried, carried_stats) = runs[False], runs[True]
-    assert carried.carry and not plain.carry
-    plain_its = sum(s.joint_iterations for s in plain_stats)
-    carried_its = sum(s.joint_iterations for s in carried_stats)
-    assert carried_its < most * plain_its, (carried_its, plain_its)
-    for s in carried_stats:
-        assert s.converged and s.max_joint_error <= 1e-6
-    np.testing.assert_allclose(carried.positions(), plain.positions(), atol=1e-3)
+    runs = off_and_on(make, dt, int(round(1.0 / dt)), "carry", before=int(round(1.1 / dt)))
+    assert_saves_iterations(runs, "carry", most)
+    np.testing.assert_allclose(runs[True][0].positions(), runs[False][0].positions(), atol=1e-3)
 
 
 def test_a_run_depends_on_its_steps_only():
