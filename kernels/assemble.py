@@ -131,8 +131,10 @@ def shared_body_block(
 @wp.func
 def pad_unused_rows(k: mat33d, kind: int) -> mat33d:
     """Rows a constraint of dimension < 3 does not use get a unit pivot, so K stays SPD."""
-    for r in range(constraint_dim(kind), 3):
+    r = constraint_dim(kind)
+    while r < 3:
         k[r, r] = f64(1.0)
+        r += 1
     return k
 
 

@@ -956,7 +956,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         spin = spin_in[0]
         stage_count = stages.shape[0]
         begin_summary(status_out)
-        for k in range(batch_in[0]):
+        k = wp.int32(0)
+        while k < batch_in[0]:
             status_out[k, STATUS_SPIN] = spin
             if turns_too_far(spin, reach * h, max_rotation):
                 status_out[k, STATUS_CODE] = f64(SPLIT)
@@ -979,7 +980,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             verr = f64(0.0)  # the last stage's
             failed = f64(0.0)  # the largest velocity error over the tolerance
             code = wp.int32(OK)
-            for stage in range(stage_count):
+            stage = wp.int32(0)
+            while stage < stage_count:
                 hs = stages[stage] * h
                 inv_h = f64(1.0) / hs
                 row = stage_carry[stage]
@@ -1196,6 +1198,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 if not (verr <= velocity_tolerance):  # the host raises or warns once the step is done
                     code = VELOCITY
                     failed = max_or_nan(failed, verr)
+                stage += 1
             if code == OK or code == VELOCITY:  # the step is kept: its carry rows are taken
                 commit_carry(measured, constraint_count, carry, carry_next)
             finish(
@@ -1206,6 +1209,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             if code != OK:
                 settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
                 return
+            k += 1
         settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
 
     iterative_steps = None  # the paper's baseline predicts each body alone and has no rows
@@ -1281,7 +1285,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             spin = spin_in[0]
             stage_count = stages.shape[0]
             begin_summary(status_out)
-            for k in range(batch_in[0]):
+            k = wp.int32(0)
+            while k < batch_in[0]:
                 status_out[k, STATUS_SPIN] = spin
                 if turns_too_far(spin, reach * h, max_rotation):
                     status_out[k, STATUS_CODE] = f64(SPLIT)
@@ -1298,7 +1303,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 verr = f64(0.0)
                 failed = f64(0.0)
                 code = wp.int32(OK)
-                for stage in range(stage_count):
+                stage = wp.int32(0)
+                while stage < stage_count:
                     hs = stages[stage] * h
                     inv_h = f64(1.0) / hs
                     sweeps = wp.int32(0)
@@ -1401,12 +1407,14 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if not converged:  # the host raises or warns once the step is done
                         code = VELOCITY
                         failed = max_or_nan(failed, verr)
+                    stage += 1
                 finish(status_out, k, code, iterations, velocity_iterations, 0, joint_error, verr, failed, spin)
                 if code != OK:
                     settle(
                         body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out
                     )
                     return
+                k += 1
             settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
 
     return SimpleNamespace(
