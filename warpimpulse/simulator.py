@@ -161,9 +161,9 @@ class Simulator:
             the last step of the same size left unsolved (about -E lambda, which changes little from step to
             step; `kernels/carry.py`), so the iteration starts nearer the solution: chain10 3.88 -> 3.65
             iterations a step. Later iterations solve for the residual they measure, so the result is held to
-            the same tolerance. None (the default) takes it with the cholesky solver without contacts;
-            contacts and the other solvers never take it (True there is a ValueError), nor, by default, the split
-            step on threads (`split.SplitSimulator`).
+            the same tolerance. None (the default) takes it with the cholesky solver without contacts, in both
+            schedules, batched worlds and the split step on threads; contacts and the other solvers never take
+            it (True there is a ValueError). Checkpoints keep it; `reset` and `set_state` forget it.
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
