@@ -32,6 +32,26 @@ def carry_measure(i: int, carry: wp.array(dtype=vec3d), rhs: wp.array(dtype=vec3
     carry_next[i] = carry[i] + rhs[i]
 
 
+@wp.func
+def carry_into_all(constraint_count: int, carry: wp.array(dtype=vec3d), rhs: wp.array(dtype=vec3d)):
+    """Every constraint's first right-hand side (`carry_into`): the fused step's pass."""
+    i = wp.int32(0)
+    while i < constraint_count:
+        carry_into(i, carry, rhs)
+        i += 1
+
+
+@wp.func
+def carry_measure_all(
+    constraint_count: int, carry: wp.array(dtype=vec3d), rhs: wp.array(dtype=vec3d), carry_next: wp.array(dtype=vec3d)
+):
+    """Every constraint's next c (`carry_measure`): the fused step's pass."""
+    i = wp.int32(0)
+    while i < constraint_count:
+        carry_measure(i, carry, rhs, carry_next)
+        i += 1
+
+
 @wp.kernel
 def carry_in(
     # Data in:
@@ -61,10 +81,14 @@ def commit_carry(
 ):
     """A kept step's c: every row whose bit is set in `measured` (the step sizes whose first solve ran) takes
     the value measured in the step (`carry_measure`); the others keep theirs."""
-    for r in range(carry.shape[0]):
+    r = wp.int32(0)
+    while r < carry.shape[0]:
         if (measured >> r) & 1 != 0:
-            for i in range(constraint_count):
+            i = wp.int32(0)
+            while i < constraint_count:
                 carry[r, i] = carry_next[r, i]
+                i += 1
+        r += 1
 
 
 @wp.kernel

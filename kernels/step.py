@@ -33,7 +33,7 @@ from types import SimpleNamespace
 import warp as wp
 
 from .assemble import assemble_column, augmented_slot
-from .carry import carry_into, carry_measure, commit_carry
+from .carry import carry_into_all, carry_measure_all, commit_carry
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
 from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
@@ -1021,10 +1021,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if tries >= max_iterations or (tries >= 3 and err > f64(1.0e3) * best):
                         break
                     if tries == 0 and carrying != 0:
-                        i = wp.int32(0)
-                        while i < constraint_count:
-                            carry_into(i, carry[row], rhs)
-                            i += 1
+                        carry_into_all(constraint_count, carry[row], rhs)
                     cholesky_solve(
                         augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                         row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
@@ -1077,10 +1074,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         constraint_rest_angle, inv_h, proj, next_x, next_q, errors, rhs,
                     )  # fmt: skip
                     if tries == 0 and carrying != 0:
-                        i = wp.int32(0)
-                        while i < constraint_count:
-                            carry_measure(i, carry[row], rhs, carry_next[row])
-                            i += 1
+                        carry_measure_all(constraint_count, carry[row], rhs, carry_next[row])
                         measured = measured | (1 << row)
                     if wp.static(rows):
                         err = max_or_nan(

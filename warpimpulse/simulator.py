@@ -466,13 +466,17 @@ class Simulator:
             self._carry_other[h] = (c, wp.zeros_like(c))
         return self._carry_other[h]
 
+    def _keep_carry(self, h: float) -> None:
+        """A kept step of h whose first solve ran: its c becomes the value it measured (`carry`)."""
+        wp.copy(*self._carry_arrays(h))
+
     def _carries(self) -> dict[float, wp.array]:
         """c of every step size that has one (`carry`)."""
         return {h: self._carry_arrays(h)[0] for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
 
     def _forget_carry(self, world: int | None = None) -> None:
         """No c to carry, for one world or all: its state was set from outside the step (`reset`, `set_state`)."""
-        nc = self.model.constraint_count // self.model.world_count
+        nc = self.model.world_constraint_count
         rows = slice(None) if world is None else slice(world * nc, (world + 1) * nc)
         for c in self._carries().values():
             c[rows].zero_()
@@ -997,8 +1001,7 @@ class Simulator:
         if self.carry:  # the step is kept: so are the c it measured
             for g, part in zip(stages, parts):
                 if part.joint_iterations:
-                    c, c_next = self._carry_arrays(g * h)
-                    wp.copy(c, c_next)
+                    self._keep_carry(g * h)
         stats = _combined(parts)
         stats.substeps = 1
         return stats

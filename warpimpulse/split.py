@@ -378,7 +378,7 @@ class SplitSimulator(Simulator):
             row[s.STATUS_FAILED_VELOCITY] = _max_or_nan(0.0, verr) if code == s.VELOCITY else 0.0
             row[s.STATUS_CODE] = code
             if self.carry and iterations and code in (s.OK, s.VELOCITY):  # the step is kept: so is its c
-                wp.copy(*self._carry_arrays(self.dt))
+                self._keep_carry(self.dt)
             if code != s.OK:
                 return status
         return status

@@ -266,7 +266,7 @@ class Batch:
         solo.time, solo.step_count = sim.time, sim.step_count
         solo._update_frames()
         solo._spin = self._spin0[world]
-        nc = sim.model.constraint_count // self.count
+        nc = sim.model.world_constraint_count
         for h, c in sim._carries().items():  # the world's c of every step size (`Simulator.carry`)
             wp.copy(solo._carry_arrays(h)[0], c, 0, world * nc, nc)
         try:
