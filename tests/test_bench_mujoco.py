@@ -151,13 +151,15 @@ def test_forces_stop_on_the_same_step_as_ours() -> None:
 def test_runs_of_steps_are_the_steps(first: int) -> None:
     """The timed loop's calls for many steps (`runner.advance`): MuJoCo's mj_step with nstep, split where the
     tree's start torque switches off (step 30 at h = 1/30), and our step(n), give the states of one step() at a
-    time, wherever the run starts."""
+    time, wherever the run starts: bit for bit with every velocity correction taken, and within the tolerance
+    where step(n) defers its steps' velocity corrections to the next joint correction (`defer_velocities`)."""
     builder = scenes.binary_tree(7)
     one = harness.MujocoRunner(MujocoScene.from_builder(builder, 1.0 / 30.0), "RK4", 30)
     many = harness.MujocoRunner(MujocoScene.from_builder(builder, 1.0 / 30.0), "RK4", 30)
-    ours_one = harness.WarpimpulseRunner(builder, 30, 1e-8)
-    ours_many = harness.WarpimpulseRunner(builder, 30, 1e-8)
-    for runner in (one, many, ours_one, ours_many):
+    ours_one = harness.WarpimpulseRunner(builder, 30, 1e-8, defer_velocities=False)
+    ours_many = harness.WarpimpulseRunner(builder, 30, 1e-8, defer_velocities=False)
+    deferred = harness.WarpimpulseRunner(builder, 30, 1e-8)
+    for runner in (one, many, ours_one, ours_many, deferred):
         for _ in range(first):
             runner.step()
     for _ in range(40):
@@ -165,11 +167,14 @@ def test_runs_of_steps_are_the_steps(first: int) -> None:
         ours_one.step()
     advance(many, 40)
     advance(ours_many, 40)
+    advance(deferred, 40)
     assert many.steps == one.steps == first + 40
     np.testing.assert_array_equal(many.data.qpos, one.data.qpos)
     np.testing.assert_array_equal(many.data.qvel, one.data.qvel)
     assert ours_many.steps == ours_one.steps and ours_many.joint_iterations == ours_one.joint_iterations
     np.testing.assert_array_equal(ours_many.poses()[0], ours_one.poses()[0])
+    assert deferred.sim.defer_velocities and deferred.steps == ours_one.steps
+    np.testing.assert_allclose(deferred.poses()[0], ours_one.poses()[0], rtol=0, atol=1e-7)
 
 
 def test_benchmark_harness_end_to_end(tmp_path) -> None:

@@ -258,19 +258,22 @@ def test_order_is_recorded(order, tmp_path, capsys):
     assert data["warpimpulse:tolerance"] == composition.default_tolerance(1 / 30, order)
 
 
+@pytest.mark.parametrize("option", ["carry", "defer_velocities"])
 @pytest.mark.parametrize(("flag", "taken"), [("auto", True), ("on", True), ("off", False)])
-def test_carry_flag_is_taken_and_recorded(flag, taken, tmp_path, capsys):
-    """`--carry` sets `Simulator(carry=...)` (auto: on with the cholesky solver and no contacts) and the file records
-    what ran (customLayerData warpimpulse:carry); asked for where it cannot run, one line and exit 2."""
+def test_correction_flags_are_taken_and_recorded(option, flag, taken, tmp_path, capsys):
+    """`--carry` and `--defer-velocities` set `Simulator(carry=...)` and `Simulator(defer_velocities=...)` (auto: on
+    with the cholesky solver on the chain) and the file records what ran (customLayerData warpimpulse:carry,
+    warpimpulse:defer_velocities); asked for where it cannot run, one line and exit 2."""
     from pxr import Sdf
 
     out = tmp_path / "x.usda"
-    code, _ = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--carry", flag], capsys)
+    cli = "--" + option.replace("_", "-")
+    code, _ = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), cli, flag], capsys)
     assert code == 0
-    assert Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:carry"] is taken
-    code, lines = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--carry", "on",
+    assert Sdf.Layer.FindOrOpen(str(out)).customLayerData[f"warpimpulse:{option}"] is taken
+    code, lines = run(["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), cli, "on",
                        "--solver", "cg"], capsys)  # fmt: skip
-    assert code == 2 and any("carry needs" in line and "'cg'" in line for line in lines), lines
+    assert code == 2 and any(f"{option} needs" in line and "'cg'" in line for line in lines), lines
 
 
 @pytest.mark.parametrize(("flag", "taken"), [("auto", False), ("on", True), ("off", False)])

@@ -33,7 +33,8 @@ def worlds_setup():
 
 
 def alone(world: int, steps: int, mass, force, spin, **settings) -> tuple[Simulator, list]:
-    sim = Simulator(wi.scenes.binary_tree(BODIES).finalize(), DT, **settings)
+    """A world of the batch alone, every (sub)step's velocities corrected as batched worlds do (`defer_velocities`)."""
+    sim = Simulator(wi.scenes.binary_tree(BODIES).finalize(), DT, **{"defer_velocities": False, **settings})
     sim.set_masses(mass=mass[world])
     sim.set_external_forces(force=force[world])
     sim.set_state(angular_velocities=spin[world])

@@ -71,6 +71,13 @@ def _add_simulate(sub) -> None:
         default="auto",
         help="the first joint iteration takes what the last step's left (auto: on with cholesky, no contacts)",
     )
+    p.add_argument(
+        "--defer-velocities",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="correct the velocities only where a frame is written, the next step's joint correction reaching the "
+        "same (auto: on with cholesky and no force elements, rows or contacts)",
+    )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
     p.add_argument("--max-rotation", type=_positive(float), default=0.5,
@@ -248,6 +255,7 @@ def _simulate(args) -> int:
         order=args.order,
         newton={"auto": None, "on": True, "off": False}[args.newton],
         carry={"auto": None, "on": True, "off": False}[args.carry],
+        defer_velocities={"auto": None, "on": True, "off": False}[args.defer_velocities],
     )
     if sim.split_note:
         print(f"warpimpulse: one thread: {sim.split_note}", file=sys.stderr)

@@ -65,6 +65,7 @@ def settings(sim: Any) -> dict[str, Any]:
         "composition": sim.scheme.name,
         "newton": sim.newton,  # the first joint iteration's Newton step
         "carry": sim.carry,  # the first joint iteration's carried right-hand side
+        "defer_velocities": sim.defer_velocities,  # velocities corrected only where a frame is handed out
     }
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import heapq
+import math
 from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
@@ -287,12 +288,12 @@ class SplitSimulator(Simulator):
             worst = _max_or_nan(worst, value)
         return worst
 
-    def _run_fused(self, batch: int) -> np.ndarray:
+    def _run_fused(self, batch: int, hand_out: bool) -> np.ndarray:
         """Up to `batch` steps of dt, each as `kernels/step.py`'s `cholesky_steps` takes it, with the status
         rows it writes and their summary row."""
         if self.threads == 1:
-            return super()._run_fused(batch)
-        status = self._threaded_steps(batch)
+            return super()._run_fused(batch, hand_out)
+        status = self._threaded_steps(batch, hand_out)
         s = step_kernels
         ok = 0
         while ok < batch and status[ok, s.STATUS_CODE] == s.OK:
@@ -308,7 +309,7 @@ class SplitSimulator(Simulator):
             summary[s.STATUS_SPIN] = rows[-1, s.STATUS_SPIN]
         return status
 
-    def _threaded_steps(self, batch: int) -> np.ndarray:
+    def _threaded_steps(self, batch: int, hand_out: bool) -> np.ndarray:
         """`_run_fused`'s steps, their status rows written here."""
         s = step_kernels
         status = self._views[0]
@@ -360,9 +361,11 @@ class SplitSimulator(Simulator):
             if lin_singular[0] == 0 and len(first):
                 lin_singular[0] = first.min()
             singular[:] = 0
-            verr = self._combined(OUT_VELOCITY_ERROR)
-            velocity_iterations = 0
-            if not verr <= self.velocity_tolerance:
+            verr, velocity_iterations = math.nan, 0  # deferred: not measured (`Simulator.defer_velocities`)
+            corrected = not self.defer_velocities or (hand_out and k == batch - 1)
+            if corrected:
+                verr = self._combined(OUT_VELOCITY_ERROR)
+            if not verr <= self.velocity_tolerance and corrected:
                 self._phase(self._velocity_graphs)
                 verr = self._combined(OUT_VELOCITY_ERROR)
                 velocity_iterations = 1
@@ -373,7 +376,7 @@ class SplitSimulator(Simulator):
             code = s.OK
             if lin_singular[0] != 0:
                 code = s.SINGULAR
-            elif not verr <= self.velocity_tolerance:
+            elif corrected and not verr <= self.velocity_tolerance:
                 code = s.VELOCITY
             row[s.STATUS_FAILED_VELOCITY] = _max_or_nan(0.0, verr) if code == s.VELOCITY else 0.0
             row[s.STATUS_CODE] = code

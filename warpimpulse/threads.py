@@ -60,6 +60,9 @@ class ThreadedSimulator:
             self.starts = np.zeros(1, dtype=int)
         else:
             self.threads = min(threads, model.world_count)
+            # One-world shares correct every step's velocities, as batched worlds do (`Simulator.defer_velocities`),
+            # so that however the worlds are shared the run is the batched run.
+            settings.setdefault("defer_velocities", False)
             first = Simulator(model.worlds(0, 1), dt, **settings)
             self.fused_shares = first.schedule == "fused"
             if self.fused_shares:

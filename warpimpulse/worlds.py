@@ -247,6 +247,7 @@ class Batch:
                 on_max_iterations=sim.on_max_iterations, max_substep_depth=sim.max_substep_depth,
                 formulation=sim.linear.pattern.formulation if sim.linear is not None else "auto",
                 max_rotation=sim.max_rotation, specialize=sim.specialized, newton=sim.newton, carry=sim.carry,
+                defer_velocities=sim.defer_velocities,
             )  # fmt: skip
         return self._solos[world]
 

@@ -165,9 +165,11 @@ class WarpimpulseRunner:
         solver: str = "auto",
         model=None,
         order=2,
+        **settings,
     ):
+        """settings: more `Simulator` keyword arguments."""
         model = model if model is not None else builder.finalize("cpu")
-        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, solver=solver, order=order)
+        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, solver=solver, order=order, **settings)
         self.joint_iterations = self.velocity_iterations = self.linear_iterations = 0
         self.max_joint_iterations = 0
         self.max_step_error = 0.0

@@ -1,0 +1,132 @@
+"""The velocity correction deferred to where the state is handed out (`Simulator(defer_velocities=...)`).
+
+A step's velocity correction acts through the Jacobians of the next step's t0, as that step's joint correction
+does, and the prediction depends only on the velocities the impulses leave; so the next joint correction reaches
+the same state whether or not the correction came first, and `step(n)` corrects only its last step's velocities.
+These tests hold it to that against the correction taken every step: the same motion, the difference shrinking
+with the tolerance (a deferral that lost or doubled a velocity change would leave a difference the tolerance does
+not shrink); handed-out velocities that hold by an independent numpy check; the stats of the deferred steps; and
+where it is taken. That the fused and parallel schedules and the split step on threads defer bit for bit alike is
+tests/test_schedules.py's and tests/test_split.py's (it is on by default there).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from numpy_checks import constraint_errors, constraint_velocity_errors, sim_state
+from rigs import JOINTS
+
+import warpimpulse as wi
+from warpimpulse import scenes
+
+
+def _welded_hinge() -> wi.SceneBuilder:
+    """A hinge and a fixed joint on the same pair: a loop whose redundant rows the factor regularises."""
+    b = wi.SceneBuilder()
+    base = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 0.0), name="base")
+    arm = b.add_body(2.0, (0.1, 0.2, 0.3), (1.0, 0.0, 0.0), name="arm", angular_velocity=(0.0, 2.0, 0.0))
+    b.add_joint_ball(None, base, (-0.5, 0.0, 0.0), name="pivot")
+    b.add_joint_fixed(base, arm, (0.5, 0.0, 0.0), name="weld")
+    b.add_joint_revolute(base, arm, (0.5, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
+    return b
+
+
+SCENES = {
+    "chain10": (lambda: scenes.chain(10), 1 / 60, {}),
+    "tree31": (lambda: scenes.binary_tree(31), 1 / 30, {}),
+    "double_pendulum": (scenes.double_pendulum, 1 / 120, {}),
+    "every_joint_type": (lambda: scenes.chain(7, joint=list(JOINTS)), 1 / 60, {}),
+    "loop_redundant_rows": (_welded_hinge, 1 / 60, {}),
+    "star31_body_matrix": (lambda: scenes.star(31), 1 / 60, {"formulation": "body"}),
+    "chain10_order4": (lambda: scenes.chain(10), 1 / 60, {"order": 4}),
+    "chain10_parallel": (lambda: scenes.chain(10), 1 / 60, {"schedule": "parallel"}),
+}
+
+
+def _run(case: str, tolerance: float, defer: bool) -> tuple[wi.Simulator, wi.StepStats]:
+    make, dt, settings = SCENES[case]
+    sim = wi.Simulator(make().finalize(), dt, tolerance=tolerance, defer_velocities=defer, **settings)
+    sim.step(20)
+    return sim, sim.step(10)
+
+
+def _state(sim: wi.Simulator) -> np.ndarray:
+    return np.concatenate([a.ravel() for a in sim_state(sim)])
+
+
+@pytest.mark.parametrize("case", SCENES)
+def test_deferred_corrections_reach_the_same_motion(case):
+    """30 steps in two calls, deferring and not: the states (positions, quaternions, velocities) agree to within
+    what the tolerance lets two runs drift (measured at 1e-6: 3e-7 to 6e-6), and at a tolerance of 1e-10 to 900
+    to 14,000 times less (1e-10 to 2.5e-9), so the difference is the joint correction's tolerance, not the
+    deferral."""
+    gaps = {}
+    for tolerance in (1e-6, 1e-10):
+        (every, every_stats), (deferred, deferred_stats) = (_run(case, tolerance, d) for d in (False, True))
+        assert deferred.defer_velocities and not every.defer_velocities
+        assert deferred_stats.converged and every_stats.converged
+        gaps[tolerance] = np.abs(_state(deferred) - _state(every)).max()
+        assert gaps[tolerance] < 100 * tolerance, (tolerance, gaps[tolerance])
+    print(f"\n{case}: {gaps}")
+    assert gaps[1e-10] < 1e-2 * max(gaps[1e-6], 1e-8), gaps
+
+
+@pytest.mark.parametrize("case", ["chain10", "every_joint_type", "chain10_order4", "chain10_parallel"])
+def test_handed_out_velocities_hold_and_deferred_steps_say_so(case):
+    """step(n) corrects its last step's velocities: the joints' relative velocities hold by the independent numpy
+    check (a deferral that never corrected leaves ~1e-2 m/s here); the steps before it report no velocity iteration
+    and an unmeasured (NaN) velocity error, and converged; the last its one correction and the error it left."""
+    make, dt, settings = SCENES[case]
+    builder = make()
+    sim = wi.Simulator(builder.finalize(), dt, **settings)
+    sim.step(30)
+    stats = sim.simulate(20 * dt)
+    assert [s.velocity_iterations for s in stats] == [0] * 19 + [1]
+    assert all(math.isnan(s.max_velocity_error) for s in stats[:-1])
+    assert stats[-1].max_velocity_error <= sim.velocity_tolerance
+    assert all(s.converged and s.max_joint_error <= sim.tolerance for s in stats)
+    x, q, v, w = sim_state(sim)
+    velocity, slack = constraint_velocity_errors(builder, x, q, v, w, with_slack=True)
+    assert (velocity - slack).max() <= 1e-9
+    assert constraint_errors(builder, x, q).max() <= 2 * sim.tolerance
+    combined = sim.step(5)
+    assert combined.velocity_iterations == 1 and combined.max_velocity_error <= sim.velocity_tolerance
+
+
+def _springs() -> wi.SceneBuilder:
+    b = scenes.chain(3)
+    b.add_joint_spring(0, stiffness=10.0, damping=1.0)
+    return b
+
+
+def _limits() -> wi.SceneBuilder:
+    b = scenes.chain(3)
+    b.add_joint_limit(0, -0.3, 0.3)
+    return b
+
+
+@pytest.mark.parametrize(
+    ("make", "settings", "why"),
+    [
+        (scenes.chain, {"solver": "cg"}, "'cg' solver"),
+        (scenes.chain, {"solver": "iterative"}, "'iterative' solver"),
+        (_welded_hinge, {"formulation": "split"}, "split formulation"),
+        (_springs, {}, "force elements"),
+        (_limits, {}, "joint limits"),
+        (lambda: scenes.box_stack(2), {}, "contacts"),
+        (lambda: scenes.chain(3).replicate(2), {}, "batched worlds"),
+    ],
+)
+def test_deferred_only_where_the_next_joint_correction_reaches_the_same_state(make, settings, why):
+    """Velocity-dependent forces, rows, contacts (their velocity phases), CG (a correction that stops short) and
+    batched worlds keep every step's correction; asked for there, a ValueError says why."""
+    assert wi.Simulator(scenes.chain(3).finalize(), 1 / 60).defer_velocities
+    model = make().finalize()
+    assert not wi.Simulator(model, 1 / 60, **settings).defer_velocities
+    with pytest.raises(ValueError, match=why):
+        wi.Simulator(model, 1 / 60, defer_velocities=True, **settings)
+    with pytest.raises(ValueError, match="defer_velocities must be"):
+        wi.Simulator(scenes.chain(3).finalize(), 1 / 60, defer_velocities="yes")
