@@ -9,7 +9,8 @@ velocity errors, the NaN/spin summary) launched alone, its marginal time a call 
 (from the run's StepStats); "other" is the measured step minus their sum. chain10 with a force element on every
 link: fused against parallel. Big trees give the cost per body-step and the set-up time (builder, finalize,
 Simulator). The first iteration's Newton step (`Simulator(newton=...)`) off and on, interleaved, on the small
-scenes and two big trees: where it pays places `types.NEWTON_BODIES`. Step times are CPU time of this
+scenes and two big trees: where it pays places `types.NEWTON_BODIES`; the velocity correction deferred to where
+the state is handed out (`Simulator(defer_velocities=...)`) off and on, likewise. Step times are CPU time of this
 process (`time.process_time`): on a shared machine, time spent descheduled is not the engine's.
 
 `--mechanisms`: only the mechanisms, fused against parallel, interleaved blocks from the same state, into their own
@@ -409,13 +410,20 @@ def specialization(name: str, steps: int) -> dict:
             "all_kinds_us": statistics.median(times[False])}  # fmt: skip
 
 
-def newton_point(name: str, steps: int) -> dict:
-    """The fused step without and with the first iteration's Newton step (`Simulator(newton=...)`), interleaved
-    rounds, every block from the same state: a scene of SCENES, or the binary tree of `name` bodies (an int,
-    h = 1/60, the default tolerance), at 1.1 s. The default takes it from `types.NEWTON_BODIES` bodies: this
-    is the measurement that places that line."""
+OPTIONS = {  # the Simulator flags measured off and on: the JSON's key, the table's label
+    "newton": "first iteration's Newton step",
+    "defer_velocities": "velocity correction only where handed out",
+}
+
+
+def option_point(option: str, name: str | int, steps: int) -> dict:
+    """The fused step with a flag of OPTIONS off and on (`Simulator(newton=...)`, `Simulator(defer_velocities=...)`),
+    interleaved rounds, every block from the same state: a scene of SCENES, or the binary tree of `name` bodies
+    (an int, h = 1/60, the default tolerance), at 1.1 s. The Newton step's default takes it from
+    `types.NEWTON_BODIES` bodies: this is the measurement that places that line; the deferral's shows what the
+    skipped velocity corrections save."""
     make, dt, tolerance = SCENES[name] if name in SCENES else (lambda: scenes.binary_tree(name), 1 / 60, 1e-6)
-    engines = {flag: _Ours(make, dt, tolerance, "fused", True, newton=flag) for flag in (False, True)}
+    engines = {flag: _Ours(make, dt, tolerance, "fused", True, **{option: flag}) for flag in (False, True)}
     times = _interleaved(engines, steps)
     out = {"scene": name if name in SCENES else f"tree{name}", "bodies": engines[False].sim.model.body_count,
            "steps": steps}  # fmt: skip
@@ -503,9 +511,11 @@ def table(result: dict) -> str:
                   "|---|" + "---:|" * len(result["specialization"])]  # fmt: skip
         for key, label in (("specialized_us", "the scene's kinds"), ("all_kinds_us", "all six kinds")):
             lines.append(f"| {label} | " + " | ".join(f"{p[key]:.1f} µs" for p in result["specialization"]) + " |")
-    if result.get("newton"):
-        points = result["newton"]
-        lines += ["", "| first iteration's Newton step | " + " | ".join(p["scene"] for p in points) + " |",
+    for option, title in OPTIONS.items():
+        points = result.get(option)
+        if not points:
+            continue
+        lines += ["", f"| {title} | " + " | ".join(p["scene"] for p in points) + " |",
                   "|---|" + "---:|" * len(points)]  # fmt: skip
         for key, label in (("off", "off: µs a step (iterations)"), ("on", "on: µs a step (iterations)")):
             lines.append(f"| {label} | " + " | ".join(f"{p[key + '_us']:.1f} ({p[key + '_iterations']:.2f})"
@@ -566,9 +576,13 @@ def main(argv: list[str] | None = None) -> int:
         result["specialization"] = [specialization(name, steps) for name in ("tree127", "chain10")]
         print(json.dumps(result["specialization"]), file=sys.stderr)
         trees = [(16383, 10), (65535, 5)] if not args.quick else []
-        result["newton"] = [newton_point(name, steps) for name in ("tree127", "double_pendulum", "chain10")]
-        result["newton"] += [newton_point(bodies, n) for bodies, n in trees]
+        result["newton"] = [option_point("newton", name, steps) for name in ("tree127", "double_pendulum", "chain10")]
+        result["newton"] += [option_point("newton", bodies, n) for bodies, n in trees]
         print(json.dumps(result["newton"]), file=sys.stderr)
+        small = ("tree127", "double_pendulum", "chain10", "chain50")
+        result["defer_velocities"] = [option_point("defer_velocities", name, steps) for name in small]
+        result["defer_velocities"] += [option_point("defer_velocities", bodies, n) for bodies, n in trees[:1]]
+        print(json.dumps(result["defer_velocities"]), file=sys.stderr)
         for bodies in BIG[:1] if args.quick else BIG:
             result["big"].append(big_point(bodies, 5 if bodies > 10000 else 40))
             print(json.dumps(result["big"][-1]), file=sys.stderr)

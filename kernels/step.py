@@ -6,7 +6,9 @@ errors between them) buy nothing: here the same per-element stage funcs the para
 `augmented_slot`, `cholesky.factor_column` / `forward_row` / `backward_column`, `impulses.apply_body`, the sweeps
 of `iterative.py`) run in serial loops, and the whole step (predict, joint errors, the convergence test, solve,
 apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
-summary) is decided on the device, for up to `batch_in[0]` steps a launch. A step is the base steps of a
+summary) is decided on the device, for up to `batch_in[0]` steps a launch; with `defer` the velocity correction
+is taken only in the last step of a launch that hands its state out (`batch_in[1]`; `Simulator.defer_velocities`),
+the other steps' velocities going on to the next joint correction. A step is the base steps of a
 composition in turn (`composition.py`: stages g_i h, some negative; one stage of h at order 2). Force elements
 (`ForceElements`) make the prediction the coupled RK4 of all bodies; rows of the correction loop (`Rows`: joint
 limits, stiff motors, distance constraints) are corrected after the joints in each iteration and after the
@@ -945,7 +947,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         body_w_out: wp.array(dtype=vec3d),
         status_out: wp.array2d(dtype=f64),
     ):
-        """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0] (rad/s), with the direct solver
+        """Up to batch_in[0] steps of h, from a fastest spin of spin_in[0] (rad/s), the velocities corrected in
+        every stage (`defer` 0) or in the last stage of the last step only, when batch_in[1] says that step's state
+        is handed out (`defer` 1; a deferred step's status row has no velocity iteration and a NaN velocity
+        error), with the direct solver
         (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule). A
         step is the base steps of stages[i] h in turn (a composition, `composition.py`; some run backwards);
         reach is the largest |stages[i]|, which sizes the spin split."""
