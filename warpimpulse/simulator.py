@@ -953,9 +953,10 @@ class Simulator:
         (sub)step is a whole composed step: the spin split and the halving apply to it, never to one of its
         stages.
 
-        The fused schedule takes the n steps in one launch where nothing needs the host between them. For
-        n > 1 the stats are combined: iterations and substeps summed, the largest joint error, the last
-        velocity error.
+        The fused schedule takes the n steps in one launch where nothing needs the host between them. The
+        velocities are corrected at the last step, the others' left to the next step's joint correction
+        (`defer_velocities`). For n > 1 the stats are combined: iterations and substeps summed, the largest
+        joint error, the last velocity error.
 
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
