@@ -1157,46 +1157,47 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
                 # The velocity correction where the state is handed out (`defer` == 0: every stage's): a deferred
-                # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`).
-                verr = f64(wp.nan)  # not measured
+                # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`;
+                # never with rows, whose velocity pass reads them).
                 corrected = defer == 0 or (k == batch_in[0] - 1 and batch_in[1] != 0 and stage == stage_count - 1)
+                verr = f64(wp.nan)  # not measured
                 if corrected:
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
                         jac_skew, state_v, state_w, errors, rhs,
                     )  # fmt: skip
-                    if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
-                        cholesky_solve(
-                            augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                            row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
-                        )  # fmt: skip
-                        apply_all(
-                            body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                            jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
-                        )  # fmt: skip
-                        row_solves += 1
-                        correct_rows_all(
-                            1, hs, limit_rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
-                            inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v, state_w,
-                        )  # fmt: skip
-                        verr = velocity_errors_all(
-                            constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                            jac_skew, state_v, state_w, errors, rhs,
-                        )  # fmt: skip
-                    if not (verr <= velocity_tolerance):
-                        cholesky_solve(
-                            augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                            row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
-                        )  # fmt: skip
-                        apply_all(
-                            body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                            jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
-                        )  # fmt: skip
-                        verr = velocity_errors_all(
-                            constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                            jac_skew, state_v, state_w, errors, rhs,
-                        )  # fmt: skip
-                        velocity_iterations += 1
+                if wp.static(rows):  # the joints exact, then the rows, then the joints take up their reaction
+                    cholesky_solve(
+                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
+                    )  # fmt: skip
+                    apply_all(
+                        body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
+                        jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
+                    )  # fmt: skip
+                    row_solves += 1
+                    correct_rows_all(
+                        1, hs, limit_rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
+                        inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v, state_w,
+                    )  # fmt: skip
+                    verr = velocity_errors_all(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                        jac_skew, state_v, state_w, errors, rhs,
+                    )  # fmt: skip
+                if corrected and not (verr <= velocity_tolerance):
+                    cholesky_solve(
+                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
+                    )  # fmt: skip
+                    apply_all(
+                        body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
+                        jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
+                    )  # fmt: skip
+                    verr = velocity_errors_all(
+                        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
+                        jac_skew, state_v, state_w, errors, rhs,
+                    )  # fmt: skip
+                    velocity_iterations += 1
                 if singular[0] != 0:  # the host raises: no further stage
                     code = SINGULAR
                     break
