@@ -365,7 +365,7 @@ class SplitSimulator(Simulator):
             corrected = not self.defer_velocities or (hand_out and k == batch - 1)
             if corrected:
                 verr = self._combined(OUT_VELOCITY_ERROR)
-            if not verr <= self.velocity_tolerance and corrected:
+            if corrected and not verr <= self.velocity_tolerance:
                 self._phase(self._velocity_graphs)
                 verr = self._combined(OUT_VELOCITY_ERROR)
                 velocity_iterations = 1
