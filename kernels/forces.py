@@ -407,10 +407,12 @@ def rk4_stage_body(
         return
     force = body_force[b]
     torque = body_torque[b]
-    for k in range(body_wrench_start[b], body_wrench_start[b + 1]):
+    k = body_wrench_start[b]
+    while k < body_wrench_start[b + 1]:
         r = body_wrench_rows[k]
         force += wrench_force[r]
         torque += wrench_torque[r]
+        k += 1
     dx, dv, dq, dw = body_derivative(
         body_q_in[b], body_v_in[b], body_w_in[b], inv_mass, body_inertia[b], body_inv_inertia[b], force, torque, gravity
     )

@@ -89,7 +89,8 @@ def sweep_positions_once(
 ) -> f64:
     """One joint-correction sweep; returns the largest error met before its correction."""
     worst = f64(0.0)
-    for i in range(constraint_count):
+    i = wp.int32(0)
+    while i < constraint_count:
         b0 = constraint_body0[i]
         b1 = constraint_body1[i]
         x0 = pose_x(b0, body_x_in)
@@ -116,6 +117,7 @@ def sweep_positions_once(
                 i, rhs, constraint_kind, constraint_body0, constraint_body1,
                 body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
             )  # fmt: skip
+        i += 1
     return worst
 
 
@@ -179,7 +181,8 @@ def sweep_velocities_once(
 ) -> f64:
     """One velocity-correction sweep; returns the largest |J_i v| met before its correction."""
     worst = f64(0.0)
-    for i in range(constraint_count):
+    i = wp.int32(0)
+    while i < constraint_count:
         jv = constraint_velocity(
             i,
             constraint_kind,
@@ -198,6 +201,7 @@ def sweep_velocities_once(
                 i, -jv, constraint_kind, constraint_body0, constraint_body1,
                 body_inv_mass, inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
             )  # fmt: skip
+        i += 1
     return worst
 
 

@@ -389,8 +389,10 @@ def matrix_entry(
     held = free
     if coupled != 0:
         nc = limit_coupling_in.shape[0] // nl
-        for i in range(nc):
+        i = wp.int32(0)
+        while i < nc:
             held -= wp.dot(limit_coupling_in[k * nc + i], limit_response_in[l * nc + i])
+            i += 1
     if k == l:
         held = wp.max(held, f64(1.0e-9) * free)
     limit_matrix_out[k * nl + l] = held
@@ -426,28 +428,40 @@ def factor_masked(
     """The dense Cholesky factor (in `work`, n x n) of the leading n x n block of `matrix` (row stride `stride`)
     on the rows with mask 1, unit rows and columns elsewhere; a pivot below 1e-12 of its diagonal (rows that
     repeat each other) is regularised to that diagonal."""
-    for i in range(n):
-        for j in range(n):
+    i = wp.int32(0)
+    while i < n:
+        j = wp.int32(0)
+        while j < n:
             v = f64(0.0)
             if mask[i] == 1 and mask[j] == 1:
                 v = matrix[i * stride + j]
             elif i == j:
                 v = f64(1.0)
             work[i * n + j] = v
-    for j in range(n):
+            j += 1
+        i += 1
+    j = wp.int32(0)
+    while j < n:
         diag = work[j * n + j]
         t = diag
-        for k in range(j):
+        k = wp.int32(0)
+        while k < j:
             t -= work[j * n + k] * work[j * n + k]
+            k += 1
         if t <= f64(1.0e-12) * diag:
             t = diag
         d = wp.sqrt(t)
         work[j * n + j] = d
-        for i in range(j + 1, n):
+        i = j + 1
+        while i < n:
             u = work[i * n + j]
-            for k in range(j):
+            k = wp.int32(0)
+            while k < j:
                 u -= work[i * n + k] * work[j * n + k]
+                k += 1
             work[i * n + j] = u / d
+            i += 1
+        j += 1
 
 
 @wp.func
@@ -463,22 +477,32 @@ def solve_factored(
     """out[out_offset + i] = (S_AA^-1 rhs_A)_i on the rows i with mask 1 (others keep theirs) from
     `factor_masked`'s factor (`scratch`: n more)."""
     # The unit rows and columns outside A keep those rows out of the solve (their scratch entries are 0).
-    for i in range(n):
+    i = wp.int32(0)
+    while i < n:
         y = f64(0.0)
         if mask[i] == 1:
             y = rhs[i]
-        for k in range(i):
+        k = wp.int32(0)
+        while k < i:
             y -= work[i * n + k] * scratch[k]
+            k += 1
         scratch[i] = y / work[i * n + i]
-    for ii in range(n):
+        i += 1
+    ii = wp.int32(0)
+    while ii < n:
         i = n - 1 - ii
         x = scratch[i]
-        for k in range(i + 1, n):
+        k = i + 1
+        while k < n:
             x -= work[k * n + i] * scratch[k]
+            k += 1
         scratch[i] = x / work[i * n + i]
-    for i in range(n):
+        ii += 1
+    i = wp.int32(0)
+    while i < n:
         if mask[i] == 1:
             out[out_offset + i] = scratch[i]
+        i += 1
 
 
 @wp.func
@@ -515,13 +539,15 @@ def compensate(
 ):
     """Apply the joints' impulses -K^-1 c_l amount that keep them holding under limit l's impulse `amount`."""
     nc = constraint_body0.shape[0]
-    for i in range(nc):
+    i = wp.int32(0)
+    while i < nc:
         lam = limit_response[l * nc + i] * (-amount)
         for side in range(2):
             apply_to_body(
                 side_body(i, side, constraint_body0, constraint_body1), constraint_kind[i], 2 * i + side, lam,
                 body_inv_mass, inv_inertia_world, jac_lin, jac_ang, jac_skew, body_v, body_w,
             )  # fmt: skip
+        i += 1
 
 
 @wp.func
@@ -701,13 +727,15 @@ def fix_furthest_out(
     Returns the row fixed, or -1 when every free row is within its bounds."""
     pick = int(-1)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
     worst = threshold
-    for i in range(count):
+    i = wp.int32(0)
+    while i < count:
         if mask[i] == 1:
             total = before[i] + delta[i]
             over = wp.max(low[i] - total, total - high[i]) * matrix[i * stride + i]
             if over > worst:
                 worst = over
                 pick = i
+        i += 1
     if pick >= 0:
         total = before[pick] + delta[pick]
         mask[pick] = wp.where(total < low[pick], 2, 3)
@@ -734,30 +762,40 @@ def box_pivot(
     0 inactive. Each round solves the free rows with the fixed rows' impulses moved to the right-hand side,
     then fixes the free row furthest out of its bounds, or else frees the fixed row whose demand points
     inwards the most, until neither happens."""
-    for _round in range(4 * n + 4):
-        for i in range(n):
+    _round = wp.int32(0)
+    while _round < 4 * n + 4:
+        i = wp.int32(0)
+        while i < n:
             want = goal[i]
-            for j in range(n):
+            j = wp.int32(0)
+            while j < n:
                 if mask[j] >= 2:
                     want -= matrix[i * n + j] * delta[j]
+                j += 1
             rhs[i] = want
+            i += 1
         solve_masked(n, matrix, mask, rhs, work, scratch, delta)
         worst = f64(0.0)
         pick = fix_furthest_out(n, n, matrix, mask, before, low, high, delta, worst)
         if pick < 0:
-            for i in range(n):
+            i = wp.int32(0)
+            while i < n:
                 if mask[i] >= 2:
                     demand = rhs[i]  # the rate change still wanted at fixed row i, all impulses counted
-                    for j in range(n):
+                    j = wp.int32(0)
+                    while j < n:
                         if mask[j] == 1:
                             demand -= matrix[i * n + j] * delta[j]
+                        j += 1
                     inward = wp.where(mask[i] == 2, demand, -demand)  # towards the inside of its bounds
                     if inward > worst:
                         worst = inward
                         pick = i
+                i += 1
             if pick < 0:
                 break
             mask[pick] = 1
+        _round += 1
 
 
 @wp.func
@@ -793,7 +831,8 @@ def correct_all(
     at them one at a time, fixed rows whose demand turns inwards are freed, until neither happens. The
     impulses go to the bodies with the joints' reaction."""
     n = rows.limit_coordinate.shape[0]
-    for i in range(n):
+    i = wp.int32(0)
+    while i < n:
         r = rows.limit_coordinate[i]
         value, rate, a, pb = rows_coordinate(r, rows, body_x_in, body_q_in, body_v, body_w)
         current = rate
@@ -818,6 +857,7 @@ def correct_all(
         rows.limit_before[i] = rows.limit_impulse[i]  # the row's total before this pass
         if velocity != 0:
             rows.limit_velocity_impulse[i] = f64(0.0)
+        i += 1
     box_pivot(
         n,
         rows.limit_matrix,
@@ -831,7 +871,8 @@ def correct_all(
         rows.limit_work,
         rows.limit_scratch,
     )
-    for i in range(n):
+    i = wp.int32(0)
+    while i < n:
         if rows.limit_mask[i] != 0:
             d = rows.limit_delta[i]
             if velocity == 0:
@@ -864,6 +905,7 @@ def correct_all(
                 body_v,
                 body_w,
             )
+        i += 1
 
 
 @wp.kernel

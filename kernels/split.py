@@ -57,8 +57,10 @@ def forward_rows(
     work: wp.array(dtype=vec3d),
 ):
     """L y = P rhs on the part's rows, in elimination order."""
-    for k in range(part_columns.shape[0]):
+    k = wp.int32(0)
+    while k < part_columns.shape[0]:
         forward_row(part_columns[k], perm, col_start, row_start, row_slot, row_col, values, rhs, work)
+        k += 1
 
 
 @wp.func
@@ -85,13 +87,17 @@ def backward_apply(
 ):
     """L^T z = S y on the part's columns (last first), then the impulses onto the part's bodies."""
     n = part_columns.shape[0]
-    for k in range(n):
+    k = wp.int32(0)
+    while k < n:
         backward_column(part_columns[n - 1 - k], perm, col_start, col_row, col_sign, values, work, impulse)
-    for k in range(part_bodies.shape[0]):
+        k += 1
+    k = wp.int32(0)
+    while k < part_bodies.shape[0]:
         apply_body(
             part_bodies[k], constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin,
             jac_ang, jac_skew, impulse, body_v, body_w,
         )  # fmt: skip
+        k += 1
 
 
 @wp.func
@@ -109,7 +115,8 @@ def velocity_errors_of(
     rhs: wp.array(dtype=vec3d),
 ) -> f64:
     worst = f64(0.0)
-    for k in range(part_constraints.shape[0]):
+    k = wp.int32(0)
+    while k < part_constraints.shape[0]:
         i = part_constraints[k]
         velocity_error(
             i,
@@ -125,6 +132,7 @@ def velocity_errors_of(
             rhs,
         )
         worst = max_or_nan(worst, errors[i])
+        k += 1
     return worst
 
 
@@ -210,10 +218,12 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         they must everywhere if the step has converged) the NaN/spin summary of its prediction; and, for a part,
         its forward rows of the next solve (wasted when the step has converged)."""
         if start != 0:
-            for k in range(part_bodies.shape[0]):
+            k = wp.int32(0)
+            while k < part_bodies.shape[0]:
                 b = part_bodies[k]
                 v0[b] = body_v_out[b]
                 w0[b] = body_w_out[b]
+                k += 1
         else:
             if separator != 0:
                 forward_rows(part_columns, perm, col_start, row_start, row_slot, row_col, values, rhs, work)
@@ -222,14 +232,17 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 work, impulse, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang, jac_skew,
                 body_v_out, body_w_out,
             )  # fmt: skip
-        for k in range(part_bodies.shape[0]):
+        k = wp.int32(0)
+        while k < part_bodies.shape[0]:
             predict_index(
                 part_bodies[k], body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
                 body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
             )  # fmt: skip
+            k += 1
         inv_h = f64(1.0) / h
         worst = f64(0.0)
-        for k in range(part_constraints.shape[0]):
+        k = wp.int32(0)
+        while k < part_constraints.shape[0]:
             i = part_constraints[k]
             position_error(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
@@ -242,16 +255,19 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                     carry_into(i, carry, rhs)
                 elif first != 0:
                     carry_measure(i, carry, rhs, carry_next)
+            k += 1
         part_out[0] = worst
         if worst <= tolerance:  # the step may have converged: the NaN/spin summary of the prediction
             bad = int(0)  # noqa: UP018 (a Warp variable the loop changes must not start as a constant)
             spin = f64(0.0)
-            for k in range(part_bodies.shape[0]):
+            k = wp.int32(0)
+            while k < part_bodies.shape[0]:
                 finite, w = body_summary(part_bodies[k], pred_x, pred_q, pred_v, pred_w)
                 if finite:
                     spin = wp.max(spin, w)
                 else:
                     bad += 1
+                k += 1
             part_out[1] = f64(bad)
             part_out[2] = spin
         if separator == 0:
@@ -323,7 +339,8 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         assemble and factor the part's columns (the separator's after every part's), its velocity errors and,
         for a part, its forward rows of the velocity correction (wasted when the velocities hold)."""
         if accept != 0:
-            for k in range(part_bodies.shape[0]):
+            k = wp.int32(0)
+            while k < part_bodies.shape[0]:
                 b = part_bodies[k]
                 body_x_out[b] = pred_x[b]
                 body_q_out[b] = pred_q[b]
@@ -332,23 +349,30 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
                 world_inverse_inertia_of(
                     b, body_principal, body_inv_principal, body_inv_inertia, body_q_out, inv_inertia_world
                 )
-            for k in range(part_constraints.shape[0]):
+                k += 1
+            k = wp.int32(0)
+            while k < part_constraints.shape[0]:
                 i = part_constraints[k]
                 frame(
                     i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                     constraint_axis0, constraint_axis1, body_x_out, body_q_out, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
+                k += 1
         if factor != 0:
-            for k in range(part_columns.shape[0]):
+            k = wp.int32(0)
+            while k < part_columns.shape[0]:
                 assemble_column(
                     part_columns[k], perm, col_start, constraint_kind, constraint_body0, constraint_body1,
                     body_inv_mass, slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, jac_skew, values,
                 )  # fmt: skip
-            for k in range(part_columns.shape[0]):  # K's factor, no signs (only the K formulation is cut)
+                k += 1
+            k = wp.int32(0)
+            while k < part_columns.shape[0]:  # K's factor, no signs (only the K formulation is cut)
                 factor_column(
                     part_columns[k], 0, col_start, update_start, update_target, update_a, update_b, update_sign,
                     col_sign, col_loop, slot_shape, pivot_tolerance, loop_tolerance, values, part_singular,
                 )  # fmt: skip
+                k += 1
             part_out[3] = velocity_errors_of(
                 part_constraints, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
                 body_v_out, body_w_out, errors, rhs,
