@@ -388,8 +388,10 @@ def augmented_slot(
     elif code == SLOT_JANG_T:
         k = wp.transpose(angular_block(constraint_kind[r // 2], r, jac_ang_in, jac_skew_in))
     elif code == SLOT_PAD:
-        for row in range(constraint_dim(constraint_kind[r]), 3):
+        row = constraint_dim(constraint_kind[r])
+        while row < 3:
             k[row, row] = f64(-1.0)
+            row += 1
     values_out[s] = k
 
 

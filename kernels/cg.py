@@ -24,8 +24,10 @@ RR = wp.constant(3)
 def row_times(i: int, row_start: wp.array(dtype=int), col: wp.array(dtype=int), values: wp.array(dtype=mat33d),
               x: wp.array(dtype=vec3d)) -> vec3d:  # fmt: skip
     s = vec3d()
-    for k in range(row_start[i], row_start[i + 1]):
+    k = row_start[i]
+    while k < row_start[i + 1]:
         s += values[k] * x[col[k]]
+        k += 1
     return s
 
 

@@ -385,8 +385,10 @@ def solve_backward(
     """L^T z = S y, the columns of one group in reverse order (`backward_column`)."""
     g = first_group + wp.tid()
     begin = group_start[g]
-    for jj in range(group_start[g + 1] - begin):
+    jj = wp.int32(0)
+    while jj < group_start[g + 1] - begin:
         backward_column(group_start[g + 1] - 1 - jj, perm, col_start, col_row, col_sign, values, y, x)
+        jj += 1
 
 
 @wp.kernel

@@ -58,7 +58,8 @@ def assign_rows(
     hold (one thread; the others are swept alone)."""
     count = wp.min(contact_count[0], contact_body.shape[0])
     slots = int(0)
-    for k in range(count):
+    k = wp.int32(0)
+    while k < count:
         a = contact_body[k][0]
         b = contact_body[k][1]
         jointed = (a >= 0 and body_jointed[a] != 0) or (b >= 0 and body_jointed[b] != 0)
@@ -67,6 +68,7 @@ def assign_rows(
             contact_row_out[k] = limit_count + 3 * slots
             row_contact_out[slots] = k
             slots += 1
+        k += 1
     row_count_out[0] = limit_count + 3 * slots
 
 
@@ -246,8 +248,10 @@ def row_matrix(
                     free += body_inv_mass[bk] * wp.dot(glk, gll) + angular
     held = free
     nc = constraint_body0.shape[0]
-    for i in range(nc):
+    i = wp.int32(0)
+    while i < nc:
         held -= wp.dot(row_coupling[k * nc + i], row_response[l * nc + i])
+        i += 1
     if k == l:
         held = wp.max(held, f64(1.0e-9) * free) + REGULARIZATION * free
     row_matrix_out[k * n + l] = held
@@ -301,16 +305,22 @@ def contact_sweeps(
     limits and motors that hold eliminated) from the current deltas, until no row moves by more than `tolerance`
     (m) over the step: a normal pushes only, the two tangents as one block within the disc of mu lambda_n.
     Returns the sweeps taken."""
-    for c in range(nr):
+    c = wp.int32(0)
+    while c < nr:
         v = f64(0.0)
-        for e in range(nr):
+        e = wp.int32(0)
+        while e < nr:
             v += matrix[c * nr + e] * delta[nl + e]
+            e += 1
         y[c] = v
+        c += 1
     taken = int(0)
-    for sweep in range(max_sweeps):
+    sweep = wp.int32(0)
+    while sweep < max_sweeps:
         taken += 1
         change = f64(0.0)
-        for i in range(0, nr, 3):
+        i = wp.int32(0)
+        while i < nr:
             c = i
             if sweep % 2 == 1:
                 c = nr - 3 - i  # symmetric Gauss-Seidel
@@ -319,8 +329,10 @@ def contact_sweeps(
                 total = wp.max(before[nl + c] + delta[nl + c] + (goal[c] - y[c]) / diag, f64(0.0))
                 step = total - before[nl + c] - delta[nl + c]
                 delta[nl + c] = delta[nl + c] + step
-                for e in range(nr):
+                e = wp.int32(0)
+                while e < nr:
                     y[e] = y[e] + matrix[e * nr + c] * step
+                    e += 1
                 change = wp.max(change, wp.abs(step) * diag)
                 limit = contact_material[row_contact[c // 3]][0] * total
                 f = c + 1
@@ -348,11 +360,15 @@ def contact_sweeps(
                 step1 = t[1] - before[nl + f + 1] - delta[nl + f + 1]
                 delta[nl + f] = delta[nl + f] + step0
                 delta[nl + f + 1] = delta[nl + f + 1] + step1
-                for e in range(nr):
+                e = wp.int32(0)
+                while e < nr:
                     y[e] = y[e] + matrix[e * nr + f] * step0 + matrix[e * nr + f + 1] * step1
+                    e += 1
                 change = wp.max(change, wp.max(wp.abs(step0) * a, wp.abs(step1) * d))
+            i += 3
         if change * h <= tolerance:
             break
+        sweep += 1
     return taken
 
 
@@ -447,7 +463,8 @@ def solve_rows(
     the step's totals of their phase."""
     n = row_count[0]
     nl = limit_count
-    for i in range(nl):
+    i = wp.int32(0)
+    while i < nl:
         value, rate, axis_i, pb = coordinate_row(
             limit_coordinate[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
             coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v, body_w,
@@ -468,7 +485,9 @@ def solve_rows(
         if velocity != 0:
             row_before[i] = pushed + limit_velocity_impulse[i]
         row_delta[i] = f64(0.0)
-    for r in range(nl, n, 3):
+        i += 1
+    r = nl
+    while r < n:
         k = row_contact[(r - nl) // 3]
         a = contact_body[k][0]
         b = contact_body[k][1]
@@ -500,68 +519,98 @@ def solve_rows(
                 d = row_direction[r + axis]
                 row_goal[r + axis] = -wp.dot(d, slip)
                 row_before[r + axis] = wp.dot(d, tangential)
+        r += 3
     # The limits and motors that hold (mask 1) eliminated exactly, the contacts by projected Gauss-Seidel on
     # what is left; then a limit or motor out of its bounds is fixed at them, or a fixed one freed, and again.
     nr = n - nl
     sweeps = int(0)
-    for _round in range(2 * nl + 2):
-        for i in range(nl):
+    _round = wp.int32(0)
+    while _round < 2 * nl + 2:
+        i = wp.int32(0)
+        while i < nl:
             row_free[i] = wp.where(row_mask[i] == 1, 1, 0)
+            i += 1
         factor_masked(nl, n, row_matrix, row_free, row_work)
-        for c in range(nr):  # X_c = S_mm^-1 S_mc
-            for i in range(nl):
+        c = wp.int32(0)
+        while c < nr:  # X_c = S_mm^-1 S_mc
+            i = wp.int32(0)
+            while i < nl:
                 row_column[i] = row_matrix[i * n + nl + c]
                 row_solved[c * nl + i] = f64(0.0)
+                i += 1
             solve_factored(nl, row_work, row_free, row_column, row_scratch, row_solved, c * nl)
-        for i in range(nl):  # the free rows' own solution, the fixed rows' impulses counted
+            c += 1
+        i = wp.int32(0)
+        while i < nl:  # the free rows' own solution, the fixed rows' impulses counted
             want = row_goal[i]
-            for j in range(nl):
+            j = wp.int32(0)
+            while j < nl:
                 if row_mask[j] >= 2:
                     want -= row_matrix[i * n + j] * row_delta[j]
+                j += 1
             row_column[i] = want
             row_y[i] = f64(0.0)
+            i += 1
         solve_factored(nl, row_work, row_free, row_column, row_scratch, row_y, 0)
-        for c in range(nr):  # the contacts' system with the free rows holding
+        c = wp.int32(0)
+        while c < nr:  # the contacts' system with the free rows holding
             want = row_goal[nl + c]
-            for j in range(nl):
+            j = wp.int32(0)
+            while j < nl:
                 if row_mask[j] >= 2:
                     want -= row_matrix[(nl + c) * n + j] * row_delta[j]
                 elif row_free[j] == 1:
                     want -= row_matrix[(nl + c) * n + j] * row_y[j]
+                j += 1
             row_reduced_goal[c] = want
-            for e in range(nr):
+            e = wp.int32(0)
+            while e < nr:
                 v = row_matrix[(nl + c) * n + nl + e]
-                for i in range(nl):
+                i = wp.int32(0)
+                while i < nl:
                     if row_free[i] == 1:
                         v -= row_matrix[(nl + c) * n + i] * row_solved[e * nl + i]
+                    i += 1
                 row_reduced[c * nr + e] = v
+                e += 1
+            c += 1
         sweeps += contact_sweeps(
             nr, nl, h, tolerance, max_sweeps, row_reduced, row_reduced_goal, row_before, row_delta, row_mask,
             row_contact, contact_material, row_column,
         )  # fmt: skip
-        for i in range(nl):
+        i = wp.int32(0)
+        while i < nl:
             if row_free[i] == 1:
                 held = row_y[i]
-                for c in range(nr):
+                c = wp.int32(0)
+                while c < nr:
                     held -= row_solved[c * nl + i] * row_delta[nl + c]
+                    c += 1
                 row_delta[i] = held
+            i += 1
         worst = tolerance / h  # a rate the contacts' sweeps may leave: no pivot on less
         pick = fix_furthest_out(nl, n, row_matrix, row_mask, row_before, row_low, row_high, row_delta, worst)
         if pick < 0:
-            for i in range(nl):
+            i = wp.int32(0)
+            while i < nl:
                 if row_mask[i] >= 2:
                     demand = row_goal[i]  # the rate change still wanted at fixed row i, all impulses counted
-                    for j in range(n):
+                    j = wp.int32(0)
+                    while j < n:
                         if row_mask[j] != 0:
                             demand -= row_matrix[i * n + j] * row_delta[j]
+                        j += 1
                     inward = wp.where(row_mask[i] == 2, demand, -demand)
                     if inward > worst:
                         worst = inward
                         pick = i
+                i += 1
             if pick < 0:
                 break
             row_mask[pick] = 1
-    for r in range(n):
+        _round += 1
+    r = wp.int32(0)
+    while r < n:
         amount = row_delta[r]
         if amount != f64(0.0):
             push_row(r, amount, row_body, row_lin0, row_ang0, row_lin1, row_ang1, body_inv_mass,
@@ -569,13 +618,17 @@ def solve_rows(
             compensate(r, amount, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
                        inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in, row_response, body_v,
                        body_w)  # fmt: skip
-    for i in range(nl):
+        r += 1
+    i = wp.int32(0)
+    while i < nl:
         if velocity == 0:
             limit_impulse[i] = limit_impulse[i] + row_delta[i]
         else:
             limit_velocity_impulse[i] = limit_velocity_impulse[i] + row_delta[i]
+        i += 1
     contact_error[1 + velocity] = f64(sweeps)
-    for r in range(nl, n, 3):
+    r = nl
+    while r < n:
         k = row_contact[(r - nl) // 3]
         nrm = contact_normal[k]
         s1 = collide.any_perpendicular(nrm)
@@ -587,3 +640,4 @@ def solve_rows(
             contact_impulse[k] = lam
         else:
             contact_velocity_impulse[k] = lam
+        r += 3

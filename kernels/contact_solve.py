@@ -124,7 +124,8 @@ def all_pairs(
     bi = collider_body[i]
     lo = lowers[i]
     hi = uppers[i]
-    for j in range(i + 1, collider_count):
+    j = i + 1
+    while j < collider_count:
         if lo[0] <= uppers[j][0] and lowers[j][0] <= hi[0] and lo[1] <= uppers[j][1] and lowers[j][1] <= hi[1]:
             if lo[2] <= uppers[j][2] and lowers[j][2] <= hi[2]:
                 bj = collider_body[j]
@@ -134,6 +135,7 @@ def all_pairs(
                         slot = wp.atomic_add(pair_count_out, 0, 1)
                         if slot < pair_body_out.shape[0]:
                             pair_body_out[slot] = wp.vec2i(bi, bj)
+        j += 1
 
 
 @wp.func
@@ -239,7 +241,8 @@ def emit(
     da = body_acceleration(a, body_inv_mass, gravity, body_force)
     db = body_acceleration(b, body_inv_mass, gravity, body_force)
     an = wp.dot(n, db - da)
-    for i in range(count):
+    i = wp.int32(0)
+    while i < count:
         k = first + i
         if k < contact_body.shape[0]:
             pb = points[i]
@@ -258,6 +261,7 @@ def emit(
             if vn < f64(0.0) and g < f64(0.0):
                 impact = wp.sqrt(wp.max(vn * vn - f64(2.0) * an * g, f64(0.0)))
             contact_impact[k] = impact
+        i += 1
 
 
 @wp.func
@@ -917,7 +921,8 @@ def solve_velocities(
     kept). contact_error[2] = the sweeps taken. Contacts with rows (`contact_row` >= 0) are left to
     `contact_rows.solve_rows`: here they only get their gaps, arms and approach speeds."""
     count = wp.min(contact_count[0], contact_body.shape[0])
-    for k in range(count):
+    k = wp.int32(0)
+    while k < count:
         a = contact_body[k][0]
         b = contact_body[k][1]
         pa, pb = surface_points(a, b, contact_anchor_a[k], contact_anchor_b[k], contact_radius[k], contact_normal[k],
@@ -943,11 +948,14 @@ def solve_velocities(
             contact_velocity_impulse_out[k] = lam
             ima, imb, ia, ib = pair_inverses(a, b, body_inv_mass, inv_inertia_world_in)
             apply_pair(a, b, impulse_vector(contact_normal[k], lam), ra, rb, ima, imb, ia, ib, body_v_out, body_w_out)
+        k += 1
     if first != 0:  # the approach speeds once the position phase's impulses are all applied
-        for k in range(count):
+        k = wp.int32(0)
+        while k < count:
             u = relative_velocity(contact_body[k][0], contact_body[k][1], contact_arm_a_out[k], contact_arm_b_out[k],
                                   body_v_out, body_w_out)  # fmt: skip
             contact_approach_out[k] = -wp.dot(contact_normal[k], u)
+            k += 1
     taken = int(0)
     for sweep in range(sweeps):
         taken += 1

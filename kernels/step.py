@@ -147,14 +147,18 @@ def save_start(
 
 @wp.func
 def copy_values(source: wp.array(dtype=f64), target: wp.array(dtype=f64)):
-    for i in range(source.shape[0]):
+    i = wp.int32(0)
+    while i < source.shape[0]:
         target[i] = source[i]
+        i += 1
 
 
 @wp.func
 def zero_values(target: wp.array(dtype=f64)):
-    for i in range(target.shape[0]):
+    i = wp.int32(0)
+    while i < target.shape[0]:
         target[i] = f64(0.0)
+        i += 1
 
 
 @wp.func
@@ -311,18 +315,22 @@ def element_wrenches(
     """Every force element's wrench rows at the given state: the springs, then the drives (`spring_wrench`,
     `drive_wrench`)."""
     springs = el.spring_body0.shape[0]
-    for e in range(springs):
+    e = wp.int32(0)
+    while e < springs:
         spring_wrench(
             e, el.spring_body0, el.spring_body1, el.spring_anchor0, el.spring_anchor1, el.spring_params, body_x,
             body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
         )  # fmt: skip
-    for e in range(el.drive_element.shape[0]):
+        e += 1
+    e = wp.int32(0)
+    while e < el.drive_element.shape[0]:
         drive_wrench(
             e, springs, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
             el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_element,
             el.drive_coordinate, el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target,
             el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
         )  # fmt: skip
+        e += 1
 
 
 @wp.func
@@ -415,13 +423,15 @@ def integrate_drives_all(
     body_w: wp.array(dtype=vec3d),
 ):
     """Every drive's PID integral at the accepted state (`integrate_drive`)."""
-    for e in range(el.drive_coordinate.shape[0]):
+    e = wp.int32(0)
+    while e < el.drive_coordinate.shape[0]:
         integrate_drive(
             e, h, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
             el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_coordinate,
             el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target, body_x, body_q, body_v, body_w,
             el.drive_integral,
         )  # fmt: skip
+        e += 1
 
 
 @wp.func
@@ -549,9 +559,11 @@ def limit_errors_all(
     """Every row's error at the prediction, from the state at t0 (`limit_error`); returns the largest (NaN if
     any is)."""
     worst = f64(0.0)
-    for i in range(rows.limit_coordinate.shape[0]):
+    i = wp.int32(0)
+    while i < rows.limit_coordinate.shape[0]:
         err = limit_error(i, h, pred_x, pred_q, pred_v, pred_w, body_x, body_q, body_v, body_w, rows)
         worst = max_or_nan(worst, err)
+        i += 1
     return worst
 
 
@@ -600,13 +612,16 @@ def row_couplings_all(
     """Every row's Jacobian g at the state (`row_sides`), then c = J M^-1 g^T of every row and constraint
     (`coupling_entry`)."""
     nl = rows.limit_coordinate.shape[0]
-    for l in range(nl):
+    l = wp.int32(0)
+    while l < nl:
         row_sides(
             l, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
             rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
             body_x, body_q, body_v, body_w, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
         )  # fmt: skip
-    for l in range(nl):
+        l += 1
+    l = wp.int32(0)
+    while l < nl:
         i = wp.int32(0)
         while i < constraint_count:
             coupling_entry(
@@ -615,18 +630,23 @@ def row_couplings_all(
                 rows.limit_coupling,
             )  # fmt: skip
             i += 1
+        l += 1
 
 
 @wp.func
 def row_matrix_all(rows: Rows, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=sym33d)):
     """The rows' system S with the joints holding, from g, c and K^-1 c (`matrix_entry`)."""
     nl = rows.limit_coordinate.shape[0]
-    for k in range(nl):
-        for l in range(nl):
+    k = wp.int32(0)
+    while k < nl:
+        l = wp.int32(0)
+        while l < nl:
             matrix_entry(
                 k, l, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
                 inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
             )  # fmt: skip
+            l += 1
+        k += 1
 
 
 @wp.func
@@ -1124,11 +1144,13 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0,
                     constraint_axis1, state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
-                for s in range(slot_code.shape[0]):
+                s = wp.int32(0)
+                while s < slot_code.shape[0]:
                     augmented_slot(
                         s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
                         jac_skew, values,
                     )  # fmt: skip
+                    s += 1
                 singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
                 j = wp.int32(0)
                 columns = col_start.shape[0] - 1
@@ -1149,12 +1171,14 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         constraint_body1, state_x, state_q, state_v, state_w, inv_inertia_world, jac_lin, jac_ang,
                         jac_skew,
                     )  # fmt: skip
-                    for l in range(limit_rows.limit_coordinate.shape[0]):
+                    l = wp.int32(0)
+                    while l < limit_rows.limit_coordinate.shape[0]:
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
                             row_slot, row_col, values, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
                             limit_rows.response_rows[l],
                         )  # fmt: skip
+                        l += 1
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
                 # The velocity correction where the state is handed out (`defer` == 0: every stage's): a deferred
                 # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`;
