@@ -130,3 +130,18 @@ def test_deferred_only_where_the_next_joint_correction_reaches_the_same_state(ma
         wi.Simulator(model, 1 / 60, defer_velocities=True, **settings)
     with pytest.raises(ValueError, match="defer_velocities must be"):
         wi.Simulator(scenes.chain(3).finalize(), 1 / 60, defer_velocities="yes")
+
+
+@pytest.mark.parametrize("schedule", ["fused", "parallel"])
+@pytest.mark.parametrize("defer", [True, False])
+def test_a_velocity_correction_over_its_tolerance_says_what_it_left(schedule, defer):
+    """The velocity correction is one exact solve: one that leaves more than the velocity tolerance (here a
+    tolerance below round-off) raises naming the error it left and the joints, not an iteration limit it never
+    had: at the first step without the deferral, at the step handed out (the third) with it."""
+    sim = wi.Simulator(scenes.chain(5).finalize(), 1 / 60, velocity_tolerance=1e-30, schedule=schedule,
+                       defer_velocities=defer)  # fmt: skip
+    step = 3 if defer else 1
+    with pytest.raises(wi.SimulationError, match=rf"step {step} .*the velocity correction left .*, over its "
+                                                 r"tolerance of 1e-30; worst joints: ") as err:  # fmt: skip
+        sim.step(3)
+    assert "iterations" not in str(err.value)

@@ -941,10 +941,11 @@ class Simulator:
         return status
 
     def _velocity_failed(self, error: float) -> None:
-        """A velocity correction that left more than the tolerance, under the iteration-limit policy."""
+        """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
+        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit)."""
         if not math.isfinite(error):
             self._max_error("velocity")
-        self._may_iterate(self.max_iterations, error, "velocity", error, True)
+        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True)
 
     # ---------------------------------------------------------------- the step
     def step(self, n: int = 1) -> StepStats:
@@ -1141,7 +1142,7 @@ class Simulator:
         if vel_err > self.velocity_tolerance and self.linear is not None:
             # One exact solve should leave round-off: a linear solver that stopped short (CG on an
             # ill-conditioned K) is reported under the same policy as an iteration limit.
-            self._may_iterate(self.max_iterations, vel_err, "velocity", vel_err, True)
+            self._velocity_failed(vel_err)
         if self.contact_stage is not None:
             self._contact_velocities(h, stats)
         stats.converged = (
@@ -1303,7 +1304,7 @@ class Simulator:
                 self._velocity_errors.launch()
                 err = self._max_error("velocity")
             if err > self.velocity_tolerance:
-                self._may_iterate(self.max_iterations, err, "velocity", err, True)
+                self._velocity_failed(err)
             stats.max_velocity_error = err
         stats.contacts = cs.count
         stats.max_penetration = self._penetration
@@ -1340,10 +1341,13 @@ class Simulator:
             raise SimulationError(f"step {self.step_count + (what == 'joint')}: {what} errors are not finite")
         return err
 
-    def _may_iterate(self, iterations: int, error: float, what: str, best: float, final: bool) -> bool:
+    def _may_iterate(
+        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False
+    ) -> bool:
         """Whether the correction may take another iteration. On its limit, or when it diverges (the error
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
-        worst joints."""
+        worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
+        (the velocity correction's solve), said as such."""
         diverging = iterations >= 3 and error > 1e3 * best
         if iterations < self.max_iterations and not diverging:
             return True
@@ -1360,12 +1364,12 @@ class Simulator:
             diagnose.mass_ratio_note(self.model)
             or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
         )
-        failure = (
-            f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the step halved "
-            f"{self.max_substep_depth} times already; {hint})"
-            if diverging
-            else f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
-        )
+        failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
+        if stopped:
+            failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
+        elif diverging:
+            failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
+                       f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
         if worst:
             msg += f"; worst joints: {worst}"
