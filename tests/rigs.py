@@ -228,3 +228,16 @@ def run_against_reference(make, rate: int, duration: float = DURATION, tolerance
         x_err = max(x_err, float(np.linalg.norm(sim.positions() - com[k], axis=1).max()))
         r_err = max(r_err, float(np.abs(matrices(sim.orientations()) - matrices(q_ref[k])).max()))
     return x_err, r_err
+
+
+def welded_hinge(arm_spin: float = 0.0) -> wi.SceneBuilder:
+    """A hinge and a fixed joint on the same pair, hung from the world: the loop joint's redundant rows are
+    regularised in the factor (kernels/cholesky.py, `factor_column`); the arm turning at `arm_spin` (rad/s) about
+    the hinge's axis."""
+    b = wi.SceneBuilder()
+    base = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 0.0), name="base")
+    arm = b.add_body(2.0, (0.1, 0.2, 0.3), (1.0, 0.0, 0.0), name="arm", angular_velocity=(0.0, arm_spin, 0.0))
+    b.add_joint_ball(None, base, (-0.5, 0.0, 0.0), name="pivot")
+    b.add_joint_fixed(base, arm, (0.5, 0.0, 0.0), name="weld")
+    b.add_joint_revolute(base, arm, (0.5, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
+    return b

@@ -17,29 +17,17 @@ import math
 import numpy as np
 import pytest
 from numpy_checks import constraint_errors, constraint_velocity_errors, sim_state
-from rigs import JOINTS
+from rigs import JOINTS, welded_hinge
 
 import warpimpulse as wi
 from warpimpulse import scenes
-
-
-def _welded_hinge() -> wi.SceneBuilder:
-    """A hinge and a fixed joint on the same pair: a loop whose redundant rows the factor regularises."""
-    b = wi.SceneBuilder()
-    base = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 0.0), name="base")
-    arm = b.add_body(2.0, (0.1, 0.2, 0.3), (1.0, 0.0, 0.0), name="arm", angular_velocity=(0.0, 2.0, 0.0))
-    b.add_joint_ball(None, base, (-0.5, 0.0, 0.0), name="pivot")
-    b.add_joint_fixed(base, arm, (0.5, 0.0, 0.0), name="weld")
-    b.add_joint_revolute(base, arm, (0.5, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
-    return b
-
 
 SCENES = {
     "chain10": (lambda: scenes.chain(10), 1 / 60, {}),
     "tree31": (lambda: scenes.binary_tree(31), 1 / 30, {}),
     "double_pendulum": (scenes.double_pendulum, 1 / 120, {}),
     "every_joint_type": (lambda: scenes.chain(7, joint=list(JOINTS)), 1 / 60, {}),
-    "loop_redundant_rows": (_welded_hinge, 1 / 60, {}),
+    "loop_redundant_rows": (lambda: welded_hinge(2.0), 1 / 60, {}),
     "star31_body_matrix": (lambda: scenes.star(31), 1 / 60, {"formulation": "body"}),
     "chain10_order4": (lambda: scenes.chain(10), 1 / 60, {"order": 4}),
     "chain10_parallel": (lambda: scenes.chain(10), 1 / 60, {"schedule": "parallel"}),
@@ -113,7 +101,7 @@ def _limits() -> wi.SceneBuilder:
     [
         (scenes.chain, {"solver": "cg"}, "'cg' solver"),
         (scenes.chain, {"solver": "iterative"}, "'iterative' solver"),
-        (_welded_hinge, {"formulation": "split"}, "split formulation"),
+        (welded_hinge, {"formulation": "split"}, "split formulation"),
         (_springs, {}, "force elements"),
         (_limits, {}, "joint limits"),
         (lambda: scenes.box_stack(2), {}, "contacts"),

@@ -9,6 +9,7 @@ import warnings
 
 import numpy as np
 import pytest
+from rigs import welded_hinge
 from warpimpulse.kernels import step as step_kernels
 
 import warpimpulse as wi
@@ -30,18 +31,6 @@ def _free_bodies() -> wi.SceneBuilder:
     for i in range(3):
         builder.add_body(1.0 + i, np.diag([0.1, 0.2, 0.3]), [i, 0.0, 1.0], angular_velocity=[0.0, 1.0, 3.0 * i])
     return builder
-
-
-def _welded_hinge() -> wi.SceneBuilder:
-    """A hinge and a fixed joint on the same pair, hung from the world: the loop joint's redundant rows are
-    regularised in the factor (kernels/cholesky.py, `factor_column`)."""
-    b = wi.SceneBuilder()
-    base = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, 0.0), name="base")
-    arm = b.add_body(2.0, (0.1, 0.2, 0.3), (1.0, 0.0, 0.0), name="arm")
-    b.add_joint_ball(None, base, (-0.5, 0.0, 0.0), name="pivot")
-    b.add_joint_fixed(base, arm, (0.5, 0.0, 0.0), name="weld")
-    b.add_joint_revolute(base, arm, (0.5, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
-    return b
 
 
 def _sprung_chain(links: int = 10) -> wi.SceneBuilder:
@@ -134,7 +123,7 @@ CASES = {
     "free_bodies": (_free_bodies, 1 / 60, 30, {}),
     "spin_split": (lambda: _spinning_pendulum(100.0), 1 / 60, 20, {}),
     "spin_split_iterative": (lambda: _spinning_pendulum(100.0), 1 / 60, 10, {"solver": "iterative"}),
-    "loop_redundant_rows": (_welded_hinge, 1 / 60, 60, {}),
+    "loop_redundant_rows": (welded_hinge, 1 / 60, 60, {}),
     "chain50_halved": (lambda: scenes.chain(50), 1 / 30, 60, {}),
     # Compositions (order 4, 6): the stages of a step in the launch, backward ones too; spin splits and halvings
     # of whole composed steps; a stage after the first that fails (yoshida3's -1.70 h at h = 1/15).
@@ -184,7 +173,7 @@ CASES = {
     "chain10_newton": (lambda: scenes.chain(10), 1 / 60, 60, {"newton": True}),
     "mixed_kinds_newton": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 60, {"newton": True}),
     "star31_body_matrix_newton": (lambda: scenes.star(31), 1 / 60, 30, {"formulation": "body", "newton": True}),
-    "loop_redundant_rows_newton": (_welded_hinge, 1 / 60, 60, {"newton": True}),
+    "loop_redundant_rows_newton": (welded_hinge, 1 / 60, 60, {"newton": True}),
     "chain50_halved_newton": (lambda: scenes.chain(50), 1 / 30, 60, {"newton": True}),
     "mixed_kinds_order4_newton": (lambda: scenes.chain(7, joint=MIXED), 1 / 60, 20, {"order": 4, "newton": True}),
     "servo_chain_newton": (_servo_chain, 1 / 60, 60, {"newton": True}),

@@ -369,12 +369,18 @@ class Simulator:
         self._check_finite(self.state, 0)
 
     # ---------------------------------------------------------------- launches
+    @property
+    def _split_systems(self) -> bool:
+        """Whether the Cholesky solver factors the tree's and the loop joints' systems apart (formulation "split",
+        section 4.6), which iterate their velocity correction side by side."""
+        return getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split"
+
     def _velocities_needed(self) -> str:
         """Why a step's velocities must be corrected before the next step (`defer_velocities`), or ""."""
         m = self.model
         reasons = (
             (self.solver_name != "cholesky" or m.constraint_count == 0, f"the {self.solver_name!r} solver"),
-            (getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split", "the split formulation"),
+            (self._split_systems, "the split formulation"),
             (m.element_count > 0, "force elements (springs, joint springs, drives)"),
             (m.limit_count > 0, "joint limits, stiff motors or distance constraints"),
             (m.colliders is not None, "contacts"),
@@ -534,7 +540,7 @@ class Simulator:
             correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations,
                                          first_iteration=first_iteration)  # fmt: skip
             finish = fix = None
-            if not self.model.limit_count and getattr(self.linear.pattern, "formulation", "") != "split":
+            if not self.model.limit_count and not self._split_systems:
                 first = (*self._accept_work, self._integrate_drives, self._velocity_errors)
                 finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance, 1)
                 fix = self._capture_loop((self._velocity_errors,), self._velocity_fix_work, errors[:1],
@@ -565,6 +571,14 @@ class Simulator:
             once = (*first_iteration, *decide)
             loop_work.insert(0, lambda: wp.capture_if(self.loop_go, lambda: run(*once)))
         return self._capture(*start, *first, *decide, *loop_work)
+
+    def _velocity_record(self) -> tuple[int, float]:
+        """(iterations, velocity error) of the velocity-correction loop graph just replayed; a NaN or Inf raises,
+        naming the bodies."""
+        vel_err, _, vel_it = self._loop_record()
+        if not math.isfinite(vel_err):
+            self._max_error("velocity")
+        return vel_it, vel_err
 
     def _loop_record(self) -> tuple[float, float, int]:
         """(largest error, best error, iterations) of the one-world loop graph just replayed."""
@@ -754,7 +768,7 @@ class Simulator:
             return "parallel", "batched worlds step each world's convergence from the host (`worlds.py`)"
         if self.contact_stage is not None:
             return "parallel", "contacts are a stage the fused step does not have yet"
-        if getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split":
+        if self._split_systems:
             return "parallel", "the split systems iterate their velocity correction from the host"
         if self._forced and self.linear is None:
             return "parallel", "force elements without joints: the fused step predicts them with the direct solver only"
@@ -1010,15 +1024,7 @@ class Simulator:
         """The velocity correction the step's base steps deferred (`defer_velocities`), at its end: as the fused
         kernel does it in the step whose state it hands out, and reported in the step's `stats` under the
         iteration policy."""
-        fix = (self._device_loops() or (None, None, None))[2]
-        if fix is not None:  # decided on the device: the host reads the loop's record
-            wp.capture_launch(fix)
-            error, _, iterations = self._loop_record()
-            if not math.isfinite(error):
-                self._max_error("velocity")  # raises, naming the bodies with a NaN or Inf
-            solves = iterations
-        else:
-            iterations, error, solves = self._correct_velocities()
+        iterations, error, solves = self._correct_velocities()
         stats.velocity_iterations += iterations
         stats.linear_iterations += solves
         stats.max_velocity_error = error
@@ -1087,24 +1093,19 @@ class Simulator:
                 ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
         if not ok:
             return StepStats(joint_it, 0, joint_err, math.inf, False, linear_iterations, 1), False
-        if self.defer_velocities:  # accept and factor; the velocities are the next step's (`defer_velocities`)
-            wp.capture_launch(self._accept_graph)
-            self.linear.check()
-            stats = StepStats(joint_it, 0, joint_err, math.nan, True, linear_iterations, 1)
-            return self._finish_step(stats, h)
-        finish = (self._device_loops() or (None, None, None))[1]
+        finish = None if self.defer_velocities else (self._device_loops() or (None, None, None))[1]
         if finish is not None:  # accept, factor and correct the velocities by one graph
             wp.capture_launch(finish)
             self.linear.check()  # a lost pivot raises here, before the corrected velocities are used
-            vel_err, _, vel_it = self._loop_record()
-            if not math.isfinite(vel_err):
-                self._max_error("velocity")  # raises, naming the bodies with a NaN or Inf
+            vel_it, vel_err = self._velocity_record()
             linear_iterations += vel_it
             return self._finish_step(StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1), h)
         wp.capture_launch(self._accept_graph)
         if self.linear is not None:
             self.linear.check()
         self._integrate_drives.launch()
+        if self.defer_velocities:  # accepted and factored; the velocities are the next step's (`defer_velocities`)
+            return self._finish_step(StepStats(joint_it, 0, joint_err, math.nan, True, linear_iterations, 1), h)
 
         if self.linear is None:
             vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
@@ -1119,7 +1120,13 @@ class Simulator:
 
     def _correct_velocities(self) -> tuple[int, float, int]:
         """The velocity correction of the state (its factor made): its iterations, the velocity error it leaves
-        and its linear iterations (rows, limits and stiff motors, take one more solve first)."""
+        and its linear iterations (rows, limits and stiff motors, take one more solve first). Decided on the
+        device where the parallel schedule's loops are (`_device_loops`), else by the host."""
+        fix = (self._device_loops() or (None, None, None))[2]
+        if fix is not None:
+            wp.capture_launch(fix)
+            vel_it, vel_err = self._velocity_record()
+            return vel_it, vel_err, vel_it
         vel_it = solves = 0
         self._velocity_errors.launch()
         if self.model.limit_count:  # joints exact, then the limits, then the joints take up their reaction
@@ -1128,8 +1135,7 @@ class Simulator:
             self._velocity_errors.launch()
         vel_err = self._max_error("velocity")
         # One exact solve, except with the split systems (section 4.6), which iterate side by side.
-        split = getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split"
-        while vel_err > self.velocity_tolerance and vel_it < (self.max_iterations if split else 1):
+        while vel_err > self.velocity_tolerance and vel_it < (self.max_iterations if self._split_systems else 1):
             solves += self._fix_velocities()
             vel_it += 1
             vel_err = self._max_error("velocity")
