@@ -10,6 +10,7 @@ without the other fails when the launch is recorded, naming both.
 from __future__ import annotations
 
 import ctypes
+import functools
 from collections.abc import Callable, Sequence
 
 import warp as wp
@@ -47,11 +48,8 @@ class Packed:
         fields = [(arg.label, type(value)) for arg, value in zip(launch.kernel.adj.args, values, strict=True)]
         self._args = type("Args", (ctypes.Structure,), {"_fields_": fields})(*values)
         self._launch = launch  # keeps the bounds and the arrays the arguments point into
-        self._call = launch.hooks.forward
-        self._refs = (ctypes.byref(launch.params[0]), ctypes.byref(self._args))
-
-    def launch(self) -> None:
-        self._call(*self._refs)
+        # `launch()`: the entry point bound to its two pointers, called without a Python frame
+        self.launch = functools.partial(launch.hooks.forward, ctypes.byref(launch.params[0]), ctypes.byref(self._args))
 
 
 Work = wp.Launch | Nothing | Launches | Callable[[], object]
