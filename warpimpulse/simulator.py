@@ -9,6 +9,7 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
+import operator
 import warnings
 import zipfile
 import zlib
@@ -50,6 +51,14 @@ two blocks converge linearly into each other (a cart on its wheels: about 0.7 a 
 
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
+
+
+# A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
+# each column's name takes five.
+_STATUS_FIGURES = operator.itemgetter(
+    step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
+    step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
+)  # fmt: skip
 
 
 class CheckpointError(ValueError):
@@ -908,7 +917,8 @@ class Simulator:
         self._update_forces()
         status, summary = self._run_fused(1, True)
         if summary[step_kernels.STATUS_CODE]:  # the step went OK
-            stats = self._status_stats(summary, 1, *self._fused_order)
+            order, fallback = self._fused_order
+            stats = self._status_stats(summary, 1, order, fallback)
             self._advance_clock(1)
             self._spin = summary[step_kernels.STATUS_SPIN]
         else:
@@ -951,11 +961,10 @@ class Simulator:
     @staticmethod
     def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
         """A StepStats of a status row (or of the summary row of `steps` steps)."""
-        c = step_kernels
+        joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(row)
         return StepStats(
-            int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]), row[c.STATUS_JOINT_ERROR],
-            row[c.STATUS_VELOCITY_ERROR], True, int(row[c.STATUS_LINEAR_ITERATIONS]), steps, order, fallback,
-        )  # fmt: skip
+            int(joint), int(velocity), joint_error, velocity_error, True, int(linear), steps, order, fallback
+        )
 
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
