@@ -2,14 +2,24 @@
 engine's state), reference.py (reduced-coordinate and free-body references), rigs.py (random joint rigs) and
 cli_helpers.py (running the command line); tests import those, never each other."""
 
+import os
+
 import pytest
 import warp as wp
+from hypothesis import settings
 
 import warpimpulse as wi
 
 wp.config.quiet = True
 # Warp 1.19 no longer reads `config.quiet`; its start-up and module-load messages are info-level logs.
 wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
+
+
+# `make test` draws no new cases: every Hypothesis test runs the same examples on every machine (derandomized,
+# no example database), so CI cannot fail by chance. `make fuzz` explores with fresh seeds and keeps what fails.
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("fuzz", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 
 def pytest_addoption(parser):
