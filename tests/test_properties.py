@@ -2,8 +2,9 @@
 of magnitude and random velocities, run with every solver and formulation at random step sizes. Each one ends
 either in a clear error (SceneError, SimulationError, SingularSystemError, naming what is at fault) or in a
 valid simulation where every joint holds, checked every step from the numpy state by
-`numpy_checks.constraint_errors`, which shares no code with the kernels. `make test` replays a fixed set of a few dozen examples (the "deterministic" profile, conftest.py; `make fuzz` draws new ones);
-the slow variant draws hundreds, with bigger trees and longer runs."""
+`numpy_checks.constraint_errors`, which shares no code with the kernels. `make test` replays a fixed set of a few
+dozen examples (the "deterministic" profile, conftest.py); `make fuzz` draws new ones; the slow variant draws
+hundreds, with bigger trees and longer runs."""
 
 from __future__ import annotations
 
