@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test fuzz lint stress soak bench mutants clean
+.PHONY: run test fuzz docs lint stress soak bench mutants clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -29,6 +29,10 @@ fuzz: $(STAMP)
 # mutations the fast suite does not notice. Minutes per mutation; not part of `make test`.
 mutants: $(STAMP)
 	$(PY) tests/mutants/run.py
+
+# Documents generated from the code: the capability table (tests/test_capabilities.py keeps it current).
+docs: $(STAMP)
+	$(PY) -c "from warpimpulse.capabilities import markdown; print(markdown(), end='')" > docs/capabilities.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .

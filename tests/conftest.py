@@ -27,8 +27,8 @@ def pytest_addoption(parser):
         "--schedule",
         default="auto",
         choices=("auto", "fused", "parallel"),
-        help="the schedule a Simulator built with schedule='auto' runs (`make test-parallel`: the whole suite on "
-        "the parallel schedule, what a GPU runs)",
+        help="the schedule a Simulator built with StepOptions(schedule='auto') runs (the whole suite on the "
+        "parallel schedule, what a GPU runs)",
     )
 
 
@@ -48,7 +48,10 @@ def _default_schedule(request, monkeypatch):
         return
     init = wi.Simulator.__init__
 
-    def built_with(self, *args, schedule: str = "auto", **settings):
-        init(self, *args, schedule=chosen if schedule == "auto" else schedule, **settings)
+    def built_with(self, *args, options: wi.StepOptions | None = None, **settings):
+        options = options or wi.StepOptions()
+        if options.schedule == "auto":
+            options = options.replace(schedule=chosen)
+        init(self, *args, options=options, **settings)
 
     monkeypatch.setattr(wi.Simulator, "__init__", built_with)

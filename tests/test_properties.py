@@ -99,8 +99,14 @@ def check_random_tree(data, trees, solvers=SOLVERS, step_sizes=STEP_SIZES, steps
     dt = data.draw(st.sampled_from(step_sizes))
     note(f"solver {solver!r}, formulation {formulation!r}, dt {dt!r}, scene:\n{describe(builder)}")
     try:
-        sim = wi.Simulator(builder.finalize(), dt, tolerance=TOLERANCE, solver=solver, formulation=formulation,
-                           max_iterations=100)  # fmt: skip
+        sim = wi.Simulator(
+            builder.finalize(),
+            dt,
+            tolerance=TOLERANCE,
+            solver=solver,
+            max_iterations=100,
+            options=wi.StepOptions(formulation=formulation),
+        )
         for k in range(steps):
             stats = sim.step()
             assert stats.converged and stats.max_joint_error <= TOLERANCE, f"step {k + 1}: {stats}"
