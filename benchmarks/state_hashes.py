@@ -32,14 +32,15 @@ def _limited_chain() -> wi.SceneBuilder:
 
 def _servo_chain() -> wi.SceneBuilder:
     b = scenes.chain(6)
-    for j in range(6):
-        b.add_motor(j, mode="position", target=0.3 * (j % 3), stiffness=40.0, damping=4.0)
+    b.add_motor(1, "position", target=0.4, kp=80.0, ki=30.0, kd=5.0)
+    b.add_motor(3, "velocity", target=0.3, kp=20.0, ki=40.0, max_force=3.0)
+    b.add_motor(5, "velocity", target=0.5, max_force=50.0, stiff=True)
     return b
 
 
 def _springs() -> wi.SceneBuilder:
-    b = scenes.binary_tree(31)
-    for j in range(0, 30, 3):
+    b = scenes.chain(10)
+    for j in range(0, 10, 3):
         b.add_joint_spring(j, stiffness=5.0, damping=0.5)
     return b
 
@@ -65,7 +66,7 @@ SCENES = {
     "pile": (lambda: scenes.pile(30, seed=1), 1 / 60, 40, {"tolerance": 1e-4}, {}),
     "servo_chain": (_servo_chain, 1 / 60, 60, {}, {}),
     "limited_chain": (_limited_chain, 1 / 60, 60, {}, {}),
-    "springs_tree31": (_springs, 1 / 60, 60, {}, {}),
+    "springs_chain10": (_springs, 1 / 60, 60, {}, {}),
     "rope_tree31": (_rope, 1 / 60, 60, {}, {}),
     "tree31_order4": (lambda: scenes.binary_tree(31), 1 / 60, 30, {"order": 4}, {}),
     "chain10_order6": (lambda: scenes.chain(10), 1 / 60, 30, {"order": 6}, {}),
