@@ -36,7 +36,7 @@ from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
 from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
-from .steps import SimulationError, StepStats
+from .steps import SimulationError, StepStats, diverging
 from .transforms import quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
@@ -1299,8 +1299,8 @@ class Simulator:
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
         (the velocity correction's solve), said as such."""
-        diverging = iterations >= 3 and error > 1e3 * best
-        if iterations < self.max_iterations and not diverging:
+        diverges = diverging(error, best, iterations)
+        if iterations < self.max_iterations and not diverges:
             return True
         if not final:
             return False
@@ -1318,7 +1318,7 @@ class Simulator:
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         if stopped:
             failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
-        elif diverging:
+        elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
