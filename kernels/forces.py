@@ -26,6 +26,7 @@ f64 = wp.float64
 ANGLE_COORDINATE = wp.constant(0)  # revolute; 1 is a prismatic offset
 DISTANCE_COORDINATE = wp.constant(2)  # the distance between two anchors (`SceneBuilder.add_distance`)
 VELOCITY_MODE = wp.constant(1)
+EFFORT_MODE = wp.constant(2)
 
 
 @wp.func
@@ -107,8 +108,11 @@ def wrap_angle(x: f64) -> f64:
 def drive_output(
     coordinate: int, mode: int, value: f64, rate: f64, target: f64, gains: vec3d, max_force: f64, integral: f64
 ) -> f64:
-    """The PID output (N m or N) of a drive, gains = (kp, ki, kd), clamped to +-max_force."""
-    if mode == VELOCITY_MODE:
+    """The PID output (N m or N) of a drive, gains = (kp, ki, kd), clamped to +-max_force; in effort mode the
+    target itself."""
+    if mode == EFFORT_MODE:
+        out = target
+    elif mode == VELOCITY_MODE:
         out = gains[0] * (target - rate) + gains[1] * integral
     else:
         e = target - value

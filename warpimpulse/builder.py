@@ -30,7 +30,7 @@ from .tables import Body, Constraint, Joint, Rows, Table
 from .transforms import mul_components, quat_conj, quat_mul, quat_rotate, rotate_components
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
-__all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "Visual", "WORLD", "checked_material"]
+__all__ = ["Actuator", "Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "Visual", "WORLD", "checked_material"]
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
@@ -86,7 +86,7 @@ class Drive:
 
     name: str
     joint: int
-    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity
+    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity, 2 effort
     target: float  # rad, m (position) or rad/s, m/s (velocity)
     kp: float
     ki: float
@@ -118,6 +118,19 @@ class Distance:
     axis0: np.ndarray  # body0 frame: the push direction while A and B meet (the built one, else gravity's)
     lower: float
     upper: float
+
+
+@dataclass
+class Actuator:
+    """A named control input that sets a motor's target as MuJoCo's `ctrl` does its actuator's:
+    target = gain * clip(control, ctrl_range) + bias (rad, m, rad/s, m/s, or N m / N in effort mode), the
+    control starting at 0. `Simulator.set_controls` sets them by name or index."""
+
+    name: str
+    drive: int  # an index into SceneBuilder.drives (a motor)
+    gain: float
+    bias: float
+    ctrl_range: tuple[float, float] = (-math.inf, math.inf)
 
 
 VISUAL_KINDS = ("box", "sphere", "cylinder", "capsule", "mesh")
@@ -296,6 +309,7 @@ class SceneBuilder:
         self.limits: list[Limit] = []
         self.distances: list[Distance] = []
         self.visuals: list[Visual] = []  # display-only geometry (`add_visual`)
+        self.actuators: list[Actuator] = []  # named control inputs of motors (`add_actuator`)
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
     @property
@@ -380,6 +394,10 @@ class SceneBuilder:
                 drive.name = f"world{w}/{drive.name}" if count > 1 else drive.name
                 drive.joint += w * nj
                 out.drives.append(drive)
+            for actuator in copy.deepcopy(self.actuators):
+                actuator.name = f"world{w}/{actuator.name}" if count > 1 else actuator.name
+                actuator.drive += w * len(self.drives)
+                out.actuators.append(actuator)
             for visual in copy.deepcopy(self.visuals):
                 visual.body = visual.body if visual.body == WORLD else visual.body + w * nb
                 out.visuals.append(visual)
@@ -870,6 +888,8 @@ class SceneBuilder:
 
     def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions and orientations of bodies `b` (the world's origin and identity for WORLD)."""
+        if not self._bodies.count:  # only the world yet
+            return np.zeros((len(b), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(b), 1))
         at = np.maximum(b, 0)
         x, q = self._bodies["position"][at], self._bodies["orientation"][at]
         world = b == WORLD
@@ -969,11 +989,14 @@ class SceneBuilder:
         step the joint turns by h target exactly (velocity mode) or reaches the target (position mode), with an
         impulse of at most max_force h, solved with the joints and limits (`kernels/limits.py`), stable at any
         stiffness. Use the PID for compliant, tuned servos on bodies heavy enough; `stiff` for a speed or
-        angle that must hold, or a light body."""
+        angle that must hold, or a light body. "effort" mode applies the target itself as the torque or force
+        (the gains unused, still clamped to +-max_force): a plain motor, MuJoCo's `motor` actuator."""
         j = self._coordinate_joint(joint, "a motor")
         what = f"joint {self.joints[j].name!r}: motor"
         if mode not in DRIVE_MODES:
             raise SceneError(f"{what} mode must be one of {DRIVE_MODES}, got {mode!r}")
+        if stiff and mode == "effort":
+            raise SceneError(f"{what}: an effort motor is a force, not a stiff constraint")
         kp, ki, kd = (_nonnegative(g, f"{what} {n}") for g, n in ((kp, "kp"), (ki, "ki"), (kd, "kd")))
         max_force = checks.real(max_force, f"{what} max_force")
         if not max_force > 0.0:
@@ -982,6 +1005,28 @@ class SceneBuilder:
         drive = Drive(f"{self.joints[j].name}.motor", j, DRIVE_MODES.index(mode), target, kp, ki, kd, max_force,
                       motor=True, stiff=bool(stiff))  # fmt: skip
         return self._add_drive(drive)
+
+    def add_actuator(self, motor: int, gain: float = 1.0, bias: float = 0.0, ctrl_range=None, name=None) -> int:
+        """A named control input of motor `motor` (`add_motor`'s index): its target becomes
+        gain * clip(control, ctrl_range) + bias, and is that at control 0 from the start (`Actuator`). Returns
+        its index for `Simulator.set_controls`."""
+        name = name or f"actuator{len(self.actuators)}"
+        what = f"actuator {name!r}"
+        self._open(what)
+        motors = [i for i, d in enumerate(self.drives) if d.motor]
+        if isinstance(motor, bool) or not isinstance(motor, (int, np.integer)) or not 0 <= motor < len(motors):
+            raise SceneError(f"{what}: motor {motor!r} does not exist ({len(motors)} motors)")
+        if any(a.name == name for a in self.actuators):
+            raise SceneError(f"{what}: an actuator of that name already exists")
+        gain, bias = _finite(gain, f"{what} gain"), _finite(bias, f"{what} bias")
+        low, high = (-math.inf, math.inf) if ctrl_range is None else (checks.real(x, f"{what} ctrl_range")
+                                                                      for x in ctrl_range)  # fmt: skip
+        if not low <= high:
+            raise SceneError(f"{what}: ctrl_range [{low}, {high}] is empty")
+        drive = motors[motor]
+        self.drives[drive].target = gain * min(max(0.0, low), high) + bias
+        self.actuators.append(Actuator(name, drive, gain, bias, (low, high)))
+        return len(self.actuators) - 1
 
     def mark_loop_joint(self, joint) -> None:
         """Close a kinematic loop with `joint` where the spanning tree has a choice (method paper, section 4.6;
@@ -1176,6 +1221,9 @@ class SceneBuilder:
             distance_body=np.array([(x.body0, x.body1) for x in self.distances], dtype=np.int64).reshape(-1, 2),
             distance_anchor=np.array([(x.anchor0, x.anchor1, x.axis0) for x in self.distances]).reshape(-1, 3, 3),
             distance_bounds=np.array([(x.lower, x.upper) for x in self.distances]).reshape(-1, 2),
+            actuator_name=[a.name for a in self.actuators],
+            actuator_drive=np.array([a.drive for a in self.actuators], dtype=np.int64),
+            actuator_map=np.array([(a.gain, a.bias, *a.ctrl_range) for a in self.actuators]).reshape(-1, 4),
         )
 
     def _check_arrays(self) -> None:

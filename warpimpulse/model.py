@@ -116,6 +116,9 @@ class Model:
         distance_body: np.ndarray = (),
         distance_anchor: np.ndarray = (),
         distance_bounds: np.ndarray = (),
+        actuator_name: list[str] = (),
+        actuator_drive: np.ndarray = (),
+        actuator_map: np.ndarray = (),
         colliders: Colliders | None = None,
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
@@ -136,6 +139,8 @@ class Model:
         drive_*: joint springs and PID motors on a revolute or prismatic joint: mode (`types.DRIVE_MODES`
             index), initial target, gains (kp, ki, kd), max_force (N m or N), motor (False: a joint spring),
             stiff (a velocity constraint in the correction loop, not a force).
+        actuator_*: named control inputs (`builder.Actuator`): the drive each sets, and (gain, bias, lowest,
+            highest control): target = gain * clip(control, lowest, highest) + bias.
         limit_*: the joint and its (lower, upper) bounds (rad or m) of revolute or prismatic joints.
         joint_loop: (k,) bool, the joints to close loops with where there is a choice (USD's
             excludeFromArticulation); empty: the spanning tree chooses.
@@ -173,6 +178,9 @@ class Model:
             force_until=np.asarray(force_until, np.float64),
         )
         h = self.host
+        self.actuator_name = list(actuator_name)
+        h.actuator_drive = np.asarray(actuator_drive, np.int64).reshape(-1)
+        h.actuator_map = np.asarray(actuator_map, np.float64).reshape(-1, 4)
         self.body_name = list(body_name)
         self.joint_name = list(joint_name)
         self.joint_type = list(joint_type)
@@ -316,6 +324,7 @@ class Model:
         mode = np.asarray(drive_mode, np.int32)
         gains = np.asarray(drive_gains, np.float64).reshape(-1, 3).copy()
         gains[mode == 1, 2] = 0.0  # velocity mode has no derivative term
+        gains[mode == 2] = 0.0  # effort mode: the target is the output
         gains[stiff] = 0.0  # a stiff motor is no PID
         # drive_* arrays are over every drive (targets and integrals are per drive); the force elements are
         # the drives listed in drive_element.
