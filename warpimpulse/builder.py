@@ -30,7 +30,17 @@ from .tables import Body, Constraint, Joint, Rows, Table
 from .transforms import mul_components, quat_conj, quat_mul, quat_rotate, rotate_components
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
-__all__ = ["Actuator", "Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "Visual", "WORLD", "checked_material"]
+__all__ = [
+    "Actuator",
+    "Body",
+    "Constraint",
+    "Joint",
+    "SceneBuilder",
+    "SceneError",
+    "Visual",
+    "WORLD",
+    "checked_material",
+]
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
@@ -310,6 +320,7 @@ class SceneBuilder:
         self.distances: list[Distance] = []
         self.visuals: list[Visual] = []  # display-only geometry (`add_visual`)
         self.actuators: list[Actuator] = []  # named control inputs of motors (`add_actuator`)
+        self.chains: list[tuple[int, ...]] = []  # joints in series through light bodies (`chain_joints`)
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
     @property
@@ -398,6 +409,7 @@ class SceneBuilder:
                 actuator.name = f"world{w}/{actuator.name}" if count > 1 else actuator.name
                 actuator.drive += w * len(self.drives)
                 out.actuators.append(actuator)
+            out.chains += [tuple(j + w * nj for j in chain) for chain in self.chains]
             for visual in copy.deepcopy(self.visuals):
                 visual.body = visual.body if visual.body == WORLD else visual.body + w * nb
                 out.visuals.append(visual)
@@ -653,8 +665,15 @@ class SceneBuilder:
         if kind == "mesh":
             vertices = checks.numbers(vertices, f"{what} vertices") if vertices is not None else None
             faces = np.asarray(faces) if faces is not None else None
-            if vertices is None or faces is None or vertices.ndim != 2 or vertices.shape[1] != 3 or \
-                    faces.ndim != 2 or faces.shape[1] != 3 or not len(faces):
+            if (
+                vertices is None
+                or faces is None
+                or vertices.ndim != 2
+                or vertices.shape[1] != 3
+                or faces.ndim != 2
+                or faces.shape[1] != 3
+                or not len(faces)
+            ):
                 raise SceneError(f"{what}: a mesh needs vertices (k, 3) and triangle faces (f, 3)")
             if faces.dtype.kind not in "iu" or faces.min() < 0 or faces.max() >= len(vertices):
                 raise SceneError(f"{what}: faces must index the {len(vertices)} vertices")
@@ -1028,6 +1047,57 @@ class SceneBuilder:
         self.actuators.append(Actuator(name, drive, gain, bias, (low, high)))
         return len(self.actuators) - 1
 
+    def chain_joints(self, joints: Sequence[int]) -> None:
+        """Joints in series between two bodies through light bodies (each joint's child the next one's parent), as
+        MJCF's several joints in one body: a joint spring or PID motor on one of them acts on the chain's two end
+        bodies, not on the light bodies, along the direction that does work on its own coordinate only (the
+        reciprocal of the chain's axes of its kind; a force at the hinges' common anchor). With the light bodies
+        massless that is the same motion, and no force falls on a body of almost no inertia (which would make
+        the explicit prediction unstable)."""
+        self._open("chain_joints")
+        chain = tuple(int(j) for j in joints)
+        if len(chain) < 2 or not all(0 <= j < len(self.joints) for j in chain):
+            raise SceneError(f"chain_joints: two or more existing joints are expected, got {joints!r}")
+        for a, b in zip(chain, chain[1:]):
+            if self.joints[a].child != self.joints[b].parent:
+                raise SceneError(f"chain_joints: joint {self.joints[b].name!r} does not start where "
+                                 f"{self.joints[a].name!r} ends")  # fmt: skip
+        if any(set(chain) & set(c) for c in self.chains):
+            raise SceneError(f"chain_joints: joint {self.joints[chain[0]].name!r} is in a chain already")
+        self.chains.append(chain)
+
+    def _drive_chains(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each drive's (sibling joint, sibling joint, anchor joint) and (body, body) for `Model` (drive_chain,
+        drive_ends): for a drive on a chained joint, the chain's other joints of its kind, the hinge whose
+        anchor a force acts at, and the chain's ends; checked that the direction exists."""
+        j = self._joints
+        chain = np.array([(-1, -1, d.joint) for d in self.drives], dtype=np.int64).reshape(-1, 3)
+        ends = np.array([(j["parent"][d.joint], j["child"][d.joint]) for d in self.drives], dtype=np.int64)
+        of = {joint: c for c in self.chains for joint in c}
+        kinds = self.joint_types()
+        for i, drive in enumerate(self.drives):
+            links = of.get(drive.joint)
+            if links is None:
+                continue
+            what = f"drive {drive.name!r} on chain {[kinds[k] for k in links]}"
+            if "ball" in (kinds[k] for k in links):
+                raise SceneError(f"{what}: a chain with a ball joint takes no joint springs or motors")
+            same = [k for k in links if kinds[k] == kinds[drive.joint] and k != drive.joint]
+            hinges = [k for k in links if kinds[k] == "revolute"]
+            if len(same) > 2:
+                raise SceneError(f"{what}: more than three joints of one kind")
+            axes = j["axis"][[drive.joint, *same]]
+            if abs(np.linalg.det(axes @ axes.T)) < 1e-9:
+                raise SceneError(f"{what}: the chain's axes of its kind are dependent")
+            if kinds[drive.joint] == "prismatic" and hinges:
+                anchors = j["anchor"][hinges]
+                if np.abs(anchors - anchors[0]).max() > 1e-9:
+                    raise SceneError(f"{what}: a force along a chain needs its hinges' anchors to coincide")
+            chain[i] = (*(same + [-1, -1])[:2], hinges[0] if kinds[drive.joint] == "prismatic" and hinges else
+                        drive.joint)  # fmt: skip
+            ends[i] = (j["parent"][links[0]], j["child"][links[-1]])
+        return chain, ends.reshape(-1, 2)
+
     def mark_loop_joint(self, joint) -> None:
         """Close a kinematic loop with `joint` where the spanning tree has a choice (method paper, section 4.6;
         USD's physics:excludeFromArticulation): its constraints go to the loop part of the system."""
@@ -1214,6 +1284,7 @@ class SceneBuilder:
             drive_max_force=np.array([x.max_force for x in drives]),
             drive_motor=np.array([x.motor for x in drives], dtype=bool),
             drive_stiff=np.array([x.stiff for x in drives], dtype=bool),
+            **dict(zip(("drive_chain", "drive_ends"), self._drive_chains())),
             limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
             limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
             joint_loop=self._joints["loop"].copy(),

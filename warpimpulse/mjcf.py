@@ -253,6 +253,8 @@ class _Loader:
                     ours[jnt] = b.add_joint_ball(jparent, link, anchor, name=name)
                 self._joint_elements(jnt, int(ours[jnt]), name)
                 parent = link
+            if count > 1:
+                b.chain_joints(ours[first : first + count])
         return ours
 
     def _joint_elements(self, jnt: int, joint: int, name: str) -> None:
@@ -312,8 +314,10 @@ class _Loader:
                 self.unsupported(f"{what}: activation dynamics ({dyn}) are not supported")
                 continue
             bias_type = int(m.actuator_biastype[i])
-            if int(m.actuator_gaintype[i]) != mj.mjtGain.mjGAIN_FIXED or bias_type not in (mj.mjtBias.mjBIAS_NONE,
-                                                                                     mj.mjtBias.mjBIAS_AFFINE):
+            if int(m.actuator_gaintype[i]) != mj.mjtGain.mjGAIN_FIXED or bias_type not in (
+                mj.mjtBias.mjBIAS_NONE,
+                mj.mjtBias.mjBIAS_AFFINE,
+            ):
                 self.unsupported(f"{what}: only a fixed gain with no or an affine bias is supported")  # fmt: skip
                 continue
             gear, gain = float(m.actuator_gear[i][0]), float(m.actuator_gainprm[i][0])
@@ -516,7 +520,9 @@ class _Loader:
                 dynamic = not (b.bodies[o1].static and b.bodies[o2].static)
                 if o1 != o2 and dynamic and not collide(g1, g2):
                     b.filter_collision(int(o1), int(o2))
-        planes = [g for g in range(m.ngeom) if int(m.geom_type[g]) == self.mj.mjtGeom.mjGEOM_PLANE and self._collides(g)]
+        planes = [
+            g for g in range(m.ngeom) if int(m.geom_type[g]) == self.mj.mjtGeom.mjGEOM_PLANE and self._collides(g)
+        ]
         for g1, _ in items:
             if any(not collide(g1, p) for p in planes) and not b.bodies[shapes[g1]].static:
                 warnings.warn(f"geom {self.name('geom', g1)!r}: MuJoCo keeps it off a plane (contype/conaffinity); "
