@@ -12,6 +12,7 @@ from .files import WriteError
 from .joints import JOINT_TYPES
 from .mjcf import load_mjcf
 from .model import Model
+from .options import StepOptions
 from .shapes import Shape
 from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
@@ -35,6 +36,7 @@ __all__ = [
     "SimulationError",
     "Simulator",
     "SingularSystemError",
+    "StepOptions",
     "StepStats",
     "ThreadedSimulator",
     "WorldStats",
