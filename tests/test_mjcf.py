@@ -383,8 +383,9 @@ def test_drives_beyond_usds_one_per_axis_round_trip_through_the_output(tmp_path,
         return np.array(sorted((d.mode, d.motor, d.stiff, d.target, d.kp, d.ki, d.kd, d.max_force)
                                for d in builder.drives))  # fmt: skip
 
-    np.testing.assert_allclose(drives(wi.usd.load_stage(out).builder), drives(wi.load_mjcf(ACTUATED)), rtol=1e-6,
-                               atol=1e-7)  # USD's drive attributes are single precision
+    np.testing.assert_allclose(
+        drives(wi.usd.load_stage(out).builder), drives(wi.load_mjcf(ACTUATED)), rtol=1e-6, atol=1e-7
+    )  # USD's drive attributes are single precision
 
 
 # ---------------------------------------------------------------- real models
