@@ -498,6 +498,37 @@ class Simulator(Readout, Recording):
         values[drive] = target
         self.drive_target.assign(values)
 
+    def set_controls(self, values) -> None:
+        """Set actuators' inputs as MuJoCo's `ctrl` does (`SceneBuilder.add_actuator`, `load_mjcf`): `values` is
+        one number per actuator in order, or {name or index: value} for some of them (the others keep theirs).
+        Each sets its motor's target to gain * clip(value, ctrl range) + bias, held until set again."""
+        m = self.model
+        names, h = m.actuator_name, m.host
+        if isinstance(values, dict):
+            items = list(values.items())
+        else:
+            arr = checks.numbers(values, "set_controls: values").reshape(-1)
+            if len(arr) != len(names):
+                raise ValueError(f"set_controls: {len(names)} actuators, got {len(arr)} values")
+            items = list(enumerate(arr.tolist()))
+        rows, controls = [], []
+        for key, value in items:
+            if isinstance(key, str):
+                if key not in names:
+                    raise ValueError(f"set_controls: no actuator named {key!r}")
+                key = names.index(key)
+            if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or not 0 <= key < len(names):
+                raise ValueError(f"set_controls: actuator {key!r} does not exist ({len(names)} actuators)")
+            value = float(value)
+            if not math.isfinite(value):
+                raise ValueError(f"set_controls: actuator {names[key]!r}: control must be finite, got {value}")
+            rows.append(int(key))
+            controls.append(value)
+        gain, bias, low, high = h.actuator_map[rows].T
+        targets = self.drive_target.numpy()
+        targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
+        self.drive_target.assign(targets)
+
     @staticmethod
     def _checked(values, shape, what) -> np.ndarray:
         arr = checks.numbers(values, what)
