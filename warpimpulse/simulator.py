@@ -9,6 +9,7 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
+import operator
 import warnings
 import zipfile
 import zlib
@@ -24,7 +25,7 @@ from .kernels import constraints as constraint_kernels
 from .kernels import limits as limit_kernels
 from .kernels import loop as loop_kernels
 from .kernels import step as step_kernels
-from .launch import record, run
+from .launch import Packed, record, run
 from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
@@ -46,6 +47,14 @@ two blocks converge linearly into each other (a cart on its wheels: about 0.7 a 
 
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
+
+
+# A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
+# each column's name takes five.
+_STATUS_FIGURES = operator.itemgetter(
+    step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
+    step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
+)  # fmt: skip
 
 
 class CheckpointError(ValueError):
@@ -587,14 +596,20 @@ class Simulator(Readout, Recording):
         # of a launch, written by the host before each replay.
         self._batch = wp.zeros(2, dtype=wp.int32, device=self.model.device)
         self._spin_in = wp.zeros(1, dtype=wp.float64, device=self.model.device)
-        # CPU arrays' memory, read and written without a copy
-        self._views = None if cuda else (self._status.numpy(), self._batch.numpy(), self._spin_in.numpy())
+        # CPU arrays' memory, read and written without a copy: the status rows, and as memoryviews (an element
+        # read or written in half numpy's time) their summary row, the batch words and the spin
+        status = None if cuda else self._status.numpy()
+        self._views = None if cuda else (
+            status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
+        )  # fmt: skip
         # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
         self._fused_stages = (1.0,) if rows else self.scheme.stages
+        fell_back = len(self._fused_stages) < len(self.scheme.stages)
+        self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
         rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
-        self._fused_by_h: dict[float, wp.Graph] = {}
+        self._fused_by_h: dict[float, wp.Graph | Packed] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
 
@@ -631,8 +646,9 @@ class Simulator(Readout, Recording):
         rows.response_rows = self.limit_response.reshape((nl, m.constraint_count))
         return rows
 
-    def _fused_launch(self, h: float) -> wp.Graph:
-        """The fused kernel's launch for steps of h, recorded and captured once per h."""
+    def _fused_launch(self, h: float) -> wp.Graph | Packed:
+        """The fused kernel's launch for steps of h, recorded once per h: packed on a CPU (its arguments once, a
+        call then costs ~0.3 us against a graph replay's ~1.7), captured as a graph on a GPU."""
         if h not in self._fused_by_h:
             p = self.pred
             direct = self.linear is not None
@@ -650,7 +666,7 @@ class Simulator(Readout, Recording):
                 limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
                 stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
             )  # fmt: skip
-            self._fused_by_h[h] = self._capture(launch)
+            self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
         return self._fused_by_h[h]
 
     def _steps_alike(self, limit: int) -> int:
@@ -674,83 +690,100 @@ class Simulator(Readout, Recording):
         schedule, which splits, halves or reports it. Returns the count of steps taken."""
         done = 0
         columns = step_kernels
-        order, fallback = self.order, ""
-        if len(self._fused_stages) < len(self.scheme.stages):
-            order, fallback = 2, ROWS_FALLBACK
+        order, fallback = self._fused_order
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
-            summary = status[-1].tolist()  # the OK steps, which the kernel stops after
-            first = int(summary[columns.STATUS_CODE])
+            status, summary = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
+            first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
-                out += self._fused_stats(status[:first], summary, order, fallback, combine)
+                out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                row = status[first]
-                code = int(row[columns.STATUS_CODE])
-                self._spin = float(row[columns.STATUS_SPIN])
-                if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
-                    if code == columns.RETRY and len(self._fused_stages) > 1:
-                        self._update_frames()  # of the restored start: a later stage may have failed
-                    out.append(self._step_parallel(done + 1 == n))
-                    done += 1
-                else:
-                    if code == columns.SINGULAR:
-                        self.linear.check()
-                    stats = self._status_stats(row.tolist(), 1, order, fallback)
-                    if code == columns.VELOCITY:
-                        self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
-                        stats.converged = False
-                    out.append(stats)
-                    self._advance_clock(1)
-                    done += 1
+                out.append(self._handed_back(status[first], done + 1 == n))
+                done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
             if self.linear is not None:
                 self.linear.check()  # and the redundant loop rows of the last factorization
         return done
 
+    def _fused_step(self) -> StepStats:
+        """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
+        loop's bookkeeping (one launch of one step, whose state is handed out)."""
+        self._update_forces()
+        status, summary = self._run_fused(1, True)
+        if summary[step_kernels.STATUS_CODE]:  # the step went OK
+            order, fallback = self._fused_order
+            stats = self._status_stats(summary, 1, order, fallback)
+            self._advance_clock(1)
+            self._spin = summary[step_kernels.STATUS_SPIN]
+        else:
+            stats = self._handed_back(status[0], True)
+        if self.linear is not None:
+            self.linear.check()  # and the redundant loop rows of the last factorization
+        return stats
+
+    def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
+        """The step whose status `row` stopped a fused launch: taken again by the parallel schedule where nothing
+        of it was kept (SPLIT, RETRY), else (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is
+        handed out (`defer_velocities`)."""
+        columns = step_kernels
+        code = int(row[columns.STATUS_CODE])
+        self._spin = float(row[columns.STATUS_SPIN])
+        if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
+            if code == columns.RETRY and len(self._fused_stages) > 1:
+                self._update_frames()  # of the restored start: a later stage may have failed
+            return self._step_parallel(hand_out)
+        if code == columns.SINGULAR:
+            self.linear.check()
+        stats = self._status_stats(row.tolist(), 1, *self._fused_order)
+        if code == columns.VELOCITY:
+            self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
+            stats.converged = False
+        self._advance_clock(1)
+        return stats
+
     @classmethod
     def _fused_stats(
-        cls, status: np.ndarray, summary: list[float], order: int, fallback: str, combine: bool
+        cls, status: np.ndarray, ok: int, summary: list[float], order: int, fallback: str, combine: bool
     ) -> list[StepStats]:
-        """The StepStats of fused steps that went OK, one a status row; with `combine` (or one step), one StepStats
-        of them all: the kernel's summary row, which sums them up as `_combined` would (the host's numpy
+        """The StepStats of the `ok` fused steps that went OK, one a status row; with `combine` (or one step), one
+        StepStats of them all: the kernel's summary row, which sums them up as `_combined` would (the host's numpy
         reductions of a batch cost ~12 us a launch, a StepStats a step ~0.5 us)."""
-        if combine or len(status) == 1:
-            return [cls._status_stats(summary, len(status), order, fallback)]
-        return [cls._status_stats(row, 1, order, fallback) for row in status.tolist()]
+        if combine or ok == 1:
+            return [cls._status_stats(summary, ok, order, fallback)]
+        return [cls._status_stats(row, 1, order, fallback) for row in status[:ok].tolist()]
 
     @staticmethod
     def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
         """A StepStats of a status row (or of the summary row of `steps` steps)."""
-        c = step_kernels
+        joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(row)
         return StepStats(
-            int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]), row[c.STATUS_JOINT_ERROR],
-            row[c.STATUS_VELOCITY_ERROR], True, int(row[c.STATUS_LINEAR_ITERATIONS]), steps, order, fallback,
-        )  # fmt: skip
+            int(joint), int(velocity), joint_error, velocity_error, True, int(linear), steps, order, fallback
+        )
 
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
         self.step_count += steps
         self.time = self.step_count * self.dt
 
-    def _run_fused(self, batch: int, hand_out: bool) -> np.ndarray:
-        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows
-        (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the last step's state is
-        handed out, so its velocities are corrected (`defer_velocities`)."""
-        graph = self._fused_launch(self.dt)
+    def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
+        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
+        the summary row's values (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the
+        last step's state is handed out, so its velocities are corrected (`defer_velocities`)."""
+        launch = self._fused_launch(self.dt)
         if self._views is None:
             self._batch.assign(np.array([batch, int(hand_out)], dtype=np.int32))
             self._spin_in.fill_(self._spin)
-            wp.capture_launch(graph)
-            return self._status.numpy()
-        status, batch_view, spin_view = self._views
+            wp.capture_launch(launch)
+            status = self._status.numpy()
+            return status, status[-1].tolist()
+        status, summary, batch_view, spin_view = self._views
         batch_view[0], batch_view[1], spin_view[0] = batch, int(hand_out), self._spin
-        wp.capture_launch(graph)
-        return status
+        launch.launch()
+        return status, summary.tolist()
 
     def _velocity_failed(self, error: float) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
@@ -775,6 +808,8 @@ class Simulator(Readout, Recording):
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
+        if n.__class__ is int and n == 1 and self.schedule == "fused" and not self._fallback:
+            return self._fused_step()
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
         stats = self._steps(n, combine=n > 1)
