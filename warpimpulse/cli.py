@@ -201,6 +201,13 @@ def _refuse_no_frame(duration: float, fps: float) -> None:
         raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
 
 
+def _say_fallbacks(sim) -> None:
+    """Each reason the run took steps at a lower order than --order asked, once (`Simulator.fallbacks`; the output
+    records them too, warpimpulse:fallbacks)."""
+    for reason in sim.fallbacks:
+        print(f"warpimpulse: {sim.fallback_note(reason)}", file=sys.stderr)
+
+
 def _simulate(args) -> int:
     from . import checks, run, usd
     from .energy import EnergyWatch
@@ -274,11 +281,13 @@ def _simulate(args) -> int:
 
     try:
         with writer:
-            frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame)
+            frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame,
+                                       record=writer.settings)  # fmt: skip
     except WriteError as err:  # disk full, a file size limit: the previous file is unchanged
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return 1
     except (SimulationError, SingularSystemError, FloatingPointError) as err:
+        _say_fallbacks(sim)
         print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
         print(f"warpimpulse: {kept()} before the stop", file=sys.stderr)
         return 1
@@ -287,6 +296,7 @@ def _simulate(args) -> int:
         print(f"\nwarpimpulse: interrupted ({signal.Signals(signum).name}); {kept()}", file=sys.stderr)
         return 128 + signum
     elapsed = time.perf_counter() - start
+    _say_fallbacks(sim)
     if energy.warning():
         print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
     print(

@@ -9,24 +9,44 @@ import numpy as np
 
 from .model import Model
 
+FINGERPRINT_PARTS = {
+    "bodies": "bodies",
+    "constraints": "joints",
+    "forces": "gravity and forces",
+    "springs": "springs",
+    "drives": "motors and joint springs",
+    "rows": "joint limits, distance rows and stiff motors",
+    "colliders": "colliders and grounds",
+    "contact_settings": "contact settings",
+}
+"""The parts of a fingerprint, each with the words a refused checkpoint uses for it."""
 
-def fingerprint(model: Model) -> dict[str, str]:
-    """SHA-256 digests of what a checkpoint's state is only valid for: the bodies' masses and inertias,
-    the constraints (kinds, bodies, local anchors, axes and rest values: the topology and geometry), and
-    gravity with the model's forces. Initial poses are not in it: a checkpoint replaces them."""
 
-    def digest(*arrays) -> str:
+def fingerprint(model: Model, contact_settings: dict | None = None) -> dict[str, str]:
+    """Digests of what a checkpoint's state is only valid for, a `FINGERPRINT_PARTS` key each: the bodies'
+    masses and inertias, the constraints (kinds, bodies, local anchors, axes and rest values: the topology and
+    geometry), gravity with the model's forces, every force element (springs; motors and joint springs: their
+    joints, modes, gains, limits of force, stiffness), every row of the correction loop (limits, distance rows,
+    stiff motors: joints, bounds, anchors), the colliders (shapes, materials, grounds, filtered pairs) and the
+    simulator's `contact_settings`. Each is "<count>:<SHA-256>", the count of what it covers first, so that a
+    refusal can say how they differ. Initial poses and motor targets are not in it: a checkpoint replaces them."""
+
+    def digest(count: int, *arrays) -> str:
         h = hashlib.sha256()
         for a in arrays:
             a = np.ascontiguousarray(a, dtype=np.float64)
             h.update(repr(a.shape).encode())
             h.update(a.tobytes())
-        return h.hexdigest()
+        return f"{count}:{h.hexdigest()}"
 
-    h = model.host
+    h, c = model.host, model.colliders
+    shapes = () if c is None else (c.shape_kind, c.shape_size, c.bound, c.friction, c.restitution, c.filter_pairs)
+    planes = () if c is None else (c.plane_normal, c.plane_offset, c.plane_friction, c.plane_restitution)
+    settings = sorted((contact_settings or {}).items())
     return {
-        "bodies": digest(h.body_mass, h.body_inertia, h.body_static),
+        "bodies": digest(model.body_count, h.body_mass, h.body_inertia, h.body_static),
         "constraints": digest(
+            model.joint_count,
             h.constraint_kind,
             h.constraint_body0,
             h.constraint_body1,
@@ -38,7 +58,30 @@ def fingerprint(model: Model) -> dict[str, str]:
             h.constraint_rest_rotation,
             h.constraint_rest_angle,
         ),  # fmt: skip
-        "forces": digest(h.gravity, h.force_body, h.force_force, h.force_torque, h.force_until),
+        "forces": digest(len(h.force_body), h.gravity, h.force_body, h.force_force, h.force_torque, h.force_until),
+        "springs": digest(
+            model.spring_count, h.spring_body0, h.spring_body1, h.spring_anchor0, h.spring_anchor1, h.spring_params
+        ),  # fmt: skip
+        "drives": digest(
+            model.drive_count,
+            h.drive_joint,
+            h.drive_mode,
+            h.drive_gains,
+            h.drive_max_force,
+            h.drive_motor,
+            h.drive_stiff,
+        ),  # fmt: skip
+        "rows": digest(
+            model.limit_count,
+            h.limit_joint,
+            h.limit_coordinate,
+            h.limit_bounds,
+            h.limit_drive,
+            h.distance_body,
+            h.distance_anchor,
+        ),  # fmt: skip
+        "colliders": digest(0 if c is None else c.collider_count + c.plane_count, *shapes, *planes),
+        "contact_settings": digest(len(settings), np.frombuffer(repr(settings).encode(), dtype=np.uint8)),
     }
 
 

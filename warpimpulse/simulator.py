@@ -9,6 +9,7 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
+import sys
 import warnings
 import zipfile
 import zlib
@@ -132,7 +133,8 @@ class Simulator:
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set
             of kinds, compiled once and cached on disk); False shares one module for all six kinds.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
-            off by default (`warpimpulse.verbosity`).
+            off by default (`warpimpulse.verbosity`). It also says on stderr, once each, why steps were taken at
+            a lower order than asked (`fallbacks`).
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
@@ -226,6 +228,10 @@ class Simulator:
             )
         if verbose:
             show_warp_messages()
+        self.verbose = bool(verbose)
+        self.fallbacks: dict[str, float] = {}
+        """Why steps were taken at order 2 although `order` asked for more (`StepStats.fallback`), each reason once
+        with the time (s) at the start of the `step` call that first took one, since the build (or `reset`)."""
         if solver == "iterative" and model.limit_count:
             raise ValueError(
                 "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
@@ -348,7 +354,9 @@ class Simulator:
         self.loop_active = wp.zeros(1, dtype=wp.int32, device=d)
         self.loop_go = wp.zeros(1, dtype=wp.int32, device=d)
         self._limit_world = wp.zeros(model.limit_count, dtype=wp.int32, device=d)  # one world's limits
-        self._fingerprint = diagnose.fingerprint(model)
+        contact_settings = dict(margin=contact_margin, solver=contact_solver, broad_phase=broad_phase,
+                                sweeps=contact_sweeps)  # fmt: skip
+        self._fingerprint = diagnose.fingerprint(model, contact_settings if model.colliders is not None else None)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
@@ -637,12 +645,21 @@ class Simulator:
 
     def _world_values(self, values, what: str, world: int | None, shape=(3,)) -> tuple[slice, np.ndarray]:
         """The body rows of `world` (all when None) and `values` checked for them, flattened to (rows, *shape):
-        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds."""
+        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds. A bad value names
+        its body."""
         m = self.model
         if world is None:
             lead = (m.body_count,) if m.world_count == 1 else (m.world_count, m.world_body_count)
-            return slice(None), self._checked(values, (*lead, *shape), what).reshape(-1, *shape)
-        return self._world_rows(world), self._checked(values, (m.world_body_count, *shape), what)
+            rows = slice(None)
+        else:
+            lead, rows = (m.world_body_count,), self._world_rows(world)
+        arr = checks.numbers(values, what)
+        if arr.shape != (*lead, *shape):
+            raise ValueError(f"{what} must have shape {(*lead, *shape)}, got {arr.shape}")
+        arr = arr.reshape(-1, *shape)
+        names = m.body_name[rows]
+        checks.finite_rows({what: arr.reshape(len(arr), -1)}, lambda i: f"body {names[i]!r}:")
+        return rows, arr
 
     def _world_rows(self, world: int) -> slice:
         """The body rows of `world`, checked."""
@@ -688,16 +705,8 @@ class Simulator:
             rows, values = self._world_values(arr, "inertia", world, shape=(3, 3))
             inertias[rows] = values
         dynamic = ~m.host.body_static
-        bad = dynamic & ~(masses > 0.0)
-        if not bad.any():
-            sym = np.abs(inertias - inertias.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 * np.abs(inertias).max()
-            bad = dynamic & ~sym
-            bad[dynamic] |= np.linalg.eigvalsh(0.5 * (inertias[dynamic] + inertias[dynamic].transpose(0, 2, 1)))[
-                :, 0] <= 0.0  # fmt: skip
-        if bad.any():
-            b = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"body {m.body_name[b]!r}: mass {masses[b]} and inertia {inertias[b].tolist()} must be "
-                             "positive (definite, symmetric)")  # fmt: skip
+        checks.mass_properties(masses, inertias, dynamic, lambda b: f"set_masses: body {m.body_name[b]!r}")
+        inertias = 0.5 * (inertias + inertias.transpose(0, 2, 1))  # symmetric to the last bit, as the builder's
         masses[~dynamic], inertias[~dynamic] = 0.0, 0.0
         m.set_masses(masses, inertias)
         if self.batch is not None:
@@ -718,17 +727,6 @@ class Simulator:
         values = self.drive_target.numpy()
         values[drive] = target
         self.drive_target.assign(values)
-
-    @staticmethod
-    def _checked(values, shape, what) -> np.ndarray:
-        arr = checks.numbers(values, what)
-        if arr.shape != shape:
-            raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{what} contains NaN or Inf")
-        if np.abs(arr).max(initial=0.0) > checks.LARGEST:
-            raise ValueError(f"{what} holds values too large for double precision (> {checks.LARGEST:g})")
-        return arr
 
     def forces_active(self) -> bool:
         """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
@@ -979,8 +977,19 @@ class Simulator:
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        start = self.time
         stats = self._steps(n, combine=n > 1)
+        for s in stats:
+            if s.fallback and s.fallback not in self.fallbacks:
+                self.fallbacks[s.fallback] = start
+                if self.verbose:
+                    print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
         return stats[0] if len(stats) == 1 else _combined(stats)
+
+    def fallback_note(self, reason: str) -> str:
+        """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""
+        return (f"order {self.order} was asked, but steps from t = {self.fallbacks[reason]:.6g} s on were taken at "
+                f"order 2 because of {reason}")  # fmt: skip
 
     def _steps(self, n: int, combine: bool = False) -> list[StepStats]:
         """n steps' stats, one a step; with `combine`, a run of fused steps may be one StepStats of them all
@@ -1510,8 +1519,12 @@ class Simulator:
                 f"simulator ({n} bodies, dt={self.dt})"
             )
         for key, digest in self._fingerprint.items():
-            if str(data[f"scene_{key}"]) != digest:
-                raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+            theirs = str(data[f"scene_{key}"])
+            if theirs != digest:
+                count, here = theirs.split(":")[0], digest.split(":")[0]
+                how = f"{count} in the checkpoint, {here} here" if count != here else f"{here}, with other values"
+                raise refuse(f"checkpoint of another scene: its {diagnose.FINGERPRINT_PARTS[key]} differ from this "
+                             f"simulator's ({how})")  # fmt: skip
         if "stages" in data and (data["stages"].dtype.kind != "f" or data["stages"].ndim != 1):
             raise refuse("'stages' is not a list of numbers")
         stages = tuple(float(g) for g in data["stages"]) if "stages" in data else (1.0,)
@@ -1520,11 +1533,21 @@ class Simulator:
                 f"checkpoint taken with the composition {stages} of the base step; this simulator composes "
                 f"{self.scheme.stages} (order {self.order}): resuming would not continue the run"
             )
+        nd = self.model.drive_count
+        shapes.update(drive_target=(nd,), drive_integral=(nd,))
         for key, shape in shapes.items():
+            if key not in data:  # a checkpoint of a version without motors' targets: they stay as they are
+                continue
+            if data[key].dtype.kind not in "iuf":
+                raise refuse(f"'{key}' is not an array of numbers")
             if data[key].shape != shape:
                 raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
             if not np.all(np.isfinite(data[key])):
                 raise refuse(f"'{key}' contains NaN or Inf")
+            if np.abs(data[key]).max(initial=0.0) > checks.LARGEST:
+                raise refuse(f"'{key}' holds values too large for double precision (> {checks.LARGEST:g})")
+        if "fallback" in data and (data["fallback"].dtype.kind != "U" or data["fallback"].shape != ()):
+            raise refuse("'fallback' is not a string")
         if data["step_count"].dtype.kind == "f" or int(data["step_count"]) < 0 or float(data["time"]) < 0.0:
             raise refuse(f"step count {data['step_count']} at time {data['time']} is not a place in a run")
         if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
@@ -1555,6 +1578,7 @@ class Simulator:
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
         self._fallback = ""
+        self.fallbacks = {}
         getattr(self.linear, "_warm", {}).clear()
         self._forget_carry()
         self._update_frames()
