@@ -121,6 +121,11 @@ class Distance:
 
 
 _vec = checks.vector
+WORLD_COPIES = 3
+"""The copies of a world's rows that replicating and finalizing make (the builder's tiled columns, the model's
+host arrays, its device arrays): with NAME_BYTES a name (the string, its list and dict slots), what
+`SceneBuilder.replicate` estimates a world to take before it refuses a count the memory cannot hold."""
+NAME_BYTES = 150
 
 
 def checked_material(friction, restitution, what: str) -> tuple[float, float]:
@@ -282,13 +287,15 @@ class SceneBuilder:
             if n:
                 raise SceneError(f"replicate: the scene has {n} {what}; batched worlds do not take {what} yet")
         count = int(count)
+        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
+        rows = self._bodies.row_bytes() * nb + self._joints.row_bytes() * nj + self._constraints.row_bytes() * nc
+        checks.affordable(count, WORLD_COPIES * rows + NAME_BYTES * (nb + nj), "replicate", "world")
         out = SceneBuilder(self.gravity)
         out._joint_kinds, out._shapes, out._shape_slots = (
             list(self._joint_kinds),
             list(self._shapes),
             dict(self._shape_slots),
         )
-        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
         world = np.arange(count)
 
         def tiled(table: Table, shifts: dict[str, int]) -> dict[str, np.ndarray]:

@@ -180,14 +180,14 @@ def available_memory() -> int:
     return int(free)
 
 
-def affordable(count: int, each: float, what: str) -> None:
-    """Refuse (SceneError naming `what`, the count and the estimate) `count` items of about `each` bytes when
-    they would not fit in the memory this process may still allocate (`available_memory`): before the
-    allocation, so that a huge count is one line and not numpy's MemoryError."""
+def affordable(count: int, each: float, what: str, unit: str) -> None:
+    """Refuse (SceneError naming `what`, the count of `unit`s and the estimate) `count` items of about `each`
+    bytes when they would not fit in the memory this process may still allocate (`available_memory`): checked
+    before the allocation, so that a huge count is one line and not numpy's MemoryError."""
     need, free = count * each, available_memory()
     if need > free:
-        raise SceneError(f"{what}: {count:,} would take about {_size(need)} of memory ({_size(each)} each), more than "
-                         f"this machine has free ({_size(free)})")  # fmt: skip
+        raise SceneError(f"{what}: {count:,} {unit}s would take about {_size(need)} of memory ({_size(each)} a "
+                         f"{unit}), more than this machine has free ({_size(free)})")  # fmt: skip
 
 
 def _size(n: float) -> str:

@@ -142,7 +142,10 @@ def _sweep(args) -> int:
     seed = seed if args.seed is None else args.seed
     if not params and not ranges:
         raise ValueError("nothing to sweep: give a TOML file or --param name=v1,v2,...")
-    points = sweep.make_points(params, samples, seed, ranges)
+    try:
+        points = sweep.make_points(params, samples, seed, ranges)
+    except ValueError as err:  # the size of the sweep, what its file asks
+        raise ValueError(f"{args.config}: {err}" if args.config is not None else str(err)) from None
     workers = args.workers or os.cpu_count() or 1
     backend = args.backend
     if backend != "pool" and not sweep.ray_available():
@@ -162,6 +165,8 @@ def _sweep(args) -> int:
     print(f"swept {len(points)} points ({len(result.computed)} computed on {result.backend}, {before} done before): "
           f"{outcomes.count('ok')} ok, {outcomes.count('stopped')} stopped, {outcomes.count('error')} errors; "
           f"table in {args.out / 'sweep.csv'} and sweep.json")  # fmt: skip
+    for line in sweep.failures(result.rows):
+        print(f"warpimpulse: {line}", file=sys.stderr)
     if args.plot:
         if sweep.plot(result.rows, args.out / "sweep.png"):
             print(f"plots in {args.out / 'sweep.png'}")
@@ -227,9 +232,7 @@ def _simulate(args) -> int:
         source = Path(args.input)
         if not source.is_file():
             raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
-        with warnings.catch_warnings():  # what --ignore-unsupported drops: one line each, no source excerpt
-            warnings.showwarning = lambda message, *_: print(f"warpimpulse: warning: {message}", file=sys.stderr)
-            scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+        scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)  # warnings: `_one_line`
         builder, name = scene.builder, source.stem
     else:
         name = args.scene or "tree127"
@@ -306,6 +309,30 @@ def _simulate(args) -> int:
     return 0
 
 
+def _one_line(message, category, *_) -> None:
+    """`warnings.showwarning` while a command runs: a warning (a dropped USD feature, a step over its iteration
+    limit under --on-max-iterations warn) is one line, without the library's source line."""
+    print(f"warpimpulse: warning: {message}", file=sys.stderr)
+
+
+def _command(parser, args, rest: list[str]) -> int:
+    """Run the command `args` asks for (`main` reports its errors)."""
+    if args.command in ("bench", "stress"):
+        from .bench.cli import main as harness_main  # the harness, imported only when asked for
+
+        return int(harness_main(args.command, rest) or 0)
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    if args.command == "preview":
+        from .preview import main as preview_main
+
+        return preview_main(args.input, args.out, args.frames, args.gif_frames)
+    if args.command == "sweep":
+        return _sweep(args)
+    with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
+        return _simulate(args)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = ArgumentParser(prog="warpimpulse", description="Impulse-based articulated rigid bodies on Warp")
     parser.add_argument("--version", action="version", version=f"warpimpulse {__version__}")
@@ -320,20 +347,9 @@ def main(argv: list[str] | None = None) -> int:
     from .solver import SingularSystemError
 
     try:
-        if args.command in ("bench", "stress"):
-            from .bench.cli import main as harness_main  # the harness, imported only when asked for
-
-            return int(harness_main(args.command, rest) or 0)
-        if rest:
-            parser.error(f"unrecognized arguments: {' '.join(rest)}")
-        if args.command == "preview":
-            from .preview import main as preview_main
-
-            return preview_main(args.input, args.out, args.frames, args.gif_frames)
-        if args.command == "sweep":
-            return _sweep(args)
-        with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
-            return _simulate(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line
+            return _command(parser, args, rest)
     except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return EXIT_USAGE

@@ -111,3 +111,34 @@ def mass_ratio_note(model: Model, limit: float = 1e8) -> str:
     if note:
         note += f": too large for double precision; keep such ratios below ~{limit:.0e}"
     return note
+
+
+RUNAWAY = 1e3
+"""m (or rad): a load that alone would move a body this far (or turn it this much) in one step is a runaway."""
+
+
+def runaway_note(model: Model, dt: float, force: np.ndarray, torque: np.ndarray) -> str:
+    """A sentence naming the dynamic body whose load alone would move it furthest in a step of `dt` (s), when that
+    is over `RUNAWAY` m (0.5 |F| / m dt^2; a torque over the smallest principal moment turns it by as many rad);
+    '' otherwise. `force` and `torque` (n, 3) are the step's loads (N, N m: the model's and the user's). A failed
+    correction or factorization names it: no joint holds a body pushed by 1e30 N, and the impulses that try lose
+    every other term of K to round-off, which looks like a degenerate joint but is not one."""
+    h = model.host
+    dynamic = np.flatnonzero(~h.body_static)
+    if not len(dynamic):
+        return ""
+    with np.errstate(over="ignore", invalid="ignore"):
+        shift = 0.5 * np.linalg.norm(force[dynamic], axis=1) / h.body_mass[dynamic] * dt * dt
+        moments = np.linalg.eigvalsh(h.body_inertia[dynamic])[:, 0]
+        turn = 0.5 * np.linalg.norm(torque[dynamic], axis=1) / moments * dt * dt
+    worst = np.nan_to_num(np.maximum(shift, turn), nan=np.inf)
+    k = int(np.argmax(worst))
+    if not worst[k] > RUNAWAY:
+        return ""
+    b = int(dynamic[k])
+    if shift[k] >= turn[k]:
+        load = f"{np.linalg.norm(force[b]):.3g} N on body {model.body_name[b]!r} ({h.body_mass[b]:.3g} kg)"
+        return f"a runaway force: {load} would move it {shift[k]:.3g} m in one step of {dt:g} s"
+    load = f"{np.linalg.norm(torque[b]):.3g} N m on body {model.body_name[b]!r} (smallest moment {moments[k]:.3g} "
+    load += "kg m^2)"
+    return f"a runaway torque: {load} would turn it {turn[k]:.3g} rad in one step of {dt:g} s"

@@ -34,7 +34,7 @@ from .kernels import step as step_kernels
 from .kernels import worlds as world_kernels
 from .launch import Launches, capture, record, run
 from .model import Model, State
-from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
+from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
 from .steps import SimulationError, StepStats
 from .transforms import quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
@@ -901,7 +901,8 @@ class Simulator:
                         self.linear.check()
                     stats = self._status_stats(row.tolist(), 1, order, fallback)
                     if code == columns.VELOCITY:
-                        self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
+                        sweeps = int(row[columns.STATUS_VELOCITY_ITERATIONS]) if self.linear is None else 0
+                        self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY], sweeps)
                         stats.converged = False
                     out.append(stats)
                     self._advance_clock(1)
@@ -952,12 +953,13 @@ class Simulator:
         wp.capture_launch(graph)
         return status
 
-    def _velocity_failed(self, error: float) -> None:
+    def _velocity_failed(self, error: float, sweeps: int = 0) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
-        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit)."""
+        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit; the
+        iterative solver's `sweeps` are said)."""
         if not math.isfinite(error):
             self._max_error("velocity")
-        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True)
+        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True, sweeps=sweeps)
 
     # ---------------------------------------------------------------- the step
     def step(self, n: int = 1) -> StepStats:
@@ -978,7 +980,13 @@ class Simulator:
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
         start = self.time
-        stats = self._steps(n, combine=n > 1)
+        try:
+            stats = self._steps(n, combine=n > 1)
+        except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
+            note = self._runaway_note()
+            if not note:
+                raise
+            raise SingularSystemError(f"{note}; {err}") from None
         for s in stats:
             if s.fallback and s.fallback not in self.fallbacks:
                 self.fallbacks[s.fallback] = start
@@ -1357,12 +1365,13 @@ class Simulator:
         return err
 
     def _may_iterate(
-        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False
-    ) -> bool:
+        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False,
+        sweeps: int = 0,
+    ) -> bool:  # fmt: skip
         """Whether the correction may take another iteration. On its limit, or when it diverges (the error
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
-        (the velocity correction's solve), said as such."""
+        (the velocity correction's solve), said as such, with its `sweeps` where it took some."""
         diverging = iterations >= 3 and error > 1e3 * best
         if iterations < self.max_iterations and not diverging:
             return True
@@ -1381,17 +1390,27 @@ class Simulator:
         )
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         if stopped:
-            failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
+            after = f" after {sweeps} sweep{'s' if sweeps != 1 else ''}" if sweeps else ""
+            failure = f"left {error:.3g}{after}, over its tolerance of {tolerance:g}"
         elif diverging:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
-        msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
+        runaway = self._runaway_note()
+        msg = (
+            f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): {runaway + '; ' if runaway else ''}the "
+            f"{what} correction {failure}"
+        )
         if worst:
             msg += f"; worst joints: {worst}"
         if self.on_max_iterations == "raise":
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return False
+
+    def _runaway_note(self) -> str:
+        """`diagnose.runaway_note` of this step's loads."""
+        force, torque = self.control.body_force.numpy(), self.control.body_torque.numpy()
+        return diagnose.runaway_note(self.model, self.dt, force, torque)
 
     def _check_finite(self, state: State, step: int) -> None:
         """Counted on the device (two numbers come back); only a failure reads the state to name the bodies."""
