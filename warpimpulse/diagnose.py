@@ -142,3 +142,69 @@ def runaway_note(model: Model, dt: float, force: np.ndarray, torque: np.ndarray)
     load = f"{np.linalg.norm(torque[b]):.3g} N m on body {model.body_name[b]!r} (smallest moment {moments[k]:.3g} "
     load += "kg m^2)"
     return f"a runaway torque: {load} would turn it {turn[k]:.3g} rad in one step of {dt:g} s"
+
+
+LOOP_CHECK_DOFS = 600
+"""The most dynamic degrees of freedom (6 a body) whose loops `degenerate_loop` checks (a dense SVD of J)."""
+SECOND_ORDER = 1e-3
+"""The stretch (dimensionless: per unit length scale) above which a first-order motion is blocked at second
+order (`degenerate_loop`); a real motion of a mechanism shows round-off, ~1e-9."""
+
+
+def length_scale(model: Model) -> float:
+    """The scene's lever (m): the longest anchor arm of a constraint from a body's centre of mass, at least 1 mm."""
+    h = model.host
+    arms = [np.linalg.norm(a[b >= 0], axis=1) for a, b in ((h.constraint_anchor0, h.constraint_body0),
+                                                            (h.constraint_anchor1, h.constraint_body1))]  # fmt: skip
+    return max([1e-3, *(float(a.max()) for a in arms if len(a))])
+
+
+def degenerate_loop(model: Model, times, moved, dofs: int, rank_tolerance: float, epsilon: float = 1e-5) -> str:
+    """A sentence naming the joints of a degenerate kinematic loop, or '' when every redundant row is consistent.
+
+    A loop's rows are redundant when a combination w of them has w^T J = 0 (a self-stress: a planar four-bar's
+    out-of-plane rows; three ball joints in line pulling along the line). That is harmless when every motion J
+    allows (J u = 0, its null space) is a real motion of the mechanism: the combination then stays zero along
+    it. It is degenerate when some allowed motion u stretches the combination at second order,
+    w^T (dJ/du) u != 0: the joints in line let the middle one move sideways to first order only, the solver
+    regularises the redundant row as if it were consistent, and the correction never converges. Checked on
+    the dense J in generalized velocities u (m/s: angular ones times the length scale), rows normalised:
+
+    `times(u)` is J u at the current pose (dofs,) -> (rows,), built at first; `moved(u, s)` moves the pose by s
+    length scales along u (None: back to the built pose) and returns `times`; `rank_tolerance` is the singular
+    value (relative to the largest) below which a direction is null, as the factorization's loop tolerance
+    decides."""
+    columns = np.stack([times(e) for e in np.eye(dofs)], axis=1)
+    scale = np.linalg.norm(columns, axis=1)
+    rows = scale > 1e-12 * max(scale.max(initial=0.0), 1e-300)  # padded rows of constraints of dimension < 3
+    jac = columns[rows] / scale[rows, None]
+    u, s, vt = np.linalg.svd(jac)
+    rank = int(np.count_nonzero(s > rank_tolerance * s[0])) if len(s) else 0
+    stresses, flexes = u[:, rank:], vt[rank:].T
+    if not stresses.shape[1] or not flexes.shape[1]:
+        return ""
+    worst, culprit = 0.0, None
+    count = flexes.shape[1]
+    for a in range(count):
+        at = moved(flexes[:, a], epsilon)
+        ahead = [at(flexes[:, b]) for b in range(a, count)]
+        at = moved(flexes[:, a], -epsilon)
+        back = [at(flexes[:, b]) for b in range(a, count)]
+        for plus, minus in zip(ahead, back):
+            change = (plus - minus)[rows] / scale[rows] / (2.0 * epsilon)
+            stretch = stresses.T @ change  # each self-stress's second-order change along the pair of motions
+            k = int(np.argmax(np.abs(stretch)))
+            if abs(stretch[k]) > worst:
+                worst, culprit = float(abs(stretch[k])), stresses[:, k]
+    moved(None, 0.0)
+    if worst <= SECOND_ORDER:
+        return ""
+    weight = np.zeros(len(scale))
+    weight[rows] = np.abs(culprit)
+    per_constraint = weight.reshape(-1, 3).max(axis=1)
+    involved = np.flatnonzero(per_constraint > 0.05 * per_constraint.max())
+    joints = sorted({int(model.constraint_joint[c]) for c in involved})
+    names = ", ".join(repr(model.joint_name[j]) for j in joints)
+    return (f"joints {names} form a degenerate loop: rows of theirs are redundant, yet a motion they allow to first "
+            f"order stretches them at second order ({worst:.3g} per length scale; e.g. joints in line), so no "
+            "impulse holds the loop; move a joint off the line or remove the redundant joint")  # fmt: skip

@@ -36,7 +36,7 @@ from .launch import Launches, capture, record, run
 from .model import Model, State
 from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
 from .steps import SimulationError, StepStats
-from .transforms import quat_rotate, quat_to_matrix
+from .transforms import quat_from_axis_angle, quat_mul, quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
@@ -374,6 +374,8 @@ class Simulator:
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
+        if self.redundant_rows:
+            self._check_loops()
         self._check_finite(self.state, 0)
 
     # ---------------------------------------------------------------- launches
@@ -1406,6 +1408,50 @@ class Simulator:
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return False
+
+    def _check_loops(self) -> None:
+        """Refuse a degenerate loop at build (`diagnose.degenerate_loop`): one whose redundant rows, regularised
+        by the factorization as if consistent, are stretched by a motion they allow to first order, so that the
+        correction could never converge. J comes from the velocity-error kernel at unit velocities, and at poses
+        moved along the allowed motions; the built state and its factor are restored. Scenes of more than
+        `diagnose.LOOP_CHECK_DOFS` dynamic degrees of freedom are not checked (a dense SVD)."""
+        m, st = self.model, self.state
+        dynamic = np.flatnonzero(~m.host.body_static)
+        if not 0 < 6 * len(dynamic) <= diagnose.LOOP_CHECK_DOFS:
+            return
+        x0, q0 = st.body_x.numpy(), st.body_q.numpy()
+        length = diagnose.length_scale(m)
+
+        def times(u: np.ndarray) -> np.ndarray:  # J u, u in m/s (angular ones times the length scale)
+            v, w = np.zeros((m.body_count, 3)), np.zeros((m.body_count, 3))
+            v[dynamic], w[dynamic] = u.reshape(-1, 6)[:, :3], u.reshape(-1, 6)[:, 3:] / length
+            st.body_v.assign(v)
+            st.body_w.assign(w)
+            self._velocity_errors.launch()
+            return -self.rhs.numpy().reshape(-1)
+
+        def moved(u: np.ndarray | None, s: float):  # the pose moved by s length scales along u
+            x, q = x0.copy(), q0.copy()
+            if u is not None:
+                x[dynamic] += s * length * u.reshape(-1, 6)[:, :3]
+                turn = s * u.reshape(-1, 6)[:, 3:]
+                for k, b in enumerate(dynamic):
+                    angle = float(np.linalg.norm(turn[k]))
+                    if angle > 0.0:
+                        q[b] = quat_mul(quat_from_axis_angle(turn[k], angle), q[b])
+            st.body_x.assign(x)
+            st.body_q.assign(q)
+            self._frames.launch()
+            return times
+
+        try:
+            tolerance = math.sqrt(loop_tolerance_for(self.tolerance))  # a pivot fraction is a squared singular value
+            note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic), tolerance)
+        finally:
+            self.state.copy_from(m.state())
+            self._update_frames()
+        if note:
+            raise SingularSystemError(note)
 
     def _runaway_note(self) -> str:
         """`diagnose.runaway_note` of this step's loads."""
