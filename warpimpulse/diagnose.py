@@ -159,7 +159,7 @@ def length_scale(model: Model) -> float:
     return max([1e-3, *(float(a.max()) for a in arms if len(a))])
 
 
-def degenerate_loop(model: Model, times, moved, dofs: int, rank_tolerance: float, epsilon: float = 1e-5) -> str:
+def degenerate_loop(model: Model, times, moved, dofs: int, rank_tolerance: float = 1e-8, epsilon: float = 1e-5) -> str:
     """A sentence naming the joints of a degenerate kinematic loop, or '' when every redundant row is consistent.
 
     A loop's rows are redundant when a combination w of them has w^T J = 0 (a self-stress: a planar four-bar's
@@ -172,8 +172,9 @@ def degenerate_loop(model: Model, times, moved, dofs: int, rank_tolerance: float
 
     `times(u)` is J u at the current pose (dofs,) -> (rows,), built at first; `moved(u, s)` moves the pose by s
     length scales along u (None: back to the built pose) and returns `times`; `rank_tolerance` is the singular
-    value (relative to the largest) below which a direction is null, as the factorization's loop tolerance
-    decides."""
+    value (relative to the largest) below which a direction is null: an exact redundancy, to round-off. A row
+    only nearly redundant (a loop built a little out of plane, or out of line) is not checked: its motions are
+    not exact, and their second-order terms would not say whether they are real."""
     columns = np.stack([times(e) for e in np.eye(dofs)], axis=1)
     scale = np.linalg.norm(columns, axis=1)
     rows = scale > 1e-12 * max(scale.max(initial=0.0), 1e-300)  # padded rows of constraints of dimension < 3

@@ -1445,8 +1445,7 @@ class Simulator:
             return times
 
         try:
-            tolerance = math.sqrt(loop_tolerance_for(self.tolerance))  # a pivot fraction is a squared singular value
-            note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic), tolerance)
+            note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic))
         finally:
             self.state.copy_from(m.state())
             self._update_frames()
