@@ -54,8 +54,11 @@ def frame_count(duration: float, fps: float) -> int:
 def settings(sim: Any) -> dict[str, Any]:
     """The simulator settings an output file records (customLayerData warpimpulse:*), so a run can be
     repeated from its file."""
+    notes = {"scheduleNote": getattr(sim, "schedule_note", ""), "splitNote": getattr(sim, "split_note", "")}
     return {
         "dt": sim.dt,
+        "schedule": getattr(sim, "schedule", ""),  # the fused step (a CPU's, one kernel) or the parallel stages
+        **{key: note for key, note in notes.items() if note},  # why the schedule or threads asked for are not used
         "tolerance": sim.tolerance,
         "velocity_tolerance": sim.velocity_tolerance,
         "solver": sim.solver_name,
