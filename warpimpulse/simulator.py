@@ -1391,6 +1391,8 @@ class Simulator:
             or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
         )
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
+        if not diverging and what == "velocity" and self.linear is None:  # the iterative solver's, either schedule
+            stopped, sweeps = True, sweeps or iterations
         if stopped:
             after = f" after {sweeps} sweep{'s' if sweeps != 1 else ''}" if sweeps else ""
             failure = f"left {error:.3g}{after}, over its tolerance of {tolerance:g}"
