@@ -1344,13 +1344,12 @@ class Simulator:
         elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
-        runaway = self._runaway_note()
-        msg = (
-            f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): {runaway + '; ' if runaway else ''}the "
-            f"{what} correction {failure}"
-        )
+        msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
         if worst:
             msg += f"; worst joints: {worst}"
+        runaway = self._runaway_note()  # the cause, where a load no joint can hold is one
+        if runaway:
+            msg += f"; {runaway}"
         if self.on_max_iterations == "raise":
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
