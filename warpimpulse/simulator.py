@@ -931,9 +931,9 @@ class Simulator:
             stats = self._steps(n, combine=n > 1)
         except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
             note = self._runaway_note()
-            if not note:
+            if not note or not err.where:
                 raise
-            raise SingularSystemError(f"{note}; {err}") from None
+            raise SingularSystemError(f"the system matrix is singular at {err.where}: {note}", err.where) from None
         for s in stats:
             if s.fallback and s.fallback not in self.fallbacks:
                 self.fallbacks[s.fallback] = start
