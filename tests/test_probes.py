@@ -262,3 +262,28 @@ def test_the_iterative_velocity_correction_says_its_sweeps():
     with pytest.raises(SimulationError, match=r"the velocity correction left [\d.e+-]+ after 20 sweeps, over its "
                                               r"tolerance of 1e-06; worst joints: 'j0'"):  # fmt: skip
         sim.step(5)
+
+
+def test_a_runaway_force_on_the_command_line_is_named_in_one_line_each(tmp_path, capsys):
+    """A scene file with a 1e30 N force under --on-max-iterations warn: one line a warning, each naming the
+    runaway force, then the stop naming it where the pivot is lost (exit 1, the frames done kept)."""
+    from warpimpulse import usd
+
+    b = scenes.chain(3)
+    b.add_force(2, (1e30, 0.0, 0.0))
+    path = tmp_path / "runaway.usda"
+    usd.save_scene(b, path, fps=30)
+    argv = ["simulate", str(path), "--on-max-iterations", "warn", "--duration", "0.1", "--fps", "30", "--out",
+            str(tmp_path / "o.usdc")]  # fmt: skip
+    code, lines = run(argv, capsys)
+    assert code == 1 and all(line.startswith("warpimpulse: ") for line in lines), lines
+    runaway = "a runaway force: 1e+30 N on body '/World/link2' (7.59 kg)"
+    warned = [line for line in lines if line.startswith("warpimpulse: warning: step 1 ")]
+    assert warned and all(runaway in line for line in warned), lines
+    assert any(
+        line.startswith(
+            "warpimpulse: stopped at t = 0 s: the system matrix is singular at joint "
+            f"'/World/Joints/j2' (revolute, constraint 4): {runaway}"
+        )
+        for line in lines
+    ), lines
