@@ -76,6 +76,24 @@ def test_a_checkpoint_of_other_force_elements_is_refused_and_changes_nothing(tmp
     assert all(np.array_equal(a, b) for a, b in zip(before, _everything(sim)))
 
 
+@pytest.mark.parametrize("key", ["drive_target", "drive_integral", "carry", "fallback"])
+def test_a_checkpoint_with_text_for_numbers_is_refused_and_changes_nothing(tmp_path, key):
+    """Every array is checked for its type before numpy would choke on it (np.isfinite of strings is a TypeError)."""
+    path = tmp_path / "ck.npz"
+    sim = Simulator(_pendulum(2).finalize(), DT)
+    sim.step(2)
+    sim.save_checkpoint(path)
+    with np.load(path) as npz:
+        data = {k: npz[k] for k in npz.files}
+    data[key] = np.full(data[key].shape, 1.0) if key == "fallback" else np.full(data[key].shape, "x")
+    np.savez(path, **data)
+    sim.step()
+    before = _everything(sim)
+    with pytest.raises(CheckpointError, match=rf"^{re.escape(str(path))}: '{key}' (is not|has shape)"):
+        sim.load_checkpoint(path)
+    assert all(np.array_equal(a, b) for a, b in zip(before, _everything(sim)))
+
+
 def test_a_checkpoint_of_the_same_force_elements_resumes_bit_for_bit(tmp_path):
     path = tmp_path / "ck.npz"
     first = Simulator(_pendulum(2, spring=True, limit=True).finalize(), DT)

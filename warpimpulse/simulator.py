@@ -1563,11 +1563,13 @@ class Simulator:
         if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
             raise refuse("an orientation is not a unit quaternion")
         for key in data:
-            if key.startswith("warm_") and (data[key].shape != (nc, 3) or not np.all(np.isfinite(data[key]))):
-                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3)")
+            if key.startswith("warm_") and (data[key].dtype.kind not in "iuf" or data[key].shape != (nc, 3)
+                                            or not np.all(np.isfinite(data[key]))):  # fmt: skip
+                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3) numbers")
         if "carry" in data:  # the carried right-hand sides (`carry`): a row of (nc, 3) for each step size
             sizes, carry = data.get("carry_h", np.zeros(0)), data["carry"]
-            if sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3) or not np.all(np.isfinite(carry)):
+            if (carry.dtype.kind not in "iuf" or sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3)
+                    or not np.all(np.isfinite(carry))):  # fmt: skip
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
