@@ -20,8 +20,10 @@ DT = 0.01
 
 
 # ------------------------------------------------------------------------------------------------ checkpoints
-def _pendulum(motors: int = 0, spring: bool = False, limit: bool = False, ground: bool = False) -> wi.SceneBuilder:
-    """Two hinged links; `motors` PID motors on the hinges, a spring between the links, a limit, a ground."""
+def _pendulum(motors: int = 0, spring: bool = False, limit: bool = False, ground: bool = False,
+              kp: float = 5.0) -> wi.SceneBuilder:  # fmt: skip
+    """Two hinged links; `motors` PID motors (gain `kp`) on the hinges, a spring between the links, a limit, a
+    ground."""
     b = wi.SceneBuilder()
     shape = wi.Shape("sphere", radius=0.1, collide=ground)
     a = b.add_body(1.0, (0.1, 0.1, 0.1), (0.0, 0.0, -1.0), name="a", shape=shape)
@@ -29,7 +31,7 @@ def _pendulum(motors: int = 0, spring: bool = False, limit: bool = False, ground
     hinges = [b.add_joint_revolute(None, a, (0, 0, 0), (1, 0, 0), name="j0"),
               b.add_joint_revolute(a, c, (0, 0, -1), (1, 0, 0), name="j1")]  # fmt: skip
     for j in hinges[:motors]:
-        b.add_motor(j, target=0.3, kp=5.0)
+        b.add_motor(j, target=0.3, kp=kp)
     if spring:
         b.add_spring(a, c, (0, 0, -1), (0, 0, -2), stiffness=10.0)
     if limit:
@@ -51,6 +53,8 @@ CHECKPOINT_MISMATCHES = {
                             r"motors and joint springs differ .*\(2 in the checkpoint, 1 here\)"),
     "one motor into two": (_pendulum(1), _pendulum(2), {},
                            r"motors and joint springs differ .*\(1 in the checkpoint, 2 here\)"),
+    "other gains": (_pendulum(1), _pendulum(1, kp=6.0), {},
+                    r"motors and joint springs differ .*\(1, with other values\)"),
     "a spring": (_pendulum(1, spring=True), _pendulum(1), {}, r"springs differ .*\(1 in the checkpoint, 0 here\)"),
     "a limit": (_pendulum(1), _pendulum(1, limit=True), {}, r"joint limits, distance rows and stiff motors differ"),
     "colliders": (_pendulum(ground=True), _pendulum(), {}, r"colliders and grounds differ"),
