@@ -92,6 +92,8 @@ class ForceElements:
     coordinate_rest_rotation: wp.array(dtype=quatd)
     drive_element: wp.array(dtype=int)
     drive_coordinate: wp.array(dtype=int)
+    drive_chain: wp.array(dtype=wp.vec3i)
+    drive_ends: wp.array(dtype=wp.vec2i)
     drive_mode: wp.array(dtype=int)
     drive_gains: wp.array(dtype=vec3d)
     drive_max_force: wp.array(dtype=f64)
@@ -328,8 +330,8 @@ def element_wrenches(
         drive_wrench(
             e, springs, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
             el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_element,
-            el.drive_coordinate, el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target,
-            el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
+            el.drive_coordinate, el.drive_chain, el.drive_ends, el.drive_mode, el.drive_gains, el.drive_max_force,
+            el.drive_target, el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
         )  # fmt: skip
         e += 1
 
