@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import operator
+import sys
 import warnings
 import zipfile
 import zlib
@@ -31,8 +32,9 @@ from .options import StepOptions
 from .options import resolve as resolve_options
 from .readout import Readout
 from .recording import Recording
-from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
+from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
 from .steps import SimulationError, StepStats, diverging
+from .transforms import quat_from_axis_angle, quat_mul
 from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
@@ -116,7 +118,8 @@ class Simulator(Readout, Recording):
         on_max_iterations: "raise" a SimulationError naming the worst joints, or "warn" and go on with
             `StepStats.converged` False.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
-            off by default (`warpimpulse.verbosity`).
+            off by default (`warpimpulse.verbosity`). It also says on stderr, once each, why steps were taken at
+            a lower order than asked (`fallbacks`).
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
@@ -185,6 +188,10 @@ class Simulator(Readout, Recording):
             )
         if verbose:
             show_warp_messages()
+        self.verbose = bool(verbose)
+        self.fallbacks: dict[str, float] = {}
+        """Why steps were taken at order 2 although `order` asked for more (`StepStats.fallback`), each reason once
+        with the time (s) at the start of the `step` call that first took one, since the build (or `reset`)."""
         if solver == "iterative" and model.limit_count:
             raise ValueError(
                 "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
@@ -308,7 +315,9 @@ class Simulator(Readout, Recording):
         self.loop_active = wp.zeros(1, dtype=wp.int32, device=d)
         self.loop_go = wp.zeros(1, dtype=wp.int32, device=d)
         self._limit_world = wp.zeros(model.limit_count, dtype=wp.int32, device=d)  # one world's limits
-        self._fingerprint = diagnose.fingerprint(model)
+        contact_settings = dict(margin=contact_margin, solver=contact_solver, broad_phase=broad_phase,
+                                sweeps=contact_sweeps)  # fmt: skip
+        self._fingerprint = diagnose.fingerprint(model, contact_settings if model.colliders is not None else None)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
@@ -326,6 +335,8 @@ class Simulator(Readout, Recording):
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
+        if self.redundant_rows:
+            self._check_loops()
         self._check_finite(self.state, 0)
 
     # ---------------------------------------------------------------- options the scene decides
@@ -425,12 +436,21 @@ class Simulator(Readout, Recording):
 
     def _world_values(self, values, what: str, world: int | None, shape=(3,)) -> tuple[slice, np.ndarray]:
         """The body rows of `world` (all when None) and `values` checked for them, flattened to (rows, *shape):
-        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds."""
+        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds. A bad value names
+        its body."""
         m = self.model
         if world is None:
             lead = (m.body_count,) if m.world_count == 1 else (m.world_count, m.world_body_count)
-            return slice(None), self._checked(values, (*lead, *shape), what).reshape(-1, *shape)
-        return self._world_rows(world), self._checked(values, (m.world_body_count, *shape), what)
+            rows = slice(None)
+        else:
+            lead, rows = (m.world_body_count,), self._world_rows(world)
+        arr = checks.numbers(values, what)
+        if arr.shape != (*lead, *shape):
+            raise ValueError(f"{what} must have shape {(*lead, *shape)}, got {arr.shape}")
+        arr = arr.reshape(-1, *shape)
+        names = m.body_name[rows]
+        checks.finite_rows({what: arr.reshape(len(arr), -1)}, lambda i: f"body {names[i]!r}:")
+        return rows, arr
 
     def _world_rows(self, world: int) -> slice:
         """The body rows of `world`, checked."""
@@ -476,16 +496,8 @@ class Simulator(Readout, Recording):
             rows, values = self._world_values(arr, "inertia", world, shape=(3, 3))
             inertias[rows] = values
         dynamic = ~m.host.body_static
-        bad = dynamic & ~(masses > 0.0)
-        if not bad.any():
-            sym = np.abs(inertias - inertias.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 * np.abs(inertias).max()
-            bad = dynamic & ~sym
-            bad[dynamic] |= np.linalg.eigvalsh(0.5 * (inertias[dynamic] + inertias[dynamic].transpose(0, 2, 1)))[
-                :, 0] <= 0.0  # fmt: skip
-        if bad.any():
-            b = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"body {m.body_name[b]!r}: mass {masses[b]} and inertia {inertias[b].tolist()} must be "
-                             "positive (definite, symmetric)")  # fmt: skip
+        checks.mass_properties(masses, inertias, dynamic, lambda b: f"set_masses: body {m.body_name[b]!r}")
+        inertias = 0.5 * (inertias + inertias.transpose(0, 2, 1))  # symmetric to the last bit, as the builder's
         masses[~dynamic], inertias[~dynamic] = 0.0, 0.0
         m.set_masses(masses, inertias)
         if self.batch is not None:
@@ -537,17 +549,6 @@ class Simulator(Readout, Recording):
         targets = self.drive_target.numpy()
         targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
         self.drive_target.assign(targets)
-
-    @staticmethod
-    def _checked(values, shape, what) -> np.ndarray:
-        arr = checks.numbers(values, what)
-        if arr.shape != shape:
-            raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{what} contains NaN or Inf")
-        if np.abs(arr).max(initial=0.0) > checks.LARGEST:
-            raise ValueError(f"{what} holds values too large for double precision (> {checks.LARGEST:g})")
-        return arr
 
     def forces_active(self) -> bool:
         """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
@@ -740,7 +741,8 @@ class Simulator(Readout, Recording):
             self.linear.check()
         stats = self._status_stats(row.tolist(), 1, *self._fused_order)
         if code == columns.VELOCITY:
-            self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
+            sweeps = int(row[columns.STATUS_VELOCITY_ITERATIONS]) if self.linear is None else 0
+            self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY], sweeps)
             stats.converged = False
         self._advance_clock(1)
         return stats
@@ -785,12 +787,13 @@ class Simulator(Readout, Recording):
         launch.launch()
         return status, summary.tolist()
 
-    def _velocity_failed(self, error: float) -> None:
+    def _velocity_failed(self, error: float, sweeps: int = 0) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
-        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit)."""
+        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit; the
+        iterative solver's `sweeps` are said)."""
         if not math.isfinite(error):
             self._max_error("velocity")
-        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True)
+        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True, sweeps=sweeps)
 
     # ---------------------------------------------------------------- the step
     def step(self, n: int = 1) -> StepStats:
@@ -812,8 +815,25 @@ class Simulator(Readout, Recording):
             return self._fused_step()
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
-        stats = self._steps(n, combine=n > 1)
+        start = self.time
+        try:
+            stats = self._steps(n, combine=n > 1)
+        except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
+            note = self._runaway_note()
+            if not note or not err.where:
+                raise
+            raise SingularSystemError(f"the system matrix is singular at {err.where}: {note}", err.where) from None
+        for s in stats:
+            if s.fallback and s.fallback not in self.fallbacks:
+                self.fallbacks[s.fallback] = start
+                if self.verbose:
+                    print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
         return stats[0] if len(stats) == 1 else _combined(stats)
+
+    def fallback_note(self, reason: str) -> str:
+        """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""
+        return (f"order {self.order} was asked, but steps from t = {self.fallbacks[reason]:.6g} s on were taken at "
+                f"order 2 because of {reason}")  # fmt: skip
 
     def _steps(self, n: int, combine: bool = False) -> list[StepStats]:
         """n steps' stats, one a step; with `combine`, a run of fused steps may be one StepStats of them all
@@ -1181,12 +1201,13 @@ class Simulator(Readout, Recording):
         return err
 
     def _may_iterate(
-        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False
-    ) -> bool:
+        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False,
+        sweeps: int = 0,
+    ) -> bool:  # fmt: skip
         """Whether the correction may take another iteration. On its limit, or when it diverges (the error
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
-        (the velocity correction's solve), said as such."""
+        (the velocity correction's solve), said as such, with its `sweeps` where it took some."""
         diverges = diverging(error, best, iterations)
         if iterations < self.max_iterations and not diverges:
             return True
@@ -1204,18 +1225,72 @@ class Simulator(Readout, Recording):
             or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
         )
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
+        if not diverges and what == "velocity" and self.linear is None:  # the iterative solver's, either schedule
+            stopped, sweeps = True, sweeps or iterations
         if stopped:
-            failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
+            after = f" after {sweeps} sweep{'s' if sweeps != 1 else ''}" if sweeps else ""
+            failure = f"left {error:.3g}{after}, over its tolerance of {tolerance:g}"
         elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
         if worst:
             msg += f"; worst joints: {worst}"
+        runaway = self._runaway_note()  # the cause, where a load no joint can hold is one
+        if runaway:
+            msg += f"; {runaway}"
         if self.on_max_iterations == "raise":
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return False
+
+    def _check_loops(self) -> None:
+        """Refuse a degenerate loop at build (`diagnose.degenerate_loop`): one whose redundant rows, regularised
+        by the factorization as if consistent, are stretched by a motion they allow to first order, so that the
+        correction could never converge. J comes from the velocity-error kernel at unit velocities, and at poses
+        moved along the allowed motions; the built state and its factor are restored. Scenes of more than
+        `diagnose.LOOP_CHECK_DOFS` dynamic degrees of freedom are not checked (a dense SVD)."""
+        m, st = self.model, self.state
+        dynamic = np.flatnonzero(~m.host.body_static)
+        if not 0 < 6 * len(dynamic) <= diagnose.LOOP_CHECK_DOFS:
+            return
+        x0, q0 = st.body_x.numpy(), st.body_q.numpy()
+        length = diagnose.length_scale(m)
+
+        def times(u: np.ndarray) -> np.ndarray:  # J u, u in m/s (angular ones times the length scale)
+            v, w = np.zeros((m.body_count, 3)), np.zeros((m.body_count, 3))
+            v[dynamic], w[dynamic] = u.reshape(-1, 6)[:, :3], u.reshape(-1, 6)[:, 3:] / length
+            st.body_v.assign(v)
+            st.body_w.assign(w)
+            self._velocity_errors.launch()
+            return -self.rhs.numpy().reshape(-1)
+
+        def moved(u: np.ndarray | None, s: float):  # the pose moved by s length scales along u
+            x, q = x0.copy(), q0.copy()
+            if u is not None:
+                x[dynamic] += s * length * u.reshape(-1, 6)[:, :3]
+                turn = s * u.reshape(-1, 6)[:, 3:]
+                for k, b in enumerate(dynamic):
+                    angle = float(np.linalg.norm(turn[k]))
+                    if angle > 0.0:
+                        q[b] = quat_mul(quat_from_axis_angle(turn[k], angle), q[b])
+            st.body_x.assign(x)
+            st.body_q.assign(q)
+            self._frames.launch()
+            return times
+
+        try:
+            note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic))
+        finally:
+            self.state.copy_from(m.state())
+            self._update_frames()
+        if note:
+            raise SingularSystemError(note)
+
+    def _runaway_note(self) -> str:
+        """`diagnose.runaway_note` of this step's loads."""
+        force, torque = self.control.body_force.numpy(), self.control.body_torque.numpy()
+        return diagnose.runaway_note(self.model, self.dt, force, torque)
 
     def _check_finite(self, state: State, step: int) -> None:
         """Counted on the device (two numbers come back); only a failure reads the state to name the bodies."""
@@ -1343,8 +1418,12 @@ class Simulator(Readout, Recording):
                 f"simulator ({n} bodies, dt={self.dt})"
             )
         for key, digest in self._fingerprint.items():
-            if str(data[f"scene_{key}"]) != digest:
-                raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+            theirs = str(data[f"scene_{key}"])
+            if theirs != digest:
+                count, here = theirs.split(":")[0], digest.split(":")[0]
+                how = f"{count} in the checkpoint, {here} here" if count != here else f"{here}, with other values"
+                raise refuse(f"checkpoint of another scene: its {diagnose.FINGERPRINT_PARTS[key]} differ from this "
+                             f"simulator's ({how})")  # fmt: skip
         if "stages" in data and (data["stages"].dtype.kind != "f" or data["stages"].ndim != 1):
             raise refuse("'stages' is not a list of numbers")
         stages = tuple(float(g) for g in data["stages"]) if "stages" in data else (1.0,)
@@ -1353,21 +1432,33 @@ class Simulator(Readout, Recording):
                 f"checkpoint taken with the composition {stages} of the base step; this simulator composes "
                 f"{self.scheme.stages} (order {self.order}): resuming would not continue the run"
             )
+        nd = self.model.drive_count
+        shapes.update(drive_target=(nd,), drive_integral=(nd,))
         for key, shape in shapes.items():
+            if key not in data:  # a checkpoint of a version without motors' targets: they stay as they are
+                continue
+            if data[key].dtype.kind not in "iuf":
+                raise refuse(f"'{key}' is not an array of numbers")
             if data[key].shape != shape:
                 raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
             if not np.all(np.isfinite(data[key])):
                 raise refuse(f"'{key}' contains NaN or Inf")
+            if np.abs(data[key]).max(initial=0.0) > checks.LARGEST:
+                raise refuse(f"'{key}' holds values too large for double precision (> {checks.LARGEST:g})")
+        if "fallback" in data and (data["fallback"].dtype.kind != "U" or data["fallback"].shape != ()):
+            raise refuse("'fallback' is not a string")
         if data["step_count"].dtype.kind == "f" or int(data["step_count"]) < 0 or float(data["time"]) < 0.0:
             raise refuse(f"step count {data['step_count']} at time {data['time']} is not a place in a run")
         if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
             raise refuse("an orientation is not a unit quaternion")
         for key in data:
-            if key.startswith("warm_") and (data[key].shape != (nc, 3) or not np.all(np.isfinite(data[key]))):
-                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3)")
+            if key.startswith("warm_") and (data[key].dtype.kind not in "iuf" or data[key].shape != (nc, 3)
+                                            or not np.all(np.isfinite(data[key]))):  # fmt: skip
+                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3) numbers")
         if "carry" in data:  # the carried right-hand sides (`carry`): a row of (nc, 3) for each step size
             sizes, carry = data.get("carry_h", np.zeros(0)), data["carry"]
-            if sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3) or not np.all(np.isfinite(carry)):
+            if (carry.dtype.kind not in "iuf" or sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3)
+                    or not np.all(np.isfinite(carry))):  # fmt: skip
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
@@ -1388,6 +1479,7 @@ class Simulator(Readout, Recording):
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
         self._fallback = ""
+        self.fallbacks = {}
         getattr(self.linear, "_warm", {}).clear()
         self._forget_carry()
         self._update_frames()
