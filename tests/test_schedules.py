@@ -16,6 +16,7 @@ import warpimpulse as wi
 from warpimpulse import scenes
 from warpimpulse.bench import stress
 from warpimpulse.split import SplitSimulator
+from warpimpulse.steps import combined
 
 
 def _spinning_pendulum(omega: float) -> wi.SceneBuilder:
@@ -317,9 +318,9 @@ def test_step_n_stats_are_the_steps_combined(case):
     make, dt, steps, options = CASES[case]
     whole = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     single = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
-    combined = whole.step(steps)
-    assert combined == wi.simulator._combined(single.simulate(steps * dt))  # one call too, a StepStats a step
-    assert combined.substeps >= steps
+    together = whole.step(steps)
+    assert together == combined(single.simulate(steps * dt))  # one call too, a StepStats a step
+    assert together.substeps >= steps
     np.testing.assert_array_equal(whole.positions(), single.positions())
     assert whole.step_count == single.step_count == steps and whole.time == single.time
 
