@@ -109,7 +109,7 @@ def world_inertia(body) -> np.ndarray:
 def test_a_welded_body_merges_into_its_parent_with_the_composed_mass_properties():
     """A body with no joint is merged: the composed mass, centre and inertia equal MuJoCo's for the same geoms in
     one body (its own compiler's inertiafromgeom)."""
-    merged, whole = wi.load_mjcf(WELDED), wi.load_mjcf(ONE_BODY)
+    merged, whole = wi.load_mjcf(compiled(WELDED, ("contact",))), wi.load_mjcf(compiled(ONE_BODY, ("contact",)))
     assert [b.name for b in merged.bodies] == ["arm"]
     m = mujoco.MjModel.from_xml_string(ONE_BODY)
     d = mujoco.MjData(m)
@@ -120,6 +120,26 @@ def test_a_welded_body_merges_into_its_parent_with_the_composed_mass_properties(
     np.testing.assert_allclose(a.position, d.xipos[1], atol=1e-12)
     np.testing.assert_allclose(world_inertia(a), rot @ np.diag(m.body_inertia[1]) @ rot.T, atol=1e-12)
     np.testing.assert_allclose(world_inertia(b), world_inertia(a), atol=1e-12)
+
+
+def test_colliding_geoms_off_the_centre_are_pieces_of_the_body_with_the_same_whole():
+    """Bodies carry one shape at their centre of mass: a body's other colliding geoms are pieces welded to it,
+    each a solid of its shape; the pieces and the rest compose to MuJoCo's mass, centre and inertia."""
+    builder = wi.load_mjcf(WELDED)
+    assert [b.name for b in builder.bodies] == ["arm", "arm/geom0", "arm/geom1"]
+    assert [j.kind for j in builder.joints] == ["fixed", "fixed", "revolute"]
+    assert [b.shape.kind if b.shape else None for b in builder.bodies] == [None, "capsule", "box"]
+    m = mujoco.MjModel.from_xml_string(ONE_BODY)
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    rot = d.ximat[1].reshape(3, 3)
+    mass = sum(b.mass for b in builder.bodies)
+    centre = sum(b.mass * np.asarray(b.position) for b in builder.bodies) / mass
+    inertia = sum(world_inertia(b) + b.mass * ((a := np.asarray(b.position) - centre) @ a * np.eye(3) - np.outer(a, a))
+                  for b in builder.bodies)  # fmt: skip
+    assert mass == pytest.approx(m.body_mass[1], rel=1e-12)
+    np.testing.assert_allclose(centre, d.xipos[1], atol=1e-12)
+    np.testing.assert_allclose(inertia, rot @ np.diag(m.body_inertia[1]) @ rot.T, atol=1e-12)
 
 
 CHAIN = """
