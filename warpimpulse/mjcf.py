@@ -23,8 +23,9 @@ or (where no exact equivalent exists but the motion barely depends on it) mapped
 - geoms: every one is a `Visual` (its rgba or material colour; a mesh's vertices and faces). Collision:
   planes on the world -> grounds; a sphere, capsule, box or cylinder of a moving body -> the body's shape where
   it is the body's only collision geom and centred on its centre of mass (warpimpulse bodies carry one shape
-  at their centre of mass), else a warning naming the geom; on the world -> a static body each; contype,
-  conaffinity, parent filtering and <exclude> -> collision filters. Meshes, ellipsoids, height fields: their
+  at their centre of mass), else a piece welded to the body with a share of its mass (`_pieces`: the whole
+  keeps MuJoCo's mass properties); on the world -> a static body each; contype, conaffinity, parent filtering
+  and <exclude> -> collision filters. Meshes, ellipsoids, height fields: their
   collision is dropped with a warning naming the geom (their mass properties stay, from MuJoCo).
 - option: gravity; the contact, gravity, limit, spring, damper, frictionloss, actuation and equality disable
   flags; gravcomp -> a constant force.
