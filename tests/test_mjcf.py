@@ -281,6 +281,24 @@ def test_a_connect_equality_closes_the_loop_and_holds():
     assert np.linalg.norm(ends[0] - ends[1]) < 1e-6
 
 
+def test_a_weld_equality_holds_the_relative_pose():
+    """A weld between two free bodies is a fixed loop joint: after 1 s of tumbling their relative pose is the
+    built one."""
+    xml = """<mujoco><worldbody>
+      <body name="a" pos="0 0 1"><freejoint/><geom type="box" size="0.1 0.2 0.3"/></body>
+      <body name="b" pos="0.5 0 1"><freejoint/><geom type="sphere" size="0.1"/></body>
+    </worldbody><equality><weld name="glue" body1="a" body2="b"/></equality></mujoco>"""
+    builder = wi.load_mjcf(compiled(xml, ("contact",)), qvel=[0, 0, 0, 1, 2, 3, 0, 0, 0, 0, 0, 0])
+    (weld,) = builder.joints
+    assert (weld.name, weld.kind, weld.loop) == ("glue", "fixed", True)
+    sim = wi.Simulator(builder.finalize(), 1.0 / 240.0)
+    sim.step(240)
+    x, q = sim.positions(), sim.orientations()
+    rot = [wi.transforms.quat_to_matrix(qi) for qi in q]
+    assert np.linalg.norm(rot[0].T @ (x[1] - x[0]) - [0.5, 0.0, 0.0]) < 1e-6
+    assert np.abs(rot[0].T @ rot[1] - np.eye(3)).max() < 1e-6
+
+
 # ---------------------------------------------------------------- what is refused, dropped or said
 TENDON = """
 <mujoco><worldbody><body name="b"><joint name="j"/><geom size=".1"/></body></worldbody>
