@@ -234,6 +234,22 @@ def test_actuators_follow_mujoco_under_their_controls():
     assert worst(m, 1.0, ctrl=ctrl, controls=controls) < 1e-5
 
 
+@pytest.mark.parametrize("friction, moves", [(3.0, False), (1.0, True)])
+def test_frictionloss_is_dry_friction(friction, moves):
+    """A horizontal 1 kg rod 0.4 m long (gravity's torque 1.96 N m at its hinge) with a frictionloss: held by
+    3 N m, turning under 1 N m."""
+    xml = f"""<mujoco><worldbody><body name="rod">
+      <joint name="hinge" type="hinge" axis="0 1 0" frictionloss="{friction}"/>
+      <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.01" mass="1"/>
+    </body></worldbody></mujoco>"""
+    builder = wi.load_mjcf(xml)
+    (drive,) = builder.drives
+    assert (drive.stiff, drive.max_force) == (True, friction)
+    sim = wi.Simulator(builder.finalize(), 1.0 / 240.0)
+    sim.step(60)
+    assert (np.linalg.norm(sim.angular_velocities()) > 0.1) == moves
+
+
 def test_set_controls_by_index_and_its_errors():
     sim = wi.Simulator(wi.load_mjcf(ACTUATED).finalize(), 1.0 / 240.0)
     targets = sim.drive_target.numpy()
