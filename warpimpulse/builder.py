@@ -1039,7 +1039,7 @@ class SceneBuilder:
         kinds = self.joint_types()
         for i, drive in enumerate(self.drives):
             links = of.get(drive.joint)
-            if links is None:
+            if links is None or drive.stiff:  # a stiff motor is a row of the correction loop, not a force
                 continue
             what = f"drive {drive.name!r} on chain {[kinds[k] for k in links]}"
             if "ball" in (kinds[k] for k in links):
