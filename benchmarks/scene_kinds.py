@@ -29,7 +29,6 @@ import gc
 import json
 import math
 import platform
-import statistics
 import sys
 import time
 from collections.abc import Callable
@@ -482,7 +481,7 @@ def exclusions(scene: dict) -> list[str]:
 def ratio_table(results: dict) -> list[str]:
     head = "| scene | bodies | floor (m) | timing | " + " | ".join(f"{lv:g} m" for lv in LEVELS) + " |"
     lines = [head, "|---|---:|---:|---|" + "---:|" * len(LEVELS)]
-    for name, scene in results["scenes"].items():
+    for scene in results["scenes"].values():
         for mode, what in MODES.items():
             row = " | ".join(ratio_text(c) for c in cells(scene, mode))
             lines.append(f"| {scene['title']} | {scene['bodies']} | {scene['reference']['floor']:.1g} | {what} | "
@@ -538,8 +537,8 @@ def readme_block(results: dict) -> str:
         f"... 1/{max(max(r) for *_, r in OURS)}. Error: the largest distance of a centre of mass or leaf tip "
         f"after {any_scene['window']:g} s from MuJoCo RK4 at h = 1/{2 * REFERENCE_RATE}, read from the very run "
         f"that is timed; the floor is that reference's distance from h = 1/{REFERENCE_RATE}, and a level under "
-        "10x the floor is not compared. \"not reached by MuJoCo\" (or by warpimpulse) is no ratio and no win; "
-        "\"<=\" where MuJoCo's coarsest step already beats the level (a coarser one might be cheaper), \">=\" "
+        '10x the floor is not compared. "not reached by MuJoCo" (or by warpimpulse) is no ratio and no win; '
+        '"<=" where MuJoCo\'s coarsest step already beats the level (a coarser one might be cheaper), ">=" '
         "likewise for ours.",
         "",
         f"Measured with `{meta['command']}` on {meta['machine']}, {meta['date']} ({meta['versions']}); a shared, "

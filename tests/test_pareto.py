@@ -60,3 +60,25 @@ def test_levels_near_the_reference_floor_are_not_compared() -> None:
 def test_failed_configurations_are_ignored() -> None:
     got = front([{"error": None, "cost": 1.0}, {"error": 1e-3, "cost": None}, {"error": 1e-3, "cost": 2.0}])
     assert len(got) == 1
+
+
+def test_the_report_counts_no_win_where_mujoco_never_reached_our_error() -> None:
+    from warpimpulse.bench import report
+
+    def run(engine, variant, rate, error, seconds):
+        return {"scene": "tree127", "engine": engine, "variant": variant, "rate": rate, "tolerance": 1e-6,
+                "order": 2, "failed": None, "trajectory_error": error, "time_per_step": seconds}  # fmt: skip
+
+    runs = [
+        run("warpimpulse", "auto", 60, 1e-3, 2e-4),  # MuJoCo at 1/60 is as accurate: a ratio
+        run("warpimpulse", "auto", 120, 1e-6, 3e-4),  # more accurate than any MuJoCo run: no ratio, no win
+        run("warpimpulse", "auto", 240, 1e-12, 6e-4),  # under the floor: not compared
+        run("mujoco", "RK4", 60, 1e-4, 5e-4),
+        run("mujoco", "RK4", 30, 2e-3, 3e-4) | {"failed": "MuJoCo diverged (bad qacc) before t = 5 s"},
+    ]
+    text = "\n".join(report.bar_markdown(runs, floor=1e-11))
+    assert "we are faster in 1 and slower in 0; MuJoCo never reached the error of 1" in text
+    assert "1 are under 10x the reference's floor" in text
+    assert report.excluded(runs, "tree127") == ["mujoco RK4 1/30 (MuJoCo diverged (bad qacc) before t = 5 s)"]
+    cells = report.level_cells(runs, "tree127", 1e-11)
+    assert [c["status"] for c in cells] == ["compared", "compared", "compared", "not reached by MuJoCo"]
