@@ -29,6 +29,7 @@ import gc
 import json
 import math
 import platform
+import statistics
 import sys
 import time
 from collections.abc import Callable
@@ -39,7 +40,7 @@ import numpy as np
 
 from warpimpulse import scenes
 from warpimpulse.bench.harness import Probe, log, quiet_warp
-from warpimpulse.bench.pareto import LEVELS, compare, front, ratio_text
+from warpimpulse.bench.pareto import FLOOR_MARGIN, LEVELS, compare, front, ratio_text
 from warpimpulse.bench.peers.mujoco import MujocoScene, mujoco_available, to_spec
 from warpimpulse.builder import SceneBuilder
 from warpimpulse.shapes import Shape
@@ -63,7 +64,7 @@ OURS = (  # (order, tolerance or None for the order's own, rates)
 QUICK_MUJOCO_RATES = (10, 30, 100, 300, 1000)
 QUICK_OURS = ((2, 1e-6, (30, 120)), (4, None, (15, 60)))
 QUICK_SCENES = ("double_pendulum_3d", "arm7")
-REPEATS, QUICK_REPEATS = 5, 3
+REPEATS, QUICK_REPEATS = 7, 3
 REFERENCE_RATE = 16000  # the reference runs at twice this; this one gives its floor
 MODES = {"per_call": "one step per Python call", "one_call": "all steps in one call"}
 DENSITY = 1000.0  # kg/m^3
@@ -95,20 +96,20 @@ def double_pendulum_3d() -> SceneBuilder:
 
 
 def arm7() -> SceneBuilder:
-    """A 7-hinge arm standing on the world: the hinge axes alternate between two directions across the links
-    (the previous link's x and y), the links 0.35 to 0.15 m, released bent (0.3 to 1.1 rad at each joint) so
-    every joint is loaded; it falls in 3D."""
+    """A 7-hinge arm on a world hinge, reaching out level: the hinge axes alternate between two directions
+    across the links (the previous link's x and y), the links taper from 0.35 m (radius 6 cm) to 0.15 m
+    (4 cm), released bent (0.3 to 0.5 rad at each joint) so every joint is loaded; it falls and swings in 3D."""
     b = SceneBuilder()
     lengths = (0.35, 0.4, 0.4, 0.3, 0.3, 0.2, 0.15)
-    angles = (0.3, 0.9, 0.6, -1.1, 0.7, 0.8, 0.4)
-    frame = np.array([0.0, 0.0, 0.0, 1.0])  # the previous link's orientation (its z along the link)
+    radii = (0.06, 0.06, 0.05, 0.05, 0.045, 0.04, 0.04)
+    angles = (0.3, 0.5, 0.4, -0.5, 0.4, 0.5, 0.3)
+    frame = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.5 * math.pi)  # the previous link's: z along +x
     start, parent = np.zeros(3), None
-    for i, (length, angle) in enumerate(zip(lengths, angles)):
-        local_axis = np.array([1.0, 0.0, 0.0]) if i % 2 == 0 else np.array([0.0, 1.0, 0.0])
-        axis = quat_rotate(frame, local_axis)
+    for i, (length, radius, angle) in enumerate(zip(lengths, radii, angles)):
+        axis = quat_rotate(frame, np.eye(3)[i % 2])  # the previous link's x, then y, ...
         frame = quat_mul(quat_from_axis_angle(axis, angle), frame)
         direction = quat_rotate(frame, np.array([0.0, 0.0, 1.0]))
-        parent, start = capsule(b, start, direction, length, 0.04, f"link{i}", parent, axis)
+        parent, start = capsule(b, start, direction, length, radius, f"link{i}", parent, axis)
     return b
 
 
@@ -511,39 +512,56 @@ def detail_table(results: dict) -> list[str]:
 
 
 def spread_line(results: dict) -> str:
-    """The timings' spread over the repeats: the largest interquartile range relative to the median."""
-    worst = 0.0
-    for scene in results["scenes"].values():
-        for r in scene["runs"]:
-            if r.get("time_per_step"):
-                q1, q3 = r["time_per_step_iqr"]
-                worst = max(worst, (q3 - q1) / r["time_per_step"])
-    return f"the largest interquartile range over the repeats is {worst * 100:.0f}% of its median"
+    """The timings' spread over the repeats: interquartile range over median, its median and largest."""
+    spreads = [(r["time_per_step_iqr"][1] - r["time_per_step_iqr"][0]) / r["time_per_step"]
+               for scene in results["scenes"].values() for r in scene["runs"] if r.get("time_per_step")]  # fmt: skip
+    return (f"interquartile range over median: {statistics.median(spreads) * 100:.0f}% for the median "
+            f"configuration, {max(spreads) * 100:.0f}% at most")  # fmt: skip
+
+
+def _grid(results: dict) -> tuple[str, str]:
+    """The configurations measured, from the JSON: MuJoCo's integrators and steps, our orders and tolerances."""
+    runs = [r for scene in results["scenes"].values() for r in scene["runs"]]
+    theirs = [r for r in runs if r["engine"] == "mujoco"]
+    ours = [r for r in runs if r["engine"] == "warpimpulse"]
+    mj_rates = sorted({r["rate"] for r in theirs})
+    mujoco = (f"{', '.join(dict.fromkeys(r['variant'] for r in theirs))} at h = 1/{mj_rates[0]} ... "
+              f"1/{mj_rates[-1]} ({len(mj_rates)} steps)")  # fmt: skip
+    rates = sorted({r["rate"] for r in ours})
+    parts = []
+    for order in sorted({r["order"] for r in ours}):
+        tols = sorted({r["variant"].split("tol ")[1] for r in ours if r["order"] == order and "tol " in r["variant"]})
+        parts.append(f"order {order} at " + (f"tolerance {' and '.join(tols)}" if tols else "its own tolerance"))
+    return mujoco, f"{', '.join(parts)}, h = 1/{rates[0]} ... 1/{rates[-1]}"
 
 
 def readme_block(results: dict) -> str:
-    meta = results["meta"]
     scenes_ = results["scenes"]
-    any_scene = next(iter(scenes_.values()))
     sources = sorted({s["source"] for s in scenes_.values()})
+    refs = sorted({f"{s['reference']['what']} (floor: its distance from {s['reference']['check']})"
+                   for s in scenes_.values()})  # fmt: skip
+    windows = sorted({s["window"] for s in scenes_.values()})
+    runs_by = sorted({(s.get("meta", results["meta"])["command"], s.get("meta", results["meta"])["date"])
+                      for s in scenes_.values()})  # fmt: skip
+    meta = results["meta"]
+    repeats = sorted({s["repeats"] for s in scenes_.values()})
+    mujoco, ours = _grid(results)
     lines = [
         "<!-- generated from benchmarks/results/scene_kinds.json by `python benchmarks/scene_kinds.py --from-json`"
         " (make bench): edit the generator, not this text -->",
-        f"Ratio = MuJoCo's cheapest run time per simulated second / ours, at the same trajectory error (> 1: "
-        f"warpimpulse is cheaper), each engine's cost read off its Pareto front by log-log interpolation. Both "
-        f"engines read the same MJCF file (benchmarks/models/; ours through {', '.join(sources)}). MuJoCo: Euler, "
-        f"implicitfast and RK4 at h = 1/{MUJOCO_RATES[0]} ... 1/{MUJOCO_RATES[-1]} ({len(MUJOCO_RATES)} steps); "
-        f"ours: order 2 at tolerances 1e-4 and 1e-6, order 4 at its own, h = 1/{min(min(r) for *_, r in OURS)} "
-        f"... 1/{max(max(r) for *_, r in OURS)}. Error: the largest distance of a centre of mass or leaf tip "
-        f"after {any_scene['window']:g} s from MuJoCo RK4 at h = 1/{2 * REFERENCE_RATE}, read from the very run "
-        f"that is timed; the floor is that reference's distance from h = 1/{REFERENCE_RATE}, and a level under "
-        '10x the floor is not compared. "not reached by MuJoCo" (or by warpimpulse) is no ratio and no win; '
-        '"<=" where MuJoCo\'s coarsest step already beats the level (a coarser one might be cheaper), ">=" '
-        "likewise for ours.",
+        "Ratio = MuJoCo's cheapest run time per simulated second / ours, at the same trajectory error (> 1: "
+        "warpimpulse is cheaper), each engine's cost read off its Pareto front by log-log interpolation. Both "
+        f"engines read the same MJCF file (benchmarks/models/; ours through {', '.join(sources)}). MuJoCo: {mujoco}; "
+        f"ours: {ours}. Error: the largest distance of a centre of mass or leaf tip after "
+        f"{' / '.join(f'{w:g}' for w in windows)} s from {'; '.join(refs)}, read from the very run that is timed; "
+        f'a level under {FLOOR_MARGIN:g}x the floor is not compared. "not reached by MuJoCo" (or by warpimpulse) '
+        'is no ratio and no win; "<=" where MuJoCo\'s coarsest step already beats the level (a coarser one might '
+        'be cheaper), ">=" likewise for ours.',
         "",
-        f"Measured with `{meta['command']}` on {meta['machine']}, {meta['date']} ({meta['versions']}); a shared, "
-        f"loaded machine: each cost is the median of {any_scene['repeats']} runs timed in turn with every other "
-        f"configuration ({spread_line(results)}; every run's times are in the JSON).",
+        "Measured with " + "; ".join(f"`{c}` ({d})" for c, d in runs_by) + f" on {meta['machine']} "
+        f"({meta['versions']}); a shared, loaded machine: each cost is the median of "
+        f"{'/'.join(map(str, repeats))} runs, each round timing every configuration once in turn "
+        f"({spread_line(results)}; every run's times are in the JSON).",
         "",
         *ratio_table(results),
         "",
@@ -644,8 +662,12 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         quiet_warp()
         names = args.scenes or (QUICK_SCENES if args.quick else [k.name for k in KINDS])
+        measured = {k.name: run_scene(k, args.quick) | {"meta": meta(argv)} for k in KINDS if k.name in names}
+        # --scenes re-measures some scenes of an earlier full run: the others are kept, each with its own meta.
+        kept = json.loads(out.read_text())["scenes"] if args.scenes and out and out.exists() else {}
+        order = [k.name for k in KINDS if k.name in measured or k.name in kept]
         results = {"meta": meta(argv), "levels": list(LEVELS),
-                   "scenes": {k.name: run_scene(k, args.quick) for k in KINDS if k.name in names}}  # fmt: skip
+                   "scenes": {n: measured[n] if n in measured else kept[n] for n in order}}  # fmt: skip
         if out:
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps(results, indent=1))
