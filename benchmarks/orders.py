@@ -4,8 +4,8 @@ step followed by a projection onto the constraints, and MuJoCo's integrators, on
 
 Error: the largest distance of a tracked point (every centre of mass and leaf tip) from the reference at
 t = 2 s. Reference: MuJoCo RK4 at h = 1/3000 (checked against 1/6000); without MuJoCo, our own order 6 at
-h = 1/960. Cost: median wall time per simulated second over repeated runs of the first 2 s (one warm-up run
-discarded), nothing but steps in the timed loop.
+h = 1/960. Cost: median CPU time (`time.process_time`) per simulated second over repeated runs of the first
+2 s (one warm-up run discarded), nothing but steps in the timed loop; the error is that of those very runs.
 
     .venv/bin/python benchmarks/orders.py                # all scenes -> benchmarks/results/orders.json
     .venv/bin/python benchmarks/orders.py --from-json    # only the tables again: docs/time-order.md, README.md
@@ -428,7 +428,7 @@ def write_tables(results: dict) -> None:
         "<!-- generated from benchmarks/results/orders.json by `python benchmarks/orders.py --from-json` -->",
         f"Measured {meta['date']} on {meta['machine']} ({meta['seconds']:.0f} s). Error: the largest distance of a "
         f"tracked point (centres of mass, leaf tips) from the reference at t = {ERROR_TIME:g} s. References: {refs}. "
-        "Time: median wall time per simulated second, CPU.",
+        "Time: median CPU time (`time.process_time`) per simulated second, CPU.",
         "",
         "## What is composed, and the conditions it needs",
         "",

@@ -15,11 +15,13 @@ Each configuration is timed the two ways a user calls an engine: one step per Py
 `mujoco.mj_step(m, d)`) and every step of the window in one call (our `sim.step(n)`, `mj_step(m, d, nstep)`).
 Every timed run starts from the initial state and runs the whole window; its error is read from its own final
 state, outside the timed region, so error and time come from the same run. A warm-up round first, then
-`REPEATS` rounds, each round timing every configuration once in turn (a loaded machine slows all alike).
+`REPEATS` rounds, each round timing every configuration once in turn. The clock is the process's CPU time
+(`time.process_time`, every thread): on a shared machine a run's wall time includes other processes' time
+slices, and more of them the longer the run, which would favour whatever runs shortest.
 
 Error: the largest distance of a tracked point (every centre of mass and leaf tip) at the end of the window from
 MuJoCo RK4 at h = 1/`REFERENCE_RATE` / 2; its distance from the same at twice that step is the reference's
-floor. Cost: median wall time per simulated second. The comparison's rules are `warpimpulse.bench.pareto`'s.
+floor. Cost: median CPU time per simulated second. The comparison's rules are `warpimpulse.bench.pareto`'s.
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ import gc
 import json
 import math
 import platform
-import statistics
 import sys
 import time
 from collections.abc import Callable
@@ -42,6 +43,7 @@ from warpimpulse import scenes
 from warpimpulse.bench.harness import Probe, log, quiet_warp
 from warpimpulse.bench.pareto import FLOOR_MARGIN, LEVELS, compare, front, ratio_text
 from warpimpulse.bench.peers.mujoco import MujocoScene, mujoco_available, to_spec
+from warpimpulse.bench.report import spread_text
 from warpimpulse.builder import SceneBuilder
 from warpimpulse.shapes import Shape
 from warpimpulse.simulator import SimulationError, Simulator
@@ -376,9 +378,9 @@ class Measured:
         go = getattr(self.run, self.mode)
         self.run.start()
         try:
-            start = time.perf_counter()
+            start = time.process_time()  # CPU time: on a shared machine wall time counts others' time slices
             go(n)
-            elapsed = time.perf_counter() - start
+            elapsed = time.process_time() - start
         except SimulationError as e:
             self.failed = str(e).split(";")[0][:160]
             return
@@ -512,11 +514,7 @@ def detail_table(results: dict) -> list[str]:
 
 
 def spread_line(results: dict) -> str:
-    """The timings' spread over the repeats: interquartile range over median, its median and largest."""
-    spreads = [(r["time_per_step_iqr"][1] - r["time_per_step_iqr"][0]) / r["time_per_step"]
-               for scene in results["scenes"].values() for r in scene["runs"] if r.get("time_per_step")]  # fmt: skip
-    return (f"interquartile range over median: {statistics.median(spreads) * 100:.0f}% for the median "
-            f"configuration, {max(spreads) * 100:.0f}% at most")  # fmt: skip
+    return spread_text([r["times"] for scene in results["scenes"].values() for r in scene["runs"] if r["times"]])
 
 
 def _grid(results: dict) -> tuple[str, str]:
@@ -559,7 +557,8 @@ def readme_block(results: dict) -> str:
         'be cheaper), ">=" likewise for ours.',
         "",
         "Measured with " + "; ".join(f"`{c}` ({d})" for c, d in runs_by) + f" on {meta['machine']} "
-        f"({meta['versions']}); a shared, loaded machine: each cost is the median of "
+        f"({meta['versions']}); a shared, loaded machine, so the clock is the process's CPU time (wall time "
+        "would count other processes' time slices, the more the longer a run): each cost is the median of "
         f"{'/'.join(map(str, repeats))} runs, each round timing every configuration once in turn "
         f"({spread_line(results)}; every run's times are in the JSON).",
         "",

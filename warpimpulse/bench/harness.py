@@ -253,7 +253,7 @@ def accuracy_run(runner: Runner, rate: int, probe: Probe, duration: float) -> di
 TIMING = (  # how `time_steps` times a configuration, as the report states it
     f"Run time: the median over repeats of the first {ERROR_TIME:g} s from the scene's start, each engine's steps "
     "in one call where it has one (our `step(n)`, MuJoCo's `mj_step` with nstep), pinocchio's one step a call; "
-    "the trajectory error is read from the final state of those very runs"
+    "the trajectory error is read from the final state of those very runs; the clock is the process's CPU time"
 )
 
 
@@ -281,7 +281,9 @@ def time_steps(
     The n steps are one call where the engine has one (`runner.advance`: our step(n), MuJoCo's mj_step with
     nstep, split where a force switches off), else one step() a step. One extra run first is the warm-up
     (kernels loaded, caches warm) and is discarded. Cheap runs are repeated until `min_total` seconds are timed
-    (at most 100 repeats), so a short interruption by another process moves the median little. Python's garbage
+    (at most 100 repeats), so a short interruption by another process moves the median little. The clock is the
+    process's CPU time (every thread): on a shared machine wall time counts other processes' time slices, the
+    more the longer the run, which would favour the configurations that run shortest. Python's garbage
     collector is off inside the timed loop, which holds nothing but the steps. A run that fails (StepFailed from
     the engine or from `finish`) fails the configuration.
     """
@@ -294,9 +296,9 @@ def time_steps(
         runner = factory()
         gc.disable()
         try:
-            start = time.perf_counter()
+            start = time.process_time()
             advance(runner, n)
-            elapsed = time.perf_counter() - start
+            elapsed = time.process_time() - start
         except StepFailed as e:
             return Timed([], [], str(e))
         finally:

@@ -233,6 +233,11 @@ def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
             notes.append(f"- {name}: " + "; ".join(left) + ".")
     lines += ["", *(["Excluded (failed or diverged anywhere in the run, the 10 s after the forces included):", "",
                      *notes] if notes else ["No configuration failed or diverged."])]  # fmt: skip
+    counts = sorted({len(r["time_per_step_runs"]) for r in sweep["runs"] if r.get("time_per_step_runs")})
+    if counts:
+        lines += ["", f"Each time is the median of {counts[0]} to {counts[-1]} timed runs ("
+                  + spread_text([r["time_per_step_runs"] for r in sweep["runs"] if r.get("time_per_step_runs")])
+                  + "); every run's time is in the JSON."]  # fmt: skip
     if any(r.get("error_source") != "timed run" for r in sweep["runs"]):
         lines += [
             "",
@@ -240,6 +245,20 @@ def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
             "time from runs of step(n) (the harness now reads the error from the timed runs themselves).",
         ]
     return lines + [""]
+
+
+def spread_text(samples: list[list[float]]) -> str:
+    """How far repeated timings scatter: each configuration's interquartile range over its median, given for
+    the median configuration and the worst (a shared machine's load shows here)."""
+    spreads = []
+    for times in samples:
+        if len(times) >= 2:
+            q1, q2, q3 = np.percentile(times, [25, 50, 75])
+            spreads.append((q3 - q1) / q2)
+    if not spreads:
+        return "no repeated timings"
+    return (f"interquartile range over median: {np.median(spreads) * 100:.0f}% for the median configuration, "
+            f"{max(spreads) * 100:.0f}% at most")  # fmt: skip
 
 
 def _floor(sweep: dict, scene: str = BAR_SCENE) -> float:
