@@ -255,7 +255,7 @@ def head_to_head(rows: list[dict], model, mscene, level: float, rounds: int) -> 
     times: dict[str, list[float]] = {k: [] for k in factories}
     for _ in range(rounds):
         for key, (factory, rate) in factories.items():
-            times[key] += [t * rate for t in time_steps(factory, rate, 3, min_total=0.3)]
+            times[key] += [t * rate for t in time_steps(factory, rate, 3, min_total=0.3).per_step]
     out = {"level": level, "rounds": rounds, "ours": ours, "mujoco": theirs}
     for key, ts in times.items():
         out[f"{key}_time_per_second"] = statistics.median(ts)
