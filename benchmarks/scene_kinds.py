@@ -8,8 +8,7 @@
 Scenes (`KINDS`, one line each: name, MJCF file, window, pushes, probe): a 3D double pendulum of two ball-jointed
 capsules, a 7-hinge arm with alternating axes released bent, a 30-link hinge chain released horizontal, a
 humanoid-like tree hung by its neck and the paper's 127-body tree with its root torque. Both engines read the
-MJCF file: MuJoCo's compiler, and ours through `warpimpulse.mjcf.load_mjcf` where the package has it, else
-`builder_from_mujoco` below (the compiled MjModel's bodies and joints; hinge and ball joints only).
+MJCF file: MuJoCo's compiler, and ours through `warpimpulse.load_mjcf` (which maps MuJoCo's compiled model).
 
 Each configuration is timed the two ways a user calls an engine: one step per Python call (our `sim.step()`,
 `mujoco.mj_step(m, d)`) and every step of the window in one call (our `sim.step(n)`, `mj_step(m, d, nstep)`).
@@ -45,6 +44,7 @@ from warpimpulse.bench.pareto import FLOOR_MARGIN, LEVELS, compare, front, ratio
 from warpimpulse.bench.peers.mujoco import MujocoScene, mujoco_available, to_spec
 from warpimpulse.bench.report import spread_text
 from warpimpulse.builder import SceneBuilder
+from warpimpulse.mjcf import load_mjcf
 from warpimpulse.shapes import Shape
 from warpimpulse.simulator import SimulationError, Simulator
 from warpimpulse.transforms import quat_between, quat_from_axis_angle, quat_mul, quat_rotate
@@ -205,43 +205,6 @@ def write_models() -> list[Path]:
 
 
 # ------------------------------------------------------------------------------------------ loading
-def builder_from_mujoco(model) -> SceneBuilder:
-    """Our scene from a compiled MjModel: each body at its centre of mass in its inertial frame (mass and
-    principal moments as compiled), each joint as MuJoCo placed it at the initial pose. Hinge and ball joints,
-    at most one a body; a free or absent joint leaves the body free. Anything else is refused, by name."""
-    import mujoco
-
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    b = SceneBuilder(gravity=tuple(model.opt.gravity))
-    index: dict[int, int] = {}
-    for body in range(1, model.nbody):
-        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body)
-        wxyz = np.zeros(4)
-        mujoco.mju_mulQuat(wxyz, data.xquat[body], model.body_iquat[body])  # the inertial frame, world
-        xyzw = wxyz[[1, 2, 3, 0]]
-        index[body] = b.add_body(float(model.body_mass[body]), model.body_inertia[body].copy(),
-                                 data.xipos[body].copy(), xyzw, name=name)  # fmt: skip
-        count, first = int(model.body_jntnum[body]), int(model.body_jntadr[body])
-        parent = int(model.body_parentid[body])
-        host = None if parent == 0 else index[parent]
-        if count > 1:
-            raise ValueError(f"body {name!r}: {count} joints on one body; only one hinge or ball a body")
-        if count == 0:
-            if host is not None:
-                b.add_joint_fixed(host, index[body], data.xipos[body].copy(), name=f"{name}_weld")
-            continue
-        kind = int(model.jnt_type[first])
-        jname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, first) or f"{name}_joint"
-        if kind == mujoco.mjtJoint.mjJNT_HINGE:
-            b.add_joint_revolute(host, index[body], data.xanchor[first].copy(), data.xaxis[first].copy(), jname)
-        elif kind == mujoco.mjtJoint.mjJNT_BALL:
-            b.add_joint_ball(host, index[body], data.xanchor[first].copy(), jname)
-        elif kind != mujoco.mjtJoint.mjJNT_FREE:
-            raise ValueError(f"joint {jname!r}: type {mujoco.mjtJoint(kind).name} is not read here")
-    return b
-
-
 @dataclass
 class Loaded:
     """A scene read for both engines: our builder (pushes added), its finalized model, MuJoCo's scene with the
@@ -261,15 +224,8 @@ def load(kind: Kind) -> Loaded:
     import mujoco
 
     path = MODELS / kind.model
-    try:
-        from warpimpulse.mjcf import load_mjcf
-    except ImportError:
-        load_mjcf = None
     mj_model = mujoco.MjModel.from_xml_path(str(path))
-    if load_mjcf is not None:
-        builder, source = load_mjcf(str(path)), "warpimpulse.mjcf.load_mjcf"
-    else:
-        builder, source = builder_from_mujoco(mj_model), "benchmarks/scene_kinds.py builder_from_mujoco"
+    builder, source = load_mjcf(str(path)), "warpimpulse.load_mjcf"
     names = [body.name for body in builder.bodies]
     for push in kind.pushes:
         builder.add_force(names.index(push.body), torque=push.torque, until=push.until)
