@@ -512,7 +512,12 @@ def readme_block(results: dict) -> str:
         'is no ratio and no win; "<=" where MuJoCo\'s coarsest step already beats the level (a coarser one might '
         'be cheaper), ">=" likewise for ours.',
         "",
-        "Measured with " + "; ".join(f"`{c}` ({d})" for c, d in runs_by) + f" on {meta['machine']} "
+        "Measured with "
+        + "; ".join(
+            f"`{c.strip()}` ({', '.join(d for c2, d in runs_by if c2 == c)})"
+            for c in dict.fromkeys(c for c, _ in runs_by)
+        )
+        + f" on {meta['machine']} "
         f"({meta['versions']}); a shared, loaded machine, so the clock is the process's CPU time (wall time "
         "would count other processes' time slices, the more the longer a run): each cost is the median of "
         f"{'/'.join(map(str, repeats))} runs, each round timing every configuration once in turn "
