@@ -9,6 +9,8 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
+import operator
+import sys
 import warnings
 import zipfile
 import zlib
@@ -24,14 +26,15 @@ from .kernels import constraints as constraint_kernels
 from .kernels import limits as limit_kernels
 from .kernels import loop as loop_kernels
 from .kernels import step as step_kernels
-from .launch import record, run
+from .launch import Packed, record, run
 from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
 from .readout import Readout
 from .recording import Recording
-from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
+from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
 from .steps import SimulationError, StepStats, diverging
+from .transforms import quat_from_axis_angle, quat_mul
 from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
@@ -46,6 +49,14 @@ two blocks converge linearly into each other (a cart on its wheels: about 0.7 a 
 
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
+
+
+# A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
+# each column's name takes five.
+_STATUS_FIGURES = operator.itemgetter(
+    step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
+    step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
+)  # fmt: skip
 
 
 class CheckpointError(ValueError):
@@ -107,7 +118,8 @@ class Simulator(Readout, Recording):
         on_max_iterations: "raise" a SimulationError naming the worst joints, or "warn" and go on with
             `StepStats.converged` False.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
-            off by default (`warpimpulse.verbosity`).
+            off by default (`warpimpulse.verbosity`). It also says on stderr, once each, why steps were taken at
+            a lower order than asked (`fallbacks`).
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
@@ -176,6 +188,10 @@ class Simulator(Readout, Recording):
             )
         if verbose:
             show_warp_messages()
+        self.verbose = bool(verbose)
+        self.fallbacks: dict[str, float] = {}
+        """Why steps were taken at order 2 although `order` asked for more (`StepStats.fallback`), each reason once
+        with the time (s) at the start of the `step` call that first took one, since the build (or `reset`)."""
         if solver == "iterative" and model.limit_count:
             raise ValueError(
                 "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
@@ -299,7 +315,9 @@ class Simulator(Readout, Recording):
         self.loop_active = wp.zeros(1, dtype=wp.int32, device=d)
         self.loop_go = wp.zeros(1, dtype=wp.int32, device=d)
         self._limit_world = wp.zeros(model.limit_count, dtype=wp.int32, device=d)  # one world's limits
-        self._fingerprint = diagnose.fingerprint(model)
+        contact_settings = dict(margin=contact_margin, solver=contact_solver, broad_phase=broad_phase,
+                                sweeps=contact_sweeps)  # fmt: skip
+        self._fingerprint = diagnose.fingerprint(model, contact_settings if model.colliders is not None else None)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
@@ -317,6 +335,8 @@ class Simulator(Readout, Recording):
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
+        if self.redundant_rows:
+            self._check_loops()
         self._check_finite(self.state, 0)
 
     # ---------------------------------------------------------------- options the scene decides
@@ -416,12 +436,21 @@ class Simulator(Readout, Recording):
 
     def _world_values(self, values, what: str, world: int | None, shape=(3,)) -> tuple[slice, np.ndarray]:
         """The body rows of `world` (all when None) and `values` checked for them, flattened to (rows, *shape):
-        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds."""
+        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds. A bad value names
+        its body."""
         m = self.model
         if world is None:
             lead = (m.body_count,) if m.world_count == 1 else (m.world_count, m.world_body_count)
-            return slice(None), self._checked(values, (*lead, *shape), what).reshape(-1, *shape)
-        return self._world_rows(world), self._checked(values, (m.world_body_count, *shape), what)
+            rows = slice(None)
+        else:
+            lead, rows = (m.world_body_count,), self._world_rows(world)
+        arr = checks.numbers(values, what)
+        if arr.shape != (*lead, *shape):
+            raise ValueError(f"{what} must have shape {(*lead, *shape)}, got {arr.shape}")
+        arr = arr.reshape(-1, *shape)
+        names = m.body_name[rows]
+        checks.finite_rows({what: arr.reshape(len(arr), -1)}, lambda i: f"body {names[i]!r}:")
+        return rows, arr
 
     def _world_rows(self, world: int) -> slice:
         """The body rows of `world`, checked."""
@@ -467,16 +496,8 @@ class Simulator(Readout, Recording):
             rows, values = self._world_values(arr, "inertia", world, shape=(3, 3))
             inertias[rows] = values
         dynamic = ~m.host.body_static
-        bad = dynamic & ~(masses > 0.0)
-        if not bad.any():
-            sym = np.abs(inertias - inertias.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 * np.abs(inertias).max()
-            bad = dynamic & ~sym
-            bad[dynamic] |= np.linalg.eigvalsh(0.5 * (inertias[dynamic] + inertias[dynamic].transpose(0, 2, 1)))[
-                :, 0] <= 0.0  # fmt: skip
-        if bad.any():
-            b = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"body {m.body_name[b]!r}: mass {masses[b]} and inertia {inertias[b].tolist()} must be "
-                             "positive (definite, symmetric)")  # fmt: skip
+        checks.mass_properties(masses, inertias, dynamic, lambda b: f"set_masses: body {m.body_name[b]!r}")
+        inertias = 0.5 * (inertias + inertias.transpose(0, 2, 1))  # symmetric to the last bit, as the builder's
         masses[~dynamic], inertias[~dynamic] = 0.0, 0.0
         m.set_masses(masses, inertias)
         if self.batch is not None:
@@ -529,17 +550,6 @@ class Simulator(Readout, Recording):
         targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
         self.drive_target.assign(targets)
 
-    @staticmethod
-    def _checked(values, shape, what) -> np.ndarray:
-        arr = checks.numbers(values, what)
-        if arr.shape != shape:
-            raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{what} contains NaN or Inf")
-        if np.abs(arr).max(initial=0.0) > checks.LARGEST:
-            raise ValueError(f"{what} holds values too large for double precision (> {checks.LARGEST:g})")
-        return arr
-
     def forces_active(self) -> bool:
         """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
         an external force or torque (the model's, before its `until`, or one set with `set_external_forces`),
@@ -587,14 +597,20 @@ class Simulator(Readout, Recording):
         # of a launch, written by the host before each replay.
         self._batch = wp.zeros(2, dtype=wp.int32, device=self.model.device)
         self._spin_in = wp.zeros(1, dtype=wp.float64, device=self.model.device)
-        # CPU arrays' memory, read and written without a copy
-        self._views = None if cuda else (self._status.numpy(), self._batch.numpy(), self._spin_in.numpy())
+        # CPU arrays' memory, read and written without a copy: the status rows, and as memoryviews (an element
+        # read or written in half numpy's time) their summary row, the batch words and the spin
+        status = None if cuda else self._status.numpy()
+        self._views = None if cuda else (
+            status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
+        )  # fmt: skip
         # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
         self._fused_stages = (1.0,) if rows else self.scheme.stages
+        fell_back = len(self._fused_stages) < len(self.scheme.stages)
+        self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
         rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
-        self._fused_by_h: dict[float, wp.Graph] = {}
+        self._fused_by_h: dict[float, wp.Graph | Packed] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
 
@@ -631,8 +647,9 @@ class Simulator(Readout, Recording):
         rows.response_rows = self.limit_response.reshape((nl, m.constraint_count))
         return rows
 
-    def _fused_launch(self, h: float) -> wp.Graph:
-        """The fused kernel's launch for steps of h, recorded and captured once per h."""
+    def _fused_launch(self, h: float) -> wp.Graph | Packed:
+        """The fused kernel's launch for steps of h, recorded once per h: packed on a CPU (its arguments once, a
+        call then costs ~0.3 us against a graph replay's ~1.7), captured as a graph on a GPU."""
         if h not in self._fused_by_h:
             p = self.pred
             direct = self.linear is not None
@@ -650,7 +667,7 @@ class Simulator(Readout, Recording):
                 limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
                 stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
             )  # fmt: skip
-            self._fused_by_h[h] = self._capture(launch)
+            self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
         return self._fused_by_h[h]
 
     def _steps_alike(self, limit: int) -> int:
@@ -674,90 +691,109 @@ class Simulator(Readout, Recording):
         schedule, which splits, halves or reports it. Returns the count of steps taken."""
         done = 0
         columns = step_kernels
-        order, fallback = self.order, ""
-        if len(self._fused_stages) < len(self.scheme.stages):
-            order, fallback = 2, ROWS_FALLBACK
+        order, fallback = self._fused_order
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
-            summary = status[-1].tolist()  # the OK steps, which the kernel stops after
-            first = int(summary[columns.STATUS_CODE])
+            status, summary = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
+            first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
-                out += self._fused_stats(status[:first], summary, order, fallback, combine)
+                out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                row = status[first]
-                code = int(row[columns.STATUS_CODE])
-                self._spin = float(row[columns.STATUS_SPIN])
-                if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
-                    if code == columns.RETRY and len(self._fused_stages) > 1:
-                        self._update_frames()  # of the restored start: a later stage may have failed
-                    out.append(self._step_parallel(done + 1 == n))
-                    done += 1
-                else:
-                    if code == columns.SINGULAR:
-                        self.linear.check()
-                    stats = self._status_stats(row.tolist(), 1, order, fallback)
-                    if code == columns.VELOCITY:
-                        self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
-                        stats.converged = False
-                    out.append(stats)
-                    self._advance_clock(1)
-                    done += 1
+                out.append(self._handed_back(status[first], done + 1 == n))
+                done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
             if self.linear is not None:
                 self.linear.check()  # and the redundant loop rows of the last factorization
         return done
 
+    def _fused_step(self) -> StepStats:
+        """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
+        loop's bookkeeping (one launch of one step, whose state is handed out)."""
+        self._update_forces()
+        status, summary = self._run_fused(1, True)
+        if summary[step_kernels.STATUS_CODE]:  # the step went OK
+            order, fallback = self._fused_order
+            stats = self._status_stats(summary, 1, order, fallback)
+            self._advance_clock(1)
+            self._spin = summary[step_kernels.STATUS_SPIN]
+        else:
+            stats = self._handed_back(status[0], True)
+        if self.linear is not None:
+            self.linear.check()  # and the redundant loop rows of the last factorization
+        return stats
+
+    def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
+        """The step whose status `row` stopped a fused launch: taken again by the parallel schedule where nothing
+        of it was kept (SPLIT, RETRY), else (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is
+        handed out (`defer_velocities`)."""
+        columns = step_kernels
+        code = int(row[columns.STATUS_CODE])
+        self._spin = float(row[columns.STATUS_SPIN])
+        if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
+            if code == columns.RETRY and len(self._fused_stages) > 1:
+                self._update_frames()  # of the restored start: a later stage may have failed
+            return self._step_parallel(hand_out)
+        if code == columns.SINGULAR:
+            self.linear.check()
+        stats = self._status_stats(row.tolist(), 1, *self._fused_order)
+        if code == columns.VELOCITY:
+            sweeps = int(row[columns.STATUS_VELOCITY_ITERATIONS]) if self.linear is None else 0
+            self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY], sweeps)
+            stats.converged = False
+        self._advance_clock(1)
+        return stats
+
     @classmethod
     def _fused_stats(
-        cls, status: np.ndarray, summary: list[float], order: int, fallback: str, combine: bool
+        cls, status: np.ndarray, ok: int, summary: list[float], order: int, fallback: str, combine: bool
     ) -> list[StepStats]:
-        """The StepStats of fused steps that went OK, one a status row; with `combine` (or one step), one StepStats
-        of them all: the kernel's summary row, which sums them up as `_combined` would (the host's numpy
+        """The StepStats of the `ok` fused steps that went OK, one a status row; with `combine` (or one step), one
+        StepStats of them all: the kernel's summary row, which sums them up as `_combined` would (the host's numpy
         reductions of a batch cost ~12 us a launch, a StepStats a step ~0.5 us)."""
-        if combine or len(status) == 1:
-            return [cls._status_stats(summary, len(status), order, fallback)]
-        return [cls._status_stats(row, 1, order, fallback) for row in status.tolist()]
+        if combine or ok == 1:
+            return [cls._status_stats(summary, ok, order, fallback)]
+        return [cls._status_stats(row, 1, order, fallback) for row in status[:ok].tolist()]
 
     @staticmethod
     def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
         """A StepStats of a status row (or of the summary row of `steps` steps)."""
-        c = step_kernels
+        joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(row)
         return StepStats(
-            int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]), row[c.STATUS_JOINT_ERROR],
-            row[c.STATUS_VELOCITY_ERROR], True, int(row[c.STATUS_LINEAR_ITERATIONS]), steps, order, fallback,
-        )  # fmt: skip
+            int(joint), int(velocity), joint_error, velocity_error, True, int(linear), steps, order, fallback
+        )
 
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
         self.step_count += steps
         self.time = self.step_count * self.dt
 
-    def _run_fused(self, batch: int, hand_out: bool) -> np.ndarray:
-        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows
-        (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the last step's state is
-        handed out, so its velocities are corrected (`defer_velocities`)."""
-        graph = self._fused_launch(self.dt)
+    def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
+        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
+        the summary row's values (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the
+        last step's state is handed out, so its velocities are corrected (`defer_velocities`)."""
+        launch = self._fused_launch(self.dt)
         if self._views is None:
             self._batch.assign(np.array([batch, int(hand_out)], dtype=np.int32))
             self._spin_in.fill_(self._spin)
-            wp.capture_launch(graph)
-            return self._status.numpy()
-        status, batch_view, spin_view = self._views
+            wp.capture_launch(launch)
+            status = self._status.numpy()
+            return status, status[-1].tolist()
+        status, summary, batch_view, spin_view = self._views
         batch_view[0], batch_view[1], spin_view[0] = batch, int(hand_out), self._spin
-        wp.capture_launch(graph)
-        return status
+        launch.launch()
+        return status, summary.tolist()
 
-    def _velocity_failed(self, error: float) -> None:
+    def _velocity_failed(self, error: float, sweeps: int = 0) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
-        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit)."""
+        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit; the
+        iterative solver's `sweeps` are said)."""
         if not math.isfinite(error):
             self._max_error("velocity")
-        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True)
+        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True, sweeps=sweeps)
 
     # ---------------------------------------------------------------- the step
     def step(self, n: int = 1) -> StepStats:
@@ -775,10 +811,29 @@ class Simulator(Readout, Recording):
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
+        if n.__class__ is int and n == 1 and self.schedule == "fused" and not self._fallback:
+            return self._fused_step()
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
-        stats = self._steps(n, combine=n > 1)
+        start = self.time
+        try:
+            stats = self._steps(n, combine=n > 1)
+        except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
+            note = self._runaway_note()
+            if not note or not err.where:
+                raise
+            raise SingularSystemError(f"the system matrix is singular at {err.where}: {note}", err.where) from None
+        for s in stats:
+            if s.fallback and s.fallback not in self.fallbacks:
+                self.fallbacks[s.fallback] = start
+                if self.verbose:
+                    print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
         return stats[0] if len(stats) == 1 else _combined(stats)
+
+    def fallback_note(self, reason: str) -> str:
+        """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""
+        return (f"order {self.order} was asked, but steps from t = {self.fallbacks[reason]:.6g} s on were taken at "
+                f"order 2 because of {reason}")  # fmt: skip
 
     def _steps(self, n: int, combine: bool = False) -> list[StepStats]:
         """n steps' stats, one a step; with `combine`, a run of fused steps may be one StepStats of them all
@@ -1146,12 +1201,13 @@ class Simulator(Readout, Recording):
         return err
 
     def _may_iterate(
-        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False
-    ) -> bool:
+        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False,
+        sweeps: int = 0,
+    ) -> bool:  # fmt: skip
         """Whether the correction may take another iteration. On its limit, or when it diverges (the error
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
-        (the velocity correction's solve), said as such."""
+        (the velocity correction's solve), said as such, with its `sweeps` where it took some."""
         diverges = diverging(error, best, iterations)
         if iterations < self.max_iterations and not diverges:
             return True
@@ -1169,18 +1225,72 @@ class Simulator(Readout, Recording):
             or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
         )
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
+        if not diverges and what == "velocity" and self.linear is None:  # the iterative solver's, either schedule
+            stopped, sweeps = True, sweeps or iterations
         if stopped:
-            failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
+            after = f" after {sweeps} sweep{'s' if sweeps != 1 else ''}" if sweeps else ""
+            failure = f"left {error:.3g}{after}, over its tolerance of {tolerance:g}"
         elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
         if worst:
             msg += f"; worst joints: {worst}"
+        runaway = self._runaway_note()  # the cause, where a load no joint can hold is one
+        if runaway:
+            msg += f"; {runaway}"
         if self.on_max_iterations == "raise":
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return False
+
+    def _check_loops(self) -> None:
+        """Refuse a degenerate loop at build (`diagnose.degenerate_loop`): one whose redundant rows, regularised
+        by the factorization as if consistent, are stretched by a motion they allow to first order, so that the
+        correction could never converge. J comes from the velocity-error kernel at unit velocities, and at poses
+        moved along the allowed motions; the built state and its factor are restored. Scenes of more than
+        `diagnose.LOOP_CHECK_DOFS` dynamic degrees of freedom are not checked (a dense SVD)."""
+        m, st = self.model, self.state
+        dynamic = np.flatnonzero(~m.host.body_static)
+        if not 0 < 6 * len(dynamic) <= diagnose.LOOP_CHECK_DOFS:
+            return
+        x0, q0 = st.body_x.numpy(), st.body_q.numpy()
+        length = diagnose.length_scale(m)
+
+        def times(u: np.ndarray) -> np.ndarray:  # J u, u in m/s (angular ones times the length scale)
+            v, w = np.zeros((m.body_count, 3)), np.zeros((m.body_count, 3))
+            v[dynamic], w[dynamic] = u.reshape(-1, 6)[:, :3], u.reshape(-1, 6)[:, 3:] / length
+            st.body_v.assign(v)
+            st.body_w.assign(w)
+            self._velocity_errors.launch()
+            return -self.rhs.numpy().reshape(-1)
+
+        def moved(u: np.ndarray | None, s: float):  # the pose moved by s length scales along u
+            x, q = x0.copy(), q0.copy()
+            if u is not None:
+                x[dynamic] += s * length * u.reshape(-1, 6)[:, :3]
+                turn = s * u.reshape(-1, 6)[:, 3:]
+                for k, b in enumerate(dynamic):
+                    angle = float(np.linalg.norm(turn[k]))
+                    if angle > 0.0:
+                        q[b] = quat_mul(quat_from_axis_angle(turn[k], angle), q[b])
+            st.body_x.assign(x)
+            st.body_q.assign(q)
+            self._frames.launch()
+            return times
+
+        try:
+            note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic))
+        finally:
+            self.state.copy_from(m.state())
+            self._update_frames()
+        if note:
+            raise SingularSystemError(note)
+
+    def _runaway_note(self) -> str:
+        """`diagnose.runaway_note` of this step's loads."""
+        force, torque = self.control.body_force.numpy(), self.control.body_torque.numpy()
+        return diagnose.runaway_note(self.model, self.dt, force, torque)
 
     def _check_finite(self, state: State, step: int) -> None:
         """Counted on the device (two numbers come back); only a failure reads the state to name the bodies."""
@@ -1308,8 +1418,12 @@ class Simulator(Readout, Recording):
                 f"simulator ({n} bodies, dt={self.dt})"
             )
         for key, digest in self._fingerprint.items():
-            if str(data[f"scene_{key}"]) != digest:
-                raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+            theirs = str(data[f"scene_{key}"])
+            if theirs != digest:
+                count, here = theirs.split(":")[0], digest.split(":")[0]
+                how = f"{count} in the checkpoint, {here} here" if count != here else f"{here}, with other values"
+                raise refuse(f"checkpoint of another scene: its {diagnose.FINGERPRINT_PARTS[key]} differ from this "
+                             f"simulator's ({how})")  # fmt: skip
         if "stages" in data and (data["stages"].dtype.kind != "f" or data["stages"].ndim != 1):
             raise refuse("'stages' is not a list of numbers")
         stages = tuple(float(g) for g in data["stages"]) if "stages" in data else (1.0,)
@@ -1318,21 +1432,33 @@ class Simulator(Readout, Recording):
                 f"checkpoint taken with the composition {stages} of the base step; this simulator composes "
                 f"{self.scheme.stages} (order {self.order}): resuming would not continue the run"
             )
+        nd = self.model.drive_count
+        shapes.update(drive_target=(nd,), drive_integral=(nd,))
         for key, shape in shapes.items():
+            if key not in data:  # a checkpoint of a version without motors' targets: they stay as they are
+                continue
+            if data[key].dtype.kind not in "iuf":
+                raise refuse(f"'{key}' is not an array of numbers")
             if data[key].shape != shape:
                 raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
             if not np.all(np.isfinite(data[key])):
                 raise refuse(f"'{key}' contains NaN or Inf")
+            if np.abs(data[key]).max(initial=0.0) > checks.LARGEST:
+                raise refuse(f"'{key}' holds values too large for double precision (> {checks.LARGEST:g})")
+        if "fallback" in data and (data["fallback"].dtype.kind != "U" or data["fallback"].shape != ()):
+            raise refuse("'fallback' is not a string")
         if data["step_count"].dtype.kind == "f" or int(data["step_count"]) < 0 or float(data["time"]) < 0.0:
             raise refuse(f"step count {data['step_count']} at time {data['time']} is not a place in a run")
         if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
             raise refuse("an orientation is not a unit quaternion")
         for key in data:
-            if key.startswith("warm_") and (data[key].shape != (nc, 3) or not np.all(np.isfinite(data[key]))):
-                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3)")
+            if key.startswith("warm_") and (data[key].dtype.kind not in "iuf" or data[key].shape != (nc, 3)
+                                            or not np.all(np.isfinite(data[key]))):  # fmt: skip
+                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3) numbers")
         if "carry" in data:  # the carried right-hand sides (`carry`): a row of (nc, 3) for each step size
             sizes, carry = data.get("carry_h", np.zeros(0)), data["carry"]
-            if sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3) or not np.all(np.isfinite(carry)):
+            if (carry.dtype.kind not in "iuf" or sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3)
+                    or not np.all(np.isfinite(carry))):  # fmt: skip
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
@@ -1353,6 +1479,7 @@ class Simulator(Readout, Recording):
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
         self._fallback = ""
+        self.fallbacks = {}
         getattr(self.linear, "_warm", {}).clear()
         self._forget_carry()
         self._update_frames()
