@@ -8,9 +8,9 @@ h = 1/960. Cost: median CPU time (`time.process_time`) per simulated second over
 2 s (one warm-up run discarded), nothing but steps in the timed loop; the error is that of those very runs.
 
     .venv/bin/python benchmarks/orders.py                # all scenes -> benchmarks/results/orders.json
-    .venv/bin/python benchmarks/orders.py --from-json    # only the tables again: docs/time-order.md, README.md
+    .venv/bin/python benchmarks/orders.py --from-json    # only the tables again: docs/time-order.md, docs/results.md
 
-The README's "Order in time" table and docs/time-order.md are generated from the JSON (`--from-json`).
+The "Order in time" table of docs/results.md and docs/time-order.md are generated from the JSON (`--from-json`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from warpimpulse.transforms import quat_mul
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results" / "orders.json"
 DOC = ROOT / "docs" / "time-order.md"
-README = ROOT / "README.md"
+README = ROOT / "docs" / "results.md"  # its orders block
 SCENES = ("tree127", "double_pendulum", "chain50")
 LEVELS = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)  # m: the error levels of the tables
 OURS = {  # scheme -> steps per second

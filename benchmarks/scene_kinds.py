@@ -53,8 +53,10 @@ ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "benchmarks" / "models"
 RESULTS = ROOT / "benchmarks" / "results"
 JSON = RESULTS / "scene_kinds.json"
-README = ROOT / "README.md"
+README = ROOT / "README.md"  # the front page: the ratio table and one plot (`summary_block`)
+DOC = ROOT / "docs" / "results.md"  # the whole write-up (`readme_block`)
 BEGIN, END = "<!-- scene-kinds:begin -->", "<!-- scene-kinds:end -->"
+SUMMARY_BEGIN, SUMMARY_END = "<!-- scene-kinds-summary:begin -->", "<!-- scene-kinds-summary:end -->"
 
 MUJOCO_INTEGRATORS = ("Euler", "implicitfast", "RK4")
 MUJOCO_RATES = (10, 15, 20, 30, 40, 60, 80, 120, 160, 240, 320, 480, 640, 1000)  # h = 1/10 ... 1/1000
@@ -537,16 +539,40 @@ def readme_block(results: dict) -> str:
         lines.append("No configuration diverged or failed.")
     lines += ["", "Where each cost is read (ms per simulated second, between which front points):", "",
               *detail_table(results), ""]  # fmt: skip
-    lines += [f"![{name}](benchmarks/results/scene_kinds_{name}.png)" for name in scenes_]
+    lines += [f"![{name}](../benchmarks/results/scene_kinds_{name}.png)" for name in scenes_]
     return "\n".join(lines)
 
 
-def write_readme(results: dict, path: Path = README) -> None:
+def summary_block(results: dict) -> str:
+    """The front page's part: the ratio table, what it means, one plot, and where the rest is."""
+    plot = "tree127" if "tree127" in results["scenes"] else next(iter(results["scenes"]))
+    return "\n".join([
+        "<!-- generated from benchmarks/results/scene_kinds.json by `python benchmarks/scene_kinds.py --from-json`"
+        " (make bench): edit the generator, not this text -->",
+        "MuJoCo's cheapest run time per simulated second over ours at the same trajectory error after 2 s (> 1: "
+        "warpimpulse is cheaper), both engines reading the same MJCF file, each engine's cost read off its Pareto "
+        "front over its integrators or orders, step sizes and tolerances; \"not reached\" is no ratio and no win. "
+        "How it was measured, what was excluded and where each figure is read: "
+        "[docs/results.md](docs/results.md#run-time-against-error-by-kind-of-scene).",
+        "",
+        *ratio_table(results),
+        "",
+        f"![{plot}: run time against error](benchmarks/results/scene_kinds_{plot}.png)",
+    ])  # fmt: skip
+
+
+def _write_block(path: Path, begin: str, end: str, block: str) -> None:
     text = path.read_text()
-    if BEGIN not in text or END not in text:
-        raise ValueError(f"{path} has no {BEGIN} ... {END} block")
-    head, rest = text.split(BEGIN, 1)
-    path.write_text(head + BEGIN + "\n" + readme_block(results) + "\n" + END + rest.split(END, 1)[1])
+    if begin not in text or end not in text:
+        raise ValueError(f"{path} has no {begin} ... {end} block")
+    head, rest = text.split(begin, 1)
+    path.write_text(head + begin + "\n" + block + "\n" + end + rest.split(end, 1)[1])
+
+
+def write_readme(results: dict) -> None:
+    """The write-up into docs/results.md and its summary into README.md, between their markers."""
+    _write_block(DOC, BEGIN, END, readme_block(results))
+    _write_block(README, SUMMARY_BEGIN, SUMMARY_END, summary_block(results))
 
 
 def plots(results: dict, directory: Path = RESULTS) -> list[Path]:
@@ -637,7 +663,7 @@ def main(argv: list[str] | None = None) -> int:
             log(f"wrote {path}")
         if not args.quick:
             write_readme(results)
-            log(f"regenerated the {BEGIN} block of {README.name}")
+            log(f"regenerated the {BEGIN} block of docs/results.md and the summary in README.md")
     return 0
 
 

@@ -48,11 +48,15 @@ def test_a_scene_loads_in_both_engines_and_moves_alike(kinds, name) -> None:
     assert moved > 1e-4 and gap < 1e-3 * moved, (moved, gap)
 
 
-def test_the_readme_block_is_the_committed_json_written_up(kinds) -> None:
-    """README.md's scene-kinds block is generated from benchmarks/results/scene_kinds.json, never typed."""
+def test_the_readme_blocks_are_the_committed_json_written_up(kinds) -> None:
+    """docs/results.md's scene-kinds block and README.md's summary of it are generated from
+    benchmarks/results/scene_kinds.json, never typed."""
     import json
 
     results = json.loads((ROOT / "benchmarks/results/scene_kinds.json").read_text())
-    text = (ROOT / "README.md").read_text()
-    block = text[text.index(kinds.BEGIN) + len(kinds.BEGIN) : text.index(kinds.END)]
-    assert block.strip() == kinds.readme_block(results).strip()
+    for path, begin, end, block in (
+        (ROOT / "docs/results.md", kinds.BEGIN, kinds.END, kinds.readme_block(results)),
+        (ROOT / "README.md", kinds.SUMMARY_BEGIN, kinds.SUMMARY_END, kinds.summary_block(results)),
+    ):
+        text = path.read_text()
+        assert text[text.index(begin) + len(begin) : text.index(end)].strip() == block.strip(), path

@@ -1,8 +1,8 @@
 """The benchmark's write-up, from the harness's JSON: the markdown report (RESULTS.md), the plots, and
-README.md's results block.
+docs/results.md's results block.
 
-Nothing here measures. `python -m warpimpulse.bench.report --from-json ... --readme README.md` is how
-`make bench` regenerates the README block; `warpimpulse bench` itself never touches README.md.
+Nothing here measures. `python -m warpimpulse.bench.report --from-json ... --readme docs/results.md` is how
+`make bench` regenerates that block; `warpimpulse bench` itself never touches the docs.
 """
 
 from __future__ import annotations
@@ -382,7 +382,7 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
     """The README's benchmark section, generated from the JSON so it is never typed by hand."""
     lines = [
         "<!-- generated from benchmarks/results/*.json by `python -m warpimpulse.bench.report --from-json ... "
-        "--readme README.md` (make bench): edit the generator, not this text -->",
+        "--readme docs/results.md` (make bench): edit the generator, not this text -->",
         "",
     ]
     if results.get("paper_tables"):
