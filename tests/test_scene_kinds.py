@@ -40,7 +40,7 @@ def test_a_scene_loads_in_both_engines_and_moves_alike(kinds, name) -> None:
     jointed = [b for b in range(1, m.nbody) if m.body_weldid[b] == b]  # the rest are welded into these
     assert sorted(ids[ids >= 0]) == jointed  # ids < 0: light bodies between two joints of one MuJoCo body
     rate, steps = 1000, 20
-    ours, theirs = kinds.OursRun(scene, rate, 4, 1e-10), kinds.MujocoRun(scene, rate, "RK4")
+    ours, theirs = kinds.OursRun(scene, rate, 4, 1e-9), kinds.MujocoRun(scene, rate, "RK4")
     start = None
     for run in (ours, theirs):
         run.start()
