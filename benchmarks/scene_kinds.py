@@ -583,12 +583,23 @@ def readme_block(results: dict) -> str:
     meta = results["meta"]
     repeats = sorted({s["repeats"] for s in scenes_.values()})
     mujoco, ours = _grid(results)
+    robots = [s["model"] for s in scenes_.values() if s["model"].endswith("(installed)")]
+    robot_text = (
+        f" The robots' files ({', '.join(r.split(' ')[0] for r in robots)}) are read where pip installed them "
+        "(the [mjcf-robots] extra), with contacts, joint limits and joint damping off and armature and frictionloss "
+        "zeroed on both sides (see `Kind` in benchmarks/scene_kinds.py for why), from joint velocities drawn "
+        "standard normal (seed 0; the reacher's times 10 rad/s, it lies flat across gravity); their free bases "
+        "fall; their tracked points are the bodies' centres of mass."
+        if robots
+        else ""
+    )
     lines = [
         "<!-- generated from benchmarks/results/scene_kinds.json by `python benchmarks/scene_kinds.py --from-json`"
         " (make bench): edit the generator, not this text -->",
         "Ratio = MuJoCo's cheapest run time per simulated second / ours, at the same trajectory error (> 1: "
         "warpimpulse is cheaper), each engine's cost read off its Pareto front by log-log interpolation. Both "
-        f"engines read the same MJCF file (benchmarks/models/; ours through {', '.join(sources)}). MuJoCo: {mujoco}; "
+        f"engines read the same MJCF file (benchmarks/models/; ours through {', '.join(sources)}).{robot_text} "
+        f"MuJoCo: {mujoco}; "
         f"ours: {ours}. Error: the largest distance of a centre of mass or leaf tip after "
         f"{' / '.join(f'{w:g}' for w in windows)} s from {'; '.join(refs)}, read from the very run that is timed; "
         f'a level under {FLOOR_MARGIN:g}x the floor is not compared. "not reached by MuJoCo" (or by warpimpulse) '
