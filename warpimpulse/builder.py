@@ -27,10 +27,10 @@ from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import SHAPE_CODES, Colliders, Shape
 from .tables import Body, Constraint, Joint, Rows, Table
-from .transforms import mul_components, quat_conj, quat_rotate, rotate_components
+from .transforms import mul_components, quat_conj, quat_mul, quat_rotate, rotate_components
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
-__all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "WORLD", "checked_material"]
+__all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "Visual", "WORLD", "checked_material"]
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
@@ -118,6 +118,37 @@ class Distance:
     axis0: np.ndarray  # body0 frame: the push direction while A and B meet (the built one, else gravity's)
     lower: float
     upper: float
+
+
+VISUAL_KINDS = ("box", "sphere", "cylinder", "capsule", "mesh")
+
+
+@dataclass
+class Visual:
+    """Display-only geometry fixed to a body (or to the world), kept on the builder for USD output: no part of
+    the motion, the mass or the contacts. Robot loaders (URDF, MJCF) fill `SceneBuilder.visuals` with these;
+    the USD writer draws each with a UsdPreviewSurface material of its colour.
+
+    body: the body index, or WORLD (-1) for geometry fixed to the world.
+    kind: one of `VISUAL_KINDS`. size (m): box (full edges x, y, z); sphere (radius, 0, 0); cylinder and capsule
+        (radius, length, 0), along the local z axis (a capsule's length is its cylinder part); mesh: the scale
+        applied to the vertices along the local x, y, z.
+    position, orientation: the geometry's frame in the body's frame (the centre of mass frame: m, (x, y, z, w)).
+    rgba: colour and opacity in [0, 1].
+    mesh_path: the file the mesh came from (for a mesh; reported, not read again).
+    vertices (k, 3), faces (f, 3): a mesh's triangles in its own frame, before the scale.
+    """
+
+    body: int
+    kind: str
+    size: tuple[float, float, float]
+    position: np.ndarray
+    orientation: np.ndarray
+    rgba: tuple[float, float, float, float] = (0.7, 0.7, 0.7, 1.0)
+    name: str = ""
+    mesh_path: str | None = None
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
 
 
 _vec = checks.vector
@@ -264,6 +295,7 @@ class SceneBuilder:
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
         self.distances: list[Distance] = []
+        self.visuals: list[Visual] = []  # display-only geometry (`add_visual`)
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
     @property
@@ -348,6 +380,9 @@ class SceneBuilder:
                 drive.name = f"world{w}/{drive.name}" if count > 1 else drive.name
                 drive.joint += w * nj
                 out.drives.append(drive)
+            for visual in copy.deepcopy(self.visuals):
+                visual.body = visual.body if visual.body == WORLD else visual.body + w * nb
+                out.visuals.append(visual)
         out.world_count = count
         return out
 
@@ -575,6 +610,43 @@ class SceneBuilder:
         """Whether each body has a colliding shape."""
         collide = np.array([s.collide for s in self._shapes] + [False], dtype=bool)
         return collide[self._bodies["shape"]]
+
+    def add_visual(
+        self, body: BodyRef, kind: str, size, position: Vec3, orientation: Quat = (0.0, 0.0, 0.0, 1.0),
+        rgba=(0.7, 0.7, 0.7, 1.0), name: str = "", mesh_path: str | None = None, vertices=None, faces=None,
+    ) -> int:  # fmt: skip
+        """Display-only geometry (`Visual`) on `body` (index, name, or None for the world), its frame given in
+        world coordinates at build time (m, (x, y, z, w)) like the joints' anchors, stored in the body's frame.
+        A mesh needs `vertices` (k, 3) and `faces` (f, 3) of triangles. Returns its index in `visuals`."""
+        what = f"visual {name or len(self.visuals)!r}"
+        self._open(what)
+        b = self._body_index(body, f"{what} body")
+        if kind not in VISUAL_KINDS:
+            raise SceneError(f"{what}: kind must be one of {VISUAL_KINDS}, got {kind!r}")
+        size = _vec(size, f"{what} size")
+        if not (np.isfinite(size).all() and (size >= 0.0).all()):
+            raise SceneError(f"{what}: size must be finite and >= 0, got {size.tolist()}")
+        rgba = checks.numbers(rgba, f"{what} rgba")
+        if rgba.shape != (4,) or not ((rgba >= 0.0) & (rgba <= 1.0)).all():
+            raise SceneError(f"{what}: rgba must be 4 numbers in [0, 1], got {rgba.tolist()}")
+        q = checks.numbers(orientation, f"{what} orientation")
+        if q.shape != (4,) or not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
+            raise SceneError(f"{what}: orientation must be a nonzero quaternion (x, y, z, w), got {q.tolist()}")
+        if kind == "mesh":
+            vertices = checks.numbers(vertices, f"{what} vertices") if vertices is not None else None
+            faces = np.asarray(faces) if faces is not None else None
+            if vertices is None or faces is None or vertices.ndim != 2 or vertices.shape[1] != 3 or \
+                    faces.ndim != 2 or faces.shape[1] != 3 or not len(faces):
+                raise SceneError(f"{what}: a mesh needs vertices (k, 3) and triangle faces (f, 3)")
+            if faces.dtype.kind not in "iu" or faces.min() < 0 or faces.max() >= len(vertices):
+                raise SceneError(f"{what}: faces must index the {len(vertices)} vertices")
+            faces = faces.astype(np.int64)
+        x, qb = self._frame(b)
+        local = quat_rotate(quat_conj(qb), _vec(position, f"{what} position") - x)
+        lq = quat_mul(quat_conj(qb), q / np.linalg.norm(q))
+        self.visuals.append(Visual(b, kind, tuple(size.tolist()), local, lq, tuple(rgba.tolist()), name, mesh_path,
+                                   vertices, faces))  # fmt: skip
+        return len(self.visuals) - 1
 
     def add_ground(
         self, height: float = 0.0, normal: Vec3 = (0.0, 0.0, 1.0), friction: float = 0.5, restitution: float = 0.0
