@@ -132,7 +132,7 @@ class Visual:
     body: the body index, or WORLD (-1) for geometry fixed to the world.
     kind: one of `VISUAL_KINDS`. size (m): box (full edges x, y, z); sphere (radius, 0, 0); cylinder and capsule
         (radius, length, 0), along the local z axis (a capsule's length is its cylinder part); mesh: the scale
-        applied to the vertices along the local x, y, z.
+        applied to the vertices along the local x, y, z (a negative one mirrors).
     position, orientation: the geometry's frame in the body's frame (the centre of mass frame: m, (x, y, z, w)).
     rgba: colour and opacity in [0, 1].
     mesh_path: the file the mesh came from (for a mesh; reported, not read again).
@@ -624,7 +624,7 @@ class SceneBuilder:
         if kind not in VISUAL_KINDS:
             raise SceneError(f"{what}: kind must be one of {VISUAL_KINDS}, got {kind!r}")
         size = _vec(size, f"{what} size")
-        if not (np.isfinite(size).all() and (size >= 0.0).all()):
+        if not (np.isfinite(size).all() and (kind == "mesh" or (size >= 0.0).all())):  # a mesh's scale may mirror
             raise SceneError(f"{what}: size must be finite and >= 0, got {size.tolist()}")
         rgba = checks.numbers(rgba, f"{what} rgba")
         if rgba.shape != (4,) or not ((rgba >= 0.0) & (rgba <= 1.0)).all():
@@ -635,8 +635,15 @@ class SceneBuilder:
         if kind == "mesh":
             vertices = checks.numbers(vertices, f"{what} vertices") if vertices is not None else None
             faces = np.asarray(faces) if faces is not None else None
-            if vertices is None or faces is None or vertices.ndim != 2 or vertices.shape[1] != 3 or \
-                    faces.ndim != 2 or faces.shape[1] != 3 or not len(faces):
+            if (
+                vertices is None
+                or faces is None
+                or vertices.ndim != 2
+                or vertices.shape[1] != 3
+                or faces.ndim != 2
+                or faces.shape[1] != 3
+                or not len(faces)
+            ):
                 raise SceneError(f"{what}: a mesh needs vertices (k, 3) and triangle faces (f, 3)")
             if faces.dtype.kind not in "iu" or faces.min() < 0 or faces.max() >= len(vertices):
                 raise SceneError(f"{what}: faces must index the {len(vertices)} vertices")
