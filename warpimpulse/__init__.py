@@ -16,6 +16,7 @@ from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
 from .threads import ThreadedSimulator
 from .types import WORLD, ConstraintKind, Quat, Vec3
+from .urdf import UrdfError, load_urdf
 from .verbosity import quiet_by_default
 from .worlds import WorldStats
 
@@ -36,12 +37,14 @@ __all__ = [
     "SingularSystemError",
     "StepStats",
     "ThreadedSimulator",
+    "UrdfError",
     "WorldStats",
     "Quat",
     "Vec3",
     "WORLD",
     "WriteError",
     "__version__",
+    "load_urdf",
     "run",
     "scenes",
     "sweep",

@@ -54,7 +54,7 @@ from .meshes import MeshError, read_mesh
 from .shapes import Shape
 from .transforms import quat_from_matrix
 
-__all__ = ["UrdfError", "load_urdf"]
+__all__ = ["UrdfError", "example_robots", "load_urdf"]
 
 MOVING = ("revolute", "continuous", "prismatic", "planar")
 JOINT_KINDS = (*MOVING, "fixed", "floating")
@@ -395,6 +395,16 @@ def load_urdf(
     path = os.fspath(path)
     report = _Report(path, ignore_unsupported)
     urdf = _Parser(path, report, list(package_dirs or []))
+    try:
+        return _build(urdf, report, floating, dict(configuration or {}), collisions, visuals, gravity)
+    except UrdfError:
+        raise
+    except SceneError as err:  # the builder's check of a link's values (an inertia that no body has)
+        raise UrdfError(f"{path}: {err}") from None
+
+
+def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, visuals, gravity) -> SceneBuilder:
+    """The builder of a parsed URDF (`load_urdf`'s arguments)."""
     links, joints = urdf.links, urdf.joints
     if not links:
         raise report.error("the robot has no <link>")
@@ -429,7 +439,6 @@ def load_urdf(
     if mimics:
         report.unsupported(f"<mimic> of joints {_names([j.name for j in mimics])} (a coupling to another joint is not "
                            "modelled; each moves on its own)")  # fmt: skip
-    configuration = dict(configuration or {})
     unknown = sorted(set(configuration) - {j.name for j in joints if j.kind in MOVING})
     if unknown:
         raise report.error(f"configuration names {_names(unknown)}, which are not revolute, continuous or prismatic "
@@ -507,8 +516,9 @@ def load_urdf(
         shape, orientation = None, rot
         if collisions:
             shape, orientation = _collision_shape(g, members[g], links, pose, com, rot, shape_notes)
+        name = next(n for n in members[g] if links[n].mass > 0.0)  # not a massless "world" frame above it
         body_of[g] = builder.add_body(mass, orientation.T @ inertia @ orientation, com, quat_from_matrix(orientation),
-                                      name=g, shape=shape)  # fmt: skip
+                                      name=name, shape=shape)  # fmt: skip
     if collisions and any(shape_notes.values()):
         parts = []
         if shape_notes["mesh"]:
@@ -619,3 +629,15 @@ def _add_visuals(builder: SceneBuilder, urdf: _Parser, order, body_of, pose, rep
     if unread:
         report.note(f"{len(unread)} visual meshes not read, drawn by their link's collision primitives (if any): "
                     + "; ".join(unread[:3]) + (f"; and {len(unread) - 3} more" if len(unread) > 3 else ""))  # fmt: skip
+
+
+def example_robots() -> str | None:
+    """The robots folder of example-robot-data (the `[robots]` extra: a cmeel wheel, no Python module; its
+    URDFs are at ROBOT_description/{urdf,robots}/NAME.urdf), or None when it is not installed."""
+    from importlib import metadata
+
+    try:
+        folder = metadata.distribution("example-robot-data").locate_file("cmeel.prefix/share/example-robot-data/robots")
+    except metadata.PackageNotFoundError:
+        return None
+    return str(folder) if os.path.isdir(str(folder)) else None
