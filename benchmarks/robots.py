@@ -105,8 +105,11 @@ def markdown(rows: list[dict], duration: float, dt: float) -> str:
             "wall time (s) | steps/s |\n|---|---:|---:|---|---|---:|---:|---:|\n")  # fmt: skip
     lines = []
     for r in rows:
-        load = {"ok": "ok", "refused": f"refused: {r['refused']}",
-                "ignore_unsupported": f"strict: refused ({r['refused']}); ran with ignore_unsupported"}[r["load"]]  # fmt: skip
+        load = {
+            "ok": "ok",
+            "refused": f"refused: {r['refused']}",
+            "ignore_unsupported": f"strict: refused ({r['refused']}); ran with ignore_unsupported",
+        }[r["load"]]
         err = max(r.get("max_step_joint_error", math.nan), r.get("max_state_joint_error", math.nan))
         run = r.get("run", "-") + (f" ({r['note']})" if r.get("note") else "")
         lines.append(f"| {r['robot']} | {r.get('bodies', '-')} | {r.get('joints', '-')} | {load.replace('|', '/')} | "
