@@ -49,12 +49,20 @@ def run_robot(path: str, duration: float, dt: float, budget: float) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         start = time.perf_counter()
+        settings = dict(collisions=False, visuals=False)
         try:
-            builder = wi.load_urdf(path, collisions=False, visuals=False)
+            try:
+                builder = wi.load_urdf(path, **settings)
+            except wi.SceneError as err:
+                if "nothing moves" not in str(err):
+                    raise
+                row["note"] = "one rigid body: run as a free body (floating=True)"
+                settings["floating"] = True
+                builder = wi.load_urdf(path, **settings)
         except wi.SceneError as err:
             row["refused"] = one_line(err)
             try:
-                builder = wi.load_urdf(path, ignore_unsupported=True, collisions=False, visuals=False)
+                builder = wi.load_urdf(path, ignore_unsupported=True, **settings)
                 row["load"] = "ignore_unsupported"
             except wi.SceneError as err2:
                 row.update(load="refused", refused=one_line(err2), load_seconds=time.perf_counter() - start)
@@ -101,23 +109,23 @@ def robot_name(path: str, root: str) -> str:
 
 
 def markdown(rows: list[dict], duration: float, dt: float) -> str:
-    head = (f"| robot | bodies | joints | load | run ({duration:g} s at h = {dt:g} s) | max joint error (m or rad) | "
-            "wall time (s) | steps/s |\n|---|---:|---:|---|---|---:|---:|---:|\n")  # fmt: skip
-    lines = []
+    """The table: one row a robot."""
+    lines = [
+        f"| robot | bodies | joints | load | run ({duration:g} s at h = {dt:g} s) | max joint error (m or rad) | "
+        "wall time (s) | steps/s |",
+        "|---|---:|---:|---|---|---:|---:|---:|",
+    ]
+    loads = {"ok": "ok", "refused": "refused: {}", "ignore_unsupported": "strict: refused ({}); ran ignoring it"}
     for r in rows:
-        load = {
-            "ok": "ok",
-            "refused": f"refused: {r['refused']}",
-            "ignore_unsupported": f"strict: refused ({r['refused']}); ran with ignore_unsupported",
-        }[r["load"]]
-        err = max(r.get("max_step_joint_error", math.nan), r.get("max_state_joint_error", math.nan))
+        load = loads[r["load"]].format(r["refused"]).replace("|", "/")
         run = r.get("run", "-") + (f" ({r['note']})" if r.get("note") else "")
-        lines.append(f"| {r['robot']} | {r.get('bodies', '-')} | {r.get('joints', '-')} | {load.replace('|', '/')} | "
-                     f"{run} | {'-' if math.isnan(err) else f'{err:.2e}'} | "
-                     f"{r['wall_seconds']:.1f} | {r['steps_per_second']:.0f} |" if "wall_seconds" in r else
-                     f"| {r['robot']} | {r.get('bodies', '-')} | {r.get('joints', '-')} | {load.replace('|', '/')} | "
-                     f"{run} | - | - | - |")  # fmt: skip
-    return head + "\n".join(lines) + "\n"
+        err = max(r.get("max_step_joint_error", math.nan), r.get("max_state_joint_error", math.nan))
+        timed = "wall_seconds" in r
+        figures = [f"{err:.2e}" if timed else "-", f"{r['wall_seconds']:.1f}" if timed else "-",
+                   f"{r['steps_per_second']:.0f}" if timed else "-"]  # fmt: skip
+        lines.append(f"| {r['robot']} | {r.get('bodies', '-')} | {r.get('joints', '-')} | {load} | {run} | "
+                     + " | ".join(figures) + " |")  # fmt: skip
+    return "\n".join(lines) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:

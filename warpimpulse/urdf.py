@@ -529,6 +529,9 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
             parts.append(f"second and further primitives of links {_names(shape_notes['extra'])}")
         report.note(f"{'; '.join(parts)} do not collide (warpimpulse collides one box, sphere, capsule or cylinder a "
                     "body, centred on its centre of mass)")  # fmt: skip
+    if not len(builder.bodies):
+        raise report.error(f"nothing moves: every link is fixed to root link {root!r}, which is fixed to the world "
+                           "(floating=True / --floating makes the robot a free body)")  # fmt: skip
     body_of = {name: body_of[group[name]] if kept[group[name]] else None for name in order}  # None: dropped
 
     # Joints between the kept bodies.
