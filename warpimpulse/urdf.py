@@ -480,18 +480,22 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
         if g != root:
             child_groups[group[parent_joint[g].parent]].append(g)
     kept: dict[str, bool] = {}
+    bridged: set[str] = set()  # massless links between hinges through one point: their hinges compose
     for g in reversed(list(members)):
-        beyond = any(kept[c] for c in child_groups[g])
+        beyond = any(kept[c] or c in bridged for c in child_groups[g])
         if (g == root and in_world) or group_mass[g] > 0.0:
             kept[g] = True
         elif not beyond or (g == root and all(parent_joint[c].kind == "floating" for c in child_groups[g])):
             kept[g] = False
+        elif g != root and _hinge_bridge(g, parent_joint[g], child_groups[g], parent_joint, pose):
+            kept[g] = False
+            bridged.add(g)
         else:
             what = f"link {g!r}" + (f" (with {_names(members[g][1:])} fixed to it)" if len(members[g]) > 1 else "")
             via = f"on joint {parent_joint[g].name!r}" if g != root else "as the free root"
             raise report.error(f"{what} has no mass {via}, and bodies move beyond it: give it an <inertial> (a body "
                                "of no mass between two joints has no exact motion)")  # fmt: skip
-    dropped = [g for g, k in kept.items() if not k]
+    dropped = [g for g, k in kept.items() if not k and g not in bridged]
     if dropped:
         report.note(f"links {_names(dropped)} have no mass and nothing with mass fixed to them: not simulated "
                     "(frames)")  # fmt: skip
@@ -537,12 +541,30 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
 
     # Joints between the kept bodies.
     frictions, actuator_limits, damped_other, stable = [], [], [], []
+    composed = []
     for j in joints:
         if j.kind in ("fixed", "floating") or group[j.child] != j.child or not kept[j.child]:
-            continue  # merged, a free child, or a dropped massless link
-        parent = None if body_of[j.parent] == WORLD else body_of[j.parent]
+            continue  # merged, a free child, or a dropped or bridged massless link
+        chain = [j]  # the hinges from the last kept body down to this one, through bridged links
+        while group[chain[0].parent] in bridged:
+            chain.insert(0, parent_joint[group[chain[0].parent]])
+        top = chain[0].parent
+        parent = None if body_of[top] == WORLD else body_of[top]
         child = body_of[j.child]
         anchor, axis = pose[j.child][:3, 3], pose[j.child][:3, :3] @ j.axis
+        if len(chain) > 1:
+            axes = [pose[c.child][:3, :3] @ c.axis for c in chain]
+            if len(chain) == 2:
+                builder.add_joint_universal(parent, child, anchor, axes[0], axes[1], name=j.name)
+            else:
+                builder.add_joint_ball(parent, child, anchor, name=j.name)
+            kind = "universal" if len(chain) == 2 else "ball"
+            lost = [c.name for c in chain if c.limited or c.damping > 0.0]
+            composed.append(f"{kind} {j.name!r} from {_names([c.name for c in chain])}"
+                            + (f" (limits and dampers of {_names(lost)} not applied)" if lost else ""))  # fmt: skip
+            frictions += [c.name for c in chain if c.friction > 0.0]
+            actuator_limits += [c.name for c in chain if c.effort is not None or c.velocity is not None]
+            continue
         if j.kind in ("revolute", "continuous"):
             k = builder.add_joint_revolute(parent, child, anchor, axis, name=j.name)
         elif j.kind == "prismatic":
@@ -565,6 +587,8 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
             actuator_limits.append(j.name)
     if frictions:
         report.note(f"joints {_names(frictions)}: <dynamics friction> (dry friction in the joint) is not modelled")
+    if composed:
+        report.note(f"hinges through one point with massless links between them composed: {'; '.join(composed)}")
     stiff = sorted(x for x in stable if x[0] < STIFF_STEP)
     if stiff:
         report.note(f"joints {_names([n for _, n in stiff])}: <dynamics damping> is stiff for the bodies it turns: "
@@ -578,6 +602,17 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
     if visuals:
         _add_visuals(builder, urdf, order, body_of, pose, report)
     return builder
+
+
+def _hinge_bridge(g: str, above: _Joint, below: list[str], parent_joint: dict, pose: dict) -> bool:
+    """Whether massless link `g` only relays a rotation: it turns on a hinge (`above`), and one hinge turns its
+    one child group about the same point (within `_CENTRED`): the serial hinges are then one joint of the
+    bodies either side (2: universal, its axes' angle kept; 3 or more: ball), exact with nothing between."""
+    hinges = ("revolute", "continuous")
+    if above.kind not in hinges or len(below) != 1 or parent_joint[below[0]].kind not in hinges:
+        return False
+    gap = np.linalg.norm(pose[g][:3, 3] - pose[below[0]][:3, 3])
+    return bool(gap <= _CENTRED * max(1.0, float(np.linalg.norm(pose[g][:3, 3]))))
 
 
 def _stable_step(builder: SceneBuilder, parent: int | None, child: int, axis: np.ndarray, damping: float) -> float:
