@@ -43,6 +43,7 @@ from .impulses import apply_body, impulse_response
 from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
+from .loop import diverging
 from .rigid import LANES, body_summary, predict_group
 
 wp.set_module_options({"enable_backward": False})
@@ -91,6 +92,8 @@ class ForceElements:
     coordinate_rest_rotation: wp.array(dtype=quatd)
     drive_element: wp.array(dtype=int)
     drive_coordinate: wp.array(dtype=int)
+    drive_chain: wp.array(dtype=wp.vec3i)
+    drive_ends: wp.array(dtype=wp.vec2i)
     drive_mode: wp.array(dtype=int)
     drive_gains: wp.array(dtype=vec3d)
     drive_max_force: wp.array(dtype=f64)
@@ -327,8 +330,8 @@ def element_wrenches(
         drive_wrench(
             e, springs, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
             el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_element,
-            el.drive_coordinate, el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target,
-            el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
+            el.drive_coordinate, el.drive_chain, el.drive_ends, el.drive_mode, el.drive_gains, el.drive_max_force,
+            el.drive_target, el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
         )  # fmt: skip
         e += 1
 
@@ -1044,7 +1047,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if err <= tolerance:
                         ok = True
                         break
-                    if tries >= max_iterations or (tries >= 3 and err > f64(1.0e3) * best):
+                    if tries >= max_iterations or diverging(err, best, tries):
                         break
                     if tries == 0 and carrying != 0:
                         carry_into_all(constraint_count, carry[row], rhs)
@@ -1356,7 +1359,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         if err <= tolerance:
                             ok = True
                             break
-                        if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
+                        if sweeps >= max_iterations or diverging(err, best, sweeps):
                             break
                         sweeps += 1
                     iterations += sweeps
@@ -1421,11 +1424,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         vbest = wp.min(vbest, verr)
                         if verr <= velocity_tolerance:
                             break
-                        if (
-                            not wp.isfinite(verr)
-                            or vsweeps >= max_iterations
-                            or (vsweeps >= 3 and verr > f64(1.0e3) * vbest)
-                        ):
+                        if not wp.isfinite(verr) or vsweeps >= max_iterations or diverging(verr, vbest, vsweeps):
                             converged = False
                             break
                         vsweeps += 1

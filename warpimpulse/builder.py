@@ -30,7 +30,17 @@ from .tables import Body, Constraint, Joint, Rows, Table
 from .transforms import mul_components, quat_conj, quat_mul, quat_rotate, rotate_components
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
-__all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "Visual", "WORLD", "checked_material"]
+__all__ = [
+    "Actuator",
+    "Body",
+    "Constraint",
+    "Joint",
+    "SceneBuilder",
+    "SceneError",
+    "Visual",
+    "WORLD",
+    "checked_material",
+]
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
@@ -86,7 +96,7 @@ class Drive:
 
     name: str
     joint: int
-    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity
+    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity, 2 effort
     target: float  # rad, m (position) or rad/s, m/s (velocity)
     kp: float
     ki: float
@@ -118,6 +128,19 @@ class Distance:
     axis0: np.ndarray  # body0 frame: the push direction while A and B meet (the built one, else gravity's)
     lower: float
     upper: float
+
+
+@dataclass
+class Actuator:
+    """A named control input that sets a motor's target as MuJoCo's `ctrl` does its actuator's:
+    target = gain * clip(control, ctrl_range) + bias (rad, m, rad/s, m/s, or N m / N in effort mode), the
+    control starting at 0. `Simulator.set_controls` sets them by name or index."""
+
+    name: str
+    drive: int  # an index into SceneBuilder.drives (a motor)
+    gain: float
+    bias: float
+    ctrl_range: tuple[float, float] = (-math.inf, math.inf)
 
 
 VISUAL_KINDS = ("box", "sphere", "cylinder", "capsule", "mesh")
@@ -296,6 +319,8 @@ class SceneBuilder:
         self.limits: list[Limit] = []
         self.distances: list[Distance] = []
         self.visuals: list[Visual] = []  # display-only geometry (`add_visual`)
+        self.actuators: list[Actuator] = []  # named control inputs of motors (`add_actuator`)
+        self.chains: list[tuple[int, ...]] = []  # joints in series through light bodies (`chain_joints`)
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
     @property
@@ -380,6 +405,11 @@ class SceneBuilder:
                 drive.name = f"world{w}/{drive.name}" if count > 1 else drive.name
                 drive.joint += w * nj
                 out.drives.append(drive)
+            for actuator in copy.deepcopy(self.actuators):
+                actuator.name = f"world{w}/{actuator.name}" if count > 1 else actuator.name
+                actuator.drive += w * len(self.drives)
+                out.actuators.append(actuator)
+            out.chains += [tuple(j + w * nj for j in chain) for chain in self.chains]
             for visual in copy.deepcopy(self.visuals):
                 visual.body = visual.body if visual.body == WORLD else visual.body + w * nb
                 out.visuals.append(visual)
@@ -877,6 +907,8 @@ class SceneBuilder:
 
     def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions and orientations of bodies `b` (the world's origin and identity for WORLD)."""
+        if not self._bodies.count:  # only the world yet
+            return np.zeros((len(b), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(b), 1))
         at = np.maximum(b, 0)
         x, q = self._bodies["position"][at], self._bodies["orientation"][at]
         world = b == WORLD
@@ -976,11 +1008,14 @@ class SceneBuilder:
         step the joint turns by h target exactly (velocity mode) or reaches the target (position mode), with an
         impulse of at most max_force h, solved with the joints and limits (`kernels/limits.py`), stable at any
         stiffness. Use the PID for compliant, tuned servos on bodies heavy enough; `stiff` for a speed or
-        angle that must hold, or a light body."""
+        angle that must hold, or a light body. "effort" mode applies the target itself as the torque or force
+        (the gains unused, still clamped to +-max_force): a plain motor, MuJoCo's `motor` actuator."""
         j = self._coordinate_joint(joint, "a motor")
         what = f"joint {self.joints[j].name!r}: motor"
         if mode not in DRIVE_MODES:
             raise SceneError(f"{what} mode must be one of {DRIVE_MODES}, got {mode!r}")
+        if stiff and mode == "effort":
+            raise SceneError(f"{what}: an effort motor is a force, not a stiff constraint")
         kp, ki, kd = (_nonnegative(g, f"{what} {n}") for g, n in ((kp, "kp"), (ki, "ki"), (kd, "kd")))
         max_force = checks.real(max_force, f"{what} max_force")
         if not max_force > 0.0:
@@ -989,6 +1024,79 @@ class SceneBuilder:
         drive = Drive(f"{self.joints[j].name}.motor", j, DRIVE_MODES.index(mode), target, kp, ki, kd, max_force,
                       motor=True, stiff=bool(stiff))  # fmt: skip
         return self._add_drive(drive)
+
+    def add_actuator(self, motor: int, gain: float = 1.0, bias: float = 0.0, ctrl_range=None, name=None) -> int:
+        """A named control input of motor `motor` (`add_motor`'s index): its target becomes
+        gain * clip(control, ctrl_range) + bias, and is that at control 0 from the start (`Actuator`). Returns
+        its index for `Simulator.set_controls`."""
+        name = name or f"actuator{len(self.actuators)}"
+        what = f"actuator {name!r}"
+        self._open(what)
+        motors = [i for i, d in enumerate(self.drives) if d.motor]
+        if isinstance(motor, bool) or not isinstance(motor, (int, np.integer)) or not 0 <= motor < len(motors):
+            raise SceneError(f"{what}: motor {motor!r} does not exist ({len(motors)} motors)")
+        if any(a.name == name for a in self.actuators):
+            raise SceneError(f"{what}: an actuator of that name already exists")
+        gain, bias = _finite(gain, f"{what} gain"), _finite(bias, f"{what} bias")
+        low, high = (-math.inf, math.inf) if ctrl_range is None else (checks.real(x, f"{what} ctrl_range")
+                                                                      for x in ctrl_range)  # fmt: skip
+        if not low <= high:
+            raise SceneError(f"{what}: ctrl_range [{low}, {high}] is empty")
+        drive = motors[motor]
+        self.drives[drive].target = gain * min(max(0.0, low), high) + bias
+        self.actuators.append(Actuator(name, drive, gain, bias, (low, high)))
+        return len(self.actuators) - 1
+
+    def chain_joints(self, joints: Sequence[int]) -> None:
+        """Joints in series between two bodies through light bodies (each joint's child the next one's parent), as
+        MJCF's several joints in one body: a joint spring or PID motor on one of them acts on the chain's two end
+        bodies, not on the light bodies, along the direction that does work on its own coordinate only (the
+        reciprocal of the chain's axes of its kind; a force at the hinges' common anchor). With the light bodies
+        massless that is the same motion, and no force falls on a body of almost no inertia (which would make
+        the explicit prediction unstable)."""
+        self._open("chain_joints")
+        chain = tuple(int(j) for j in joints)
+        if len(chain) < 2 or not all(0 <= j < len(self.joints) for j in chain):
+            raise SceneError(f"chain_joints: two or more existing joints are expected, got {joints!r}")
+        for a, b in zip(chain, chain[1:]):
+            if self.joints[a].child != self.joints[b].parent:
+                raise SceneError(f"chain_joints: joint {self.joints[b].name!r} does not start where "
+                                 f"{self.joints[a].name!r} ends")  # fmt: skip
+        if any(set(chain) & set(c) for c in self.chains):
+            raise SceneError(f"chain_joints: joint {self.joints[chain[0]].name!r} is in a chain already")
+        self.chains.append(chain)
+
+    def _drive_chains(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each drive's (sibling joint, sibling joint, anchor joint) and (body, body) for `Model` (drive_chain,
+        drive_ends): for a drive on a chained joint, the chain's other joints of its kind, the hinge whose
+        anchor a force acts at, and the chain's ends; checked that the direction exists."""
+        j = self._joints
+        chain = np.array([(-1, -1, d.joint) for d in self.drives], dtype=np.int64).reshape(-1, 3)
+        ends = np.array([(j["parent"][d.joint], j["child"][d.joint]) for d in self.drives], dtype=np.int64)
+        of = {joint: c for c in self.chains for joint in c}
+        kinds = self.joint_types()
+        for i, drive in enumerate(self.drives):
+            links = of.get(drive.joint)
+            if links is None:
+                continue
+            what = f"drive {drive.name!r} on chain {[kinds[k] for k in links]}"
+            if "ball" in (kinds[k] for k in links):
+                raise SceneError(f"{what}: a chain with a ball joint takes no joint springs or motors")
+            same = [k for k in links if kinds[k] == kinds[drive.joint] and k != drive.joint]
+            hinges = [k for k in links if kinds[k] == "revolute"]
+            if len(same) > 2:
+                raise SceneError(f"{what}: more than three joints of one kind")
+            axes = j["axis"][[drive.joint, *same]]
+            if abs(np.linalg.det(axes @ axes.T)) < 1e-9:
+                raise SceneError(f"{what}: the chain's axes of its kind are dependent")
+            if kinds[drive.joint] == "prismatic" and hinges:
+                anchors = j["anchor"][hinges]
+                if np.abs(anchors - anchors[0]).max() > 1e-9:
+                    raise SceneError(f"{what}: a force along a chain needs its hinges' anchors to coincide")
+            chain[i] = (*(same + [-1, -1])[:2], hinges[0] if kinds[drive.joint] == "prismatic" and hinges else
+                        drive.joint)  # fmt: skip
+            ends[i] = (j["parent"][links[0]], j["child"][links[-1]])
+        return chain, ends.reshape(-1, 2)
 
     def mark_loop_joint(self, joint) -> None:
         """Close a kinematic loop with `joint` where the spanning tree has a choice (method paper, section 4.6;
@@ -1176,6 +1284,7 @@ class SceneBuilder:
             drive_max_force=np.array([x.max_force for x in drives]),
             drive_motor=np.array([x.motor for x in drives], dtype=bool),
             drive_stiff=np.array([x.stiff for x in drives], dtype=bool),
+            **dict(zip(("drive_chain", "drive_ends"), self._drive_chains())),
             limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
             limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
             joint_loop=self._joints["loop"].copy(),
@@ -1183,6 +1292,9 @@ class SceneBuilder:
             distance_body=np.array([(x.body0, x.body1) for x in self.distances], dtype=np.int64).reshape(-1, 2),
             distance_anchor=np.array([(x.anchor0, x.anchor1, x.axis0) for x in self.distances]).reshape(-1, 3, 3),
             distance_bounds=np.array([(x.lower, x.upper) for x in self.distances]).reshape(-1, 2),
+            actuator_name=[a.name for a in self.actuators],
+            actuator_drive=np.array([a.drive for a in self.actuators], dtype=np.int64),
+            actuator_map=np.array([(a.gain, a.bias, *a.ctrl_range) for a in self.actuators]).reshape(-1, 4),
         )
 
     def _check_arrays(self) -> None:

@@ -29,6 +29,7 @@ AUTO_ON_OFF = {"auto": None, "on": True, "off": False}  # a switch's choices on 
 
 DEFAULT_DURATION = 10.0  # s, without --duration and without a time range in the scene file
 DEFAULT_FPS = 30.0  # without --fps, for built-in scenes
+MJCF_SUFFIXES = (".xml", ".mjcf")  # MuJoCo models (`mjcf.load_mjcf`); any other input is read as USD
 
 
 def _positive(kind):
@@ -46,7 +47,8 @@ def _positive(kind):
 
 def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scene and write USD animation")
-    p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc); or use --scene")
+    p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc) or a MuJoCo model (.xml, "
+                   "needs the [mjcf] extra); or use --scene")  # fmt: skip
     p.add_argument("--scene", choices=sorted(SCENES), help="a built-in procedural scene (default: tree127)")
     p.add_argument("--out", "-o", type=Path, help="output USD file (default: out/<scene>.usdc)")
     p.add_argument("--duration", type=_positive(float),
@@ -93,8 +95,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
     p.add_argument("--ignore-unsupported", action="store_true",
-                   help="drop what is not simulated (cone limits, break forces, ...) with a warning instead of "
-                   "stopping")  # fmt: skip
+                   help="drop what is not simulated (cone limits, break forces, MJCF tendons, ...) with a warning "
+                   "instead of stopping")  # fmt: skip
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")
@@ -128,16 +130,14 @@ def _load_robot_or_scene(source: Path, args) -> tuple:
             builder = load_urdf(source, ignore_unsupported=args.ignore_unsupported, floating=args.floating,
                                 collisions=not args.no_collisions)  # fmt: skip
             return builder, None
-        if ext == ".xml":
-            try:
-                from .mjcf import load_mjcf
-            except ImportError:
-                raise SceneError(f"{source}: MJCF input needs warpimpulse.mjcf, which this build lacks") from None
+        if ext in MJCF_SUFFIXES:
+            from .mjcf import load_mjcf
+
             return load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported), None
         if ext in (".usd", ".usda", ".usdc"):
             scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
             return scene.builder, scene.dt
-    raise SceneError(f"{source}: not a .urdf, .xml (MJCF) or .usd/.usda/.usdc file")
+    raise SceneError(f"{source}: not a .urdf, an MJCF {'/'.join(MJCF_SUFFIXES)} or a .usd/.usda/.usdc file")
 
 
 def _convert(args) -> int:
@@ -272,21 +272,28 @@ def _simulate(args) -> int:
     checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
     if args.duration is not None and args.fps is not None:
         _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
+    stage = None  # a USD scene file's (its time range and step size)
     if args.input:
         source = Path(args.input)
         if not source.is_file():
             raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
         with warnings.catch_warnings():  # what --ignore-unsupported drops: one line each, no source excerpt
             warnings.showwarning = lambda message, *_: print(f"warpimpulse: warning: {message}", file=sys.stderr)
-            scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
-        builder, name = scene.builder, source.stem
+            if source.suffix.lower() in MJCF_SUFFIXES:
+                from .mjcf import load_mjcf
+
+                builder = load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported)
+            else:
+                stage = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+                builder = stage.builder
+        name = source.stem
     else:
         name = args.scene or "tree127"
         builder = SCENES[name]()
-        scene = builder
-    args.duration, args.fps = _timing(args, scene if args.input else None)
+    scene = stage or builder
+    args.duration, args.fps = _timing(args, stage)
     _refuse_no_frame(args.duration, args.fps)
-    file_dt = scene.dt if args.input else None  # a scene file may record the step size it needs
+    file_dt = stage.dt if stage else None  # a scene file may record the step size it needs
     dt = args.dt if args.dt is not None else (file_dt or 1.0 / args.fps)
     try:
         run.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work

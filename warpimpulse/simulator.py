@@ -36,7 +36,7 @@ from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
 from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
-from .steps import SimulationError, StepStats
+from .steps import SimulationError, StepStats, diverging
 from .transforms import quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
@@ -676,6 +676,37 @@ class Simulator:
         values[drive] = target
         self.drive_target.assign(values)
 
+    def set_controls(self, values) -> None:
+        """Set actuators' inputs as MuJoCo's `ctrl` does (`SceneBuilder.add_actuator`, `load_mjcf`): `values` is
+        one number per actuator in order, or {name or index: value} for some of them (the others keep theirs).
+        Each sets its motor's target to gain * clip(value, ctrl range) + bias, held until set again."""
+        m = self.model
+        names, h = m.actuator_name, m.host
+        if isinstance(values, dict):
+            items = list(values.items())
+        else:
+            arr = checks.numbers(values, "set_controls: values").reshape(-1)
+            if len(arr) != len(names):
+                raise ValueError(f"set_controls: {len(names)} actuators, got {len(arr)} values")
+            items = list(enumerate(arr.tolist()))
+        rows, controls = [], []
+        for key, value in items:
+            if isinstance(key, str):
+                if key not in names:
+                    raise ValueError(f"set_controls: no actuator named {key!r}")
+                key = names.index(key)
+            if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or not 0 <= key < len(names):
+                raise ValueError(f"set_controls: actuator {key!r} does not exist ({len(names)} actuators)")
+            value = float(value)
+            if not math.isfinite(value):
+                raise ValueError(f"set_controls: actuator {names[key]!r}: control must be finite, got {value}")
+            rows.append(int(key))
+            controls.append(value)
+        gain, bias, low, high = h.actuator_map[rows].T
+        targets = self.drive_target.numpy()
+        targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
+        self.drive_target.assign(targets)
+
     @staticmethod
     def _checked(values, shape, what) -> np.ndarray:
         arr = checks.numbers(values, what)
@@ -1299,8 +1330,8 @@ class Simulator:
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
         (the velocity correction's solve), said as such."""
-        diverging = iterations >= 3 and error > 1e3 * best
-        if iterations < self.max_iterations and not diverging:
+        diverges = diverging(error, best, iterations)
+        if iterations < self.max_iterations and not diverges:
             return True
         if not final:
             return False
@@ -1318,7 +1349,7 @@ class Simulator:
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         if stopped:
             failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
-        elif diverging:
+        elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"

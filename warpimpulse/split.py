@@ -47,6 +47,7 @@ from .model import Model
 from .options import take as take_options
 from .pool import run_shared
 from .simulator import Simulator
+from .steps import diverging
 
 SEPARATOR = -1
 MAX_SEPARATOR = 64  # bodies
@@ -328,7 +329,7 @@ class SplitSimulator(Simulator):
                 if err <= self.tolerance:
                     ok = True
                     break
-                if iterations >= self.max_iterations or (iterations >= 3 and err > 1.0e3 * best):
+                if iterations >= self.max_iterations or diverging(err, best, iterations):
                     break
                 self._phase(self._iterate_graphs if iterations else self._first_graphs)
                 err = self._combined(OUT_ERROR)
