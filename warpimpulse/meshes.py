@@ -1,40 +1,51 @@
 """Triangle meshes from files, for display (`Visual` records of robot loaders): STL (binary and ASCII) and
 Wavefront OBJ by the small readers here, Collada (.dae) through `pycollada` when it is installed (the
 `[robots]` extra). Vertices in metres as the file gives them (a Collada file's <unit> applied), faces as
-triangles (polygons fanned).
+triangles (polygons fanned), and a Collada file's own colour for a visual the URDF gives none.
 """
 
 from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 MESH_EXTENSIONS = (".stl", ".obj", ".dae")
 
 
+@dataclass
+class Mesh:
+    """Triangles: vertices (k, 3) float64 (m), faces (f, 3) int64, and the file's own colour (RGBA) if it has
+    one (Collada materials)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    rgba: tuple[float, float, float, float] | None = None
+
+
 class MeshError(ValueError):
     """A mesh file that cannot be read; the message names the file and why."""
 
 
-def read_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (k, 3) float64, faces (f, 3) int64) of the mesh file at `path`."""
+def read_mesh(path: str) -> Mesh:
+    """The triangle mesh in the file at `path`."""
     ext = os.path.splitext(path)[1].lower()
     if ext not in MESH_EXTENSIONS:
         raise MeshError(f"{path}: {ext or 'no extension'} meshes are not read (STL, OBJ and Collada are)")
     if not os.path.isfile(path):
         raise MeshError(f"{path}: no such file")
     reader = {".stl": _read_stl, ".obj": _read_obj, ".dae": _read_dae}[ext]
-    vertices, faces = reader(path)
-    if not len(faces):
+    mesh = reader(path)
+    if not len(mesh.faces):
         raise MeshError(f"{path}: the mesh has no triangles")
-    if not np.isfinite(vertices).all():
+    if not np.isfinite(mesh.vertices).all():
         raise MeshError(f"{path}: a vertex is NaN or Inf")
-    return vertices, faces
+    return mesh
 
 
-def _read_stl(path: str) -> tuple[np.ndarray, np.ndarray]:
+def _read_stl(path: str) -> Mesh:
     """Binary STL (80-byte header, a count, 50 bytes a triangle) or ASCII ("solid ... facet ... vertex")."""
     with open(path, "rb") as f:
         data = f.read()
@@ -43,7 +54,7 @@ def _read_stl(path: str) -> tuple[np.ndarray, np.ndarray]:
         if len(data) == 84 + 50 * count:
             record = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
             tri = np.frombuffer(data, dtype=record, count=count, offset=84)["v"].astype(np.float64)
-            return tri.reshape(-1, 3), np.arange(3 * count, dtype=np.int64).reshape(-1, 3)
+            return Mesh(tri.reshape(-1, 3), np.arange(3 * count, dtype=np.int64).reshape(-1, 3))
     if not data.lstrip().lower().startswith(b"solid"):
         raise MeshError(f"{path}: neither a binary STL (size does not match its triangle count) nor an ASCII one")
     words = data.split()
@@ -54,10 +65,10 @@ def _read_stl(path: str) -> tuple[np.ndarray, np.ndarray]:
         raise MeshError(f"{path}: a malformed ASCII STL vertex") from None
     if len(vertices) % 3:
         raise MeshError(f"{path}: {len(vertices)} ASCII STL vertices are not whole triangles")
-    return vertices.reshape(-1, 3), np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
+    return Mesh(vertices.reshape(-1, 3), np.arange(len(vertices), dtype=np.int64).reshape(-1, 3))
 
 
-def _read_obj(path: str) -> tuple[np.ndarray, np.ndarray]:
+def _read_obj(path: str) -> Mesh:
     """The 'v' and 'f' lines of a Wavefront OBJ (negative indices relative, polygons fanned into triangles)."""
     vertices: list[list[float]] = []
     faces: list[tuple[int, int, int]] = []
@@ -79,11 +90,12 @@ def _read_obj(path: str) -> tuple[np.ndarray, np.ndarray]:
     fc = np.array(faces, dtype=np.int64).reshape(-1, 3)
     if len(fc) and (fc.min() < 0 or fc.max() >= len(v)):
         raise MeshError(f"{path}: a face indexes a vertex that does not exist ({len(v)} vertices)")
-    return v, fc
+    return Mesh(v, fc)
 
 
-def _read_dae(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """The triangles of a Collada scene, each placed by its node transforms and scaled by the <unit>."""
+def _read_dae(path: str) -> Mesh:
+    """The triangles of a Collada scene, each placed by its node transforms and scaled by the <unit>, and the
+    diffuse colour of the material that covers most of them (a mesh takes one colour)."""
     try:
         import collada
         from collada.common import DaeBrokenRefError, DaeUnsupportedError
@@ -103,17 +115,22 @@ def _read_dae(path: str) -> tuple[np.ndarray, np.ndarray]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PendingDeprecationWarning)
         bound = [prim for geometry in scene.objects("geometry") for prim in geometry.primitives()]
+    colours: dict[tuple, int] = {}  # each material's diffuse colour, by the triangles it covers
     for prim in bound:
-        if True:
-            if not isinstance(prim, (collada.triangleset.BoundTriangleSet, collada.polylist.BoundPolylist,
-                                     collada.polygons.BoundPolygons)):  # fmt: skip
-                continue  # lines and points draw nothing as a surface
-            tris = prim if isinstance(prim, collada.triangleset.BoundTriangleSet) else prim.triangleset()
-            if tris.vertex is None or not len(tris.vertex_index):
-                continue
-            vertices.append(np.asarray(tris.vertex, dtype=np.float64))
-            faces.append(np.asarray(tris.vertex_index, dtype=np.int64).reshape(-1, 3) + count)
-            count += len(vertices[-1])
+        if not isinstance(prim, (collada.triangleset.BoundTriangleSet, collada.polylist.BoundPolylist,
+                                 collada.polygons.BoundPolygons)):  # fmt: skip
+            continue  # lines and points draw nothing as a surface
+        tris = prim if isinstance(prim, collada.triangleset.BoundTriangleSet) else prim.triangleset()
+        if tris.vertex is None or not len(tris.vertex_index):
+            continue
+        vertices.append(np.asarray(tris.vertex, dtype=np.float64))
+        faces.append(np.asarray(tris.vertex_index, dtype=np.int64).reshape(-1, 3) + count)
+        count += len(vertices[-1])
+        diffuse = getattr(getattr(getattr(prim, "material", None), "effect", None), "diffuse", None)
+        if isinstance(diffuse, tuple) and len(diffuse) in (3, 4):  # a colour, not a texture map
+            rgba = tuple(float(np.clip(c, 0.0, 1.0)) for c in (*diffuse[:3], diffuse[3] if len(diffuse) == 4 else 1))
+            colours[rgba] = colours.get(rgba, 0) + len(faces[-1])
     if not faces:
         raise MeshError(f"{path}: the Collada scene has no triangles")
-    return np.concatenate(vertices) * unit, np.concatenate(faces)
+    rgba = max(colours, key=colours.get) if colours else None
+    return Mesh(np.concatenate(vertices) * unit, np.concatenate(faces), rgba)

@@ -29,7 +29,8 @@ The mapping (URDF spec: wiki.ros.org/urdf/XML):
 - collision box / sphere / cylinder / capsule -> the body's collision shape when it is the body's only one and
   centred on its centre of mass (our shapes are centred there); mesh collisions and off-centre or extra
   primitives -> one warning naming the links;
-- <visual> box / sphere / cylinder / mesh with the material's colour -> `SceneBuilder.visuals` (display only);
+- <visual> box / sphere / cylinder / mesh with the material's colour (a Collada mesh without one: the file's
+  own) -> `SceneBuilder.visuals` (display only);
   meshes resolved from package://PKG/... (an ancestor folder named PKG, one holding PKG, `package_dirs`,
   ROS_PACKAGE_PATH), file:// and relative paths, read by `meshes.read_mesh`; one that cannot be read is drawn by
   the link's primitive collision geometry, with a warning naming the file.
@@ -671,7 +672,7 @@ def _add_visuals(builder: SceneBuilder, urdf: _Parser, order, body_of, pose, rep
             q = quat_from_matrix(world[:3, :3])
             if geo.kind == "mesh":
                 try:
-                    v, f = read_mesh(geo.mesh)
+                    mesh = read_mesh(geo.mesh)
                 except MeshError as exc:
                     unread.append(str(exc))
                     for c, proxy in enumerate(g for g in link.collisions if g.kind != "mesh"):
@@ -679,8 +680,9 @@ def _add_visuals(builder: SceneBuilder, urdf: _Parser, order, body_of, pose, rep
                         builder.add_visual(body, proxy.kind, proxy.size, w[:3, 3], quat_from_matrix(w[:3, :3]), rgba,
                                            name=f"{what}/proxy{c}")  # fmt: skip
                     continue
+                rgba = geo.rgba or mesh.rgba or rgba  # the URDF's colour, else the file's own
                 builder.add_visual(body, "mesh", geo.scale, world[:3, 3], q, rgba, name=what, mesh_path=geo.mesh,
-                                   vertices=v, faces=f)  # fmt: skip
+                                   vertices=mesh.vertices, faces=mesh.faces)  # fmt: skip
             else:
                 size = geo.size if geo.kind != "sphere" else (geo.size[0], 0.0, 0.0)
                 builder.add_visual(body, geo.kind, size, world[:3, 3], q, rgba, name=what)
