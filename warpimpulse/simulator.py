@@ -17,28 +17,22 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from . import capabilities, checks, composition, coordinates, diagnose
+from . import capabilities, checks, composition, diagnose
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
-from .kernels import carry as carry_kernels
 from .kernels import constraints as constraint_kernels
-from .kernels import forces as force_kernels
-from .kernels import impulses as impulse_kernels
-from .kernels import inertia as inertia_kernels
-from .kernels import iterative as iterative_kernels
 from .kernels import limits as limit_kernels
 from .kernels import loop as loop_kernels
-from .kernels import rigid as rigid_kernels
 from .kernels import step as step_kernels
-from .kernels import worlds as world_kernels
-from .launch import Launches, capture, record, run
+from .launch import record, run
 from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
+from .readout import Readout
+from .recording import Recording
 from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
 from .steps import SimulationError, StepStats, diverging
-from .transforms import quat_rotate, quat_to_matrix
-from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
+from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
@@ -76,7 +70,7 @@ def _combined(parts: list[StepStats]) -> StepStats:
     )
 
 
-class Simulator:
+class Simulator(Readout, Recording):
     """Steps a Model in time with the impulse method; reads and writes its State as numpy arrays.
 
     Frames: positions, velocities and angular velocities are world frame; quaternions are (x, y, z, w).
@@ -325,7 +319,7 @@ class Simulator:
         self._update_frames()
         self._check_finite(self.state, 0)
 
-    # ---------------------------------------------------------------- launches
+    # ---------------------------------------------------------------- options the scene decides
     @property
     def _split_systems(self) -> bool:
         """Whether the Cholesky solver factors the tree's and the loop joints' systems apart (formulation "split",
@@ -344,143 +338,6 @@ class Simulator:
             (m.world_count > 1, "batched worlds"),
         )
         return ", ".join(why for needed, why in reasons if needed)
-
-    def _record(self, kernel, dim: int, data_in: State | None = None, data_out: State | None = None, **values):
-        """A recorded launch whose parameters are bound by name to the Model, Frames, Control and the
-        simulator's scratch arrays (`launch.record`)."""
-        sources = (self.model, self.frames, self.control, self)
-        return record(kernel, dim, self.model.device, sources, data_in, data_out, **values)
-
-    def _capture(self, *work) -> wp.Graph:
-        return capture(self.model.device, *work)
-
-    def _record_launches(self) -> None:
-        s, (nb, nc) = self.state, self._counts
-        self._rows = self._row_arrays()  # one struct for both schedules' row launches
-        self._inertia = self._record(inertia_kernels.world_inverse_inertia, nb, s)
-        self._frames = self._record(self.kernels.frames, nc, s)
-        self._velocity_errors = self._record(self.kernels.velocity_errors, nc, s)
-        self._apply = self._record(impulse_kernels.apply_impulses, nb, data_out=s)
-        self._sweep_velocities = self._record(iterative_kernels.sweep_velocities, 1, s, s, constraint_count=nc)
-        self._check_states = {id(st): self._record(rigid_kernels.summarize_state, nb, st) for st in (s, self.pred)}
-        # Batched worlds: per-world summaries, and right-hand sides masked to the worlds still iterating.
-        self._world_checks = {}
-        self._mask = []
-        if self.batch is not None:
-            self._world_checks = {id(st): self._record(world_kernels.summarize_worlds, nb, st) for st in (s, self.pred)}
-            self._mask = [self._record(world_kernels.mask_worlds, nc, rhs=self.rhs)]
-        prepare = self.linear.prepare_launches if self.linear is not None else []
-        frames = [self._inertia, self._frames, *prepare, *self._limit_system_launches()]
-        self._frames_graph = self._capture(*frames)
-        # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
-        self._accept_work = (lambda: self.state.copy_from(self.pred), *frames)
-        self._accept_graph = self._capture(*self._accept_work)
-        self._save_velocities = self._capture(
-            lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w), self.limit_impulse.zero_
-        )
-        self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
-        if self._direct:
-            solve = self.linear.solve_launches(self.rhs, self.impulse)
-            self._velocity_fix_work = (*self._mask, *solve, self._apply, self._velocity_errors)
-            self._velocity_fix = self._capture(*self._velocity_fix_work)
-        self._use_step_size(self.dt)
-
-    def _limit_system_launches(self) -> list:
-        """The rows' system S (limits and stiff motors) with the joints holding, at the current state and factor
-        (`kernels/limits.py`): one solve with the factor per row; with CG (no factor to reuse) the free bodies'
-        mobility."""
-        s, nl, nc = self.state, self.model.limit_count, self.model.constraint_count
-        if nl == 0:
-            return []
-        coupled = isinstance(self.linear, CholeskySolver)
-        launches = [self._record(limit_kernels.limit_sides, nl, s)]
-        if coupled:
-            launches.append(self._record(limit_kernels.limit_coupling, (nl, nc), s))
-            for l in range(nl):
-                rows = slice(l * nc, (l + 1) * nc)
-                launches += self.linear.solve_launches(self.limit_coupling[rows], self.limit_response[rows])
-        launches.append(self._record(limit_kernels.limit_matrix, (nl, nl), s, coupled=int(coupled)))
-        return launches
-
-    def _use_step_size(self, h: float) -> None:
-        """Point the launches that depend on the step size at h (recorded once per h, then cached)."""
-        if h not in self._launches_by_h:
-            s, p, (nb, nc) = self.state, self.pred, self._counts
-            if self._forced:
-                predict = self._coupled_prediction(h)
-            else:
-                group = rigid_kernels.LANES if self.model.device.is_cpu else 1  # bodies a thread
-                predict = self._record(rigid_kernels.predict, -(-nb // group), s, p, h=h, group_size=group)
-            integrate = self._record(force_kernels.integrate_drives, self.model.drive_count, s, h=h)
-            errors = self._record(self.kernels.position_errors, nc, p, inv_h=1.0 / h)
-            sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
-            # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
-            start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
-            limits = self._record(limit_kernels.limit_errors, self.model.limit_count, p, h=h, rows=self._rows, **start)
-            measure = [errors, limits, self.summary.zero_, self._check_states[id(p)]]
-            if self.batch is not None:
-                measure += [self.world_summary.zero_, self._world_checks[id(p)]]
-            nl, coupled = self.model.limit_count, int(self._direct)
-            correct_limits, correct_limit_velocities = (
-                self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, coupled=coupled, h=h,
-                             body_v=s.body_v, body_w=s.body_w, rows=self._rows)
-                for v in (0, 1)
-            )  # fmt: skip
-            iterate = iteration = iterate_first = first_iteration = None
-            if self._direct:  # solve, apply at t0, predict again, measure
-                solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iteration = (*self._mask, *solve, self._apply, correct_limits, predict, *measure)
-                iterate = iterate_first = self._capture(*iteration)
-                first_iteration = iteration
-                carry_in, newton, carry_out = [], [], []
-                if self.carry:  # the first solves rhs + c, then measures the next c (`carry`)
-                    c, c_next = self._carry_arrays(h)
-                    carry_in = [self._record(carry_kernels.carry_in, nc, carry=c, rhs_out=self.rhs)]
-                    carry_out = [self._record(carry_kernels.carry_out, nc, carry=c, rhs_in=self.rhs,
-                                              carry_next_out=c_next)]  # fmt: skip
-                if self.newton:  # the first solves again with rhs - E lambda (`newton`)
-                    newton = [
-                        self._record(impulse_kernels.impulse_responses, nb, s),
-                        self._record(self.kernels.arm_corrections, nc, p, h=h),
-                        *self.linear.solve_launches(self.newton_rhs, self.impulse),
-                    ]
-                if carry_in or newton:
-                    first_iteration = (*carry_in, *self._mask, *solve, *newton, self._apply, correct_limits, predict,
-                                       *measure, *carry_out)  # fmt: skip
-                    iterate_first = self._capture(*first_iteration)
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
-                                      iterate_first, ((predict, *measure), first_iteration, iteration), integrate,
-                                      correct_limits, correct_limit_velocities)  # fmt: skip
-        (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
-         self._iterate_first, self._loop_work, self._integrate_drives, self._correct_limits,
-         self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
-        self._h = h
-
-    def _carry_arrays(self, h: float) -> tuple[wp.array, wp.array]:
-        """(c, the c measured in the step) for steps of h (`carry`): a stage's rows at dt, which the fused kernel
-        shares, or arrays of their own for a halved or split step size."""
-        if h in self._carry_rows:
-            r = self._carry_rows[h]
-            return self._carry[r], self._carry_next[r]
-        if h not in self._carry_other:
-            c = wp.zeros(self.model.constraint_count, dtype=wp.vec3d, device=self.model.device)
-            self._carry_other[h] = (c, wp.zeros_like(c))
-        return self._carry_other[h]
-
-    def _keep_carry(self, h: float) -> None:
-        """A kept step of h whose first solve ran: its c becomes the value it measured (`carry`)."""
-        wp.copy(*self._carry_arrays(h))
-
-    def _carries(self) -> dict[float, wp.array]:
-        """c of every step size that has one (`carry`)."""
-        return {h: self._carry_arrays(h)[0] for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
-
-    def _forget_carry(self, world: int | None = None) -> None:
-        """No c to carry, for one world or all: its state was set from outside the step (`reset`, `set_state`)."""
-        nc = self.model.world_constraint_count
-        rows = slice(None) if world is None else slice(world * nc, (world + 1) * nc)
-        for c in self._carries().values():
-            c[rows].zero_()
 
     def _device_loops(self) -> tuple[wp.Graph, wp.Graph | None, wp.Graph | None] | None:
         """The parallel schedule's loops at the current step size as graphs decided on the device (captured
@@ -542,41 +399,6 @@ class Simulator:
         record = self.loop_state.numpy()[0]
         last, best = float(record[loop_kernels.LOOP_LAST]), float(record[loop_kernels.LOOP_BEST])
         return last, best, int(record[loop_kernels.LOOP_ITERATIONS])
-
-    def _coupled_prediction(self, h: float) -> Launches:
-        """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""
-        m, s, p, stage = self.model, self.state, self.pred, self._stage
-        start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
-        launches = []
-        for k in range(4):
-            at = s if k == 0 else stage
-            launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
-            launches.append(
-                self._record(force_kernels.drive_wrenches, m.force_drive_count, at, row_offset=m.spring_count)
-            )
-            launches.append(
-                self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
-            )
-        return Launches(launches)
-
-    def prepare_substeps(self) -> None:
-        """Record the launches of every substep size a step may take (dt / 2**k, k <= max_substep_depth) now,
-        instead of on first use: recording captures graphs, and a capture on a CPU takes in every launch of the
-        process, so threads that step simulators at once (`threads.py`) must find nothing left to capture."""
-        for k in range(self.max_substep_depth + 1):
-            self._use_step_size(self.dt / 2**k)
-            self._device_loops()
-            if self.batch is not None:
-                self.batch.device_loop()
-        self._use_step_size(self.dt)
-        if self.schedule == "fused":  # and the fused kernel's launch (a one-world share steps by it)
-            self._fused_launch(self.dt)
-
-    def _update_frames(self) -> None:
-        """P_i, J_ib and K at the current state; factor K for the coming solves."""
-        wp.capture_launch(self._frames_graph)
-        if self.linear is not None:
-            self.linear.check()
 
     # ---------------------------------------------------------------- forces
     def set_external_forces(self, force=None, torque=None, world: int | None = None) -> None:
@@ -1579,138 +1401,3 @@ class Simulator:
         self._forget_carry(world)
         self._update_frames()
         self._check_finite(self.state, self.step_count)
-
-    # ---------------------------------------------------------------- numpy accessors
-    # With batched worlds each takes `world=` for one world's (n, ...) rows and gives all of them as (W, n, ...)
-    # without it.
-    def positions(self, world: int | None = None) -> np.ndarray:
-        """(n, 3) centres of mass, world frame (m)."""
-        return self._per_world(self.state.body_x.numpy().copy(), world)
-
-    def orientations(self, world: int | None = None) -> np.ndarray:
-        """(n, 4) quaternions (x, y, z, w), body to world (USD's Gf.Quat constructors take w first)."""
-        return self._per_world(self.state.body_q.numpy().copy(), world)
-
-    def linear_velocities(self, world: int | None = None) -> np.ndarray:
-        """(n, 3) centre-of-mass velocities, world frame (m/s)."""
-        return self._per_world(self.state.body_v.numpy().copy(), world)
-
-    def angular_velocities(self, world: int | None = None) -> np.ndarray:
-        """(n, 3) angular velocities, world frame (rad/s)."""
-        return self._per_world(self.state.body_w.numpy().copy(), world)
-
-    def _joint_index(self, joint: int | str, world: int | None = None) -> int:
-        """The model's index of `joint` (index or name); with `world`, of that world's joint of this index or
-        of this name in the scene ("j3" for "world2/j3")."""
-        names = self.model.joint_name
-        first = 0
-        if world is not None:
-            first = self._world_rows(world).start // self.model.world_body_count * self.model.world_joint_count
-            names = names[first : first + self.model.world_joint_count]
-            if self.model.world_count > 1:
-                names = [n.partition("/")[2] for n in names]
-        if isinstance(joint, str):
-            if joint not in names:
-                raise ValueError(f"no joint named {joint!r}")
-            return first + names.index(joint)
-        if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
-            raise ValueError(f"a joint index or name is expected, got {joint!r}")
-        if not 0 <= int(joint) < len(names):
-            raise ValueError(f"joint index {joint} does not exist ({len(names)} joints)")
-        return first + int(joint)
-
-    def _state_arrays(self) -> tuple[np.ndarray, ...]:
-        """Every body's position, orientation, linear and angular velocity, flat over the worlds."""
-        return tuple(getattr(self.state, f"body_{k}").numpy().copy() for k in ("x", "q", "v", "w"))
-
-    def joint_coordinates(self, joint: int | str, world: int | None = None) -> np.ndarray:
-        """The joint's coordinates, zero at the build pose: a revolute's angle (rad, right-handed about its
-        axis), a prismatic's offset (m), cylindrical [offset, angle], universal [angle about the parent axis,
-        angle about the child axis], planar [x, y, angle] in the plane, a ball's relative rotation as a
-        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`). With
-        batched worlds, `world` picks the world and `joint` is then its index or name in the scene."""
-        return coordinates.coordinates(self.model, self._joint_index(joint, world), *self._state_arrays())
-
-    def joint_velocities(self, joint: int | str, world: int | None = None) -> np.ndarray:
-        """The rates of `joint_coordinates` (rad/s, m/s); a ball joint's relative angular velocity (rad/s) in
-        its parent's frame."""
-        return coordinates.velocities(self.model, self._joint_index(joint, world), *self._state_arrays())
-
-    @property
-    def redundant_rows(self) -> int:
-        """Constraint rows of loop-closing joints that the last factorization found redundant with the tree (a
-        planar four-bar has 3): information, not an error; they are regularised (`CholeskySolver`)."""
-        return getattr(self.linear, "redundant_rows", 0)
-
-    def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
-        out = np.zeros(self.model.joint_count)
-        np.maximum.at(out, self.model.constraint_joint, constraint_errors)
-        return out
-
-    def joint_errors(self, world: int | None = None) -> np.ndarray:
-        """The position error of every joint at the current state (max over its constraints, m or rad); with
-        batched worlds (W, joints) or one `world`'s."""
-        self.pred.copy_from(self.state)
-        self._position_errors.launch()
-        errors = self.joint_errors_from(self.errors.numpy())
-        m = self.model
-        if world is not None:
-            w = self._world_rows(world).start // m.world_body_count
-            return errors[w * m.world_joint_count : (w + 1) * m.world_joint_count]
-        return errors if m.world_count == 1 else errors.reshape(m.world_count, -1)
-
-    def _per_world_sum(self, per_body: np.ndarray, world: int | None) -> float | np.ndarray:
-        """A sum over bodies, per world: a number for a one-world model or one `world`, else (W,)."""
-        per_world = per_body.reshape(self.model.world_count, -1).sum(axis=1)
-        if world is not None:
-            return float(per_world[self._world_rows(world).start // self.model.world_body_count])
-        return float(per_world[0]) if self.model.world_count == 1 else per_world
-
-    def _kinetic_per_body(self) -> np.ndarray:
-        m = self.model.host.body_mass
-        _, q, v, w = self._state_arrays()
-        r = quat_to_matrix(q)
-        iw = np.einsum("nij,njk,nlk->nil", r, self.model.host.body_inertia, r)
-        return 0.5 * m * np.sum(v * v, axis=1) + 0.5 * np.einsum("ni,nij,nj->n", w, iw, w)
-
-    def kinetic_energy(self, world: int | None = None) -> float | np.ndarray:
-        """Translational plus rotational kinetic energy, J; with batched worlds (W,) or one `world`'s."""
-        return self._per_world_sum(self._kinetic_per_body(), world)
-
-    def potential_energy(self, world: int | None = None) -> float | np.ndarray:
-        """Gravity's potential energy plus the elastic energy of the springs and joint springs, J (zero for
-        gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
-        and store none. With batched worlds (W,) or one `world`'s."""
-        h, m = self.model.host, self.model
-        x = self.state.body_x.numpy()
-        gravity = np.atleast_1d(self._per_world_sum(-h.body_mass * (x @ h.gravity), None))
-        springs = np.zeros(0)
-        if len(h.spring_params):
-            q = self.state.body_q.numpy()
-            ends = []
-            for body, anchor in ((h.spring_body0, h.spring_anchor0), (h.spring_body1, h.spring_anchor1)):
-                world_end = body < 0  # an anchor on the world is a world point
-                pose_q = np.where(world_end[:, None], [0.0, 0.0, 0.0, 1.0], q[body])
-                pose_x = np.where(world_end[:, None], 0.0, x[body])
-                ends.append(pose_x + quat_rotate(pose_q, anchor))
-            stretch = np.linalg.norm(ends[1] - ends[0], axis=1) - h.spring_params[:, 2]
-            springs = 0.5 * h.spring_params[:, 0] * stretch**2
-        joint_springs = ~h.drive_motor & (h.drive_mode == DRIVE_MODES.index("position"))
-        ns, nd = m.spring_count // m.world_count, m.drive_count // m.world_count  # each world's, world-major
-        energy = []
-        for w in range(m.world_count):
-            e = float(gravity[w])
-            if ns:
-                e += float(np.sum(springs[w * ns : (w + 1) * ns]))
-            for d in w * nd + np.flatnonzero(joint_springs[w * nd : (w + 1) * nd]):
-                offset = self.joint_coordinates(int(h.drive_joint[d]))[0] - h.drive_target[d]
-                e += 0.5 * float(h.drive_gains[d, 0]) * offset**2
-            energy.append(e)
-        if world is not None:
-            return energy[self._world_rows(world).start // m.world_body_count]
-        return energy[0] if m.world_count == 1 else np.array(energy)
-
-    def energy(self, world: int | None = None) -> float | np.ndarray:
-        """Kinetic plus potential energy (`potential_energy`), J: conserved by a scene without loads, motors,
-        dampers or limits; with batched worlds (W,) or one `world`'s."""
-        return self.kinetic_energy(world) + self.potential_energy(world)
