@@ -100,6 +100,8 @@ def run_robot(path: str, duration: float, dt: float, budget: float) -> dict:
                    max_step_joint_error=step_error, max_state_joint_error=state_error)  # fmt: skip
     except (wi.SimulationError, wi.SingularSystemError, FloatingPointError, wi.SceneError) as err:
         row.update(run=f"failed: {one_line(err)}")
+    except Exception as err:  # anything else is the harness's or the engine's fault: kept in the row, not fatal
+        row.update(run=f"error: {type(err).__name__}: {one_line(err)}")
     return row
 
 
