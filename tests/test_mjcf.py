@@ -109,7 +109,7 @@ def world_inertia(body) -> np.ndarray:
 def test_a_welded_body_merges_into_its_parent_with_the_composed_mass_properties():
     """A body with no joint is merged: the composed mass, centre and inertia equal MuJoCo's for the same geoms in
     one body (its own compiler's inertiafromgeom)."""
-    merged, whole = wi.load_mjcf(WELDED), wi.load_mjcf(ONE_BODY)
+    merged, whole = wi.load_mjcf(compiled(WELDED, ("contact",))), wi.load_mjcf(compiled(ONE_BODY, ("contact",)))
     assert [b.name for b in merged.bodies] == ["arm"]
     m = mujoco.MjModel.from_xml_string(ONE_BODY)
     d = mujoco.MjData(m)
@@ -120,6 +120,26 @@ def test_a_welded_body_merges_into_its_parent_with_the_composed_mass_properties(
     np.testing.assert_allclose(a.position, d.xipos[1], atol=1e-12)
     np.testing.assert_allclose(world_inertia(a), rot @ np.diag(m.body_inertia[1]) @ rot.T, atol=1e-12)
     np.testing.assert_allclose(world_inertia(b), world_inertia(a), atol=1e-12)
+
+
+def test_colliding_geoms_off_the_centre_are_pieces_of_the_body_with_the_same_whole():
+    """Bodies carry one shape at their centre of mass: a body's other colliding geoms are pieces welded to it,
+    each a solid of its shape; the pieces and the rest compose to MuJoCo's mass, centre and inertia."""
+    builder = wi.load_mjcf(WELDED)
+    assert [b.name for b in builder.bodies] == ["arm", "arm/geom0", "arm/geom1"]
+    assert [j.kind for j in builder.joints] == ["fixed", "fixed", "revolute"]
+    assert [b.shape.kind if b.shape else None for b in builder.bodies] == [None, "capsule", "box"]
+    m = mujoco.MjModel.from_xml_string(ONE_BODY)
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    rot = d.ximat[1].reshape(3, 3)
+    mass = sum(b.mass for b in builder.bodies)
+    centre = sum(b.mass * np.asarray(b.position) for b in builder.bodies) / mass
+    inertia = sum(world_inertia(b) + b.mass * ((a := np.asarray(b.position) - centre) @ a * np.eye(3) - np.outer(a, a))
+                  for b in builder.bodies)  # fmt: skip
+    assert mass == pytest.approx(m.body_mass[1], rel=1e-12)
+    np.testing.assert_allclose(centre, d.xipos[1], atol=1e-12)
+    np.testing.assert_allclose(inertia, rot @ np.diag(m.body_inertia[1]) @ rot.T, atol=1e-12)
 
 
 CHAIN = """
@@ -214,6 +234,22 @@ def test_actuators_follow_mujoco_under_their_controls():
     assert worst(m, 1.0, ctrl=ctrl, controls=controls) < 1e-5
 
 
+@pytest.mark.parametrize("friction, moves", [(3.0, False), (1.0, True)])
+def test_frictionloss_is_dry_friction(friction, moves):
+    """A horizontal 1 kg rod 0.4 m long (gravity's torque 1.96 N m at its hinge) with a frictionloss: held by
+    3 N m, turning under 1 N m."""
+    xml = f"""<mujoco><worldbody><body name="rod">
+      <joint name="hinge" type="hinge" axis="0 1 0" frictionloss="{friction}"/>
+      <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.01" mass="1"/>
+    </body></worldbody></mujoco>"""
+    builder = wi.load_mjcf(xml)
+    (drive,) = builder.drives
+    assert (drive.stiff, drive.max_force) == (True, friction)
+    sim = wi.Simulator(builder.finalize(), 1.0 / 240.0)
+    sim.step(60)
+    assert (np.linalg.norm(sim.angular_velocities()) > 0.1) == moves
+
+
 def test_set_controls_by_index_and_its_errors():
     sim = wi.Simulator(wi.load_mjcf(ACTUATED).finalize(), 1.0 / 240.0)
     targets = sim.drive_target.numpy()
@@ -259,6 +295,24 @@ def test_a_connect_equality_closes_the_loop_and_holds():
     ends = [x[i] + wi.transforms.quat_to_matrix(q[i]) @ a for i, a in
             ((loop.parent, point.anchor0), (loop.child, point.anchor1))]  # fmt: skip
     assert np.linalg.norm(ends[0] - ends[1]) < 1e-6
+
+
+def test_a_weld_equality_holds_the_relative_pose():
+    """A weld between two free bodies is a fixed loop joint: after 1 s of tumbling their relative pose is the
+    built one."""
+    xml = """<mujoco><worldbody>
+      <body name="a" pos="0 0 1"><freejoint/><geom type="box" size="0.1 0.2 0.3"/></body>
+      <body name="b" pos="0.5 0 1"><freejoint/><geom type="sphere" size="0.1"/></body>
+    </worldbody><equality><weld name="glue" body1="a" body2="b"/></equality></mujoco>"""
+    builder = wi.load_mjcf(compiled(xml, ("contact",)), qvel=[0, 0, 0, 1, 2, 3, 0, 0, 0, 0, 0, 0])
+    (weld,) = builder.joints
+    assert (weld.name, weld.kind, weld.loop) == ("glue", "fixed", True)
+    sim = wi.Simulator(builder.finalize(), 1.0 / 240.0)
+    sim.step(240)
+    x, q = sim.positions(), sim.orientations()
+    rot = [wi.transforms.quat_to_matrix(qi) for qi in q]
+    assert np.linalg.norm(rot[0].T @ (x[1] - x[0]) - [0.5, 0.0, 0.0]) < 1e-6
+    assert np.abs(rot[0].T @ rot[1] - np.eye(3)).max() < 1e-6
 
 
 # ---------------------------------------------------------------- what is refused, dropped or said

@@ -175,6 +175,11 @@ class Visual:
 
 
 _vec = checks.vector
+WORLD_COPIES = 3
+"""The copies of a world's rows that replicating and finalizing make (the builder's tiled columns, the model's
+host arrays, its device arrays): with NAME_BYTES a name (the string, its list and dict slots), what
+`SceneBuilder.replicate` estimates a world to take before it refuses a count the memory cannot hold."""
+NAME_BYTES = 150
 
 
 def checked_material(friction, restitution, what: str) -> tuple[float, float]:
@@ -207,11 +212,6 @@ def _axis(value, what: str) -> np.ndarray:
     if norm < 1e-12:
         raise SceneError(f"{what} is a zero vector")
     return arr / norm
-
-
-def _first(bad: np.ndarray) -> int | None:
-    """The index of the first True, or None."""
-    return int(bad.argmax()) if bad.any() else None
 
 
 def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -260,30 +260,12 @@ def _norms(rows: np.ndarray) -> np.ndarray:
     return np.sqrt(np.asarray(squares).reshape(-1))
 
 
-def _check_finite_rows(fields: dict[str, np.ndarray], label) -> None:
-    """Every row of each field's values (n, ...) finite and squarable in double precision, else the first bad
-    row of the first bad field named. One test covers all fields (NaN propagates through max); the culprit is
-    looked for only when it fails."""
-    flats = [values.reshape(len(values), -1) for values in fields.values()]
-    flat = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)
-    if np.abs(flat).max(initial=0.0) <= checks.LARGEST:
-        return
-    for (field, values), flat in zip(fields.items(), flats):
-        i = _first(~np.isfinite(flat).all(axis=1))
-        if i is not None:
-            raise SceneError(f"{label(i)} {field} contains NaN or Inf: {values[i].tolist()}")
-        i = _first(np.abs(flat).max(axis=1, initial=0.0) > checks.LARGEST)
-        if i is not None:
-            raise SceneError(f"{label(i)} {field} is too large for double precision (|component| > "
-                             f"{checks.LARGEST:g}): {values[i].tolist()}")  # fmt: skip
-
-
 def _unit_rows(value, count: int, what: str, label, field: str) -> np.ndarray:
     """Directions (count, 3), any length but zero, normalised."""
     arr = _rows(value, count, (3,), what)
-    _check_finite_rows({field: arr}, label)
+    checks.finite_rows({field: arr}, label)
     norm = _norms(arr)
-    i = _first(norm < 1e-12)
+    i = checks.first(norm < 1e-12)
     if i is not None:
         raise SceneError(f"{label(i)} {field} is a zero vector")
     return arr / norm[:, None]
@@ -362,13 +344,15 @@ class SceneBuilder:
             if n:
                 raise SceneError(f"replicate: the scene has {n} {what}; batched worlds do not take {what} yet")
         count = int(count)
+        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
+        rows = self._bodies.row_bytes() * nb + self._joints.row_bytes() * nj + self._constraints.row_bytes() * nc
+        checks.affordable(count, WORLD_COPIES * rows + NAME_BYTES * (nb + nj), "replicate", "world")
         out = SceneBuilder(self.gravity)
         out._joint_kinds, out._shapes, out._shape_slots = (
             list(self._joint_kinds),
             list(self._shapes),
             dict(self._shape_slots),
         )
-        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
         world = np.arange(count)
 
         def tiled(table: Table, shifts: dict[str, int]) -> dict[str, np.ndarray]:
@@ -536,7 +520,7 @@ class SceneBuilder:
             raise SceneError(f"{batch}: inertia must be 3 moments or a 3x3 tensor per body, got shape {inertia.shape}")
         q = _rows(orientation, count, (4,), f"{batch} orientation")
         norm = _norms(q)
-        i = _first(norm < 1e-9)
+        i = checks.first(norm < 1e-9)
         if i is not None:
             raise SceneError(f"{label(i)}: orientation quaternion is zero")
         off = np.abs(norm - 1.0) > 1e-6
@@ -576,35 +560,13 @@ class SceneBuilder:
         def label(i: int) -> str:
             return f"body {self._body_name[start + i]!r}"
 
-        _check_finite_rows({f: t[f] for f in ("position", "orientation", "linear_velocity", "angular_velocity")}, label)
-        dynamic = ~t["static"]
-        mass = t["mass"]
-        i = _first(dynamic & ~(np.isfinite(mass) & (mass > 0.0)))
-        if i is not None:
-            raise SceneError(f"{label(i)}: mass must be positive and finite, got {mass[i]}")
-        inertia = t["inertia"]
-        flat = inertia.reshape(len(inertia), 9)  # reductions over one axis: cheaper than over (1, 2)
-        i = _first(dynamic & ~np.isfinite(flat).all(axis=1))
-        if i is not None:
-            raise SceneError(f"{label(i)}: inertia contains NaN or Inf")
-        scale = np.maximum(np.abs(flat).max(axis=1, initial=0.0), 1e-300)
-        asymmetry = np.abs(flat - inertia.transpose(0, 2, 1).reshape(len(inertia), 9)).max(axis=1, initial=0.0)
-        i = _first(dynamic & (asymmetry > 1e-9 * scale))
-        if i is not None:
-            raise SceneError(f"{label(i)}: inertia tensor is not symmetric")
-        moments = np.linalg.eigvalsh(inertia if dynamic.all() else np.where(dynamic[:, None, None], inertia, np.eye(3)))
-        smallest, middle, largest = moments.T
-        i = _first(smallest <= 0.0)
-        if i is not None:
-            raise SceneError(f"{label(i)}: inertia tensor is not positive definite (moments {moments[i].tolist()})")
-        i = _first(smallest + middle < largest * (1.0 - 1e-9))
-        if i is not None:
-            raise SceneError(f"{label(i)}: principal moments {moments[i].tolist()} break the triangle inequality")
+        checks.finite_rows({f: t[f] for f in ("position", "orientation", "linear_velocity", "angular_velocity")}, label)
+        checks.mass_properties(t["mass"], t["inertia"], ~t["static"], label)
         friction, restitution = t["friction"], t["restitution"]
-        i = _first(~(np.isfinite(friction) & (friction >= 0.0)))
+        i = checks.first(~(np.isfinite(friction) & (friction >= 0.0)))
         if i is not None:
             raise SceneError(f"{label(i)}: friction must be a finite number >= 0, got {friction[i]}")
-        i = _first(~((restitution >= 0.0) & (restitution <= 1.0)))
+        i = checks.first(~((restitution >= 0.0) & (restitution <= 1.0)))
         if i is not None:
             raise SceneError(f"{label(i)}: restitution must be in [0, 1], got {restitution[i]}")
 
@@ -630,7 +592,7 @@ class SceneBuilder:
         index = np.asarray(shape_index)
         if index.shape != (count,) or index.dtype.kind not in "iu":
             raise SceneError(f"{what}: shape_index must be {count} integers, got {shape_index!r}")
-        i = _first((index < -1) | (index >= len(shape)))
+        i = checks.first((index < -1) | (index >= len(shape)))
         if i is not None:
             raise SceneError(f"{what}: shape_index {int(index[i])} is not one of the {len(shape)} shapes")
         slots = np.array([self._shape_slot(s, what) for s in shape] + [-1], dtype=np.int32)
@@ -851,18 +813,18 @@ class SceneBuilder:
             return f"joint {names[i]!r}"
 
         ends = np.concatenate([p, c])  # parents, then children
-        i = _first((ends < WORLD) | (ends >= nb))
+        i = checks.first((ends < WORLD) | (ends >= nb))
         if i is not None:
             side = "parent" if i < count else "child"
             raise SceneError(f"{label(i % count)} {side}: body index {ends[i]} does not exist ({nb} bodies)")
-        i = _first(c == WORLD)
+        i = checks.first(c == WORLD)
         if i is not None:
             raise SceneError(f"{label(i)}: the child must be a body, not the world")
-        i = _first(p == c)
+        i = checks.first(p == c)
         if i is not None:
             raise SceneError(f"{label(i)}: connects body {self._body_name[c[i]]!r} to itself")
         static = self._bodies["static"]
-        i = _first(((p == WORLD) | static[np.maximum(p, 0)]) & static[c])
+        i = checks.first(((p == WORLD) | static[np.maximum(p, 0)]) & static[c])
         if i is not None:
             raise SceneError(f"{label(i)}: both bodies are static; the joint constrains nothing")
         if kinds is None:
@@ -872,14 +834,14 @@ class SceneBuilder:
         needs_axis = any(k.needs_axis for k in kinds)
         needs_child_axis = any(k == ConstraintKind.ANGLE for k in kinds)
         anchor = _rows(anchor, count, (3,), f"{batch} anchor")
-        _check_finite_rows({"anchor": anchor}, label)
+        checks.finite_rows({"anchor": anchor}, label)
         none = np.full((count, 3), np.nan)  # no axis
         has_axis = needs_axis or axis is not None
         axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if has_axis else none
         if needs_child_axis:
             axis_child = _unit_rows(axis_child if axis_child is not None else axis, count, f"{batch} child axis",
                                     label, "child axis")  # fmt: skip
-            i = _first(np.abs(_dot(_parts(axis), _parts(axis_child))) > 1.0 - 1e-9)
+            i = checks.first(np.abs(_dot(_parts(axis), _parts(axis_child))) > 1.0 - 1e-9)
             if i is not None:
                 raise SceneError(f"{label(i)}: the two axes of an angle constraint are parallel")
         else:
@@ -1077,7 +1039,7 @@ class SceneBuilder:
         kinds = self.joint_types()
         for i, drive in enumerate(self.drives):
             links = of.get(drive.joint)
-            if links is None:
+            if links is None or drive.stiff:  # a stiff motor is a row of the correction loop, not a force
                 continue
             what = f"drive {drive.name!r} on chain {[kinds[k] for k in links]}"
             if "ball" in (kinds[k] for k in links):

@@ -23,8 +23,9 @@ or (where no exact equivalent exists but the motion barely depends on it) mapped
 - geoms: every one is a `Visual` (its rgba or material colour; a mesh's vertices and faces). Collision:
   planes on the world -> grounds; a sphere, capsule, box or cylinder of a moving body -> the body's shape where
   it is the body's only collision geom and centred on its centre of mass (warpimpulse bodies carry one shape
-  at their centre of mass), else a warning naming the geom; on the world -> a static body each; contype,
-  conaffinity, parent filtering and <exclude> -> collision filters. Meshes, ellipsoids, height fields: their
+  at their centre of mass), else a piece welded to the body with a share of its mass (`_pieces`: the whole
+  keeps MuJoCo's mass properties); on the world -> a static body each; contype, conaffinity, parent filtering
+  and <exclude> -> collision filters. Meshes, ellipsoids, height fields: their
   collision is dropped with a warning naming the geom (their mass properties stay, from MuJoCo).
 - option: gravity; the contact, gravity, limit, spring, damper, frictionloss, actuation and equality disable
   flags; gravcomp -> a constant force.
@@ -168,7 +169,7 @@ class _Loader:
     # ---------------------------------------------------------------- bodies
     def _bodies(self) -> np.ndarray:
         """Each mj body's body of ours: one per body with joints, the welded ones merged in."""
-        m, d, b = self.m, self.d, self.builder
+        m = self.m
         group = np.full(m.nbody, -1, dtype=np.int64)
         members: dict[int, list[int]] = {}
         for i in range(1, m.nbody):
@@ -179,32 +180,85 @@ class _Loader:
                 group[i] = group[m.body_parentid[i]]
                 if group[i] >= 0:
                     members[int(group[i])].append(i)
-        self.shape_geom = self._shape_geoms(members)
+        self.shapes: dict[int, int] = {}  # colliding geom -> the body of ours that carries it
         ours = {}
         for root, parts in members.items():
-            mass = float(sum(m.body_mass[p] for p in parts))
-            if mass <= 0.0:
-                raise SceneError(f"body {self.name('body', root)!r}: it moves but has no mass")
-            com = sum(m.body_mass[p] * d.xipos[p] for p in parts) / mass
-            inertia = np.zeros((3, 3))
-            for p in parts:
-                rot, arm = d.ximat[p].reshape(3, 3), d.xipos[p] - com
-                inertia += rot @ np.diag(m.body_inertia[p]) @ rot.T
-                inertia += m.body_mass[p] * (arm @ arm * np.eye(3) - np.outer(arm, arm))
-            # The body frame: the shape's where it has one, else the principal frame (MuJoCo's, for one body).
-            g = self.shape_geom.get(root)
-            frame = d.geom_xmat[g] if g is not None else d.ximat[root] if len(parts) == 1 else None
-            rot = np.linalg.eigh(inertia)[1] if frame is None else frame.reshape(3, 3).copy()
-            if np.linalg.det(rot) < 0.0:
-                rot[:, 2] = -rot[:, 2]
-            local = rot.T @ inertia @ rot
-            v, w = self._velocity(root, com)
-            friction = float(m.geom_friction[g][0]) if g is not None else 0.5
-            ours[root] = b.add_body(mass, 0.5 * (local + local.T), com, quat_from_matrix(rot), v, w,
-                                    name=self.name("body", root), shape=self._shape(g), friction=friction)  # fmt: skip
-            if m.body_gravcomp[root] and not self.off["gravity"]:
-                b.add_force(ours[root], force=-float(m.body_gravcomp[root]) * mass * b.gravity)
+            ours[root] = self._body(root, parts)
         return np.array([ours.get(int(g), -1) if g >= 0 else -1 for g in group], dtype=np.int64)
+
+    def _body(self, root: int, parts: list[int]) -> int:
+        """Our body for mj body `root` and the bodies welded to it (`parts`): its mass properties composed; its
+        colliding geoms as its shape (the one geom, centred on its centre of mass) or as pieces welded to it."""
+        m, d, b = self.m, self.d, self.builder
+        name = self.name("body", root)
+        mass = float(sum(m.body_mass[p] for p in parts))
+        if mass <= 0.0:
+            raise SceneError(f"body {name!r}: it moves but has no mass")
+        com = sum(m.body_mass[p] * d.xipos[p] for p in parts) / mass
+        inertia = sum(_placed(m.body_mass[p], d.ximat[p].reshape(3, 3) @ np.diag(m.body_inertia[p]) @
+                              d.ximat[p].reshape(3, 3).T, d.xipos[p] - com) for p in parts)  # fmt: skip
+        geoms = [g for p in parts for g in range(m.body_geomadr[p], m.body_geomadr[p] + m.body_geomnum[p])
+                 if self._collides(g) and _shape_kind(self.mj, m.geom_type[g]) is not None]  # fmt: skip
+        shape_geom, pieces = None, []
+        if len(geoms) == 1 and np.linalg.norm(d.geom_xpos[geoms[0]] - com) <= 1e-9 * max(1.0, float(m.stat.extent)):
+            shape_geom = geoms[0]
+        elif geoms:
+            mass, com, inertia, pieces = self._pieces(name, geoms, mass, com, inertia)
+        # The body frame: the shape's where it has one, else the principal frame (MuJoCo's, for one body).
+        frame = d.geom_xmat[shape_geom] if shape_geom is not None else d.ximat[root] if len(parts) == 1 else None
+        rot = np.linalg.eigh(inertia)[1] if frame is None or pieces else frame.reshape(3, 3).copy()
+        v, w = self._velocity(root, com)
+        body = self._add(name, mass, inertia, com, rot, v, w, shape_geom)
+        for g, piece_mass, piece_inertia in pieces:
+            centre = d.geom_xpos[g]
+            v, w = self._velocity(root, centre)
+            piece = self._add(f"{name}/{self.name('geom', g)}", piece_mass, piece_inertia, centre,
+                              d.geom_xmat[g].reshape(3, 3).copy(), v, w, g)  # fmt: skip
+            b.add_joint_fixed(body, piece, centre, name=f"{name}/{self.name('geom', g)}")
+        if not self.off["gravity"]:
+            lift = sum(float(m.body_gravcomp[p] * m.body_mass[p]) for p in parts)
+            if lift:
+                b.add_force(body, force=-lift * b.gravity)
+        return body
+
+    def _add(self, name: str, mass: float, inertia: np.ndarray, com, rot: np.ndarray, v, w, geom: int | None) -> int:
+        """A body of ours with the world inertia tensor `inertia` about `com`, its frame `rot` (world), carrying
+        geom `geom`'s shape (or none) with its friction."""
+        if np.linalg.det(rot) < 0.0:
+            rot[:, 2] = -rot[:, 2]
+        local = rot.T @ inertia @ rot
+        friction = float(self.m.geom_friction[geom][0]) if geom is not None else 0.5
+        if geom is not None:
+            self.shapes[geom] = len(self.builder.bodies)
+        return self.builder.add_body(mass, 0.5 * (local + local.T), com, quat_from_matrix(rot), v, w, name=name,
+                                     shape=self._shape(geom), friction=friction)  # fmt: skip
+
+    def _pieces(self, name: str, geoms: list[int], mass: float, com, inertia):
+        """A body's colliding geoms as pieces of its mass welded to what remains of it (warpimpulse bodies carry
+        one shape, at their centre of mass), the whole unchanged: each piece a solid of its shape with a share
+        of the mass by volume (half of it, or less until what remains has a valid inertia), the rest on the
+        body. Returns the body's (mass, centre, inertia) and the pieces' (geom, mass, world inertia about the
+        geom's centre); a body whose remainder is never valid keeps its geoms for display, said."""
+        d = self.d
+        volumes = np.array([self._shape(g).volume() for g in geoms])
+        for share in (0.5, 0.25, 0.1, 0.03, 0.01):
+            masses = share * mass * volumes / volumes.sum()
+            pieces = []
+            for g, piece_mass in zip(geoms, masses):
+                rot = d.geom_xmat[g].reshape(3, 3)
+                pieces.append((g, float(piece_mass), rot @ self._shape(g).inertia(piece_mass) @ rot.T))
+            rest = mass - masses.sum()
+            centre = (mass * com - sum(pm * d.geom_xpos[g] for g, pm, _ in pieces)) / rest
+            # The whole's inertia about its centre, less the pieces', about the remainder's centre.
+            about = inertia - sum(_placed(pm, pi, d.geom_xpos[g] - com) for g, pm, pi in pieces)
+            about -= _placed(rest, np.zeros((3, 3)), centre - com)
+            moments = np.linalg.eigvalsh(0.5 * (about + about.T))
+            if moments[0] > 1e-9 * moments[-1] and moments[0] + moments[1] >= moments[2] * (1.0 + 1e-9):
+                return rest, centre, about, pieces
+        for g in geoms:
+            warnings.warn(f"geom {self.name('geom', g)!r}: its body {name!r} has no mass to spare for it as a "
+                          "collision piece; the geom is display only", stacklevel=2)  # fmt: skip
+        return mass, com, inertia, []
 
     def _velocity(self, body: int, point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The linear velocity of `point` of mj body `body` and its angular velocity, world frame (cvel is about
@@ -408,22 +462,6 @@ class _Loader:
     def _collides(self, g: int) -> bool:
         return not self.off["contact"] and bool(self.m.geom_contype[g] or self.m.geom_conaffinity[g])
 
-    def _shape_geoms(self, members: dict[int, list[int]]) -> dict[int, int]:
-        """The geom that is each moving body's collision shape: its only colliding geom of a kind we collide,
-        centred on the body's centre of mass (computed before the body exists)."""
-        m, d = self.m, self.d
-        out = {}
-        for root, parts in members.items():
-            geoms = [g for p in parts for g in range(m.body_geomadr[p], m.body_geomadr[p] + m.body_geomnum[p])
-                     if self._collides(g)]  # fmt: skip
-            if len(geoms) != 1 or _shape_kind(self.mj, m.geom_type[geoms[0]]) is None:
-                continue
-            mass = sum(m.body_mass[p] for p in parts)
-            com = sum(m.body_mass[p] * d.xipos[p] for p in parts) / mass
-            if np.linalg.norm(d.geom_xpos[geoms[0]] - com) <= 1e-9 * max(1.0, float(m.stat.extent)):
-                out[root] = geoms[0]
-        return out
-
     def _shape(self, g: int | None) -> Shape | None:
         """The Shape of geom g (MuJoCo's sizes are half lengths)."""
         if g is None:
@@ -439,7 +477,7 @@ class _Loader:
         """Every geom as a visual; collision as the module docstring says; MuJoCo's filters as ours."""
         m, d, b, mj = self.m, self.d, self.builder, self.mj
         types = mj.mjtGeom
-        shapes = {g: self.group[m.geom_bodyid[g]] for g in self.shape_geom.values()}  # geom -> our body
+        shapes = dict(self.shapes)  # colliding geom -> our body carrying it
         for g in range(m.ngeom):
             name = self.name("geom", g)
             what = f"geom {name!r}"
@@ -463,10 +501,6 @@ class _Loader:
             elif body < 0:
                 shapes[g] = b.add_static_body(pose[0], pose[1], name=f"{self.name('body', m.geom_bodyid[g])}/{name}",
                                               shape=self._shape(g), friction=friction)  # fmt: skip
-            else:
-                warnings.warn(f"{what}: collision is not supported off its body's centre of mass or beside another "
-                              "colliding geom of the body; the geom is display only (its mass stays)",
-                              stacklevel=2)  # fmt: skip
         self._filters(shapes)
 
     def _visual(self, g: int, name: str, body: int, kind: int, pose) -> None:
@@ -527,6 +561,11 @@ class _Loader:
             if any(not collide(g1, p) for p in planes) and not b.bodies[shapes[g1]].static:
                 warnings.warn(f"geom {self.name('geom', g1)!r}: MuJoCo keeps it off a plane (contype/conaffinity); "
                               "here it touches every ground", stacklevel=2)  # fmt: skip
+
+
+def _placed(mass: float, inertia: np.ndarray, arm: np.ndarray) -> np.ndarray:
+    """A body's inertia tensor (world frame, about its centre) moved to a point `arm` away (parallel axes)."""
+    return inertia + mass * (arm @ arm * np.eye(3) - np.outer(arm, arm))
 
 
 def _shape_kind(mujoco, kind: int) -> str | None:

@@ -211,6 +211,10 @@ def _collider_shape(prim, xforms: _Xforms, report: _Reporter) -> tuple[Shape, st
         report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
         shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
         sim.t = sim.t + quat_rotate(sim.q, 0.5 * (lo + hi) * sim.s)
+    if shape.zero_size():  # no volume to weigh, nothing to collide: before its mass is computed from it
+        sizes = f"size {list(shape.size)}" if kind == "box" else f"radius {shape.radius:g}"
+        sizes += f", height {shape.length:g}" if kind in ("capsule", "cylinder") else ""
+        raise UsdSceneError(f"{path}: the {prim.GetTypeName()} collider has zero size ({sizes}, its scale applied)")
     return shape, kind, axis, sim
 
 

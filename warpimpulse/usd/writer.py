@@ -729,8 +729,9 @@ class AnimationWriter:
             data["warpimpulse:stoppedEarly"] = self.stopped_early
         if self.scene.source_path:
             data["warpimpulse:source"] = self.scene.source_path
-        for k, v in self.settings.items():
-            data[f"warpimpulse:{k}" if ":" not in k else k] = _vt_value(v)
+        for k, v in self.settings.items():  # a list holds strings (the fallbacks, `run.record_frames`)
+            value = self._Vt.StringArray(v) if isinstance(v, list) else _vt_value(v)
+            data[f"warpimpulse:{k}" if ":" not in k else k] = value
         self.layer.customLayerData = data
 
     # ------------------------------------------------------------------ frames
