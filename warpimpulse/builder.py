@@ -155,7 +155,7 @@ class Visual:
     body: the body index, or WORLD (-1) for geometry fixed to the world.
     kind: one of `VISUAL_KINDS`. size (m): box (full edges x, y, z); sphere (radius, 0, 0); cylinder and capsule
         (radius, length, 0), along the local z axis (a capsule's length is its cylinder part); mesh: the scale
-        applied to the vertices along the local x, y, z.
+        applied to the vertices along the local x, y, z (a negative one mirrors).
     position, orientation: the geometry's frame in the body's frame (the centre of mass frame: m, (x, y, z, w)).
     rgba: colour and opacity in [0, 1].
     mesh_path: the file the mesh came from (for a mesh; reported, not read again).
@@ -616,7 +616,7 @@ class SceneBuilder:
         if kind not in VISUAL_KINDS:
             raise SceneError(f"{what}: kind must be one of {VISUAL_KINDS}, got {kind!r}")
         size = _vec(size, f"{what} size")
-        if not (np.isfinite(size).all() and (size >= 0.0).all()):
+        if not (np.isfinite(size).all() and (kind == "mesh" or (size >= 0.0).all())):  # a mesh's scale may mirror
             raise SceneError(f"{what}: size must be finite and >= 0, got {size.tolist()}")
         rgba = checks.numbers(rgba, f"{what} rgba")
         if rgba.shape != (4,) or not ((rgba >= 0.0) & (rgba <= 1.0)).all():
