@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from . import accuracy as accuracy_control
 from . import checks, composition, coordinates, diagnose
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
@@ -71,6 +72,8 @@ def _combined(parts: list[StepStats]) -> StepStats:
         parts[-1].contacts,
         max(p.max_penetration for p in parts),
         sum(p.contact_sweeps for p in parts),
+        min((p.step_size for p in parts if not math.isnan(p.step_size)), default=math.nan),
+        sum(p.error_estimate for p in parts),
     )
 
 
@@ -83,7 +86,7 @@ class Simulator:
     def __init__(
         self,
         model: Model,
-        dt: float,
+        dt: float | None = None,
         tolerance: float | None = None,
         velocity_tolerance: float | None = None,
         solver: str = "auto",
@@ -104,10 +107,12 @@ class Simulator:
         newton: bool | None = None,
         carry: bool | None = None,
         defer_velocities: bool | None = None,
+        accuracy: float | None = None,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
-        dt: the step (s).
+        dt: the step (s); with `accuracy`, the interval each `step()` advances (a frame, a control tick), taken as
+            whole steps of at most dt (default `accuracy.DEFAULT_INTERVAL`).
         tolerance: the largest joint error a step may leave (m for translational constraints, rad for
             rotational ones); the joint correction iterates until every joint holds to it.
         velocity_tolerance: the same for the constraint velocities after the step (m/s, rad/s); defaults to
@@ -180,9 +185,20 @@ class Simulator:
             stiff motors, distance constraints, contacts, batched worlds or the split formulation, where the
             state's velocities at a step's end enter the next step otherwise than through the joint
             correction; True there is a ValueError.
+        accuracy: m. Instead of a fixed step: the order, the joint tolerance (unless given) and the step size are
+            chosen so that the body centres stay within about this of the exact trajectory over
+            `sim.accuracy.horizon` seconds (1 s unless set), the step size following an error estimate
+            (`accuracy.py`, docs/accuracy.md); `StepStats.error_estimate` reports it. Contacts and batched worlds
+            are refused; scenes with limits, stiff motors or distance rows are controlled at order 2.
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
+        plan = None
+        if accuracy is not None:
+            plan = accuracy_control.plan(model, accuracy, dt, tolerance, order)
+            dt, order, tolerance = plan.dt, plan.order, plan.tolerance
+        elif dt is None:
+            raise ValueError("dt (the step, s) is required unless accuracy (m) is given")
         dt = checks.positive(dt, "dt", " (seconds)")
         self.order = checks.integer(order, "order", 2)
         self.scheme = composition.scheme(self.order, scheme)
@@ -247,6 +263,7 @@ class Simulator:
         self.specialized = specialize
         self.time = 0.0
         self.step_count = 0
+        self._clock = (0.0, 0)  # (time, step count) the clock counts steps of dt from (`_set_step_size`)
 
         self.state = model.state()
         self.pred = model.state()
@@ -274,9 +291,9 @@ class Simulator:
         # The first iteration's carried right-hand side (`carry`, kernels/carry.py): a row of c (and of the value
         # measured in the step, taken when it is kept) for each step size of a stage at dt, the others' on demand.
         self.carry = bool(carried if carry is None else carry)
-        fractions = tuple(dict.fromkeys((*self.scheme.stages, 1.0)))  # 1.0: the order-2 fallback of a composed step
-        self._carry_rows = {g * dt: r for r, g in enumerate(fractions)}
-        rows = len(fractions) if self.carry else 0
+        self._fractions = tuple(dict.fromkeys((*self.scheme.stages, 1.0)))  # 1.0: a composed step's order-2 fallback
+        self._carry_rows = {g * dt: r for r, g in enumerate(self._fractions)}
+        rows = len(self._fractions) if self.carry else 0
         self._carry = wp.zeros((rows, nc), dtype=wp.vec3d, device=d)
         self._carry_next = wp.zeros_like(self._carry)
         self._carry_other: dict[float, tuple[wp.array, wp.array]] = {}  # halved and split step sizes
@@ -367,6 +384,8 @@ class Simulator:
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
         self._check_finite(self.state, 0)
+        self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
+        """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
 
     # ---------------------------------------------------------------- launches
     @property
@@ -863,7 +882,7 @@ class Simulator:
             return limit
         start, count = self._alike
         if not start <= self.step_count < start + count:
-            times = (self.step_count + np.arange(self.FUSED_BATCH)) * self.dt
+            times = self._clock_at(self.step_count + np.arange(self.FUSED_BATCH))
             active = times[:, None] < until[None, :]
             differ = np.flatnonzero((active != active[0]).any(axis=1))
             self._alike = (self.step_count, int(differ[0]) if len(differ) else self.FUSED_BATCH)
@@ -937,7 +956,22 @@ class Simulator:
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
         self.step_count += steps
-        self.time = self.step_count * self.dt
+        self.time = self._clock_at(self.step_count)
+
+    def _clock_at(self, count):
+        """The time (s) at step `count` (a number or an array): count dt, from where the step size was last set."""
+        time, start = self._clock
+        return time + (count - start) * self.dt
+
+    def _set_step_size(self, h: float) -> None:
+        """Take steps of h from the current time on (the accuracy controller's hook, `accuracy.py`); the carried
+        right-hand sides of another step size are forgotten."""
+        if h not in self._carry_rows:
+            self._carry_rows = {g * h: r for r, g in enumerate(self._fractions)}
+            self._forget_carry()
+        self.dt = h
+        self._clock = (self.time, self.step_count)
+        self._alike = (0, 0)
 
     def _run_fused(self, batch: int, hand_out: bool) -> np.ndarray:
         """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows
@@ -979,8 +1013,12 @@ class Simulator:
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
         if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        if self.accuracy is not None:  # n intervals of dt, in steps the controller sizes
+            return self.accuracy.step(n)
         stats = self._steps(n, combine=n > 1)
-        return stats[0] if len(stats) == 1 else _combined(stats)
+        stats = stats[0] if len(stats) == 1 else _combined(stats)
+        stats.step_size = self.dt
+        return stats
 
     def _steps(self, n: int, combine: bool = False) -> list[StepStats]:
         """n steps' stats, one a step; with `combine`, a run of fused steps may be one StepStats of them all
@@ -1420,7 +1458,7 @@ class Simulator:
     def simulate(self, duration: float, callback=None) -> list[StepStats]:
         """Run whole steps covering `duration` seconds; `callback(sim, stats)` after each."""
         steps = int(round(duration / self.dt))
-        if callback is None:
+        if callback is None and self.accuracy is None:
             return self._steps(steps) if steps else []
         stats = []
         for _ in range(steps):
@@ -1459,6 +1497,9 @@ class Simulator:
         for name in STATE:
             getattr(self.state, f"body_{name}").assign(data[name])
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
+        self._clock = (0.0, 0) if self.accuracy is None else (self.time, self.step_count)
+        if self.accuracy is not None:
+            self.accuracy.reset()
         self._user_force, self._user_torque = data["user_force"], data["user_torque"]
         self._fallback = str(data["fallback"]) if "fallback" in data else ""
         if "drive_target" in data:  # motors' targets and PID integrals
@@ -1549,6 +1590,9 @@ class Simulator:
         self.drive_target.assign(self.model.host.drive_target)
         self.drive_integral.zero_()
         self.time, self.step_count = 0.0, 0
+        self._clock = (0.0, 0)
+        if self.accuracy is not None:
+            self.accuracy.reset()
         if self.batch is not None:
             self.batch.reset()
         n = self.model.body_count
