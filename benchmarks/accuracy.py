@@ -25,6 +25,7 @@ import math
 import platform
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -198,7 +199,8 @@ def grid_rows(model, ref: np.ndarray, grid: dict) -> list[dict]:
     for order, (rates, tolerances) in grid.items():
         for tol in tolerances:
             for rate in rates:
-                row = timed(lambda: Simulator(model, 1.0 / rate, tolerance=tol, order=order), ref, rate // FPS)
+                make = partial(Simulator, model, 1.0 / rate, tolerance=tol, order=order)
+                row = timed(make, ref, rate // FPS)
                 row.update(order=order, rate=rate, h=1.0 / rate, tolerance=tol)
                 rows.append(row)
                 err = "failed" if row["error"] is None else f"{row['error']:.3g} m"

@@ -54,9 +54,13 @@ def _add_simulate(sub) -> None:
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
     p.add_argument("--tolerance", type=_positive(float),
                    help="joint tolerance, m or rad (default 1e-6; tighter at --order 4, 6)")  # fmt: skip
-    p.add_argument("--accuracy", type=_positive(float), metavar="E",
-                   help="m: choose order, tolerance and step size (at most --dt, default 1/fps) so that the body "
-                        "centres stay within about E of the exact trajectory over --duration (docs/accuracy.md)")
+    p.add_argument(
+        "--accuracy",
+        type=_positive(float),
+        metavar="E",
+        help="m: choose order, tolerance and step size (at most --dt, default 1/fps) so that the body "
+        "centres stay within about E of the exact trajectory over --duration (docs/accuracy.md)",
+    )
     p.add_argument("--order", type=int, choices=(2, 4, 6), default=2,
                    help="order in time: 2 is the paper's step, 4 and 6 compose it (default 2)")  # fmt: skip
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
