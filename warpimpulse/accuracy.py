@@ -117,6 +117,8 @@ class Controller:
         self.order = 2 if sim.model.limit_count else sim.order
         self._start = sim.model.state()  # the state a check returns to
         self._integral = wp.zeros_like(sim.drive_integral)
+        self._carry = wp.zeros_like(sim._carry)  # the carried right-hand sides (`Simulator.carry`)
+        self._copies = self._pairs()
         self.reset()
 
     def reset(self) -> None:
@@ -201,8 +203,10 @@ class Controller:
     def _measured(self) -> np.ndarray:
         """What a check compares: each body centre's position (m), and its velocity (m/s) times the time over
         which a velocity error turns into a position error (`VELOCITY_TIME` of the horizon)."""
-        sim = self.sim
-        return np.stack([sim.positions(), VELOCITY_TIME * self.horizon * sim.linear_velocities()])
+        x, v = self._copies[0][0], self._copies[2][0]
+        if not isinstance(x, np.ndarray):
+            x, v = x.numpy(), v.numpy()
+        return np.stack([x, VELOCITY_TIME * self.horizon * v])
 
     def _constant(self, coarse: np.ndarray, fine: np.ndarray, h: float) -> float:
         """C from one step of 2h (`coarse`) against two steps of h (`fine`): they differ by C h^(p+1) (2^(p+1) - 2).
@@ -255,16 +259,32 @@ class Controller:
         self.steps = steps
 
     # ------------------------------------------------------------------ undo
+    def _pairs(self) -> list[tuple]:
+        """(simulator array, its copy) of everything a check undoes: the state, the drives' integrals and the
+        carried right-hand sides; on a CPU as numpy views, copied without a launch (~0.2 us against ~10 us)."""
+        sim = self.sim
+        pairs = [(getattr(sim.state, f), getattr(self._start, f)) for f in ("body_x", "body_q", "body_v", "body_w")]
+        pairs += [(sim.drive_integral, self._integral), (sim._carry, self._carry)]
+        if sim.model.device.is_cpu:
+            return [(a.numpy(), b.numpy()) for a, b in pairs]
+        return pairs
+
     def _save(self) -> None:
         sim = self.sim
-        self._start.copy_from(sim.state)
-        wp.copy(self._integral, sim.drive_integral)
+        for live, kept in self._copies:
+            _copy(kept, live)
         self._saved = (sim.time, sim.step_count, sim._spin, sim._fallback)
 
     def _restore(self) -> None:
         sim = self.sim
-        sim.state.copy_from(self._start)
-        wp.copy(sim.drive_integral, self._integral)
+        for live, kept in self._copies:
+            _copy(live, kept)
         sim.time, sim.step_count, sim._spin, sim._fallback = self._saved
-        sim._active_forces = None  # the loads are decided again from the restored time
         sim._update_frames()
+
+
+def _copy(dst, src) -> None:
+    if isinstance(dst, np.ndarray):
+        np.copyto(dst, src)
+    else:
+        wp.copy(dst, src)

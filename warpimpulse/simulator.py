@@ -964,11 +964,11 @@ class Simulator:
         return time + (count - start) * self.dt
 
     def _set_step_size(self, h: float) -> None:
-        """Take steps of h from the current time on (the accuracy controller's hook, `accuracy.py`); the carried
-        right-hand sides of another step size are forgotten."""
+        """Take steps of h from the current time on (the accuracy controller's hook, `accuracy.py`). The carried
+        right-hand sides stay: those of the last step size start the first iteration nearer than nothing, and the
+        iterations after it hold the tolerance whatever it started from (`carry`)."""
         if h not in self._carry_rows:
             self._carry_rows = {g * h: r for r, g in enumerate(self._fractions)}
-            self._forget_carry()
         self.dt = h
         self._clock = (self.time, self.step_count)
         self._alike = (0, 0)
