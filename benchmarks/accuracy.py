@@ -48,11 +48,10 @@ FPS = 20  # frames a second: the error is measured at each frame, step() is call
 ACCURACIES = (1e-2, 1e-3, 1e-4, 1e-5)
 REFERENCE_RATES = (4000, 8000)
 GRID = {  # order -> (steps per second, joint tolerances)
-    2: ((20, 40, 60, 80, 100, 120, 160, 200, 240, 320, 400, 480, 640, 800, 960, 1280, 1600, 1920, 2560),
-        (1e-4, 1e-5, 1e-6, 1e-7)),
-    4: ((20, 40, 60, 80, 100, 120, 160, 200, 240, 320, 400), (1e-5, 1e-6, 1e-7, 1e-8, 1e-9)),
-    6: ((20, 40, 60, 80, 100, 120, 160, 200), (1e-7, 1e-8, 1e-9, 1e-10)),
-}  # fmt: skip
+    2: ((20, 40, 60, 80, 120, 160, 240, 320, 480, 640, 960, 1280, 1920, 2560), (1e-4, 1e-5, 1e-6)),
+    4: ((20, 40, 60, 80, 100, 120, 160, 200, 240, 320), (1e-5, 1e-6, 1e-7, 1e-8)),
+    6: ((20, 40, 60, 80, 120), (1e-8, 1e-10)),
+}
 QUICK_GRID = {2: ((20, 40, 80, 160, 320, 640), (1e-4, 1e-6)), 4: ((20, 40, 80, 160), (1e-6, 1e-8))}
 REPEATS = 3  # timed runs of each configuration after the first (the same steps: the runs are deterministic)
 ERROR_WITHIN, COST_WITHIN = 3.0, 1.5
@@ -168,7 +167,7 @@ def run(make, ref: np.ndarray, frame_steps: int = 1) -> dict:
     its time: the least of REPEATS runs after `reset()`, so that what a simulator records once per step size
     (launches, graphs) is not counted, as in a long run (the first run's time is kept as `cold_time`)."""
     sim = make()
-    times, positions, failed = [], [], None
+    times, positions, failed, solves = [], [], None, 0
     for repeat in range(1 + REPEATS):
         if repeat:
             sim.reset()
@@ -178,10 +177,11 @@ def run(make, ref: np.ndarray, frame_steps: int = 1) -> dict:
         try:
             for _ in range(len(ref)):
                 start = time.perf_counter()
-                sim.step(frame_steps)
+                stats = sim.step(frame_steps)
                 elapsed += time.perf_counter() - start
                 if not repeat:
                     positions.append(sim.positions())
+                    solves += stats.linear_iterations
         except SimulationError as e:
             failed = str(e).split(";")[0]
         finally:
@@ -193,7 +193,7 @@ def run(make, ref: np.ndarray, frame_steps: int = 1) -> dict:
         return {"failed": failed or "non-finite", "error": None, "time": None}
     error = float(np.linalg.norm(np.array(positions) - ref, axis=2).max())
     return {"failed": None, "error": error, "time": min(times[1:]), "times": times[1:], "cold_time": times[0],
-            "steps": sim.step_count}  # fmt: skip
+            "steps": sim.step_count, "solves": solves}  # fmt: skip
 
 
 def grid_rows(model, ref: np.ndarray, grid: dict) -> list[dict]:
@@ -235,6 +235,7 @@ def judge(acc: list[dict], grid: list[dict]) -> list[dict]:
         target = row["accuracy"]
         reach = [g for g in grid if g["error"] is not None and g["error"] <= target]
         best = min(reach, key=lambda g: g["time"]) if reach else None
+        fewest = min(reach, key=lambda g: g["solves"]) if reach else None
         ratio_err = None if row["error"] is None else row["error"] / target
         ratio_cost = None if best is None or row["time"] is None else row["time"] / best["time"]
         out.append({
@@ -242,6 +243,8 @@ def judge(acc: list[dict], grid: list[dict]) -> list[dict]:
             "order": row["order"], "tolerance": row["tolerance"], "error_ratio": ratio_err,
             "best": None if best is None else {k: best[k] for k in ("order", "rate", "tolerance", "error", "time")},
             "cost_ratio": ratio_cost,
+            "solves": row.get("solves"),
+            "solves_ratio": None if fewest is None or row["error"] is None else row["solves"] / fewest["solves"],
             "error_ok": ratio_err is not None and 1.0 / ERROR_WITHIN <= ratio_err <= ERROR_WITHIN,
             "cost_ok": ratio_cost is not None and ratio_cost <= COST_WITHIN,
         })  # fmt: skip

@@ -44,19 +44,17 @@ ORDER4_BELOW = 3e-3
 """m: accuracies below this are reached at order 4 (the composed step), from it up at order 2: where order 2 wins
 in benchmarks/accuracy.py's grid of (order, h, tolerance)."""
 TOLERANCE_SHARE = 1e-3
-"""The joint tolerance as a share of the accuracy (m or rad per m asked), clamped to [1e-12, 1e-5]: the noise
-it leaves in a check (`Controller._noise`) must stay below the gap of the error aimed at."""
+"""The joint tolerance as a share of the accuracy (m or rad per m asked), clamped to [1e-12, 1e-5]: each step
+may leave it in the joints, and a check cannot see a local error below about twice it (`Controller._constant`),
+which must stay below the gap of the local error aimed at, or the step cannot grow to its size."""
 TOLERANCE_CAP = 1e-5
 SAFETY = 0.5
 """The local error per unit time aimed at, as a share of accuracy / horizon."""
-VELOCITY_TIME = 0.5
-"""A local velocity error becomes a position error that grows with the time left: on average half the horizon."""
-NOISE_RATE = 20.0
-"""1/s: the velocity gap (m/s) per tolerance (m) that two trajectories held to that tolerance show."""
 NOISE_MARGIN = 2.0
-"""A check's gap must exceed this many times the tolerances' noise (`Controller._noise`) to be taken as an error."""
+"""A check's gap must exceed this many joint tolerances to be taken as an error (`Controller._constant`)."""
 CHECK_EVERY = 10
-"""Steps between two error checks (each costs one step of 2h); the first come after 1, 2, 4, ... steps."""
+"""Steps, and intervals, between two error checks: a check costs a step of 2h and, on a small scene where the calls
+cost more than the steps, a few calls (the first checks come sooner, after 0, 2, 4, ... steps)."""
 GROWTH = 2.0
 """The step grows at most by this factor from one check to the next (it shrinks at once)."""
 MAX_STEPS = 1 << 16
@@ -125,7 +123,7 @@ class Controller:
         """Forget the error constant (a new run, or a state set from outside)."""
         self.constant: float | None = None  # C (m s^-(p+1)): a step of h leaves about C h^(p+1)
         self.steps = 0  # per interval
-        self._since_check = 0  # steps since the last check
+        self._since_check = self._intervals = 0  # steps and intervals since the last check
         self._checks = 0  # checks done: the first come early, while C is known from the pilot only
         self._pending: tuple[np.ndarray, int] | None = None  # a check's coarse `_measured`, fine steps to go
 
@@ -157,8 +155,9 @@ class Controller:
         if self.constant is None:
             self._pilot()
         k, h = self.steps, self.step_size
-        parts, measured = [], None
-        if self._pending is None and self._since_check >= min(CHECK_EVERY, 2 * self._checks):
+        parts, measured = [], None  # measured: (C, noisy) of a check finished here
+        spacing = min(CHECK_EVERY, 2 * self._checks)
+        if self._pending is None and min(self._since_check, self._intervals) >= spacing:
             self._save()  # one step of 2h from here, compared with the trajectory two steps on
             limit, sim.max_rotation = sim.max_rotation, None  # a spin split would make it two steps of h
             try:
@@ -173,7 +172,7 @@ class Controller:
             coarse, ahead = self._pending
             parts.append(self._steps(h, ahead))
             measured = self._constant(coarse, self._measured(), h)
-            self._pending, self._since_check, self._checks = None, 0, self._checks + 1
+            self._pending, self._since_check, self._intervals, self._checks = None, 0, 0, self._checks + 1
             if k > ahead:
                 parts.append(self._steps(h, k - ahead))
         else:
@@ -188,6 +187,7 @@ class Controller:
         stats.step_size = h
         stats.error_estimate = k * self.constant * h ** (self.order + 1)
         self._since_check += k
+        self._intervals += 1
         if measured is not None:
             self._adopt(measured)
         return stats
@@ -201,29 +201,19 @@ class Controller:
         return parts[0] if len(parts) == 1 else _combined(parts)
 
     def _measured(self) -> np.ndarray:
-        """What a check compares: each body centre's position (m), and its velocity (m/s) times the time over
-        which a velocity error turns into a position error (`VELOCITY_TIME` of the horizon)."""
-        x, v = self._copies[0][0], self._copies[2][0]
-        if not isinstance(x, np.ndarray):
-            x, v = x.numpy(), v.numpy()
-        return np.stack([x, VELOCITY_TIME * self.horizon * v])
+        """What a check compares: the body centres (m)."""
+        x = self._copies[0][0]
+        return (x if isinstance(x, np.ndarray) else x.numpy()).copy()
 
-    def _constant(self, coarse: np.ndarray, fine: np.ndarray, h: float) -> float:
-        """C from one step of 2h (`coarse`) against two steps of h (`fine`): they differ by C h^(p+1) (2^(p+1) - 2).
-        The gap of a body is its position's plus its weighted velocity's; C is of the largest. A gap within the
-        noise the joint tolerance leaves (`_noise`) says only that the error is below it: NaN."""
+    def _constant(self, coarse: np.ndarray, fine: np.ndarray, h: float) -> tuple[float, bool]:
+        """C from one step of 2h (`coarse`) against two steps of h (`fine`): they differ by C h^(p+1) (2^(p+1) - 2),
+        C of the body centre furthest apart. A gap within twice the joint tolerance (what each trajectory may leave
+        in the joints) says only that the error is below it: C is taken from that, and flagged (True), so that it
+        never shrinks the step."""
         p = self.order
-        gap = float(np.linalg.norm(coarse - fine, axis=2).sum(axis=0).max(initial=0.0))
-        if gap <= NOISE_MARGIN * self._noise(h):
-            return math.nan
-        return gap / (h ** (p + 1) * (2.0 ** (p + 1) - 2.0))
-
-    def _noise(self, h: float) -> float:
-        """The gap (m) two trajectories may show from the tolerances alone: each joint holds to the tolerance, and
-        the impulses that hold it leave the velocities up to about `NOISE_RATE` tolerance apart (measured: the
-        arm and the double pendulum of benchmarks/accuracy.py at h = 1/40 and 1/160, tolerances 1e-4 .. 1e-7)."""
-        sim = self.sim
-        return sim.tolerance + VELOCITY_TIME * self.horizon * (NOISE_RATE * sim.tolerance + sim.velocity_tolerance)
+        gap = float(np.linalg.norm(coarse - fine, axis=1).max(initial=0.0))
+        floor = NOISE_MARGIN * self.sim.tolerance
+        return max(gap, floor) / (h ** (p + 1) * (2.0 ** (p + 1) - 2.0)), gap <= floor
 
     def _pilot(self) -> None:
         """A first C, from the start state: one step of the interval against two of half of it, then undone."""
@@ -240,22 +230,18 @@ class Controller:
         self.constant, self.steps = None, 0
         self._adopt(measured)
 
-    def _adopt(self, measured: float) -> None:
-        """The new C, and the steps an interval takes for it: C h^p = SAFETY accuracy / horizon. A measurement lost
-        in the tolerances' noise (NaN) lets the step grow by GROWTH."""
-        if math.isnan(measured):
-            if self.steps:
-                self.steps = max(1, math.ceil(self.steps / GROWTH))
-                self.constant = self.constant or 0.0
-                return
-            measured = 0.0
-        self.constant = measured
-        p = self.order
+    def _adopt(self, measured: tuple[float, bool]) -> None:
+        """The new C, and the steps an interval takes for it: C h^p = SAFETY accuracy / horizon; the step grows by
+        at most GROWTH a check. A C taken from the noise (an upper bound) may let the step grow, never shrink it:
+        a tolerance-sized gap read as an error would shrink the step without end."""
+        self.constant, noisy = measured
         wanted = SAFETY * self.plan.accuracy / self.horizon
-        h = (wanted / measured) ** (1.0 / p) if measured > 0.0 else math.inf
+        h = (wanted / self.constant) ** (1.0 / self.order) if self.constant > 0.0 else math.inf
         steps = min(MAX_STEPS, max(1, math.ceil(self.interval / h * (1.0 - 1e-9))))
-        if self.steps:  # grow the step by at most GROWTH at a time
+        if self.steps:
             steps = max(steps, math.ceil(self.steps / GROWTH))
+            if noisy:
+                steps = min(steps, self.steps)
         self.steps = steps
 
     # ------------------------------------------------------------------ undo

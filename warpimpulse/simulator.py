@@ -1645,6 +1645,8 @@ class Simulator:
             full[rows] = values
             getattr(self.state, field).assign(full)
         self._forget_carry(world)
+        if self.accuracy is not None:  # a check under way would compare with another trajectory
+            self.accuracy.reset()
         self._update_frames()
         self._check_finite(self.state, self.step_count)
 
