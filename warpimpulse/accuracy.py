@@ -54,7 +54,8 @@ NOISE_MARGIN = 2.0
 """A check's gap must exceed this many joint tolerances to be taken as an error (`Controller._constant`)."""
 CHECK_EVERY = 10
 """Steps, and intervals, between two error checks: a check costs a step of 2h and, on a small scene where the calls
-cost more than the steps, a few calls (the first checks come sooner, after 0, 2, 4, ... steps)."""
+cost more than the steps, a few calls. The first come sooner (after 0, 1, 2, ... steps and intervals): the motion
+from rest speeds up, and with it the error constant."""
 GROWTH = 2.0
 """The step grows at most by this factor from one check to the next (it shrinks at once)."""
 MAX_STEPS = 1 << 16
@@ -117,6 +118,9 @@ class Controller:
         self._integral = wp.zeros_like(sim.drive_integral)
         self._carry = wp.zeros_like(sim._carry)  # the carried right-hand sides (`Simulator.carry`)
         self._copies = self._pairs()
+        host = sim.model.host  # radii of gyration (m): sqrt(trace(I) / m), 0 for static bodies
+        mass = np.where(host.body_mass > 0.0, host.body_mass, np.inf)
+        self._gyration = np.sqrt(np.trace(host.body_inertia, axis1=1, axis2=2) / mass)
         self.reset()
 
     def reset(self) -> None:
@@ -156,7 +160,7 @@ class Controller:
             self._pilot()
         k, h = self.steps, self.step_size
         parts, measured = [], None  # measured: (C, noisy) of a check finished here
-        spacing = min(CHECK_EVERY, 2 * self._checks)
+        spacing = min(CHECK_EVERY, self._checks)
         if self._pending is None and min(self._since_check, self._intervals) >= spacing:
             self._save()  # one step of 2h from here, compared with the trajectory two steps on
             limit, sim.max_rotation = sim.max_rotation, None  # a spin split would make it two steps of h
@@ -201,17 +205,23 @@ class Controller:
         return parts[0] if len(parts) == 1 else _combined(parts)
 
     def _measured(self) -> np.ndarray:
-        """What a check compares: the body centres (m)."""
-        x = self._copies[0][0]
-        return (x if isinstance(x, np.ndarray) else x.numpy()).copy()
+        """What a check compares: the body centres (m) and orientations, (n, 7)."""
+        x, q = self._copies[0][0], self._copies[1][0]
+        if not isinstance(x, np.ndarray):
+            x, q = x.numpy(), q.numpy()
+        return np.concatenate([x, q], axis=1)
 
     def _constant(self, coarse: np.ndarray, fine: np.ndarray, h: float) -> tuple[float, bool]:
         """C from one step of 2h (`coarse`) against two steps of h (`fine`): they differ by C h^(p+1) (2^(p+1) - 2),
-        C of the body centre furthest apart. A gap within twice the joint tolerance (what each trajectory may leave
-        in the joints) says only that the error is below it: C is taken from that, and flagged (True), so that it
-        never shrinks the step."""
+        C of the body furthest apart: its centre's distance plus the angle between its orientations times its
+        radius of gyration (a body's turn moves its points as much as its centre's shift). A gap within twice the
+        joint tolerance (what each trajectory may leave in the joints) says only that the error is below it: C is
+        taken from that, and flagged (True), so that it never shrinks the step."""
         p = self.order
-        gap = float(np.linalg.norm(coarse - fine, axis=1).max(initial=0.0))
+        shift = np.linalg.norm(coarse[:, :3] - fine[:, :3], axis=1)
+        qa, qb = coarse[:, 3:], fine[:, 3:]
+        turn = 2.0 * np.minimum(np.linalg.norm(qa - qb, axis=1), np.linalg.norm(qa + qb, axis=1))  # rad, small
+        gap = float((shift + self._gyration * turn).max(initial=0.0))
         floor = NOISE_MARGIN * self.sim.tolerance
         return max(gap, floor) / (h ** (p + 1) * (2.0 ** (p + 1) - 2.0)), gap <= floor
 
@@ -229,6 +239,7 @@ class Controller:
         sim.dt = self.interval
         self.constant, self.steps = None, 0
         self._adopt(measured)
+        self._checks = 1  # the pilot was one: the next check comes an interval on
 
     def _adopt(self, measured: tuple[float, bool]) -> None:
         """The new C, and the steps an interval takes for it: C h^p = SAFETY accuracy / horizon; the step grows by
