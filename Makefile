@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint stress soak bench mutants clean
+.PHONY: run test fuzz docs lint stress soak bench mutants clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -20,10 +20,19 @@ test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" tests
 	$(PY) -m pytest -q -m "not slow" tests --schedule parallel
 
+# The property and fuzz tests with fresh random cases (make test replays a fixed set): explores, may find new failures.
+fuzz: $(STAMP)
+	$(PY) -m pytest -q tests/test_properties.py --hypothesis-profile fuzz --hypothesis-show-statistics
+	WARPIMPULSE_FUZZ_EXAMPLES=500 $(PY) -m pytest -q tests/test_fuzz_usd.py --hypothesis-profile fuzz
+
 # Break the engine on purpose, one curated mutation at a time (tests/mutants/mutations.toml), and list the
 # mutations the fast suite does not notice. Minutes per mutation; not part of `make test`.
 mutants: $(STAMP)
 	$(PY) tests/mutants/run.py
+
+# Documents generated from the code: the capability table (tests/test_capabilities.py keeps it current).
+docs: $(STAMP)
+	$(PY) -c "from warpimpulse.capabilities import markdown; print(markdown(), end='')" > docs/capabilities.md
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check . && $(VENV)/bin/ruff format --check .

@@ -115,7 +115,12 @@ def run_ours(
     builder, dt: float, duration: float, tolerance: float, solver: str = "pgs", variant: str = "now", **options
 ) -> tuple[dict, wi.Simulator]:
     sim = wi.Simulator(
-        builder.finalize(), dt=dt, tolerance=tolerance, contact_solver=solver, on_max_iterations="warn", **options
+        builder.finalize(),
+        dt=dt,
+        tolerance=tolerance,
+        contact_solver=solver,
+        on_max_iterations="warn",
+        **wi.StepOptions.fold(options),
     )
     for name, value in VARIANTS[variant].items():
         setattr(sim.contact_stage, name, value)

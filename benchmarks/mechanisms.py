@@ -120,7 +120,9 @@ def main() -> None:
     cases["four_bar cg"] = lambda: wi.Simulator(scenes.four_bar().finalize(), DT, solver="cg")
     for name in ("four_bar", "walking_machine"):  # the paper's two systems side by side (section 4.6)
         make = getattr(scenes, name)
-        cases[f"{name} split"] = lambda make=make: wi.Simulator(make().finalize(), DT, formulation="split")
+        cases[f"{name} split"] = lambda make=make: wi.Simulator(
+            make().finalize(), DT, options=wi.StepOptions(formulation="split")
+        )
     results = interleaved(cases, args.rounds, slow)
     for name, r in results.items():
         if "failed" in r:

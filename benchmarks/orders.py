@@ -32,6 +32,7 @@ from warpimpulse import composition
 from warpimpulse.bench.harness import ERROR_TIME, Probe, make_scene, quiet_warp, time_steps
 from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
 from warpimpulse.bench.runner import StepFailed
+from warpimpulse.options import StepOptions
 from warpimpulse.simulator import SimulationError, Simulator
 from warpimpulse.transforms import quat_mul
 
@@ -63,7 +64,7 @@ class Ours:
 
     def __init__(self, model, rate: int, scheme: str, tolerance: float | None = None) -> None:
         order = composition.SCHEMES[scheme].order
-        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, order=order, scheme=scheme)
+        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, order=order, options=StepOptions(scheme=scheme))
         self.linear_iterations = self.steps = 0
 
     def step(self) -> None:

@@ -94,7 +94,7 @@ def specialization(rounds: int) -> list[dict]:
     compile_s = {name: cold_compile(k.frames.module) for name, k in kinds.items()}  # before any launch records
     rows = []
     for name, (build, dt) in SPECIALIZE_SCENES.items():
-        sims = {s: wi.Simulator(build().finalize(), dt, specialize=s) for s in (True, False)}
+        sims = {s: wi.Simulator(build().finalize(), dt, options=wi.StepOptions(specialize=s)) for s in (True, False)}
         # The kernels the specialization changes, KERNEL_REPEATS times in one graph: no launch overhead.
         kernels = {s: sim._capture(*[sim._frames, sim._position_errors] * KERNEL_REPEATS) for s, sim in sims.items()}
         step = in_turn({s: steps(sim, BLOCK) for s, sim in sims.items()}, rounds, BLOCK)
@@ -111,7 +111,10 @@ def specialization(rounds: int) -> list[dict]:
 def formulations(rounds: int) -> list[dict]:
     rows = []
     for name, build in (("tree127", lambda: scenes.binary_tree(127)), ("star127", lambda: scenes.star(127))):
-        sims = {f: wi.Simulator(build().finalize(), TREE_DT, formulation=f) for f in ("constraint", "body")}
+        sims = {
+            f: wi.Simulator(build().finalize(), TREE_DT, options=wi.StepOptions(formulation=f))
+            for f in ("constraint", "body")
+        }
         auto = wi.Simulator(build().finalize(), TREE_DT).linear.pattern.formulation
         step = in_turn({f: steps(sim, BLOCK) for f, sim in sims.items()}, rounds, BLOCK)
         factor = in_turn({f: replay(sim._frames_graph) for f, sim in sims.items()}, 10 * rounds)

@@ -281,7 +281,12 @@ class _Ours:
     """Our simulator, restored to a snapshot before each timed block (not timed)."""
 
     def __init__(self, make, dt: float, tolerance: float, schedule: str, batched: bool, **options) -> None:
-        self.sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=tolerance, schedule=schedule, **options)
+        self.sim = wi.Simulator(
+            make().finalize("cpu"),
+            dt,
+            tolerance=tolerance,
+            **wi.StepOptions.fold({**options, "schedule": schedule}),
+        )
         self.batched = batched
         self.stats: list = []
         self.sim.step(int(round(1.1 / dt)))  # past the start forces, kernels compiled

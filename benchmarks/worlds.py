@@ -121,7 +121,11 @@ def threads_scaling(worlds: int, bodies: int, rounds: int, cores: list[int]) -> 
     shares): both start alike and must end bit for bit alike."""
     model = wi.scenes.binary_tree(bodies).replicate(worlds).finalize()
     kinds = {"picked": {}, "batched": {"schedule": "parallel"}}
-    sims = {(k, n): ThreadedSimulator(model, DT, threads=n, **settings) for k, settings in kinds.items() for n in cores}
+    sims = {
+        (k, n): ThreadedSimulator(model, DT, threads=n, **wi.StepOptions.fold(settings))
+        for k, settings in kinds.items()
+        for n in cores
+    }
     for sim in sims.values():
         sim.step()
     walls: dict[tuple, list[float]] = {key: [] for key in sims}

@@ -5,15 +5,19 @@ iteration policy allows: solve, apply at t0, predict again, measure) is one capt
 reduced to one record a world, `loop_decide` writes whether each goes on, and `wp.capture_while` repeats the
 iteration while any does, without the host (a CUDA conditional node; on a CPU, Warp's own capture of the same
 loop). The host reads the records once, after the loop. The policy is the host's (`Simulator._may_iterate`), to the same
-comparisons: stop at the tolerance, at `max_iterations`, or when the error has grown 1000-fold over the best of
-the step after at least three iterations; a non-finite error stops the loop for the host to report.
+comparisons: stop at the tolerance, at `max_iterations`, or when the correction diverges (`diverging`, the one rule
+of every loop; `types.DIVERGENCE_GROWTH`); a non-finite error stops the loop for the host to report.
 """
 
 import warp as wp
 
+from ..types import DIVERGENCE_AFTER, DIVERGENCE_GROWTH
+
 wp.set_module_options({"enable_backward": False})
 
 f64 = wp.float64
+DIVERGENCE_AFTER_ = wp.constant(DIVERGENCE_AFTER)
+DIVERGENCE_GROWTH_ = wp.constant(DIVERGENCE_GROWTH)
 
 LOOP_ERROR = wp.constant(0)  # the largest error of the measurement being reduced (m, or m/s)
 LOOP_LAST = wp.constant(1)  # the largest error of the last measurement
@@ -58,13 +62,18 @@ def loop_reduce(
 
 
 @wp.func
+def diverging(err: f64, best: f64, iterations: int) -> wp.bool:
+    """Whether a correction diverges (`types.DIVERGENCE_GROWTH`): the one rule of every loop on the device."""
+    return iterations >= DIVERGENCE_AFTER_ and err > f64(DIVERGENCE_GROWTH_) * best
+
+
+@wp.func
 def verdict(err: f64, best: f64, iterations: int, tolerance: f64, max_iterations: int):
     """(go on, failed) of a correction whose last error is err after `iterations` (best: the smallest error so
     far, err included): go on while over the tolerance, under the iteration limit and not diverging (the error
     1000-fold over the best after three iterations); failed when it must stop over the tolerance."""
     over = not (err <= tolerance)
-    diverging = iterations >= 3 and err > f64(1.0e3) * best
-    failed = over and (not wp.isfinite(err) or iterations >= max_iterations or diverging)
+    failed = over and (not wp.isfinite(err) or iterations >= max_iterations or diverging(err, best, iterations))
     return over and not failed, failed
 
 

@@ -43,6 +43,7 @@ from .impulses import apply_body, impulse_response
 from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
+from .loop import diverging
 from .rigid import LANES, body_summary, predict_group
 
 wp.set_module_options({"enable_backward": False})
@@ -1044,7 +1045,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if err <= tolerance:
                         ok = True
                         break
-                    if tries >= max_iterations or (tries >= 3 and err > f64(1.0e3) * best):
+                    if tries >= max_iterations or diverging(err, best, tries):
                         break
                     if tries == 0 and carrying != 0:
                         carry_into_all(constraint_count, carry[row], rhs)
@@ -1356,7 +1357,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         if err <= tolerance:
                             ok = True
                             break
-                        if sweeps >= max_iterations or (sweeps >= 3 and err > f64(1.0e3) * best):
+                        if sweeps >= max_iterations or diverging(err, best, sweeps):
                             break
                         sweeps += 1
                     iterations += sweeps
@@ -1421,11 +1422,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         vbest = wp.min(vbest, verr)
                         if verr <= velocity_tolerance:
                             break
-                        if (
-                            not wp.isfinite(verr)
-                            or vsweeps >= max_iterations
-                            or (vsweeps >= 3 and verr > f64(1.0e3) * vbest)
-                        ):
+                        if not wp.isfinite(verr) or vsweeps >= max_iterations or diverging(verr, vbest, vsweeps):
                             converged = False
                             break
                         vsweeps += 1

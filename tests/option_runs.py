@@ -11,7 +11,7 @@ def off_and_on(make, dt: float, steps: int, option: str, before: int = 0, **sett
     the scene `make()` builds, with `option` off and on (and `settings` for both)."""
     runs = {}
     for on in (False, True):
-        sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=1e-6, **{option: on}, **settings)
+        sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=1e-6, **wi.StepOptions.fold({option: on, **settings}))
         if before:
             sim.step(before)
         runs[on] = (sim, [sim.step() for _ in range(steps)])

@@ -173,7 +173,13 @@ def test_external_forces_refuse_nan():
 # ------------------------------------------------------------------------------------------------ policy
 @pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
 def test_iteration_limit_raise_names_step_iterations_and_joints(solver):
-    sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1, max_substep_depth=0)
+    sim = wi.Simulator(
+        scenes.binary_tree(31).finalize(),
+        1 / 10,
+        solver=solver,
+        max_iterations=1,
+        options=wi.StepOptions(max_substep_depth=0),
+    )
     with pytest.raises(wi.SimulationError) as info:
         sim.step()
     msg = str(info.value)
@@ -183,7 +189,7 @@ def test_iteration_limit_raise_names_step_iterations_and_joints(solver):
 
 def test_failing_step_is_redone_as_substeps():
     """A chain whipping at h = 1/30 fails its joint correction at full steps; halving rescues it."""
-    sim = wi.Simulator(scenes.chain(50).finalize(), 1 / 30, max_substep_depth=0)
+    sim = wi.Simulator(scenes.chain(50).finalize(), 1 / 30, options=wi.StepOptions(max_substep_depth=0))
     with pytest.raises(wi.SimulationError, match="correction"):
         sim.simulate(2.0)
     sim = wi.Simulator(scenes.chain(50).finalize(), 1 / 30)
@@ -207,15 +213,20 @@ def test_a_fast_spin_splits_the_step(solver):
     """100 rad/s at h = 1/60 turns 1.67 rad a step: 4 substeps of 0.42 rad at the default max_rotation 0.5."""
     model = _spinning_pendulum(100.0).finalize()
     assert wi.Simulator(model, 1 / 60, solver=solver).step().substeps == 4
-    assert wi.Simulator(model, 1 / 60, solver=solver, max_rotation=None).step().substeps == 1
-    assert wi.Simulator(model, 1 / 60, solver=solver, max_rotation=2.0).step().substeps == 1
-    assert wi.Simulator(model, 1 / 60, solver=solver, max_rotation=0.5, max_substep_depth=1).step().substeps == 2
+    assert wi.Simulator(model, 1 / 60, solver=solver, options=wi.StepOptions(max_rotation=None)).step().substeps == 1
+    assert wi.Simulator(model, 1 / 60, solver=solver, options=wi.StepOptions(max_rotation=2.0)).step().substeps == 1
+    assert (
+        wi.Simulator(model, 1 / 60, solver=solver, options=wi.StepOptions(max_rotation=0.5, max_substep_depth=1))
+        .step()
+        .substeps
+        == 2
+    )
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), float("inf")])
 def test_max_rotation_is_validated(bad):
     with pytest.raises(ValueError, match="max_rotation"):
-        wi.Simulator(scenes.chain(2).finalize(), 1 / 60, max_rotation=bad)
+        wi.Simulator(scenes.chain(2).finalize(), 1 / 60, options=wi.StepOptions(max_rotation=bad))
 
 
 def _energy_gain(sim: wi.Simulator, steps: int) -> float:
@@ -233,7 +244,9 @@ def test_a_whipping_chain_is_split_where_it_spins_up():
     """A heavy root (1:1e6) whips its light chain to ~80 rad/s: whole steps of 1/100 gain energy, then fail;
     the steps the whip turns too far in are halved and the energy holds."""
     model = stress.mass_ratio_chain(1e6, "root").finalize()
-    sim = wi.Simulator(model, 1 / 100, max_rotation=None, max_substep_depth=0, on_max_iterations="warn")
+    sim = wi.Simulator(
+        model, 1 / 100, on_max_iterations="warn", options=wi.StepOptions(max_rotation=None, max_substep_depth=0)
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         whole = _energy_gain(sim, 300)
@@ -245,8 +258,14 @@ def test_a_whipping_chain_is_split_where_it_spins_up():
 
 @pytest.mark.parametrize("solver", ["cholesky", "cg", "iterative"])
 def test_iteration_limit_warn_goes_on_and_records_it(solver):
-    sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1,
-                       on_max_iterations="warn", max_substep_depth=0)  # fmt: skip
+    sim = wi.Simulator(
+        scenes.binary_tree(31).finalize(),
+        1 / 10,
+        solver=solver,
+        max_iterations=1,
+        on_max_iterations="warn",
+        options=wi.StepOptions(max_substep_depth=0),
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         stats = [sim.step() for _ in range(3)]

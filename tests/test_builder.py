@@ -181,7 +181,7 @@ def test_bad_simulator_settings(kwargs, message):
     b, body = one_body()
     b.add_joint_ball(None, body, (0, 0, 0))
     with pytest.raises(ValueError, match=message):
-        wi.Simulator(b.finalize(), **{"dt": 0.01, **kwargs})
+        wi.Simulator(b.finalize(), **wi.StepOptions.fold({"dt": 0.01, **kwargs}))
 
 
 def test_bad_external_forces():

@@ -23,7 +23,9 @@ from warpimpulse import scenes
 def _first_iteration_error(carry: bool) -> float:
     """The largest joint error after the first iteration of chain10's step from t = 1.1 s (swinging), the step
     before it taken in full (so the carry has a value)."""
-    sim = wi.Simulator(scenes.chain(10).finalize("cpu"), 1 / 60, carry=carry, schedule="parallel")
+    sim = wi.Simulator(
+        scenes.chain(10).finalize("cpu"), 1 / 60, options=wi.StepOptions(carry=carry, schedule="parallel")
+    )
     sim.step(66)
     sim.max_iterations, sim.on_max_iterations = 1, "warn"
     sim._loops_by_h.clear()  # the device loop, captured again with the limit of one iteration
@@ -98,15 +100,15 @@ def test_a_checkpoint_keeps_the_carry(tmp_path):
 def test_where_the_carry_is_taken():
     chain = scenes.chain(4).finalize("cpu")
     assert wi.Simulator(chain, 1 / 60).carry
-    assert not wi.Simulator(chain, 1 / 60, carry=False).carry
+    assert not wi.Simulator(chain, 1 / 60, options=wi.StepOptions(carry=False)).carry
     assert not wi.Simulator(chain, 1 / 60, solver="cg").carry
     assert not wi.Simulator(chain, 1 / 60, solver="iterative").carry
     for solver in ("cg", "iterative"):
         with pytest.raises(ValueError, match=f"carry needs joints, the cholesky solver.*'{solver}'"):
-            wi.Simulator(chain, 1 / 60, solver=solver, carry=True)
+            wi.Simulator(chain, 1 / 60, solver=solver, options=wi.StepOptions(carry=True))
     with pytest.raises(ValueError, match="carry must be True, False or None"):
-        wi.Simulator(chain, 1 / 60, carry="yes")
+        wi.Simulator(chain, 1 / 60, options=wi.StepOptions(carry="yes"))
     stack = scenes.box_stack(2).finalize("cpu")  # contacts: their loop does not carry
     assert not wi.Simulator(stack, 1 / 60).carry
     with pytest.raises(ValueError, match="carry needs.*colliders"):
-        wi.Simulator(stack, 1 / 60, carry=True)
+        wi.Simulator(stack, 1 / 60, options=wi.StepOptions(carry=True))

@@ -332,13 +332,15 @@ def _ball_builder() -> wi.SceneBuilder:
 )
 def test_bad_contact_options_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        wi.Simulator(scenes.box_stack(1).finalize(), dt=0.01, **kwargs)
+        wi.Simulator(scenes.box_stack(1).finalize(), dt=0.01, **wi.StepOptions.fold(kwargs))
 
 
 def test_all_pairs_broad_phase_finds_the_same_contacts_as_the_bvh():
     found = []
     for broad in ("bvh", "all_pairs"):
-        sim = wi.Simulator(scenes.pile(60, seed=3).finalize(), dt=1.0 / 60.0, tolerance=1e-4, broad_phase=broad)
+        sim = wi.Simulator(
+            scenes.pile(60, seed=3).finalize(), dt=1.0 / 60.0, tolerance=1e-4, options=wi.StepOptions(broad_phase=broad)
+        )
         sim.simulate(1.0)
         c = sim.contacts()
         found.append(sorted(zip(c.body_a.tolist(), c.body_b.tolist())))
@@ -441,8 +443,14 @@ def test_batched_worlds_refuse_contacts():
 def test_paper_contact_solver_holds_a_stack_to_the_tolerance():
     """The "paper" solver (one sweep a prediction) closes pushing contacts to touching: with the pgs solver's
     half-tolerance slop it ran out of iterations on 59 of 60 steps of this stack (9 of 60 at 0)."""
-    sim = wi.Simulator(scenes.box_stack(10).finalize(), 1.0 / 60.0, tolerance=1e-4, contact_solver="paper",
-                       max_substep_depth=0, on_max_iterations="warn")  # fmt: skip
+    sim = wi.Simulator(
+        scenes.box_stack(10).finalize(),
+        1.0 / 60.0,
+        tolerance=1e-4,
+        contact_solver="paper",
+        on_max_iterations="warn",
+        options=wi.StepOptions(max_substep_depth=0),
+    )
     assert sim.contact_stage.position_slop == 0.0
     short = 0
     with warnings.catch_warnings():

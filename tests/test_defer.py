@@ -36,7 +36,12 @@ SCENES = {
 
 def _run(case: str, tolerance: float, defer: bool) -> tuple[wi.Simulator, wi.StepStats]:
     make, dt, settings = SCENES[case]
-    sim = wi.Simulator(make().finalize(), dt, tolerance=tolerance, defer_velocities=defer, **settings)
+    sim = wi.Simulator(
+        make().finalize(),
+        dt,
+        tolerance=tolerance,
+        **wi.StepOptions.fold({**settings, "defer_velocities": defer}),
+    )
     sim.step(20)
     return sim, sim.step(10)
 
@@ -69,7 +74,7 @@ def test_handed_out_velocities_hold_and_deferred_steps_say_so(case):
     and an unmeasured (NaN) velocity error, and converged; the last its one correction and the error it left."""
     make, dt, settings = SCENES[case]
     builder = make()
-    sim = wi.Simulator(builder.finalize(), dt, **settings)
+    sim = wi.Simulator(builder.finalize(), dt, **wi.StepOptions.fold(settings))
     sim.step(30)
     stats = sim.simulate(20 * dt)
     assert [s.velocity_iterations for s in stats] == [0] * 19 + [1]
@@ -113,11 +118,11 @@ def test_deferred_only_where_the_next_joint_correction_reaches_the_same_state(ma
     batched worlds keep every step's correction; asked for there, a ValueError says why."""
     assert wi.Simulator(scenes.chain(3).finalize(), 1 / 60).defer_velocities
     model = make().finalize()
-    assert not wi.Simulator(model, 1 / 60, **settings).defer_velocities
+    assert not wi.Simulator(model, 1 / 60, **wi.StepOptions.fold(settings)).defer_velocities
     with pytest.raises(ValueError, match=why):
-        wi.Simulator(model, 1 / 60, defer_velocities=True, **settings)
+        wi.Simulator(model, 1 / 60, **wi.StepOptions.fold({**settings, "defer_velocities": True}))
     with pytest.raises(ValueError, match="defer_velocities must be"):
-        wi.Simulator(scenes.chain(3).finalize(), 1 / 60, defer_velocities="yes")
+        wi.Simulator(scenes.chain(3).finalize(), 1 / 60, options=wi.StepOptions(defer_velocities="yes"))
 
 
 @pytest.mark.parametrize("schedule", ["fused", "parallel"])
@@ -126,8 +131,12 @@ def test_a_velocity_correction_over_its_tolerance_says_what_it_left(schedule, de
     """The velocity correction is one exact solve: one that leaves more than the velocity tolerance (here a
     tolerance below round-off) raises naming the error it left and the joints, not an iteration limit it never
     had: at the first step without the deferral, at the step handed out (the third) with it."""
-    sim = wi.Simulator(scenes.chain(5).finalize(), 1 / 60, velocity_tolerance=1e-30, schedule=schedule,
-                       defer_velocities=defer)  # fmt: skip
+    sim = wi.Simulator(
+        scenes.chain(5).finalize(),
+        1 / 60,
+        velocity_tolerance=1e-30,
+        options=wi.StepOptions(schedule=schedule, defer_velocities=defer),
+    )
     step = 3 if defer else 1
     with pytest.raises(wi.SimulationError, match=rf"step {step} .*the velocity correction left .*, over its "
                                                  r"tolerance of 1e-30; worst joints: ") as err:  # fmt: skip

@@ -28,7 +28,7 @@ def _limited_chain() -> wi.SceneBuilder:
 
 
 def _run(make, dt: float, steps: int, host: bool):
-    sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=1e-6, schedule="parallel")
+    sim = wi.Simulator(make().finalize("cpu"), dt, tolerance=1e-6, options=wi.StepOptions(schedule="parallel"))
     if host:
         _host_loop(sim)
     stats = [sim.step() for _ in range(steps)]
@@ -61,7 +61,9 @@ def test_device_loop_takes_the_host_loops_steps(make, dt):
 
 
 def test_device_loop_reads_no_errors_back(monkeypatch):
-    sim = wi.Simulator(scenes.chain(10).finalize("cpu"), 1 / 60, tolerance=1e-6, schedule="parallel")
+    sim = wi.Simulator(
+        scenes.chain(10).finalize("cpu"), 1 / 60, tolerance=1e-6, options=wi.StepOptions(schedule="parallel")
+    )
     sim.step(3)
     reads = []
     monkeypatch.setattr(wi.Simulator, "_max_error", lambda self, what: reads.append(what))
@@ -74,7 +76,13 @@ def test_device_loop_stops_at_the_iteration_limit_and_names_the_joints():
     make = lambda: scenes.chain(10)  # noqa: E731
     messages = []
     for host in (False, True):
-        sim = wi.Simulator(make().finalize("cpu"), 1 / 60, tolerance=1e-12, max_iterations=2, schedule="parallel")
+        sim = wi.Simulator(
+            make().finalize("cpu"),
+            1 / 60,
+            tolerance=1e-12,
+            max_iterations=2,
+            options=wi.StepOptions(schedule="parallel"),
+        )
         sim.max_substep_depth = 0
         if host:
             _host_loop(sim)

@@ -120,7 +120,7 @@ def test_simulator_names_the_argument_of_a_wrong_type(kwargs, match):
     model = _one_body().finalize()
     kwargs = {"dt": 0.01, **kwargs}
     with pytest.raises(ValueError, match=match):
-        Simulator(model, **kwargs)
+        Simulator(model, **wi.StepOptions.fold(kwargs))
 
 
 def test_simulator_refuses_a_builder_for_a_model():
@@ -207,7 +207,7 @@ def test_a_genuinely_redundant_joint_is_still_called_redundant():
     assert sim.redundant_rows == 4  # 9 rows on the root, 5 degrees of freedom removed
     assert sim.step().converged and sim.joint_errors().max() <= 1e-6
     with pytest.raises(SingularSystemError, match="redundant"):
-        Simulator(b.finalize(), 1 / 30, solver="cholesky", formulation="body").step()
+        Simulator(b.finalize(), 1 / 30, solver="cholesky", options=wi.StepOptions(formulation="body")).step()
 
 
 # ------------------------------------------------------------------------------------------------ checkpoints
@@ -347,7 +347,7 @@ def test_record_refuses_a_duration_without_a_frame(tmp_path):
 def test_record_warns_of_an_energy_gain_and_records_it(tmp_path):
     from pxr import Sdf
 
-    sim = Simulator(scenes.binary_tree(31).finalize(), 0.5, max_rotation=None)
+    sim = Simulator(scenes.binary_tree(31).finalize(), 0.5, options=wi.StepOptions(max_rotation=None))
     out = tmp_path / "o.usdc"
     with pytest.warns(RuntimeWarning, match=r"the energy grew by \d+\.\d% .* above the 5% threshold"):
         wi.usd.record(sim, out, duration=6.0, fps=2)

@@ -201,7 +201,7 @@ def test_the_papers_split_systems_hold_the_four_bar_but_auto_keeps_one_matrix():
     """Section 4.6's two systems (tree and loop joints factored apart, solved side by side in the common
     loop) hold the four-bar too, in about 20 iterations a step where one matrix with the loop joints last
     takes 2: "auto" keeps the one matrix (benchmarks/mechanisms.py has the times)."""
-    split = wi.Simulator(scenes.four_bar().finalize(), dt=1.0 / 60.0, formulation="split")
+    split = wi.Simulator(scenes.four_bar().finalize(), dt=1.0 / 60.0, options=wi.StepOptions(formulation="split"))
     one = wi.Simulator(scenes.four_bar().finalize(), dt=1.0 / 60.0)
     assert one.linear.pattern.formulation == "constraint" and split.linear.pattern.formulation == "split"
     its = {"split": [], "one": []}

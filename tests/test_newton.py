@@ -55,11 +55,9 @@ def _errors_after_one_iteration(make, dt: float, newton: bool, before: int) -> t
     sim = wi.Simulator(
         make().finalize(),
         dt,
-        newton=newton,
         max_iterations=1,
         on_max_iterations="warn",
-        schedule="parallel",
-        carry=False,
+        options=wi.StepOptions(newton=newton, schedule="parallel", carry=False),
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # one iteration stops short of the tolerance
@@ -113,12 +111,12 @@ def test_the_newton_step_saves_iterations_and_ends_where_the_plain_one_does(make
 def test_newton_is_on_by_default_from_newton_bodies():
     small = scenes.binary_tree(127).finalize()
     assert not wi.Simulator(small, 1 / 60).newton
-    assert wi.Simulator(small, 1 / 60, newton=True).newton
+    assert wi.Simulator(small, 1 / 60, options=wi.StepOptions(newton=True)).newton
     levels = int(np.ceil(np.log2(NEWTON_BODIES + 1)))
     big = scenes.binary_tree(2**levels - 1).finalize()
     assert big.body_count >= NEWTON_BODIES
     assert wi.Simulator(big, 1 / 60).newton
-    assert not wi.Simulator(big, 1 / 60, newton=False).newton
+    assert not wi.Simulator(big, 1 / 60, options=wi.StepOptions(newton=False)).newton
     assert not wi.Simulator(big, 1 / 60, solver="cg").newton  # the Newton step needs the factor
     looped = scenes.binary_tree(2**levels - 1)
     looped.add_joint_ball(2**levels - 3, 2**levels - 2, looped.bodies[2**levels - 2].position, name="loop")
@@ -129,9 +127,9 @@ def test_newton_needs_the_factor_and_says_so():
     model = scenes.chain(3).finalize()
     for solver in ("cg", "iterative"):
         with pytest.raises(ValueError, match="newton needs joints and the cholesky solver"):
-            wi.Simulator(model, 1 / 60, solver=solver, newton=True)
+            wi.Simulator(model, 1 / 60, solver=solver, options=wi.StepOptions(newton=True))
     with pytest.raises(ValueError, match="newton must be True, False or None"):
-        wi.Simulator(model, 1 / 60, newton="yes")
+        wi.Simulator(model, 1 / 60, options=wi.StepOptions(newton="yes"))
 
 
 @pytest.mark.fused  # the split runs the fused step's stages
@@ -139,5 +137,5 @@ def test_threads_leave_the_newton_step_to_one_thread():
     model = scenes.binary_tree(63).finalize()
     split = SplitSimulator(model, 1 / 60, threads=2)
     assert split.threads == 2 and not split.newton
-    asked = SplitSimulator(model, 1 / 60, threads=2, newton=True)
+    asked = SplitSimulator(model, 1 / 60, threads=2, options=wi.StepOptions(newton=True))
     assert asked.threads == 1 and asked.newton and "Newton" in asked.split_note

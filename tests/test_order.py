@@ -54,9 +54,9 @@ def test_order_and_scheme_checked():
         with pytest.raises(ValueError, match="order"):
             warpimpulse.Simulator(model, 0.01, order=bad)
     with pytest.raises(ValueError, match="suzuki5"):
-        warpimpulse.Simulator(model, 0.01, order=6, scheme="suzuki5")
+        warpimpulse.Simulator(model, 0.01, order=6, options=warpimpulse.StepOptions(scheme="suzuki5"))
     with pytest.raises(ValueError, match="unknown composition"):
-        warpimpulse.Simulator(model, 0.01, order=4, scheme="rk4")
+        warpimpulse.Simulator(model, 0.01, order=4, options=warpimpulse.StepOptions(scheme="rk4"))
 
 
 def test_default_tolerance_rule():
@@ -78,7 +78,9 @@ def pendulum():
 def _max_error(builder, ref, rate: int, order: int, scheme=None, duration: float = 1.0) -> float:
     n = int(round(duration * rate))
     expected = ref.coms(ref.solve(ANGLES, np.arange(n + 1) / rate, rtol=1e-13))
-    sim = warpimpulse.Simulator(builder.finalize(), 1.0 / rate, order=order, scheme=scheme)
+    sim = warpimpulse.Simulator(
+        builder.finalize(), 1.0 / rate, order=order, options=warpimpulse.StepOptions(scheme=scheme)
+    )
     worst = 0.0
     for k in range(1, n + 1):
         stats = sim.step()
@@ -126,7 +128,12 @@ def test_step_is_symmetric(joint):
     """step(h) then step(-h) returns to the start, with an error shrinking like h^5 or faster (the RK4 free
     flight is the only part that is not exactly reversible), for every joint type and so every basic
     constraint: the impulses at t0 and the projection at t0+h use the Jacobian of the same constraint."""
-    sim = warpimpulse.Simulator(_moving_chain(joint).finalize(), 1 / 30, tolerance=1e-13, defer_velocities=False)
+    sim = warpimpulse.Simulator(
+        _moving_chain(joint).finalize(),
+        1 / 30,
+        tolerance=1e-13,
+        options=warpimpulse.StepOptions(defer_velocities=False),
+    )
     for _ in range(10):
         sim.step()  # moving, on the constraints
     start = _state(sim)
@@ -184,7 +191,7 @@ def test_backward_spin_is_substepped():
     """A body spinning fast takes several RK4 rotation substeps in a step; a negative step must take as many."""
     builder = warpimpulse.SceneBuilder(gravity=(0.0, 0.0, 0.0))
     builder.add_body(1.0, np.diag([1.0, 2.0, 3.0]), (0, 0, 0), angular_velocity=(30.0, 1.0, 0.5))
-    sim = warpimpulse.Simulator(builder.finalize(), 1 / 30, max_rotation=None)
+    sim = warpimpulse.Simulator(builder.finalize(), 1 / 30, options=warpimpulse.StepOptions(max_rotation=None))
     start = _state(sim)
     sim._advance(1 / 30, 0, (1.0,))
     assert np.abs(_state(sim) - start).max() > 0.1
@@ -200,7 +207,12 @@ def test_joints_hold_after_every_substep(order):
     host, where they can be looked at; the fused one takes the same steps bit for bit (test_schedules.py)."""
     builder = scenes.chain(7, joint=JOINTS)
     builder.gravity = np.array([2.0, 3.0, -9.81])
-    sim = warpimpulse.Simulator(builder.finalize(), 1 / 30, order=order, schedule="parallel", defer_velocities=False)
+    sim = warpimpulse.Simulator(
+        builder.finalize(),
+        1 / 30,
+        order=order,
+        options=warpimpulse.StepOptions(schedule="parallel", defer_velocities=False),
+    )
     seen = []
     base_step = sim._base_step
 
@@ -243,8 +255,12 @@ def test_substep_rules_apply_to_whole_composed_steps():
     builder.bodies[1].linear_velocity = np.cross(
         [0.0, 18.0, 0.0], builder.bodies[1].position - builder.joints[1].anchor
     )
-    split = warpimpulse.Simulator(builder.finalize(), 1 / 20, tolerance=1e-10, order=4, max_rotation=0.5)
-    halves = warpimpulse.Simulator(builder.finalize(), 1 / 40, tolerance=1e-10, order=4, max_rotation=None)
+    split = warpimpulse.Simulator(
+        builder.finalize(), 1 / 20, tolerance=1e-10, order=4, options=warpimpulse.StepOptions(max_rotation=0.5)
+    )
+    halves = warpimpulse.Simulator(
+        builder.finalize(), 1 / 40, tolerance=1e-10, order=4, options=warpimpulse.StepOptions(max_rotation=None)
+    )
     stats = split.step()
     assert stats.substeps == 2 and stats.order == 4
     halves.step(2)  # one call, as the split step: the velocities corrected at its end (`defer_velocities`)
@@ -256,8 +272,8 @@ def test_failed_composed_step_is_redone_as_two_halves():
     halves: the same bits as a simulator at dt/2."""
     builder = scenes.double_pendulum(angles=(1.0, 2.0))
     settings = dict(tolerance=1e-12, order=4, max_iterations=5, max_rotation=None)
-    whole = warpimpulse.Simulator(builder.finalize(), 1 / 10, **settings)
-    halves = warpimpulse.Simulator(builder.finalize(), 1 / 20, **settings)
+    whole = warpimpulse.Simulator(builder.finalize(), 1 / 10, **warpimpulse.StepOptions.fold(settings))
+    halves = warpimpulse.Simulator(builder.finalize(), 1 / 20, **warpimpulse.StepOptions.fold(settings))
     stats = whole.step()
     assert stats.substeps > 1 and stats.order == 4 and stats.converged
     halves.step(2)  # one call, as the halved step: the velocities corrected at its end (`defer_velocities`)

@@ -109,7 +109,7 @@ def test_a_factor_of_every_kind_has_its_zeros_and_solves_k(formulation):
     the factor is numpy's dense solve of K (built in numpy, not by the engine's kernels)."""
     builder = scenes.chain(14, MIXED)
     model = builder.finalize()
-    sim = wi.Simulator(model, 1 / 120, formulation=formulation)
+    sim = wi.Simulator(model, 1 / 120, options=wi.StepOptions(formulation=formulation))
     sim.simulate(0.2)  # away from the symmetric start
     solver = sim.linear
     assert solver.pattern.formulation == formulation

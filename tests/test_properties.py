@@ -2,8 +2,9 @@
 of magnitude and random velocities, run with every solver and formulation at random step sizes. Each one ends
 either in a clear error (SceneError, SimulationError, SingularSystemError, naming what is at fault) or in a
 valid simulation where every joint holds, checked every step from the numpy state by
-`numpy_checks.constraint_errors`, which shares no code with the kernels. `make test` draws a few dozen examples;
-the slow variant draws hundreds, with bigger trees and longer runs."""
+`numpy_checks.constraint_errors`, which shares no code with the kernels. `make test` replays a fixed set of a few
+dozen examples (the "deterministic" profile, conftest.py); `make fuzz` draws new ones; the slow variant draws
+hundreds, with bigger trees and longer runs."""
 
 from __future__ import annotations
 
@@ -98,8 +99,14 @@ def check_random_tree(data, trees, solvers=SOLVERS, step_sizes=STEP_SIZES, steps
     dt = data.draw(st.sampled_from(step_sizes))
     note(f"solver {solver!r}, formulation {formulation!r}, dt {dt!r}, scene:\n{describe(builder)}")
     try:
-        sim = wi.Simulator(builder.finalize(), dt, tolerance=TOLERANCE, solver=solver, formulation=formulation,
-                           max_iterations=100)  # fmt: skip
+        sim = wi.Simulator(
+            builder.finalize(),
+            dt,
+            tolerance=TOLERANCE,
+            solver=solver,
+            max_iterations=100,
+            options=wi.StepOptions(formulation=formulation),
+        )
         for k in range(steps):
             stats = sim.step()
             assert stats.converged and stats.max_joint_error <= TOLERANCE, f"step {k + 1}: {stats}"

@@ -23,7 +23,7 @@ def test_quaternions_stay_unit_in_the_raw_state():
     """A body spinning at 12 rad/s, 0.2 rad a step: RK4 alone would change |q| by ~1e-8 a step."""
     b = wi.SceneBuilder(gravity=(0.0, 0.0, 0.0))
     b.add_body(1.0, (1.0, 2.0, 2.5), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), angular_velocity=(7.0, 9.0, -3.0))
-    sim = wi.Simulator(b.finalize(), 1.0 / 60.0, max_rotation=None)
+    sim = wi.Simulator(b.finalize(), 1.0 / 60.0, options=wi.StepOptions(max_rotation=None))
     tree = wi.Simulator(scenes.binary_tree(31).finalize(), 1.0 / 60.0)
     worst = 0.0
     for _ in range(120):
@@ -94,7 +94,7 @@ def test_system_matrix_is_j_inverse_mass_jt(name, formulation):
     kinds = {int(c.kind) for c in builder.constraints}
     if name == "every_kind_chain":
         assert kinds == set(range(6))
-    sim = wi.Simulator(builder.finalize(), 1.0 / 60.0, formulation=formulation)
+    sim = wi.Simulator(builder.finalize(), 1.0 / 60.0, options=wi.StepOptions(formulation=formulation))
     sim.simulate(0.2)  # away from the symmetric start
     engine = Internals(sim)
     assert engine.formulation() == formulation

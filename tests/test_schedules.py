@@ -183,7 +183,7 @@ CASES = {
 
 def _run(case: str, schedule: str, batched: bool):
     make, dt, steps, options = CASES[case]
-    sim = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
+    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold({**options, "schedule": schedule}))
     stats = sim.simulate(steps * dt) if batched else [sim.step() for _ in range(steps)]
     state = [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"] + [sim.drive_integral.numpy().copy()]
     state += [sim.limit_impulse.numpy().copy(), sim.limit_velocity_impulse.numpy().copy()]
@@ -215,7 +215,7 @@ def test_the_cases_reach_the_host_paths():
 def _row_history(case: str) -> tuple[np.ndarray, list]:
     """Each step's row impulses (N s or N m s) and stats of a case, by the fused schedule."""
     make, dt, steps, options = CASES[case]
-    sim = wi.Simulator(make().finalize(), dt, **options)
+    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     assert sim.schedule == "fused", sim.schedule_note
     impulses, stats = [], []
     for _ in range(steps):
@@ -248,7 +248,7 @@ def test_steps_with_rows_are_taken_by_the_fused_kernel(case, monkeypatch):
     """A batch of steps with rows is one launch and hands no step back (a fused kernel that failed every step
     would still agree with the parallel schedule, which would take them all)."""
     make, dt, steps, options = CASES[case]
-    sim = wi.Simulator(make().finalize(), dt, **options)
+    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     counts = _count_launches(sim, monkeypatch)
     stats = sim.step(steps)
     assert counts == {"launches": 1, "parallel_steps": 0} and stats.converged
@@ -258,7 +258,7 @@ def test_a_composed_step_that_fails_in_a_later_stage_is_redone_from_its_start(mo
     """yoshida3 at h = 1/15 on chain50: a stage after the first fails, the fused kernel restores the start of the
     composed step and the host its frames (they were the last stage's), then the parallel schedule halves it."""
     make, dt, steps, options = CASES["chain50_yoshida3_halved"]
-    sim = wi.Simulator(make().finalize(), dt, **options)
+    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     redone, update = [], sim._update_frames
 
     def update_frames():
@@ -318,8 +318,8 @@ def test_step_n_stats_are_the_steps_combined(case):
     combining the n steps' own stats gives, also where steps were handed to the host (splits, halvings) or taken
     at order 2, and the state is the same."""
     make, dt, steps, options = CASES[case]
-    whole = wi.Simulator(make().finalize(), dt, **options)
-    single = wi.Simulator(make().finalize(), dt, **options)
+    whole = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
+    single = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     combined = whole.step(steps)
     assert combined == wi.simulator._combined(single.simulate(steps * dt))  # one call too, a StepStats a step
     assert combined.substeps >= steps
@@ -344,11 +344,11 @@ def test_step_n_is_n_steps():
 def test_schedule_choice():
     model = scenes.chain(3).finalize()
     assert wi.Simulator(model, 1 / 60).schedule == "fused"  # auto, on a CPU
-    assert wi.Simulator(model, 1 / 60, schedule="parallel").schedule == "parallel"
-    cg = wi.Simulator(model, 1 / 60, solver="cg", schedule="fused")
+    assert wi.Simulator(model, 1 / 60, options=wi.StepOptions(schedule="parallel")).schedule == "parallel"
+    cg = wi.Simulator(model, 1 / 60, solver="cg", options=wi.StepOptions(schedule="fused"))
     assert cg.schedule == "parallel" and "CG" in cg.schedule_note
     with pytest.raises(ValueError, match="unknown schedule 'gpu'"):
-        wi.Simulator(model, 1 / 60, schedule="gpu")
+        wi.Simulator(model, 1 / 60, options=wi.StepOptions(schedule="gpu"))
     assert wi.Simulator(_servo_chain().finalize(), 1 / 60).schedule == "fused"  # force elements run fused
     limited = scenes.chain(3)
     limited.add_joint_limit(0, -0.3, 0.3)
@@ -368,14 +368,14 @@ def test_schedule_choice():
 
 
 def _failure(schedule: str, make, **options) -> str:
-    sim = wi.Simulator(make(), schedule=schedule, **options)
+    sim = wi.Simulator(make(), **wi.StepOptions.fold({**options, "schedule": schedule}))
     with pytest.raises((wi.SimulationError, RuntimeError)) as info:
         sim.simulate(1.0)
     return str(info.value)
 
 
 def _nan_at_step_4(schedule: str) -> str:
-    sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 60, schedule=schedule)
+    sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 60, options=wi.StepOptions(schedule=schedule))
     sim.step(3)
     v = sim.state.body_v.numpy()
     v[5, 0] = np.nan
@@ -410,8 +410,14 @@ def test_failures_found_by_the_fused_kernel_name_step_joints_and_bodies():
 @pytest.mark.parametrize("solver", ["cholesky", "iterative"])
 def test_warn_policy_agrees(solver):
     def run(schedule):
-        sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 10, solver=solver, max_iterations=1,
-                           on_max_iterations="warn", max_substep_depth=0, schedule=schedule)  # fmt: skip
+        sim = wi.Simulator(
+            scenes.binary_tree(31).finalize(),
+            1 / 10,
+            solver=solver,
+            max_iterations=1,
+            on_max_iterations="warn",
+            options=wi.StepOptions(max_substep_depth=0, schedule=schedule),
+        )
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             stats = sim.simulate(0.3)
@@ -459,7 +465,9 @@ def test_order_and_fall_back_under_the_fused_schedule(order, monkeypatch):
     stats = composed.step(20)
     assert composed.schedule == "fused" and counts == {"launches": 1, "parallel_steps": 0}
     assert stats.order == order and stats.converged
-    fused, parallel = (wi.Simulator(model, 1 / 60, schedule=s, order=order) for s in ("fused", "parallel"))
+    fused, parallel = (
+        wi.Simulator(model, 1 / 60, order=order, options=wi.StepOptions(schedule=s)) for s in ("fused", "parallel")
+    )
     results = []
     for sim in (fused, parallel):
         sim.step(3)
@@ -474,8 +482,12 @@ def test_a_halved_composed_step_undoes_the_drives_integrals_of_its_failed_attemp
     """A composed step whose later stage fails is redone as two halves from its start: the drives' integrals too
     (the first stages' increments are undone with the state), so the halves are two steps of h/2 bit for bit."""
     make, dt, _, options = CASES["servo_chain50_yoshida3_halved"]
-    sim = wi.Simulator(make().finalize(), dt, schedule="parallel", **options)
-    halves = wi.Simulator(make().finalize(), dt / 2, schedule="parallel", max_substep_depth=6, **options)
+    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold({**options, "schedule": "parallel"}))
+    halves = wi.Simulator(
+        make().finalize(),
+        dt / 2,
+        **wi.StepOptions.fold({**options, "schedule": "parallel", "max_substep_depth": 6}),
+    )
     for _ in range(20):
         start = _state(sim) + [sim.drive_integral.numpy().copy()]
         stats = sim.step()
@@ -501,7 +513,7 @@ def test_motor_targets_set_between_batches_agree():
     """A new motor target between two batches reaches the fused kernel (it reads the targets each launch)."""
     results = []
     for schedule in ("fused", "parallel"):
-        sim = wi.Simulator(_servo_chain().finalize(), 1 / 60, schedule=schedule)
+        sim = wi.Simulator(_servo_chain().finalize(), 1 / 60, options=wi.StepOptions(schedule=schedule))
         sim.simulate(0.5)
         sim.set_motor_target(0, -0.3)
         sim.set_motor_target(1, 2.0)
@@ -518,7 +530,7 @@ def test_stiff_motor_targets_set_between_batches_agree():
     steers the other way and its wheels speed up, as under the parallel schedule."""
     results = []
     for schedule in ("fused", "parallel"):
-        sim = wi.Simulator(scenes.car(collide=False).finalize(), 1 / 60, schedule=schedule)
+        sim = wi.Simulator(scenes.car(collide=False).finalize(), 1 / 60, options=wi.StepOptions(schedule=schedule))
         sim.simulate(0.25)
         sim.set_motor_target(4, -0.2)  # the steering servos (motors 4, 5: one target)
         sim.set_motor_target(0, 9.0)  # the front-left wheel
@@ -563,8 +575,8 @@ def _states(sim, steps: int, dt: float) -> list[np.ndarray]:
 def test_point_constraints_read_no_angular_block(case, schedule):
     """The steps are those of the same simulator with NaN in its points' jac_ang rows, bit for bit."""
     (make, dt, steps, options), _ = POINT_READERS[case]
-    plain = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
-    blind = wi.Simulator(make().finalize(), dt, schedule=schedule, **options)
+    plain = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold({**options, "schedule": schedule}))
+    blind = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold({**options, "schedule": schedule}))
     _without_point_blocks(blind)
     assert blind.schedule == schedule
     for a, b in zip(_states(plain, steps, dt), _states(blind, steps, dt)):

@@ -29,7 +29,7 @@ def test_cholesky_cg_and_dense_agree(scene, formulation):
     """Both matrices the Cholesky solver can factor (K, or the augmented body-joint matrix) give K's solution."""
     builder = scene()
     model = builder.finalize()
-    sim = wi.Simulator(model, 1 / 60, formulation=formulation)
+    sim = wi.Simulator(model, 1 / 60, options=wi.StepOptions(formulation=formulation))
     sim.simulate(0.2)  # move away from the symmetric start
     cg = CGSolver(model, sim.frames, tolerance=1e-15)
     cg.prepare()
@@ -57,7 +57,9 @@ def test_solvers_give_the_same_motion():
     results = {}
     for solver in ("cholesky", "cg", "iterative"):
         carry = {"carry": False} if solver == "cholesky" else {}
-        sim = wi.Simulator(scenes.binary_tree(15).finalize(), 1 / 30, tolerance=1e-8, solver=solver, **carry)
+        sim = wi.Simulator(
+            scenes.binary_tree(15).finalize(), 1 / 30, tolerance=1e-8, solver=solver, **wi.StepOptions.fold(carry)
+        )
         sim.simulate(0.5)
         results[solver] = sim.positions()
     assert np.abs(results["cholesky"] - results["cg"]).max() < 1e-9
@@ -82,11 +84,11 @@ def test_redundant_constraints_are_reported(formulation):
     b.add_joint_fixed(None, body, (0.0, 0.0, 0.0), name="weld")
     b.add_joint_revolute(None, body, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), name="hinge")
     if formulation == "constraint":
-        sim = wi.Simulator(b.finalize(), 1 / 60, formulation=formulation)
+        sim = wi.Simulator(b.finalize(), 1 / 60, options=wi.StepOptions(formulation=formulation))
         assert sim.redundant_rows == 5 and sim.step().converged
         return
     with pytest.raises(wi.SingularSystemError, match="singular at joint 'hinge'"):
-        wi.Simulator(b.finalize(), 1 / 60, formulation=formulation)
+        wi.Simulator(b.finalize(), 1 / 60, options=wi.StepOptions(formulation=formulation))
 
 
 def test_a_loop_with_redundant_rows_solves_consistent_systems():

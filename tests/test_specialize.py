@@ -27,7 +27,10 @@ CASES = [(joint, None) for joint in JOINTS] + [
 def test_specialized_matches_all_kinds(joint, kinds):
     """Bit-identical states after 60 steps of a kicked child on a dynamic parent (every constraint corrects)."""
     builder = Rig(joint, seed=11, parent_dynamic=True, kinds=kinds).b
-    sims = [warpimpulse.Simulator(builder.finalize(), DT, tolerance=TOL, specialize=s) for s in (True, False)]
+    sims = [
+        warpimpulse.Simulator(builder.finalize(), DT, tolerance=TOL, options=warpimpulse.StepOptions(specialize=s))
+        for s in (True, False)
+    ]
     for _ in range(60):
         stats = [sim.step() for sim in sims]
         assert stats[0] == stats[1]

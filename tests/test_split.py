@@ -20,8 +20,8 @@ def state_of(sim) -> list[np.ndarray]:
 
 
 def run_both(model, steps: int, threads: int = 2, **settings):
-    one = Simulator(model, DT, **settings)
-    split = SplitSimulator(model, DT, threads=threads, **settings)
+    one = Simulator(model, DT, **wi.StepOptions.fold(settings))
+    split = SplitSimulator(model, DT, threads=threads, **wi.StepOptions.fold(settings))
     return one, [one.step() for _ in range(steps)], split, [split.step() for _ in range(steps)]
 
 
@@ -113,7 +113,7 @@ def test_a_scene_off_the_fused_schedule_runs_on_one_thread_and_says_why():
 
 def test_a_composed_step_runs_on_one_thread_and_says_why():
     sim = SplitSimulator(wi.scenes.binary_tree(31).finalize(), DT, threads=2, order=4)
-    assert sim.threads == 1 and sim.split_note == "order 4 composes base steps; the split step takes order 2"
+    assert sim.threads == 1 and sim.split_note == "orders 4 and 6 compose base steps; the split step takes order 2"
 
 
 def test_force_elements_run_on_one_thread_and_say_why():
@@ -151,7 +151,7 @@ def test_a_loop_is_not_cut():
 def test_the_augmented_matrix_is_not_cut():
     model = wi.scenes.star(31).finalize()
     with pytest.raises(CutError, match="'body' formulation"):
-        cut(model, Simulator(model, DT, formulation="body").linear.pattern, 2)
+        cut(model, Simulator(model, DT, options=wi.StepOptions(formulation="body")).linear.pattern, 2)
 
 
 def test_threaded_simulator_of_one_world_splits_its_tree():

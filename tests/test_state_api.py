@@ -122,11 +122,11 @@ def test_set_state_refreshes_the_factorization():
     """Writing a state through set_state gives the same next step as a simulator built at that state (neither
     carries a right-hand side from its past steps: `Simulator.carry`, which set_state forgets)."""
     builder = scenes.chain(4)
-    sim = wi.Simulator(builder.finalize("cpu"), 1 / 60, carry=False)
+    sim = wi.Simulator(builder.finalize("cpu"), 1 / 60, options=wi.StepOptions(carry=False))
     for _ in range(15):
         sim.step()
     state = sim.positions(), sim.orientations(), sim.linear_velocities(), sim.angular_velocities()
-    other = wi.Simulator(builder.finalize("cpu"), 1 / 60, carry=False)
+    other = wi.Simulator(builder.finalize("cpu"), 1 / 60, options=wi.StepOptions(carry=False))
     other.set_state(*state)
     sim.step(), other.step()
     assert np.array_equal(sim.positions(), other.positions())

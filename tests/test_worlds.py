@@ -34,7 +34,9 @@ def worlds_setup():
 
 def alone(world: int, steps: int, mass, force, spin, **settings) -> tuple[Simulator, list]:
     """A world of the batch alone, every (sub)step's velocities corrected as batched worlds do (`defer_velocities`)."""
-    sim = Simulator(wi.scenes.binary_tree(BODIES).finalize(), DT, **{"defer_velocities": False, **settings})
+    sim = Simulator(
+        wi.scenes.binary_tree(BODIES).finalize(), DT, **wi.StepOptions.fold({"defer_velocities": False, **settings})
+    )
     sim.set_masses(mass=mass[world])
     sim.set_external_forces(force=force[world])
     sim.set_state(angular_velocities=spin[world])
@@ -43,7 +45,7 @@ def alone(world: int, steps: int, mass, force, spin, **settings) -> tuple[Simula
 
 
 def batched(steps: int, mass, force, spin, **settings) -> tuple[Simulator, list]:
-    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, **settings)
+    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, **wi.StepOptions.fold(settings))
     sim.set_masses(mass=mass)
     sim.set_external_forces(force=force)
     sim.set_state(angular_velocities=spin)
@@ -111,7 +113,12 @@ def test_a_failing_world_stops_alone_with_its_index():
 
 
 def test_every_world_stopped_raises():
-    sim = Simulator(wi.scenes.binary_tree(BODIES).replicate(2).finalize(), DT, max_iterations=5, max_substep_depth=0)
+    sim = Simulator(
+        wi.scenes.binary_tree(BODIES).replicate(2).finalize(),
+        DT,
+        max_iterations=5,
+        options=wi.StepOptions(max_substep_depth=0),
+    )
     force = np.zeros((2, BODIES, 3))
     force[:, 6] = (0.0, 0.0, 1e13)
     sim.set_external_forces(force=force)
@@ -216,7 +223,7 @@ def test_threads_give_the_batched_run_and_stop_worlds_alone(shares):
     with pytest.warns(RuntimeWarning, match="the world stops"):
         ref, _ = batched(5, mass, force, spin, max_iterations=10)
     with ThreadedSimulator(wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize(), DT, threads=2,
-                           max_iterations=10, **settings) as sim:  # fmt: skip
+                           max_iterations=10, **wi.StepOptions.fold(settings)) as sim:  # fmt: skip
         assert sim.fused_shares == (shares == "fused")
         assert [p.model.world_count for p in sim.parts] == ([2, 1] if shares == "batched" else [1, 1, 1])
         sim.set_masses(mass=mass)
@@ -252,7 +259,7 @@ def test_threads_with_split_steps_give_the_batched_run(shares):
     ref, ref_stats = batched(4, mass, force, spin)
     assert ref_stats[-1].substeps[0] > 1 and ref_stats[-1].substeps[2] > 1
     model = wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize()
-    with ThreadedSimulator(model, DT, threads=2, **settings) as sim:
+    with ThreadedSimulator(model, DT, threads=2, **wi.StepOptions.fold(settings)) as sim:
         sim.set_masses(mass=mass)
         sim.set_external_forces(force=force)
         sim.set_state(angular_velocities=spin)
@@ -332,7 +339,7 @@ def test_threads_share_worlds_with_a_motor_and_springs(shares):
     settings, steps = SHARES[shares]
     model = mechanism_scene().replicate(3).finalize()
     ref = Simulator(model, DT)
-    with ThreadedSimulator(model, DT, threads=2, **settings) as sim:
+    with ThreadedSimulator(model, DT, threads=2, **wi.StepOptions.fold(settings)) as sim:
         batched_shares = shares == "batched"
         assert [p.model.spring_count for p in sim.parts] == ([2, 1] if batched_shares else [1, 1, 1])
         firsts = [0, 2] if batched_shares else [0, 1, 2]
@@ -354,11 +361,11 @@ def test_a_world_failing_inside_a_fused_launch_stops_at_the_start_of_its_step():
     model = wi.scenes.binary_tree(BODIES).replicate(WORLDS).finalize()
     torque = np.zeros((WORLDS, BODIES, 3))
     torque[1, 6] = (0.0, 0.0, 100.0)
-    ref = Simulator(model, DT, **settings)
+    ref = Simulator(model, DT, **wi.StepOptions.fold(settings))
     ref.set_external_forces(torque=torque)
     with pytest.warns(RuntimeWarning, match="world 1: step 24 "):
         ref.step(30)
-    with ThreadedSimulator(model, DT, threads=2, **settings) as sim:
+    with ThreadedSimulator(model, DT, threads=2, **wi.StepOptions.fold(settings)) as sim:
         assert sim.fused_shares
         sim.set_external_forces(torque=torque)
         with pytest.warns(RuntimeWarning, match="world 1: step 24 "):

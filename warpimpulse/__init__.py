@@ -11,6 +11,7 @@ from .builder import SceneBuilder, SceneError
 from .files import WriteError
 from .joints import JOINT_TYPES
 from .model import Model
+from .options import StepOptions
 from .shapes import Shape
 from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
@@ -34,6 +35,7 @@ __all__ = [
     "SimulationError",
     "Simulator",
     "SingularSystemError",
+    "StepOptions",
     "StepStats",
     "ThreadedSimulator",
     "WorldStats",

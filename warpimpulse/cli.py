@@ -21,8 +21,11 @@ from . import __version__
 from .builder import SceneError
 from .cliutil import EXIT_USAGE, ArgumentParser, check_writable
 from .files import Interrupted, WriteError, same_file, signals_interrupt
+from .options import StepOptions
 from .scenes import SCENES
 from .types import NEWTON_BODIES, SOLVERS
+
+AUTO_ON_OFF = {"auto": None, "on": True, "off": False}  # a switch's choices on the command line
 
 DEFAULT_DURATION = 10.0  # s, without --duration and without a time range in the scene file
 DEFAULT_FPS = 30.0  # without --fps, for built-in scenes
@@ -260,12 +263,14 @@ def _simulate(args) -> int:
         solver=args.solver,
         max_iterations=args.max_iterations,
         on_max_iterations=args.on_max_iterations,
-        max_rotation=None if args.whole_steps else args.max_rotation,
         order=args.order,
-        newton={"auto": None, "on": True, "off": False}[args.newton],
-        carry={"auto": None, "on": True, "off": False}[args.carry],
-        defer_velocities={"auto": None, "on": True, "off": False}[args.defer_velocities],
         accuracy=args.accuracy,
+        options=StepOptions(
+            max_rotation=None if args.whole_steps else args.max_rotation,
+            newton=AUTO_ON_OFF[args.newton],
+            carry=AUTO_ON_OFF[args.carry],
+            defer_velocities=AUTO_ON_OFF[args.defer_velocities],
+        ),
     )
     if sim.accuracy is not None:
         sim.accuracy.horizon = args.duration

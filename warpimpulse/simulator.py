@@ -18,7 +18,7 @@ import numpy as np
 import warp as wp
 
 from . import accuracy as accuracy_control
-from . import checks, composition, coordinates, diagnose
+from . import capabilities, checks, composition, coordinates, diagnose
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
 from .kernels import carry as carry_kernels
@@ -34,8 +34,10 @@ from .kernels import step as step_kernels
 from .kernels import worlds as world_kernels
 from .launch import Launches, capture, record, run
 from .model import Model, State
+from .options import StepOptions
+from .options import resolve as resolve_options
 from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
-from .steps import SimulationError, StepStats
+from .steps import SimulationError, StepStats, diverging
 from .transforms import quat_rotate, quat_to_matrix
 from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
@@ -92,22 +94,13 @@ class Simulator:
         solver: str = "auto",
         max_iterations: int = 100,
         on_max_iterations: str = "raise",
-        max_substep_depth: int = 7,
-        formulation: str = "auto",
-        max_rotation: float | None = 0.5,
-        specialize: bool = True,
-        verbose: bool = False,
         order: int = 2,
-        scheme: str | None = None,
         contact_solver: str = "pgs",
         contact_margin: float = 0.005,
-        broad_phase: str = "bvh",
-        contact_sweeps: int = 30,
-        schedule: str = "auto",
-        newton: bool | None = None,
-        carry: bool | None = None,
-        defer_velocities: bool | None = None,
         accuracy: float | None = None,
+        verbose: bool = False,
+        options: StepOptions | None = None,
+        **legacy,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
@@ -124,75 +117,38 @@ class Simulator:
         max_iterations: joint-correction iterations (solves or sweeps) before the step fails.
         on_max_iterations: "raise" a SimulationError naming the worst joints, or "warn" and go on with
             `StepStats.converged` False.
-        max_substep_depth: a failing step is halved down to dt / 2**max_substep_depth before it fails.
-        formulation: "auto", "constraint", "body" or "split": the matrix the Cholesky solver factors
-            (`topology.Pattern`); "auto" takes the augmented body-joint matrix only where a body has many
-            joints and the scene has no loops. "split" factors the tree's and the loop joints' systems apart
-            (the paper's section 4.6, iterated together): about 10x the iterations of one matrix with the
-            loop joints last on the four-bar, so "auto" never takes it (docs/mechanisms.md).
-        max_rotation: a step in which some body would turn further than this (rad), at the angular velocity
-            it starts or ends with, is taken as 2, 4, ... equal substeps (at most 2**max_substep_depth): the
-            method is second order in the rotation per step, and a whipping chain or a body tumbling at
-            100 rad/s gains energy, then diverges, at one step per frame. None takes every step whole.
-        specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set
-            of kinds, compiled once and cached on disk); False shares one module for all six kinds.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
             off by default (`warpimpulse.verbosity`).
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
             1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
-        scheme: the composition for `order` by name (`composition.SCHEMES`); None takes the measured best.
         contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
             found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
             only if the corrections close them).
-        broad_phase: "bvh" or "all_pairs" (`contacts.BROAD_PHASES`).
-        contact_sweeps: Gauss-Seidel sweeps over the contacts at most per position solve ("pgs"), between two
-            predictions (the loop goes on until the contacts hold); the velocity phase sweeps until its
-            impulses settle to a tenth of `velocity_tolerance`, at most `contacts.VELOCITY_SWEEPS` (2) times as
-            many.
-        schedule: "auto", "fused" or "parallel" (`types.SCHEDULES`): the fused schedule runs a step, or many,
-            as one kernel on a CPU; the parallel one launches each stage (a GPU's).
-        newton: the first joint iteration of each step takes a Newton step: its impulses solved again with the
-            right-hand side less E lambda, E the change of the Jacobian over the step (the arms at the
-            prediction; `constraints.arm_correction`), so that the error falls quadratically, not linearly
-            (`StepStats.linear_iterations` counts its second solve). It costs a solve and two passes over the
-            scene and saves about one iteration where the step takes two: it pays where a prediction costs more
-            than a solve, on scenes of `types.NEWTON_BODIES` bodies or more, whose arrays stream from memory.
-            None (the default) takes it there, with the cholesky solver, in scenes without kinematic loops (whose
-            redundant rows it leaves inconsistent: the walking machine 2.32 -> 2.83 iterations a step); threads
-            (`split.SplitSimulator`) and the other solvers never take it.
-        carry: the first joint iteration of each step adds to its right-hand side what the first iteration of
-            the last step of the same size left unsolved (about -E lambda, which changes little from step to
-            step; `kernels/carry.py`), so the iteration starts nearer the solution: chain10 3.88 -> 3.65
-            iterations a step. Later iterations solve for the residual they measure, so the result is held to
-            the same tolerance. None (the default) takes it with the cholesky solver without contacts, in both
-            schedules, batched worlds and the split step on threads; contacts and the other solvers never take
-            it (True there is a ValueError). Checkpoints keep it; `reset` and `set_state` forget it.
-        defer_velocities: correct the velocities (the paper's velocity correction, section 4.2) only where the
-            state is handed out: at the end of each `step(n)` call, so after every step of `step()` and of the
-            USD recorder's frames. A step whose velocities go on to the next step leaves them to its joint
-            correction, which reaches the same velocities: the velocity correction's impulse acts through the
-            Jacobians of the next step's t0, as the joint correction's do, and the prediction depends only on
-            the velocities those impulses leave, so the joint correction converges to the same state within its
-            tolerance (the paper, section 4.2: "not absolutely necessary ... because the joint impulse of the
-            next simulation step will solve the problem as well"). It saves a velocity-error pass, a solve, the
-            impulses and a pass again a step: tree127 and chain50 0.86 of the time, chain10 0.91, the double
-            pendulum 0.93 (`benchmarks/step_breakdown.py`). A deferred step's StepStats counts
-            no velocity iteration and its `max_velocity_error` is NaN (not measured). None (the default) takes
-            it with the cholesky solver in scenes without force elements (velocity-dependent), joint limits,
-            stiff motors, distance constraints, contacts, batched worlds or the split formulation, where the
-            state's velocities at a step's end enter the next step otherwise than through the joint
-            correction; True there is a ValueError.
         accuracy: m. Instead of a fixed step: the order, the joint tolerance (unless given) and the step size are
             chosen so that the body centres stay within about this of the exact trajectory over
             `sim.accuracy.horizon` seconds (1 s unless set), the step size following an error estimate
             (`accuracy.py`, docs/accuracy.md); `StepStats.error_estimate` reports it. Contacts and batched worlds
             are refused; scenes with limits, stiff motors or distance rows are controlled at order 2.
+        options: the performance switches (`StepOptions`): schedule, formulation, composition scheme, Newton step,
+            carried right-hand side, deferred velocity correction, kernel specialization, spin splits, halving
+            depth and the contacts' broad phase and sweeps. Each chooses itself from the scene and the machine
+            by default. `legacy`: the same switches as keywords, the old spelling, deprecated (a
+            DeprecationWarning names the new one).
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
+        self.options = options = resolve_options(options, legacy, type(self).__name__)
+        schedule, formulation, scheme = options.schedule, options.formulation, options.scheme
+        newton, carry, defer_velocities = options.newton, options.carry, options.defer_velocities
+        specialize, max_rotation, max_substep_depth = (
+            options.specialize,
+            options.max_rotation,
+            options.max_substep_depth,
+        )
+        broad_phase, contact_sweeps = options.broad_phase, options.contact_sweeps
         plan = None
         if accuracy is not None:
             plan = accuracy_control.plan(model, accuracy, dt, tolerance, order)
@@ -307,6 +263,10 @@ class Simulator:
         elif self.solver_name == "cg":
             self.linear = CGSolver(model, self.frames)
         self._counts = (model.body_count, nc)
+        # The scene's features the schedules take or not (`capabilities.TABLE`, docs/capabilities.md).
+        self.features = capabilities.scene_features(
+            model, self.solver_name, self.order, self._split_systems, self.newton
+        )
         self._forced = model.element_count > 0  # state-dependent forces: the coupled RK4 prediction
         if self._forced:
             self._stage = model.state()
@@ -336,12 +296,9 @@ class Simulator:
         self.limit_response = wp.zeros(nl * nc, dtype=wp.vec3d, device=d)  # K^-1 J M^-1 g^T
         self.batch: Batch | None = None  # the per-world side of batched worlds (`worlds.py`)
         if model.world_count > 1:
-            if self.solver_name != "cholesky" or nc == 0 or self.order != 2 or model.limit_count:
-                raise ValueError(
-                    f"batched worlds ({model.world_count}) are stepped at order 2 with the cholesky solver and need "
-                    f"joints and no limits, distance constraints or stiff motors yet; got order {self.order}, solver "
-                    f"{solver!r}, {nc} constraints and {model.limit_count} limit rows"
-                )
+            capabilities.refuse("worlds", self.features, f"{model.world_count} worlds")
+            if nc == 0:
+                raise ValueError(f"the worlds schedule needs joints; the {model.world_count} worlds have none")
             self.world_summary = wp.zeros((model.world_count, 2), dtype=wp.float64, device=d)
             self.world_active = wp.ones(model.world_count, dtype=wp.int32, device=d)
             self.batch = Batch(self)
@@ -781,22 +738,10 @@ class Simulator:
         cuda = self.model.device.is_cuda
         if schedule == "parallel" or (schedule == "auto" and cuda):
             return "parallel", ""
-        if self.solver_name == "cg":
-            return "parallel", "the CG solver runs its iterations from the host"
-        if self.batch is not None:
-            return "parallel", "batched worlds step each world's convergence from the host (`worlds.py`)"
-        if self.contact_stage is not None:
-            return "parallel", "contacts are a stage the fused step does not have yet"
-        if self._split_systems:
-            return "parallel", "the split systems iterate their velocity correction from the host"
-        if self._forced and self.linear is None:
-            return "parallel", "force elements without joints: the fused step predicts them with the direct solver only"
+        gap = capabilities.first_gap("fused", self.features, "falls back")
+        if gap is not None:
+            return "parallel", gap[1].note
         rows = self.model.limit_count > 0  # limits, stiff motors, distance constraints (kernels/limits.py)
-        if rows and self.linear is None:
-            return (
-                "parallel",
-                "distance constraints without joints: the fused step solves rows with the direct solver only",
-            )
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
         self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced, rows)
         self._elements = self._force_elements()
@@ -1392,8 +1337,8 @@ class Simulator:
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
         (the velocity correction's solve), said as such."""
-        diverging = iterations >= 3 and error > 1e3 * best
-        if iterations < self.max_iterations and not diverging:
+        diverges = diverging(error, best, iterations)
+        if iterations < self.max_iterations and not diverges:
             return True
         if not final:
             return False
@@ -1411,7 +1356,7 @@ class Simulator:
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
         if stopped:
             failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
-        elif diverging:
+        elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"

@@ -38,13 +38,16 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from . import capabilities
 from .kernels import split as split_kernels
 from .kernels import step as step_kernels
 from .kernels.split import OUT_BAD, OUT_ERROR, OUT_SPIN, OUT_VELOCITY_ERROR, OUT_WIDTH
 from .launch import capture, record
 from .model import Model
+from .options import take as take_options
 from .pool import run_shared
 from .simulator import Simulator
+from .steps import diverging
 
 SEPARATOR = -1
 MAX_SEPARATOR = 64  # bodies
@@ -196,31 +199,22 @@ class SplitSimulator(Simulator):
     def __init__(self, model: Model, dt: float, threads: int = 2, **settings) -> None:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
-        if threads > 1:  # the parts' steps have no Newton step: by default none
-            settings.setdefault("newton", False)
-        super().__init__(model, dt, **settings)
+        options = take_options(settings, "SplitSimulator")
+        if threads > 1 and options.newton is None:  # the parts' steps have no Newton step: by default none
+            options = options.replace(newton=False)
+        super().__init__(model, dt, options=options, **settings)
         self.threads, self.split_note = 1, ""
         if threads == 1:
             return
-        if self.newton:
-            self.split_note = "the first iteration's Newton step (newton=True) runs on one thread"
+        gap = capabilities.first_gap("threads", self.features - {"loops"}, "falls back")  # loops: `cut` names one
+        if gap is not None:
+            self.split_note = gap[1].note
             return
         if self.accuracy is not None:
             self.split_note = "accuracy control changes the step size; the split step is recorded for one"
             return
         if self.schedule != "fused" or self.linear is None or model.device.is_cuda:
             self.split_note = f"the fused schedule does not run: {self.schedule_note or 'a GPU or free bodies'}"
-            return
-        if len(self.scheme.stages) > 1:
-            self.split_note = f"order {self.order} composes base steps; the split step takes order 2"
-            return
-        if self._forced:
-            self.split_note = "force elements couple the bodies' predictions; the split step predicts each part alone"
-            return
-        if model.limit_count:
-            self.split_note = (
-                "joint limits, stiff motors or distance constraints: their rows are one system over the model"
-            )
             return
         try:
             parts = cut(model, self.linear.pattern, threads)
@@ -338,7 +332,7 @@ class SplitSimulator(Simulator):
                 if err <= self.tolerance:
                     ok = True
                     break
-                if iterations >= self.max_iterations or (iterations >= 3 and err > 1.0e3 * best):
+                if iterations >= self.max_iterations or diverging(err, best, iterations):
                     break
                 self._phase(self._iterate_graphs if iterations else self._first_graphs)
                 err = self._combined(OUT_ERROR)

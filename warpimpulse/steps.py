@@ -6,6 +6,14 @@ from __future__ import annotations
 import math
 from dataclasses import astuple, dataclass
 
+from .types import DIVERGENCE_AFTER, DIVERGENCE_GROWTH
+
+
+def diverging(error: float, best: float, iterations: int) -> bool:
+    """Whether a correction diverges: the host twin of `kernels/loop.py` `diverging` (`types.DIVERGENCE_GROWTH`),
+    for the loops the host decides."""
+    return iterations >= DIVERGENCE_AFTER and error > DIVERGENCE_GROWTH * best
+
 
 class SimulationError(RuntimeError):
     """The simulation cannot go on: divergence (NaN/Inf) or joints that did not converge."""

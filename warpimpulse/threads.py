@@ -31,6 +31,7 @@ import warp as wp
 
 from .launch import capture
 from .model import Model
+from .options import take as take_options
 from .pool import run_shared
 from .simulator import SimulationError, Simulator, StepStats, _combined
 from .solver import SingularSystemError
@@ -64,7 +65,10 @@ class ThreadedSimulator:
             self.threads = min(threads, model.world_count)
             # One-world shares correct every step's velocities, as batched worlds do (`Simulator.defer_velocities`),
             # so that however the worlds are shared the run is the batched run.
-            settings.setdefault("defer_velocities", False)
+            options = take_options(settings, "ThreadedSimulator")
+            if options.defer_velocities is None:
+                options = options.replace(defer_velocities=False)
+            settings["options"] = options
             first = Simulator(model.worlds(0, 1), dt, **settings)
             self.fused_shares = first.schedule == "fused"
             if self.fused_shares:

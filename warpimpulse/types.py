@@ -105,3 +105,10 @@ NEWTON_BODIES = 16384
 kinematic loops): below, a scene's arrays stay in cache and the correction costs about the iteration it saves;
 about here it starts to pay (`benchmarks/step_breakdown.py`'s Newton table: the 65,535-body tree 0.89 of the
 time, the 16,383-body tree faster in two of three runs, the 4,095-body tree not)."""
+
+DIVERGENCE_GROWTH = 1.0e3
+DIVERGENCE_AFTER = 3
+"""A correction diverges when, after at least DIVERGENCE_AFTER iterations, its error has grown more than
+DIVERGENCE_GROWTH-fold over the smallest it reached: it stops there (and the step is halved) instead of running
+to its iteration limit. One rule for every correction loop: `kernels/loop.py` `diverging` on the device, its
+host twin `diverging` in `warpimpulse/steps.py`."""

@@ -244,10 +244,9 @@ class Batch:
             self._solos[world] = type(sim)(
                 sim.model.worlds(world, world + 1), sim.dt, tolerance=sim.tolerance,
                 velocity_tolerance=sim.velocity_tolerance, solver=sim.solver_name, max_iterations=sim.max_iterations,
-                on_max_iterations=sim.on_max_iterations, max_substep_depth=sim.max_substep_depth,
-                formulation=sim.linear.pattern.formulation if sim.linear is not None else "auto",
-                max_rotation=sim.max_rotation, specialize=sim.specialized, newton=sim.newton, carry=sim.carry,
-                defer_velocities=sim.defer_velocities,
+                on_max_iterations=sim.on_max_iterations, order=sim.order, options=sim.options.replace(
+                    formulation=sim.linear.pattern.formulation if sim.linear is not None else "auto",
+                    newton=sim.newton, carry=sim.carry, defer_velocities=sim.defer_velocities),
             )  # fmt: skip
         return self._solos[world]
 

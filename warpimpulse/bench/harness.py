@@ -37,6 +37,7 @@ import numpy as np
 
 from .. import scenes
 from ..builder import WORLD, SceneBuilder
+from ..options import StepOptions
 from ..simulator import SimulationError, Simulator
 from ..steps import StepStats
 from ..transforms import quat_rotate
@@ -169,7 +170,9 @@ class WarpimpulseRunner:
     ):
         """settings: more `Simulator` keyword arguments."""
         model = model if model is not None else builder.finalize("cpu")
-        self.sim = Simulator(model, 1.0 / rate, tolerance=tolerance, solver=solver, order=order, **settings)
+        self.sim = Simulator(
+            model, 1.0 / rate, tolerance=tolerance, solver=solver, order=order, **StepOptions.fold(settings)
+        )
         self.joint_iterations = self.velocity_iterations = self.linear_iterations = 0
         self.max_joint_iterations = 0
         self.max_step_error = 0.0

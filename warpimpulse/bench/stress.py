@@ -283,7 +283,8 @@ class Result:
 
 
 def clear_error(err: BaseException, builder: SceneBuilder | None) -> tuple[bool, str]:
-    """Is `err` a clear error: one that names the step, the iterations and the joints (or bodies) at fault?
+    """Is `err` a clear error: one that names the step, the iterations (or, for the velocity correction, what it
+    left) and the joints (or bodies) at fault?
     Returns (clear, why not)."""
     msg = str(err)
     joint_names = {j.name for j in builder.joints} if builder is not None else set()
@@ -302,7 +303,8 @@ def clear_error(err: BaseException, builder: SceneBuilder | None) -> tuple[bool,
             if not names_body:
                 missing.append("the bodies")
         else:
-            if "iterations" not in msg:
+            # A joint correction names its iterations; a velocity correction names what its one solve left.
+            if "iterations" not in msg and "velocity correction left" not in msg:
                 missing.append("the iterations")
             if not names_joint:
                 missing.append("the joints")
