@@ -26,6 +26,7 @@ f64 = wp.float64
 ANGLE_COORDINATE = wp.constant(0)  # revolute; 1 is a prismatic offset
 DISTANCE_COORDINATE = wp.constant(2)  # the distance between two anchors (`SceneBuilder.add_distance`)
 VELOCITY_MODE = wp.constant(1)
+EFFORT_MODE = wp.constant(2)
 
 
 @wp.func
@@ -107,8 +108,11 @@ def wrap_angle(x: f64) -> f64:
 def drive_output(
     coordinate: int, mode: int, value: f64, rate: f64, target: f64, gains: vec3d, max_force: f64, integral: f64
 ) -> f64:
-    """The PID output (N m or N) of a drive, gains = (kp, ki, kd), clamped to +-max_force."""
-    if mode == VELOCITY_MODE:
+    """The PID output (N m or N) of a drive, gains = (kp, ki, kd), clamped to +-max_force; in effort mode the
+    target itself."""
+    if mode == EFFORT_MODE:
+        out = target
+    elif mode == VELOCITY_MODE:
         out = gains[0] * (target - rate) + gains[1] * integral
     else:
         e = target - value
@@ -193,6 +197,61 @@ def spring_wrenches(
 
 
 @wp.func
+def reciprocal(a: vec3d, b: vec3d, c: vec3d, count: int) -> vec3d:
+    """The direction d with d . a = 1 and d . b = d . c = 0 in the span of a and the `count` (0, 1 or 2) others
+    b, c: a torque (force) along d does work on a chain's coordinate of axis a only, none on the others'."""
+    if count == 0:
+        return a
+    if count == 1:
+        n = a - wp.dot(a, b) * b
+        return n / wp.dot(n, a)
+    n = wp.cross(b, c)
+    return n / wp.dot(a, n)
+
+
+@wp.func
+def chain_direction(
+    r: int,
+    a: vec3d,
+    chain: wp.vec3i,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """(direction, point) of a drive's wrench on coordinate row r of axis a: `reciprocal` to the world axes of
+    the chain's other coordinates of its kind (rows chain[0], chain[1], -1 for none), and the world anchor of
+    row chain[2] (where a force along a chain with hinges does no work on them: their common anchor)."""
+    b = vec3d()
+    c = vec3d()
+    count = int(0)
+    if chain[0] >= 0:
+        v0, r0, b, p0 = coordinate_row(
+            chain[0], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        )  # fmt: skip
+        count = 1
+    if chain[1] >= 0:
+        v1, r1, c, p1 = coordinate_row(
+            chain[1], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        )  # fmt: skip
+        count = 2
+    v2, r2, a2, point = coordinate_row(
+        chain[2], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    return reciprocal(a, b, c, count), point
+
+
+@wp.func
 def drive_wrench(
     e: int,
     row_offset: int,
@@ -205,6 +264,8 @@ def drive_wrench(
     coordinate_rest_rotation: wp.array(dtype=quatd),
     drive_element: wp.array(dtype=int),
     drive_coordinate: wp.array(dtype=int),
+    drive_chain: wp.array(dtype=wp.vec3i),
+    drive_ends: wp.array(dtype=wp.vec2i),
     drive_mode: wp.array(dtype=int),
     drive_gains: wp.array(dtype=vec3d),
     drive_max_force: wp.array(dtype=f64),
@@ -219,7 +280,10 @@ def drive_wrench(
 ):
     """Drive element e's wrenches (rows 2 (row_offset + e) + side) at the given state, with the integral of the
     step's start: the torque tau about the axis (+tau on body1, -tau on body0), or the force f along the axis at
-    B (+f on body1, -f on body0 at the same point, so no net couple)."""
+    B (+f on body1, -f on body0 at the same point, so no net couple). A drive on a joint of a chain of joints
+    through light bodies (`SceneBuilder.chain_joints`) acts on the chain's two ends (drive_ends) along the
+    `chain_direction` instead: the same work on its coordinate, none on the others', so that the light bodies
+    take no force (an explicit force on a body of almost no inertia would make the prediction unstable)."""
     i = drive_element[e]
     r = drive_coordinate[i]
     value, rate, a, pb = coordinate_row(
@@ -230,6 +294,11 @@ def drive_wrench(
     out = drive_output(
         kind, drive_mode[i], value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i]
     )
+    a, pb = chain_direction(
+        r, a, drive_chain[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    ends = drive_ends[i]
     row = 2 * (row_offset + e)
     if kind == ANGLE_COORDINATE:
         wrench_force[row] = vec3d()
@@ -239,9 +308,9 @@ def drive_wrench(
     else:
         f = out * a
         wrench_force[row] = -f
-        wrench_torque[row] = wp.cross(pb - pose_x(coordinate_body0[r], body_x), -f)
+        wrench_torque[row] = wp.cross(pb - pose_x(ends[0], body_x), -f)
         wrench_force[row + 1] = f
-        wrench_torque[row + 1] = wp.cross(pb - pose_x(coordinate_body1[r], body_x), f)
+        wrench_torque[row + 1] = wp.cross(pb - pose_x(ends[1], body_x), f)
 
 
 @wp.kernel
@@ -257,6 +326,8 @@ def drive_wrenches(
     coordinate_rest_rotation: wp.array(dtype=quatd),
     drive_element: wp.array(dtype=int),
     drive_coordinate: wp.array(dtype=int),
+    drive_chain: wp.array(dtype=wp.vec3i),
+    drive_ends: wp.array(dtype=wp.vec2i),
     drive_mode: wp.array(dtype=int),
     drive_gains: wp.array(dtype=vec3d),
     drive_max_force: wp.array(dtype=f64),
@@ -274,9 +345,9 @@ def drive_wrenches(
     """Every drive element's wrenches (`drive_wrench`)."""
     drive_wrench(
         wp.tid(), row_offset, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, drive_element, drive_coordinate, drive_mode,
-        drive_gains, drive_max_force, drive_target, drive_integral, body_x_in, body_q_in, body_v_in, body_w_in,
-        wrench_force_out, wrench_torque_out,
+        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, drive_element, drive_coordinate, drive_chain,
+        drive_ends, drive_mode, drive_gains, drive_max_force, drive_target, drive_integral, body_x_in, body_q_in,
+        body_v_in, body_w_in, wrench_force_out, wrench_torque_out,
     )  # fmt: skip
 
 

@@ -13,8 +13,9 @@ composition in turn (`composition.py`: stages g_i h, some negative; one stage of
 (`ForceElements`) make the prediction the coupled RK4 of all bodies; rows of the correction loop (`Rows`: joint
 limits, stiff motors, distance constraints) are corrected after the joints in each iteration and after the
 velocity correction, with the funcs of `limits.py`. The batch and the
-starting spin are read from arrays, so the launch is fixed and replays as a captured graph (a 71-argument launch
-costs ~15 us to pack on a CPU; a replay ~1 us).
+starting spin are read from arrays, so the launch is fixed: on a CPU its arguments are packed once and each call is
+one call of the compiled entry point (`launch.Packed`, ~0.3 us; a captured graph's replay packs the 90 arguments
+again, ~1.7 us; a plain launch ~15 us), on a GPU it replays as a captured graph.
 
 Each step writes one status row (`STATUS_*` columns), and the status array's last row sums up the launch's
 steps that went OK (`finish`): the one record the host reads of a batch that went through. A step the fused
@@ -92,6 +93,8 @@ class ForceElements:
     coordinate_rest_rotation: wp.array(dtype=quatd)
     drive_element: wp.array(dtype=int)
     drive_coordinate: wp.array(dtype=int)
+    drive_chain: wp.array(dtype=wp.vec3i)
+    drive_ends: wp.array(dtype=wp.vec2i)
     drive_mode: wp.array(dtype=int)
     drive_gains: wp.array(dtype=vec3d)
     drive_max_force: wp.array(dtype=f64)
@@ -328,8 +331,8 @@ def element_wrenches(
         drive_wrench(
             e, springs, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
             el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_element,
-            el.drive_coordinate, el.drive_mode, el.drive_gains, el.drive_max_force, el.drive_target,
-            el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
+            el.drive_coordinate, el.drive_chain, el.drive_ends, el.drive_mode, el.drive_gains, el.drive_max_force,
+            el.drive_target, el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
         )  # fmt: skip
         e += 1
 

@@ -233,7 +233,7 @@ def test_checkpoint_of_another_scene_with_the_same_count_and_dt_is_refused(tmp_p
     star = scenes.star(15)
     pushed = scenes.binary_tree(15)
     pushed.add_force(3, (1.0, 0.0, 0.0))
-    for builder, what in [(heavier, "bodies"), (star, "constraints"), (pushed, "forces")]:
+    for builder, what in [(heavier, "bodies"), (star, "joints"), (pushed, "gravity and forces")]:
         other = wi.Simulator(builder.finalize(), 1 / 30)
         before = _state(other)
         with pytest.raises(CheckpointError, match=rf"ck.npz: checkpoint of another scene: its {what} differ"):

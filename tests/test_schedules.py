@@ -16,6 +16,7 @@ import warpimpulse as wi
 from warpimpulse import scenes
 from warpimpulse.bench import stress
 from warpimpulse.split import SplitSimulator
+from warpimpulse.steps import combined
 
 
 def _spinning_pendulum(omega: float) -> wi.SceneBuilder:
@@ -272,26 +273,23 @@ def test_a_composed_step_that_fails_in_a_later_stage_is_redone_from_its_start(mo
 
 
 def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
-    """Count the fused launches (graph replays) and the steps handed to the parallel schedule."""
+    """Count the fused launches (calls of the packed launch) and the steps handed to the parallel schedule."""
     counts = {"launches": 0, "parallel_steps": 0}
-    fused_graphs, replay, step_parallel = set(), wi.simulator.wp.capture_launch, sim._step_parallel
-    launch_for = sim._fused_launch
+    launch_for, step_parallel = sim._fused_launch, sim._step_parallel
 
-    def fused_launch(h):
-        graph = launch_for(h)
-        fused_graphs.add(id(graph))
-        return graph
+    class Counted:
+        def __init__(self, launch):
+            self.inner = launch
 
-    def capture_launch(graph, *args, **kwargs):
-        counts["launches"] += id(graph) in fused_graphs
-        return replay(graph, *args, **kwargs)
+        def launch(self):
+            counts["launches"] += 1
+            self.inner.launch()
 
     def parallel(*args):
         counts["parallel_steps"] += 1
         return step_parallel(*args)
 
-    monkeypatch.setattr(sim, "_fused_launch", fused_launch)
-    monkeypatch.setattr(wi.simulator.wp, "capture_launch", capture_launch)
+    monkeypatch.setattr(sim, "_fused_launch", lambda h: Counted(launch_for(h)))
     monkeypatch.setattr(sim, "_step_parallel", parallel)
     return counts
 
@@ -320,9 +318,9 @@ def test_step_n_stats_are_the_steps_combined(case):
     make, dt, steps, options = CASES[case]
     whole = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     single = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
-    combined = whole.step(steps)
-    assert combined == wi.simulator._combined(single.simulate(steps * dt))  # one call too, a StepStats a step
-    assert combined.substeps >= steps
+    together = whole.step(steps)
+    assert together == combined(single.simulate(steps * dt))  # one call too, a StepStats a step
+    assert together.substeps >= steps
     np.testing.assert_array_equal(whole.positions(), single.positions())
     assert whole.step_count == single.step_count == steps and whole.time == single.time
 

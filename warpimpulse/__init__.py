@@ -10,6 +10,7 @@ import importlib
 from .builder import SceneBuilder, SceneError
 from .files import WriteError
 from .joints import JOINT_TYPES
+from .mjcf import load_mjcf
 from .model import Model
 from .options import StepOptions
 from .shapes import Shape
@@ -44,6 +45,7 @@ __all__ = [
     "WORLD",
     "WriteError",
     "__version__",
+    "load_mjcf",
     "run",
     "scenes",
     "sweep",

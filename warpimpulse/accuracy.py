@@ -34,7 +34,7 @@ import numpy as np
 import warp as wp
 
 from . import checks, composition
-from .steps import StepStats
+from .steps import StepStats, combined
 
 if TYPE_CHECKING:
     from .model import Model
@@ -140,8 +140,6 @@ class Controller:
     def step(self, n: int) -> StepStats:
         """n intervals; their stats combined as `Simulator.step` combines steps, with the step size (the smallest
         used) and the estimated local error (m) the steps added, summed."""
-        from .simulator import _combined
-
         sim = self.sim
         parts = []
         try:
@@ -149,7 +147,7 @@ class Controller:
                 parts.append(self._interval())
         finally:
             sim.dt = self.interval
-        stats = parts[0] if n == 1 else _combined(parts)
+        stats = parts[0] if n == 1 else combined(parts)
         return stats
 
     def _interval(self) -> StepStats:
@@ -183,9 +181,7 @@ class Controller:
             parts.append(self._steps(h, k))
             if self._pending is not None:
                 self._pending = (self._pending[0], self._pending[1] - k)
-        from .simulator import _combined
-
-        stats = parts[0] if len(parts) == 1 else _combined(parts)
+        stats = parts[0] if len(parts) == 1 else combined(parts)
         sim.time = end
         sim._set_step_size(h)  # the clock counts on from the frame time
         stats.step_size = h
@@ -198,11 +194,9 @@ class Controller:
 
     def _steps(self, h: float, n: int) -> StepStats:
         """n steps of h, their stats combined."""
-        from .simulator import _combined
-
         self.sim._set_step_size(h)
         parts = self.sim._steps(n, combine=True)
-        return parts[0] if len(parts) == 1 else _combined(parts)
+        return parts[0] if len(parts) == 1 else combined(parts)
 
     def _measured(self) -> np.ndarray:
         """What a check compares: the body centres (m) and orientations, (n, 7)."""

@@ -27,10 +27,20 @@ from .joints import JOINT_TYPES
 from .model import Model
 from .shapes import SHAPE_CODES, Colliders, Shape
 from .tables import Body, Constraint, Joint, Rows, Table
-from .transforms import mul_components, quat_conj, quat_rotate, rotate_components
+from .transforms import mul_components, quat_conj, quat_mul, quat_rotate, rotate_components
 from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
 
-__all__ = ["Body", "Constraint", "Joint", "SceneBuilder", "SceneError", "WORLD", "checked_material"]
+__all__ = [
+    "Actuator",
+    "Body",
+    "Constraint",
+    "Joint",
+    "SceneBuilder",
+    "SceneError",
+    "Visual",
+    "WORLD",
+    "checked_material",
+]
 
 BodyRef = int | str | None
 """A body: its index, its name, or None for the world."""
@@ -86,7 +96,7 @@ class Drive:
 
     name: str
     joint: int
-    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity
+    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity, 2 effort
     target: float  # rad, m (position) or rad/s, m/s (velocity)
     kp: float
     ki: float
@@ -120,7 +130,56 @@ class Distance:
     upper: float
 
 
+@dataclass
+class Actuator:
+    """A named control input that sets a motor's target as MuJoCo's `ctrl` does its actuator's:
+    target = gain * clip(control, ctrl_range) + bias (rad, m, rad/s, m/s, or N m / N in effort mode), the
+    control starting at 0. `Simulator.set_controls` sets them by name or index."""
+
+    name: str
+    drive: int  # an index into SceneBuilder.drives (a motor)
+    gain: float
+    bias: float
+    ctrl_range: tuple[float, float] = (-math.inf, math.inf)
+
+
+VISUAL_KINDS = ("box", "sphere", "cylinder", "capsule", "mesh")
+
+
+@dataclass
+class Visual:
+    """Display-only geometry fixed to a body (or to the world), kept on the builder for USD output: no part of
+    the motion, the mass or the contacts. Robot loaders (URDF, MJCF) fill `SceneBuilder.visuals` with these;
+    the USD writer draws each with a UsdPreviewSurface material of its colour.
+
+    body: the body index, or WORLD (-1) for geometry fixed to the world.
+    kind: one of `VISUAL_KINDS`. size (m): box (full edges x, y, z); sphere (radius, 0, 0); cylinder and capsule
+        (radius, length, 0), along the local z axis (a capsule's length is its cylinder part); mesh: the scale
+        applied to the vertices along the local x, y, z.
+    position, orientation: the geometry's frame in the body's frame (the centre of mass frame: m, (x, y, z, w)).
+    rgba: colour and opacity in [0, 1].
+    mesh_path: the file the mesh came from (for a mesh; reported, not read again).
+    vertices (k, 3), faces (f, 3): a mesh's triangles in its own frame, before the scale.
+    """
+
+    body: int
+    kind: str
+    size: tuple[float, float, float]
+    position: np.ndarray
+    orientation: np.ndarray
+    rgba: tuple[float, float, float, float] = (0.7, 0.7, 0.7, 1.0)
+    name: str = ""
+    mesh_path: str | None = None
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+
+
 _vec = checks.vector
+WORLD_COPIES = 3
+"""The copies of a world's rows that replicating and finalizing make (the builder's tiled columns, the model's
+host arrays, its device arrays): with NAME_BYTES a name (the string, its list and dict slots), what
+`SceneBuilder.replicate` estimates a world to take before it refuses a count the memory cannot hold."""
+NAME_BYTES = 150
 
 
 def checked_material(friction, restitution, what: str) -> tuple[float, float]:
@@ -153,11 +212,6 @@ def _axis(value, what: str) -> np.ndarray:
     if norm < 1e-12:
         raise SceneError(f"{what} is a zero vector")
     return arr / norm
-
-
-def _first(bad: np.ndarray) -> int | None:
-    """The index of the first True, or None."""
-    return int(bad.argmax()) if bad.any() else None
 
 
 def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -206,30 +260,12 @@ def _norms(rows: np.ndarray) -> np.ndarray:
     return np.sqrt(np.asarray(squares).reshape(-1))
 
 
-def _check_finite_rows(fields: dict[str, np.ndarray], label) -> None:
-    """Every row of each field's values (n, ...) finite and squarable in double precision, else the first bad
-    row of the first bad field named. One test covers all fields (NaN propagates through max); the culprit is
-    looked for only when it fails."""
-    flats = [values.reshape(len(values), -1) for values in fields.values()]
-    flat = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)
-    if np.abs(flat).max(initial=0.0) <= checks.LARGEST:
-        return
-    for (field, values), flat in zip(fields.items(), flats):
-        i = _first(~np.isfinite(flat).all(axis=1))
-        if i is not None:
-            raise SceneError(f"{label(i)} {field} contains NaN or Inf: {values[i].tolist()}")
-        i = _first(np.abs(flat).max(axis=1, initial=0.0) > checks.LARGEST)
-        if i is not None:
-            raise SceneError(f"{label(i)} {field} is too large for double precision (|component| > "
-                             f"{checks.LARGEST:g}): {values[i].tolist()}")  # fmt: skip
-
-
 def _unit_rows(value, count: int, what: str, label, field: str) -> np.ndarray:
     """Directions (count, 3), any length but zero, normalised."""
     arr = _rows(value, count, (3,), what)
-    _check_finite_rows({field: arr}, label)
+    checks.finite_rows({field: arr}, label)
     norm = _norms(arr)
-    i = _first(norm < 1e-12)
+    i = checks.first(norm < 1e-12)
     if i is not None:
         raise SceneError(f"{label(i)} {field} is a zero vector")
     return arr / norm[:, None]
@@ -264,6 +300,9 @@ class SceneBuilder:
         self.drives: list[Drive] = []
         self.limits: list[Limit] = []
         self.distances: list[Distance] = []
+        self.visuals: list[Visual] = []  # display-only geometry (`add_visual`)
+        self.actuators: list[Actuator] = []  # named control inputs of motors (`add_actuator`)
+        self.chains: list[tuple[int, ...]] = []  # joints in series through light bodies (`chain_joints`)
         self.world_count = 1  # > 1 after replicate(): the scene is closed to additions
 
     @property
@@ -305,13 +344,15 @@ class SceneBuilder:
             if n:
                 raise SceneError(f"replicate: the scene has {n} {what}; batched worlds do not take {what} yet")
         count = int(count)
+        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
+        rows = self._bodies.row_bytes() * nb + self._joints.row_bytes() * nj + self._constraints.row_bytes() * nc
+        checks.affordable(count, WORLD_COPIES * rows + NAME_BYTES * (nb + nj), "replicate", "world")
         out = SceneBuilder(self.gravity)
         out._joint_kinds, out._shapes, out._shape_slots = (
             list(self._joint_kinds),
             list(self._shapes),
             dict(self._shape_slots),
         )
-        nb, nj, nc = self._bodies.count, self._joints.count, self._constraints.count
         world = np.arange(count)
 
         def tiled(table: Table, shifts: dict[str, int]) -> dict[str, np.ndarray]:
@@ -348,6 +389,14 @@ class SceneBuilder:
                 drive.name = f"world{w}/{drive.name}" if count > 1 else drive.name
                 drive.joint += w * nj
                 out.drives.append(drive)
+            for actuator in copy.deepcopy(self.actuators):
+                actuator.name = f"world{w}/{actuator.name}" if count > 1 else actuator.name
+                actuator.drive += w * len(self.drives)
+                out.actuators.append(actuator)
+            out.chains += [tuple(j + w * nj for j in chain) for chain in self.chains]
+            for visual in copy.deepcopy(self.visuals):
+                visual.body = visual.body if visual.body == WORLD else visual.body + w * nb
+                out.visuals.append(visual)
         out.world_count = count
         return out
 
@@ -471,7 +520,7 @@ class SceneBuilder:
             raise SceneError(f"{batch}: inertia must be 3 moments or a 3x3 tensor per body, got shape {inertia.shape}")
         q = _rows(orientation, count, (4,), f"{batch} orientation")
         norm = _norms(q)
-        i = _first(norm < 1e-9)
+        i = checks.first(norm < 1e-9)
         if i is not None:
             raise SceneError(f"{label(i)}: orientation quaternion is zero")
         off = np.abs(norm - 1.0) > 1e-6
@@ -511,35 +560,13 @@ class SceneBuilder:
         def label(i: int) -> str:
             return f"body {self._body_name[start + i]!r}"
 
-        _check_finite_rows({f: t[f] for f in ("position", "orientation", "linear_velocity", "angular_velocity")}, label)
-        dynamic = ~t["static"]
-        mass = t["mass"]
-        i = _first(dynamic & ~(np.isfinite(mass) & (mass > 0.0)))
-        if i is not None:
-            raise SceneError(f"{label(i)}: mass must be positive and finite, got {mass[i]}")
-        inertia = t["inertia"]
-        flat = inertia.reshape(len(inertia), 9)  # reductions over one axis: cheaper than over (1, 2)
-        i = _first(dynamic & ~np.isfinite(flat).all(axis=1))
-        if i is not None:
-            raise SceneError(f"{label(i)}: inertia contains NaN or Inf")
-        scale = np.maximum(np.abs(flat).max(axis=1, initial=0.0), 1e-300)
-        asymmetry = np.abs(flat - inertia.transpose(0, 2, 1).reshape(len(inertia), 9)).max(axis=1, initial=0.0)
-        i = _first(dynamic & (asymmetry > 1e-9 * scale))
-        if i is not None:
-            raise SceneError(f"{label(i)}: inertia tensor is not symmetric")
-        moments = np.linalg.eigvalsh(inertia if dynamic.all() else np.where(dynamic[:, None, None], inertia, np.eye(3)))
-        smallest, middle, largest = moments.T
-        i = _first(smallest <= 0.0)
-        if i is not None:
-            raise SceneError(f"{label(i)}: inertia tensor is not positive definite (moments {moments[i].tolist()})")
-        i = _first(smallest + middle < largest * (1.0 - 1e-9))
-        if i is not None:
-            raise SceneError(f"{label(i)}: principal moments {moments[i].tolist()} break the triangle inequality")
+        checks.finite_rows({f: t[f] for f in ("position", "orientation", "linear_velocity", "angular_velocity")}, label)
+        checks.mass_properties(t["mass"], t["inertia"], ~t["static"], label)
         friction, restitution = t["friction"], t["restitution"]
-        i = _first(~(np.isfinite(friction) & (friction >= 0.0)))
+        i = checks.first(~(np.isfinite(friction) & (friction >= 0.0)))
         if i is not None:
             raise SceneError(f"{label(i)}: friction must be a finite number >= 0, got {friction[i]}")
-        i = _first(~((restitution >= 0.0) & (restitution <= 1.0)))
+        i = checks.first(~((restitution >= 0.0) & (restitution <= 1.0)))
         if i is not None:
             raise SceneError(f"{label(i)}: restitution must be in [0, 1], got {restitution[i]}")
 
@@ -565,7 +592,7 @@ class SceneBuilder:
         index = np.asarray(shape_index)
         if index.shape != (count,) or index.dtype.kind not in "iu":
             raise SceneError(f"{what}: shape_index must be {count} integers, got {shape_index!r}")
-        i = _first((index < -1) | (index >= len(shape)))
+        i = checks.first((index < -1) | (index >= len(shape)))
         if i is not None:
             raise SceneError(f"{what}: shape_index {int(index[i])} is not one of the {len(shape)} shapes")
         slots = np.array([self._shape_slot(s, what) for s in shape] + [-1], dtype=np.int32)
@@ -575,6 +602,50 @@ class SceneBuilder:
         """Whether each body has a colliding shape."""
         collide = np.array([s.collide for s in self._shapes] + [False], dtype=bool)
         return collide[self._bodies["shape"]]
+
+    def add_visual(
+        self, body: BodyRef, kind: str, size, position: Vec3, orientation: Quat = (0.0, 0.0, 0.0, 1.0),
+        rgba=(0.7, 0.7, 0.7, 1.0), name: str = "", mesh_path: str | None = None, vertices=None, faces=None,
+    ) -> int:  # fmt: skip
+        """Display-only geometry (`Visual`) on `body` (index, name, or None for the world), its frame given in
+        world coordinates at build time (m, (x, y, z, w)) like the joints' anchors, stored in the body's frame.
+        A mesh needs `vertices` (k, 3) and `faces` (f, 3) of triangles. Returns its index in `visuals`."""
+        what = f"visual {name or len(self.visuals)!r}"
+        self._open(what)
+        b = self._body_index(body, f"{what} body")
+        if kind not in VISUAL_KINDS:
+            raise SceneError(f"{what}: kind must be one of {VISUAL_KINDS}, got {kind!r}")
+        size = _vec(size, f"{what} size")
+        if not (np.isfinite(size).all() and (size >= 0.0).all()):
+            raise SceneError(f"{what}: size must be finite and >= 0, got {size.tolist()}")
+        rgba = checks.numbers(rgba, f"{what} rgba")
+        if rgba.shape != (4,) or not ((rgba >= 0.0) & (rgba <= 1.0)).all():
+            raise SceneError(f"{what}: rgba must be 4 numbers in [0, 1], got {rgba.tolist()}")
+        q = checks.numbers(orientation, f"{what} orientation")
+        if q.shape != (4,) or not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
+            raise SceneError(f"{what}: orientation must be a nonzero quaternion (x, y, z, w), got {q.tolist()}")
+        if kind == "mesh":
+            vertices = checks.numbers(vertices, f"{what} vertices") if vertices is not None else None
+            faces = np.asarray(faces) if faces is not None else None
+            if (
+                vertices is None
+                or faces is None
+                or vertices.ndim != 2
+                or vertices.shape[1] != 3
+                or faces.ndim != 2
+                or faces.shape[1] != 3
+                or not len(faces)
+            ):
+                raise SceneError(f"{what}: a mesh needs vertices (k, 3) and triangle faces (f, 3)")
+            if faces.dtype.kind not in "iu" or faces.min() < 0 or faces.max() >= len(vertices):
+                raise SceneError(f"{what}: faces must index the {len(vertices)} vertices")
+            faces = faces.astype(np.int64)
+        x, qb = self._frame(b)
+        local = quat_rotate(quat_conj(qb), _vec(position, f"{what} position") - x)
+        lq = quat_mul(quat_conj(qb), q / np.linalg.norm(q))
+        self.visuals.append(Visual(b, kind, tuple(size.tolist()), local, lq, tuple(rgba.tolist()), name, mesh_path,
+                                   vertices, faces))  # fmt: skip
+        return len(self.visuals) - 1
 
     def add_ground(
         self, height: float = 0.0, normal: Vec3 = (0.0, 0.0, 1.0), friction: float = 0.5, restitution: float = 0.0
@@ -742,18 +813,18 @@ class SceneBuilder:
             return f"joint {names[i]!r}"
 
         ends = np.concatenate([p, c])  # parents, then children
-        i = _first((ends < WORLD) | (ends >= nb))
+        i = checks.first((ends < WORLD) | (ends >= nb))
         if i is not None:
             side = "parent" if i < count else "child"
             raise SceneError(f"{label(i % count)} {side}: body index {ends[i]} does not exist ({nb} bodies)")
-        i = _first(c == WORLD)
+        i = checks.first(c == WORLD)
         if i is not None:
             raise SceneError(f"{label(i)}: the child must be a body, not the world")
-        i = _first(p == c)
+        i = checks.first(p == c)
         if i is not None:
             raise SceneError(f"{label(i)}: connects body {self._body_name[c[i]]!r} to itself")
         static = self._bodies["static"]
-        i = _first(((p == WORLD) | static[np.maximum(p, 0)]) & static[c])
+        i = checks.first(((p == WORLD) | static[np.maximum(p, 0)]) & static[c])
         if i is not None:
             raise SceneError(f"{label(i)}: both bodies are static; the joint constrains nothing")
         if kinds is None:
@@ -763,14 +834,14 @@ class SceneBuilder:
         needs_axis = any(k.needs_axis for k in kinds)
         needs_child_axis = any(k == ConstraintKind.ANGLE for k in kinds)
         anchor = _rows(anchor, count, (3,), f"{batch} anchor")
-        _check_finite_rows({"anchor": anchor}, label)
+        checks.finite_rows({"anchor": anchor}, label)
         none = np.full((count, 3), np.nan)  # no axis
         has_axis = needs_axis or axis is not None
         axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if has_axis else none
         if needs_child_axis:
             axis_child = _unit_rows(axis_child if axis_child is not None else axis, count, f"{batch} child axis",
                                     label, "child axis")  # fmt: skip
-            i = _first(np.abs(_dot(_parts(axis), _parts(axis_child))) > 1.0 - 1e-9)
+            i = checks.first(np.abs(_dot(_parts(axis), _parts(axis_child))) > 1.0 - 1e-9)
             if i is not None:
                 raise SceneError(f"{label(i)}: the two axes of an angle constraint are parallel")
         else:
@@ -798,6 +869,8 @@ class SceneBuilder:
 
     def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions and orientations of bodies `b` (the world's origin and identity for WORLD)."""
+        if not self._bodies.count:  # only the world yet
+            return np.zeros((len(b), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(b), 1))
         at = np.maximum(b, 0)
         x, q = self._bodies["position"][at], self._bodies["orientation"][at]
         world = b == WORLD
@@ -897,11 +970,14 @@ class SceneBuilder:
         step the joint turns by h target exactly (velocity mode) or reaches the target (position mode), with an
         impulse of at most max_force h, solved with the joints and limits (`kernels/limits.py`), stable at any
         stiffness. Use the PID for compliant, tuned servos on bodies heavy enough; `stiff` for a speed or
-        angle that must hold, or a light body."""
+        angle that must hold, or a light body. "effort" mode applies the target itself as the torque or force
+        (the gains unused, still clamped to +-max_force): a plain motor, MuJoCo's `motor` actuator."""
         j = self._coordinate_joint(joint, "a motor")
         what = f"joint {self.joints[j].name!r}: motor"
         if mode not in DRIVE_MODES:
             raise SceneError(f"{what} mode must be one of {DRIVE_MODES}, got {mode!r}")
+        if stiff and mode == "effort":
+            raise SceneError(f"{what}: an effort motor is a force, not a stiff constraint")
         kp, ki, kd = (_nonnegative(g, f"{what} {n}") for g, n in ((kp, "kp"), (ki, "ki"), (kd, "kd")))
         max_force = checks.real(max_force, f"{what} max_force")
         if not max_force > 0.0:
@@ -910,6 +986,79 @@ class SceneBuilder:
         drive = Drive(f"{self.joints[j].name}.motor", j, DRIVE_MODES.index(mode), target, kp, ki, kd, max_force,
                       motor=True, stiff=bool(stiff))  # fmt: skip
         return self._add_drive(drive)
+
+    def add_actuator(self, motor: int, gain: float = 1.0, bias: float = 0.0, ctrl_range=None, name=None) -> int:
+        """A named control input of motor `motor` (`add_motor`'s index): its target becomes
+        gain * clip(control, ctrl_range) + bias, and is that at control 0 from the start (`Actuator`). Returns
+        its index for `Simulator.set_controls`."""
+        name = name or f"actuator{len(self.actuators)}"
+        what = f"actuator {name!r}"
+        self._open(what)
+        motors = [i for i, d in enumerate(self.drives) if d.motor]
+        if isinstance(motor, bool) or not isinstance(motor, (int, np.integer)) or not 0 <= motor < len(motors):
+            raise SceneError(f"{what}: motor {motor!r} does not exist ({len(motors)} motors)")
+        if any(a.name == name for a in self.actuators):
+            raise SceneError(f"{what}: an actuator of that name already exists")
+        gain, bias = _finite(gain, f"{what} gain"), _finite(bias, f"{what} bias")
+        low, high = (-math.inf, math.inf) if ctrl_range is None else (checks.real(x, f"{what} ctrl_range")
+                                                                      for x in ctrl_range)  # fmt: skip
+        if not low <= high:
+            raise SceneError(f"{what}: ctrl_range [{low}, {high}] is empty")
+        drive = motors[motor]
+        self.drives[drive].target = gain * min(max(0.0, low), high) + bias
+        self.actuators.append(Actuator(name, drive, gain, bias, (low, high)))
+        return len(self.actuators) - 1
+
+    def chain_joints(self, joints: Sequence[int]) -> None:
+        """Joints in series between two bodies through light bodies (each joint's child the next one's parent), as
+        MJCF's several joints in one body: a joint spring or PID motor on one of them acts on the chain's two end
+        bodies, not on the light bodies, along the direction that does work on its own coordinate only (the
+        reciprocal of the chain's axes of its kind; a force at the hinges' common anchor). With the light bodies
+        massless that is the same motion, and no force falls on a body of almost no inertia (which would make
+        the explicit prediction unstable)."""
+        self._open("chain_joints")
+        chain = tuple(int(j) for j in joints)
+        if len(chain) < 2 or not all(0 <= j < len(self.joints) for j in chain):
+            raise SceneError(f"chain_joints: two or more existing joints are expected, got {joints!r}")
+        for a, b in zip(chain, chain[1:]):
+            if self.joints[a].child != self.joints[b].parent:
+                raise SceneError(f"chain_joints: joint {self.joints[b].name!r} does not start where "
+                                 f"{self.joints[a].name!r} ends")  # fmt: skip
+        if any(set(chain) & set(c) for c in self.chains):
+            raise SceneError(f"chain_joints: joint {self.joints[chain[0]].name!r} is in a chain already")
+        self.chains.append(chain)
+
+    def _drive_chains(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each drive's (sibling joint, sibling joint, anchor joint) and (body, body) for `Model` (drive_chain,
+        drive_ends): for a drive on a chained joint, the chain's other joints of its kind, the hinge whose
+        anchor a force acts at, and the chain's ends; checked that the direction exists."""
+        j = self._joints
+        chain = np.array([(-1, -1, d.joint) for d in self.drives], dtype=np.int64).reshape(-1, 3)
+        ends = np.array([(j["parent"][d.joint], j["child"][d.joint]) for d in self.drives], dtype=np.int64)
+        of = {joint: c for c in self.chains for joint in c}
+        kinds = self.joint_types()
+        for i, drive in enumerate(self.drives):
+            links = of.get(drive.joint)
+            if links is None or drive.stiff:  # a stiff motor is a row of the correction loop, not a force
+                continue
+            what = f"drive {drive.name!r} on chain {[kinds[k] for k in links]}"
+            if "ball" in (kinds[k] for k in links):
+                raise SceneError(f"{what}: a chain with a ball joint takes no joint springs or motors")
+            same = [k for k in links if kinds[k] == kinds[drive.joint] and k != drive.joint]
+            hinges = [k for k in links if kinds[k] == "revolute"]
+            if len(same) > 2:
+                raise SceneError(f"{what}: more than three joints of one kind")
+            axes = j["axis"][[drive.joint, *same]]
+            if abs(np.linalg.det(axes @ axes.T)) < 1e-9:
+                raise SceneError(f"{what}: the chain's axes of its kind are dependent")
+            if kinds[drive.joint] == "prismatic" and hinges:
+                anchors = j["anchor"][hinges]
+                if np.abs(anchors - anchors[0]).max() > 1e-9:
+                    raise SceneError(f"{what}: a force along a chain needs its hinges' anchors to coincide")
+            chain[i] = (*(same + [-1, -1])[:2], hinges[0] if kinds[drive.joint] == "prismatic" and hinges else
+                        drive.joint)  # fmt: skip
+            ends[i] = (j["parent"][links[0]], j["child"][links[-1]])
+        return chain, ends.reshape(-1, 2)
 
     def mark_loop_joint(self, joint) -> None:
         """Close a kinematic loop with `joint` where the spanning tree has a choice (method paper, section 4.6;
@@ -1097,6 +1246,7 @@ class SceneBuilder:
             drive_max_force=np.array([x.max_force for x in drives]),
             drive_motor=np.array([x.motor for x in drives], dtype=bool),
             drive_stiff=np.array([x.stiff for x in drives], dtype=bool),
+            **dict(zip(("drive_chain", "drive_ends"), self._drive_chains())),
             limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
             limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
             joint_loop=self._joints["loop"].copy(),
@@ -1104,6 +1254,9 @@ class SceneBuilder:
             distance_body=np.array([(x.body0, x.body1) for x in self.distances], dtype=np.int64).reshape(-1, 2),
             distance_anchor=np.array([(x.anchor0, x.anchor1, x.axis0) for x in self.distances]).reshape(-1, 3, 3),
             distance_bounds=np.array([(x.lower, x.upper) for x in self.distances]).reshape(-1, 2),
+            actuator_name=[a.name for a in self.actuators],
+            actuator_drive=np.array([a.drive for a in self.actuators], dtype=np.int64),
+            actuator_map=np.array([(a.gain, a.bias, *a.ctrl_range) for a in self.actuators]).reshape(-1, 4),
         )
 
     def _check_arrays(self) -> None:

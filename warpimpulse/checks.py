@@ -100,3 +100,98 @@ def device(name: Any):
     except (RuntimeError, ValueError, TypeError) as err:
         here = ", ".join(d.alias for d in wp.get_devices())
         raise SceneError(f"device {name!r} is not available ({err}); this machine has: {here}") from None
+
+
+def first(bad: np.ndarray) -> int | None:
+    """The index of the first True, or None."""
+    return int(bad.argmax()) if bad.any() else None
+
+
+def finite_rows(fields: dict[str, np.ndarray], label) -> None:
+    """Every row of each field's values (n, ...) finite and squarable in double precision, else the first bad
+    row of the first bad field named (`label(i)`: "body 'arm'"). One test covers all fields (NaN propagates
+    through max); the culprit is looked for only when it fails."""
+    flats = [values.reshape(len(values), -1) for values in fields.values()]
+    flat = flats[0] if len(flats) == 1 else np.concatenate(flats, axis=1)
+    if np.abs(flat).max(initial=0.0) <= LARGEST:
+        return
+    for (field, values), flat in zip(fields.items(), flats):
+        i = first(~np.isfinite(flat).all(axis=1))
+        if i is not None:
+            raise SceneError(f"{label(i)} {field} contains NaN or Inf: {values[i].tolist()}")
+        i = first(np.abs(flat).max(axis=1, initial=0.0) > LARGEST)
+        if i is not None:
+            raise SceneError(f"{label(i)} {field} is too large for double precision (|component| > "
+                             f"{LARGEST:g}): {values[i].tolist()}")  # fmt: skip
+
+
+def mass_properties(mass: np.ndarray, inertia: np.ndarray, dynamic: np.ndarray, label) -> None:
+    """Masses (n,) kg and inertias (n, 3, 3) kg m^2 of bodies, the `dynamic` ones checked, naming the first bad
+    body (`label(i)`): a positive finite mass and a finite symmetric positive definite inertia whose principal
+    moments obey the triangle inequality (a + b >= c: no rigid body has others). The builder's check of every
+    body, and `Simulator.set_masses`'."""
+    i = first(dynamic & ~(np.isfinite(mass) & (mass > 0.0)))
+    if i is not None:
+        raise SceneError(f"{label(i)}: mass must be positive and finite, got {mass[i]}")
+    flat = inertia.reshape(len(inertia), 9)  # reductions over one axis: cheaper than over (1, 2)
+    i = first(dynamic & ~np.isfinite(flat).all(axis=1))
+    if i is not None:
+        raise SceneError(f"{label(i)}: inertia contains NaN or Inf")
+    scale = np.maximum(np.abs(flat).max(axis=1, initial=0.0), 1e-300)
+    asymmetry = np.abs(flat - inertia.transpose(0, 2, 1).reshape(len(inertia), 9)).max(axis=1, initial=0.0)
+    i = first(dynamic & (asymmetry > 1e-9 * scale))
+    if i is not None:
+        raise SceneError(f"{label(i)}: inertia tensor is not symmetric")
+    moments = np.linalg.eigvalsh(inertia if dynamic.all() else np.where(dynamic[:, None, None], inertia, np.eye(3)))
+    smallest, middle, largest = moments.T
+    i = first(smallest <= 0.0)
+    if i is not None:
+        raise SceneError(f"{label(i)}: inertia tensor is not positive definite (moments {moments[i].tolist()})")
+    i = first(smallest + middle < largest * (1.0 - 1e-9))
+    if i is not None:
+        raise SceneError(f"{label(i)}: principal moments {moments[i].tolist()} break the triangle inequality")
+
+
+def available_memory() -> int:
+    """Bytes this process may still allocate: the memory the system has available (Linux's MemAvailable, else its
+    free physical pages), less what an address-space limit (`ulimit -v`, RLIMIT_AS) leaves of it."""
+    import os
+
+    free = None
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    free = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    if free is None:
+        free = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit != resource.RLIM_INFINITY:
+            with open("/proc/self/status") as f:
+                used = next((int(line.split()[1]) * 1024 for line in f if line.startswith("VmSize:")), 0)
+            free = min(free, max(limit - used, 0))
+    except (ImportError, OSError, ValueError):
+        pass
+    return int(free)
+
+
+def affordable(count: int, each: float, what: str, unit: str) -> None:
+    """Refuse (SceneError naming `what`, the count of `unit`s and the estimate) `count` items of about `each`
+    bytes when they would not fit in the memory this process may still allocate (`available_memory`): checked
+    before the allocation, so that a huge count is one line and not numpy's MemoryError."""
+    need, free = count * each, available_memory()
+    if need > free:
+        raise SceneError(f"{what}: {count:,} {unit}s would take about {_size(need)} of memory ({_size(each)} a "
+                         f"{unit}), more than this machine has free ({_size(free)})")  # fmt: skip
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n:.3g} B"

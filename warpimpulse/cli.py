@@ -29,6 +29,7 @@ AUTO_ON_OFF = {"auto": None, "on": True, "off": False}  # a switch's choices on 
 
 DEFAULT_DURATION = 10.0  # s, without --duration and without a time range in the scene file
 DEFAULT_FPS = 30.0  # without --fps, for built-in scenes
+MJCF_SUFFIXES = (".xml", ".mjcf")  # MuJoCo models (`mjcf.load_mjcf`); any other input is read as USD
 
 
 def _positive(kind):
@@ -46,7 +47,8 @@ def _positive(kind):
 
 def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scene and write USD animation")
-    p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc); or use --scene")
+    p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc) or a MuJoCo model (.xml, "
+                   "needs the [mjcf] extra); or use --scene")  # fmt: skip
     p.add_argument("--scene", choices=sorted(SCENES), help="a built-in procedural scene (default: tree127)")
     p.add_argument("--out", "-o", type=Path, help="output USD file (default: out/<scene>.usdc)")
     p.add_argument("--duration", type=_positive(float),
@@ -100,8 +102,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
     p.add_argument("--ignore-unsupported", action="store_true",
-                   help="drop what is not simulated (cone limits, break forces, ...) with a warning instead of "
-                   "stopping")  # fmt: skip
+                   help="drop what is not simulated (cone limits, break forces, MJCF tendons, ...) with a warning "
+                   "instead of stopping")  # fmt: skip
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")
@@ -152,7 +154,10 @@ def _sweep(args) -> int:
     seed = seed if args.seed is None else args.seed
     if not params and not ranges:
         raise ValueError("nothing to sweep: give a TOML file or --param name=v1,v2,...")
-    points = sweep.make_points(params, samples, seed, ranges)
+    try:
+        points = sweep.make_points(params, samples, seed, ranges)
+    except ValueError as err:  # the size of the sweep, what its file asks
+        raise ValueError(f"{args.config}: {err}" if args.config is not None else str(err)) from None
     workers = args.workers or os.cpu_count() or 1
     backend = args.backend
     if backend != "pool" and not sweep.ray_available():
@@ -172,6 +177,8 @@ def _sweep(args) -> int:
     print(f"swept {len(points)} points ({len(result.computed)} computed on {result.backend}, {before} done before): "
           f"{outcomes.count('ok')} ok, {outcomes.count('stopped')} stopped, {outcomes.count('error')} errors; "
           f"table in {args.out / 'sweep.csv'} and sweep.json")  # fmt: skip
+    for line in sweep.failures(result.rows):
+        print(f"warpimpulse: {line}", file=sys.stderr)
     if args.plot:
         if sweep.plot(result.rows, args.out / "sweep.png"):
             print(f"plots in {args.out / 'sweep.png'}")
@@ -211,6 +218,13 @@ def _refuse_no_frame(duration: float, fps: float) -> None:
         raise SceneError(f"--{err}".replace("the duration", "--duration")) from None
 
 
+def _say_fallbacks(sim) -> None:
+    """Each reason the run took steps at a lower order than --order asked, once (`Simulator.fallbacks`; the output
+    records them too, warpimpulse:fallbacks)."""
+    for reason in sim.fallbacks:
+        print(f"warpimpulse: {sim.fallback_note(reason)}", file=sys.stderr)
+
+
 def _simulate(args) -> int:
     from . import checks, run, usd
     from .energy import EnergyWatch
@@ -228,21 +242,26 @@ def _simulate(args) -> int:
         raise SceneError(f"--accuracy chooses the order itself; drop --order {args.order}")
     if args.duration is not None and args.fps is not None:
         _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
+    stage = None  # a USD scene file's (its time range and step size)
     if args.input:
         source = Path(args.input)
         if not source.is_file():
             raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
-        with warnings.catch_warnings():  # what --ignore-unsupported drops: one line each, no source excerpt
-            warnings.showwarning = lambda message, *_: print(f"warpimpulse: warning: {message}", file=sys.stderr)
-            scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
-        builder, name = scene.builder, source.stem
+        if source.suffix.lower() in MJCF_SUFFIXES:  # warnings: one line each (`_one_line`)
+            from .mjcf import load_mjcf
+
+            builder = load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported)
+        else:
+            stage = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+            builder = stage.builder
+        name = source.stem
     else:
         name = args.scene or "tree127"
         builder = SCENES[name]()
-        scene = builder
-    args.duration, args.fps = _timing(args, scene if args.input else None)
+    scene = stage or builder
+    args.duration, args.fps = _timing(args, stage)
     _refuse_no_frame(args.duration, args.fps)
-    file_dt = scene.dt if args.input else None  # a scene file may record the step size it needs
+    file_dt = stage.dt if stage else None  # a scene file may record the step size it needs
     dt = args.dt if args.dt is not None else (file_dt or 1.0 / args.fps)
     try:
         run.frame_steps(dt, args.fps)  # refuse a dt that does not divide the frame time, before any work
@@ -293,11 +312,13 @@ def _simulate(args) -> int:
 
     try:
         with writer:
-            frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame)
+            frames = run.record_frames(sim, writer, args.duration, progress=args.progress, on_frame=on_frame,
+                                       record=writer.settings)  # fmt: skip
     except WriteError as err:  # disk full, a file size limit: the previous file is unchanged
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return 1
     except (SimulationError, SingularSystemError, FloatingPointError) as err:
+        _say_fallbacks(sim)
         print(f"warpimpulse: stopped at t = {sim.time:.6g} s: {err}", file=sys.stderr)
         print(f"warpimpulse: {kept()} before the stop", file=sys.stderr)
         return 1
@@ -306,6 +327,7 @@ def _simulate(args) -> int:
         print(f"\nwarpimpulse: interrupted ({signal.Signals(signum).name}); {kept()}", file=sys.stderr)
         return 128 + signum
     elapsed = time.perf_counter() - start
+    _say_fallbacks(sim)
     if energy.warning():
         print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
     steps = f"{sim.step_count} steps of {dt:.6g} s"
@@ -317,6 +339,30 @@ def _simulate(args) -> int:
         f"in {elapsed:.2f} s ({1e3 * elapsed / max(sim.step_count, 1):.3f} ms a step, output included)"
     )
     return 0
+
+
+def _one_line(message, category, *_) -> None:
+    """`warnings.showwarning` while a command runs: a warning (a dropped USD feature, a step over its iteration
+    limit under --on-max-iterations warn) is one line, without the library's source line."""
+    print(f"warpimpulse: warning: {message}", file=sys.stderr)
+
+
+def _command(parser, args, rest: list[str]) -> int:
+    """Run the command `args` asks for (`main` reports its errors)."""
+    if args.command in ("bench", "stress"):
+        from .bench.cli import main as harness_main  # the harness, imported only when asked for
+
+        return int(harness_main(args.command, rest) or 0)
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    if args.command == "preview":
+        from .preview import main as preview_main
+
+        return preview_main(args.input, args.out, args.frames, args.gif_frames)
+    if args.command == "sweep":
+        return _sweep(args)
+    with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
+        return _simulate(args)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -333,20 +379,9 @@ def main(argv: list[str] | None = None) -> int:
     from .solver import SingularSystemError
 
     try:
-        if args.command in ("bench", "stress"):
-            from .bench.cli import main as harness_main  # the harness, imported only when asked for
-
-            return int(harness_main(args.command, rest) or 0)
-        if rest:
-            parser.error(f"unrecognized arguments: {' '.join(rest)}")
-        if args.command == "preview":
-            from .preview import main as preview_main
-
-            return preview_main(args.input, args.out, args.frames, args.gif_frames)
-        if args.command == "sweep":
-            return _sweep(args)
-        with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
-            return _simulate(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line
+            return _command(parser, args, rest)
     except (SceneError, ValueError, OSError, SingularSystemError) as err:  # bad input, found before the run
         print(f"warpimpulse: error: {err}", file=sys.stderr)
         return EXIT_USAGE

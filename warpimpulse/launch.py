@@ -9,6 +9,8 @@ without the other fails when the launch is recorded, naming both.
 
 from __future__ import annotations
 
+import ctypes
+import functools
 from collections.abc import Callable, Sequence
 
 import warp as wp
@@ -30,6 +32,24 @@ class Launches:
     def launch(self) -> None:
         for item in self.launches:
             item.launch()
+
+
+class Packed:
+    """A recorded CPU launch whose arguments are packed once: `launch()` is one call of the kernel's compiled entry
+    point with them (~0.3 us for the fused step's 90 arguments), where a captured graph's replay packs them again
+    each time (~1.7 us; docs/architecture.md, "Measured facts"). Its arrays are bound by address, as a graph's are,
+    so what the host writes into them between calls is read; Warp's own CPU launch (`invoke`) packs the same
+    structure of the same ctypes values. Never captured: a capture on another thread does not take it in."""
+
+    def __init__(self, launch: wp.Launch) -> None:
+        if not launch.device.is_cpu or launch.adjoint or launch.block_dim != 1:
+            raise ValueError(f"kernel {launch.kernel.key}: only a forward CPU launch of one thread a task is packed")
+        values = launch.params[1:]  # after the launch bounds
+        fields = [(arg.label, type(value)) for arg, value in zip(launch.kernel.adj.args, values, strict=True)]
+        self._args = type("Args", (ctypes.Structure,), {"_fields_": fields})(*values)
+        self._launch = launch  # keeps the bounds and the arrays the arguments point into
+        # `launch()`: the entry point bound to its two pointers, called without a Python frame
+        self.launch = functools.partial(launch.hooks.forward, ctypes.byref(launch.params[0]), ctypes.byref(self._args))
 
 
 Work = wp.Launch | Nothing | Launches | Callable[[], object]

@@ -109,6 +109,8 @@ class Model:
         drive_max_force: np.ndarray = (),
         drive_motor: np.ndarray = (),
         drive_stiff: np.ndarray = (),
+        drive_chain: np.ndarray = (),
+        drive_ends: np.ndarray = (),
         joint_loop: np.ndarray = (),
         limit_joint: np.ndarray = (),
         limit_bounds: np.ndarray = (),
@@ -116,6 +118,9 @@ class Model:
         distance_body: np.ndarray = (),
         distance_anchor: np.ndarray = (),
         distance_bounds: np.ndarray = (),
+        actuator_name: list[str] = (),
+        actuator_drive: np.ndarray = (),
+        actuator_map: np.ndarray = (),
         colliders: Colliders | None = None,
     ) -> None:
         """Args (SI units; n bodies, m basic constraints, k joints, f forces):
@@ -135,7 +140,12 @@ class Model:
             (stiffness N/m, damping N s/m, rest length m).
         drive_*: joint springs and PID motors on a revolute or prismatic joint: mode (`types.DRIVE_MODES`
             index), initial target, gains (kp, ki, kd), max_force (N m or N), motor (False: a joint spring),
-            stiff (a velocity constraint in the correction loop, not a force).
+            stiff (a velocity constraint in the correction loop, not a force); chain: (two joints whose axes
+            the drive's direction is reciprocal to, the joint whose anchor a force acts at; -1 for none) and ends
+            (the two bodies its wrench acts on) of a drive on a chain of joints (`SceneBuilder.chain_joints`);
+            by default none, and the joint's parent and child.
+        actuator_*: named control inputs (`builder.Actuator`): the drive each sets, and (gain, bias, lowest,
+            highest control): target = gain * clip(control, lowest, highest) + bias.
         limit_*: the joint and its (lower, upper) bounds (rad or m) of revolute or prismatic joints.
         joint_loop: (k,) bool, the joints to close loops with where there is a choice (USD's
             excludeFromArticulation); empty: the spanning tree chooses.
@@ -173,6 +183,9 @@ class Model:
             force_until=np.asarray(force_until, np.float64),
         )
         h = self.host
+        self.actuator_name = list(actuator_name)
+        h.actuator_drive = np.asarray(actuator_drive, np.int64).reshape(-1)
+        h.actuator_map = np.asarray(actuator_map, np.float64).reshape(-1, 4)
         self.body_name = list(body_name)
         self.joint_name = list(joint_name)
         self.joint_type = list(joint_type)
@@ -228,13 +241,13 @@ class Model:
             spring_name, spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params,
             drive_name, drive_joint, drive_mode, drive_target, drive_gains, drive_max_force, drive_motor,
             drive_stiff, limit_joint, limit_bounds, joint_loop,
-            (distance_name, distance_body, distance_anchor, distance_bounds),
+            (distance_name, distance_body, distance_anchor, distance_bounds), (drive_chain, drive_ends),
         )  # fmt: skip
 
     def _mechanisms(
         self, spring_name, spring_body0, spring_body1, spring_anchor0, spring_anchor1, spring_params, drive_name,
         drive_joint, drive_mode, drive_target, drive_gains, drive_max_force, drive_motor, drive_stiff, limit_joint,
-        limit_bounds, joint_loop, distances,
+        limit_bounds, joint_loop, distances, chains,
     ) -> None:  # fmt: skip
         """Springs and drives (force elements, evaluated in every RK4 stage of the prediction: `kernels/forces.py`)
         and the rows of the correction loop on a coordinate, limits then stiff motors (`kernels/limits.py`), on
@@ -316,11 +329,22 @@ class Model:
         mode = np.asarray(drive_mode, np.int32)
         gains = np.asarray(drive_gains, np.float64).reshape(-1, 3).copy()
         gains[mode == 1, 2] = 0.0  # velocity mode has no derivative term
+        gains[mode == 2] = 0.0  # effort mode: the target is the output
         gains[stiff] = 0.0  # a stiff motor is no PID
         # drive_* arrays are over every drive (targets and integrals are per drive); the force elements are
         # the drives listed in drive_element.
         self.drive_element = _array(forced, wp.int32, d)
         self.drive_coordinate = _array(row_of[h.drive_joint], wp.int32, d)
+        h.drive_chain, h.drive_ends = (np.asarray(x, np.int64).reshape(-1, n) for x, n in zip(chains, (3, 2)))
+        if not len(h.drive_chain):  # no chains: none, the joint's own anchor, its parent and child
+            h.drive_chain = np.stack([np.full(len(h.drive_joint), -1), np.full(len(h.drive_joint), -1),
+                                      h.drive_joint], axis=1).reshape(-1, 3)  # fmt: skip
+            h.drive_ends = np.stack([h.joint_parent[h.drive_joint], h.joint_child[h.drive_joint]], axis=1).reshape(
+                -1, 2
+            )
+        rows_of = np.append(row_of, -1)  # joint -1 -> row -1
+        self.drive_chain = _array(rows_of[h.drive_chain].astype(np.int32), wp.vec3i, d)
+        self.drive_ends = _array(h.drive_ends.astype(np.int32), wp.vec2i, d)
         self.drive_mode = _array(mode, wp.int32, d)
         self.drive_gains = _array(gains, wp.vec3d, d)
         self.drive_max_force = _array(np.asarray(drive_max_force, np.float64), wp.float64, d)
@@ -329,9 +353,8 @@ class Model:
         self.limit_drive = _array(h.limit_drive, wp.int32, d)
 
         # The wrench rows of the force elements on each body: 2 e + side, springs first, then drives.
-        driven = h.drive_joint[forced]
-        ends = np.stack([np.concatenate([h.spring_body0, h.joint_parent[driven]]),
-                         np.concatenate([h.spring_body1, h.joint_child[driven]])], axis=1).reshape(-1)  # fmt: skip
+        ends = np.stack([np.concatenate([h.spring_body0, h.drive_ends[forced, 0]]),
+                         np.concatenate([h.spring_body1, h.drive_ends[forced, 1]])], axis=1).reshape(-1)  # fmt: skip
         rows = np.flatnonzero(ends >= 0)  # row 2 e + side on body ends[row]
         rows = rows[np.argsort(ends[rows], kind="stable")]  # by body, each body's in row order
         self.element_count = len(ends) // 2
@@ -430,6 +453,8 @@ class Model:
                 f"drive_{k}": rows(getattr(h, f"drive_{k}"), nd)
                 for k in ("mode", "target", "gains", "max_force", "motor", "stiff")
             },  # fmt: skip
+            drive_chain=np.where(rows(h.drive_chain, nd) >= 0, rows(h.drive_chain, nd) - start * nj, -1),
+            drive_ends=shifted(h.drive_ends, nd),
         )
 
     def joint_constraints(self, joint: int) -> range:

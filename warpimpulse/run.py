@@ -54,8 +54,11 @@ def frame_count(duration: float, fps: float) -> int:
 def settings(sim: Any) -> dict[str, Any]:
     """The simulator settings an output file records (customLayerData warpimpulse:*), so a run can be
     repeated from its file."""
+    notes = {"scheduleNote": getattr(sim, "schedule_note", ""), "splitNote": getattr(sim, "split_note", "")}
     return {
         "dt": sim.dt,
+        "schedule": getattr(sim, "schedule", ""),  # the fused step (a CPU's, one kernel) or the parallel stages
+        **{key: note for key, note in notes.items() if note},  # why the schedule or threads asked for are not used
         "tolerance": sim.tolerance,
         "velocity_tolerance": sim.velocity_tolerance,
         "solver": sim.solver_name,
@@ -77,6 +80,7 @@ def record_frames(
     dt: float | None = None,
     progress: bool | None = None,
     on_frame: Callable[[int], None] | None = None,
+    record: dict | None = None,
 ) -> int:
     """Step `sim` and write frames 0 .. round(duration * fps) inclusive (frame f holds t = f / fps).
 
@@ -84,7 +88,9 @@ def record_frames(
     unless given). A progress bar is drawn on stderr when it is a terminal (or `progress=True`). Returns the
     number of frames written; call it inside `with writer:` so that an error or Ctrl-C still leaves a valid
     file. A non-finite state raises FloatingPointError naming the frame. `on_frame(f)` runs after frame f is
-    written (the energy watch of `energy.EnergyWatch.follow`).
+    written (the energy watch of `energy.EnergyWatch.follow`). `record` (a writer's settings, which go into the
+    layer data, even of a partial file) gets the sentences of `sim.fallbacks` so far under "fallbacks": why
+    steps were taken at a lower order than asked.
     """
     dt = float(dt if dt is not None else sim.dt)
     steps = frame_steps(dt, writer.fps)
@@ -94,6 +100,8 @@ def record_frames(
     for f in range(frames + 1):
         if f > 0:
             sim.step(steps)
+            if record is not None and getattr(sim, "fallbacks", None):
+                record["fallbacks"] = [sim.fallback_note(reason) for reason in sim.fallbacks]
         x, q = sim.positions().reshape(-1, 3), sim.orientations().reshape(-1, 4)  # batched worlds: all of them
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(q))):
             raise FloatingPointError(f"the simulation diverged (non-finite state) before frame {f}")

@@ -9,6 +9,8 @@ The factorization made at t0+h serves the next step's joint correction, which ha
 from __future__ import annotations
 
 import math
+import operator
+import sys
 import warnings
 import zipfile
 import zlib
@@ -18,68 +20,44 @@ import numpy as np
 import warp as wp
 
 from . import accuracy as accuracy_control
-from . import capabilities, checks, composition, coordinates, diagnose
+from . import capabilities, checks, composition, diagnose
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
-from .kernels import carry as carry_kernels
 from .kernels import constraints as constraint_kernels
-from .kernels import forces as force_kernels
-from .kernels import impulses as impulse_kernels
-from .kernels import inertia as inertia_kernels
-from .kernels import iterative as iterative_kernels
 from .kernels import limits as limit_kernels
 from .kernels import loop as loop_kernels
-from .kernels import rigid as rigid_kernels
 from .kernels import step as step_kernels
-from .kernels import worlds as world_kernels
-from .launch import Launches, capture, record, run
+from .launch import Packed, record
 from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
-from .solver import CGSolver, CholeskySolver, Frames, loop_tolerance_for
-from .steps import SimulationError, StepStats, diverging
-from .transforms import quat_rotate, quat_to_matrix
-from .types import DRIVE_MODES, FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
+from .parallel import ParallelSteps
+from .readout import Readout
+from .recording import Recording
+from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
+from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined, diverging
+from .transforms import quat_from_axis_angle, quat_mul
+from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch, WorldStats
 
 POLICIES = ("raise", "warn")
-ROWS_FALLBACK = "joint limits, stiff motors or distance rows (impacts and saturation are not reversible)"
-"""Why a scene with such rows takes its steps at order 2 whatever order was asked: a composed step would run
-them backwards in its negative substeps (`StepStats.fallback`)."""
-VELOCITY_ALTERNATIONS = 10
-"""Rounds of (joint velocity correction, contact velocity sweeps) at t0+h before the last joint correction: the
-two blocks converge linearly into each other (a cart on its wheels: about 0.7 a round)."""
-
-
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
+
+
+# A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
+# each column's name takes five.
+_STATUS_FIGURES = operator.itemgetter(
+    step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
+    step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
+)  # fmt: skip
 
 
 class CheckpointError(ValueError):
     """A checkpoint that cannot be loaded into this simulator; the message names the file and the reason."""
 
 
-def _combined(parts: list[StepStats]) -> StepStats:
-    """The stats of one step taken as consecutive substeps."""
-    return StepStats(
-        sum(p.joint_iterations for p in parts),
-        sum(p.velocity_iterations for p in parts),
-        max(p.max_joint_error for p in parts),
-        parts[-1].max_velocity_error,
-        all(p.converged for p in parts),
-        sum(p.linear_iterations for p in parts),
-        sum(p.substeps for p in parts),
-        min(p.order for p in parts),
-        next((p.fallback for p in parts if p.fallback), ""),
-        parts[-1].contacts,
-        max(p.max_penetration for p in parts),
-        sum(p.contact_sweeps for p in parts),
-        min((p.step_size for p in parts if not math.isnan(p.step_size)), default=math.nan),
-        sum(p.error_estimate for p in parts),
-    )
-
-
-class Simulator:
+class Simulator(Readout, Recording, ParallelSteps):
     """Steps a Model in time with the impulse method; reads and writes its State as numpy arrays.
 
     Frames: positions, velocities and angular velocities are world frame; quaternions are (x, y, z, w).
@@ -118,7 +96,8 @@ class Simulator:
         on_max_iterations: "raise" a SimulationError naming the worst joints, or "warn" and go on with
             `StepStats.converged` False.
         verbose: turn Warp's info messages back on (`Module ... load` lines as kernels are loaded); they are
-            off by default (`warpimpulse.verbosity`).
+            off by default (`warpimpulse.verbosity`). It also says on stderr, once each, why steps were taken at
+            a lower order than asked (`fallbacks`).
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
@@ -198,6 +177,10 @@ class Simulator:
             )
         if verbose:
             show_warp_messages()
+        self.verbose = bool(verbose)
+        self.fallbacks: dict[str, float] = {}
+        """Why steps were taken at order 2 although `order` asked for more (`StepStats.fallback`), each reason once
+        with the time (s) at the start of the `step` call that first took one, since the build (or `reset`)."""
         if solver == "iterative" and model.limit_count:
             raise ValueError(
                 "solver 'iterative' has no joint limits, stiff motors or distance constraints: use 'cholesky' or 'cg'"
@@ -322,7 +305,9 @@ class Simulator:
         self.loop_active = wp.zeros(1, dtype=wp.int32, device=d)
         self.loop_go = wp.zeros(1, dtype=wp.int32, device=d)
         self._limit_world = wp.zeros(model.limit_count, dtype=wp.int32, device=d)  # one world's limits
-        self._fingerprint = diagnose.fingerprint(model)
+        contact_settings = dict(margin=contact_margin, solver=contact_solver, broad_phase=broad_phase,
+                                sweeps=contact_sweeps)  # fmt: skip
+        self._fingerprint = diagnose.fingerprint(model, contact_settings if model.colliders is not None else None)
         self._spin = 0.0  # rad/s: the largest |w| of the last prediction checked (the state before its velocity fix)
         self._record_launches()
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
@@ -340,11 +325,13 @@ class Simulator:
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
+        if self.redundant_rows:
+            self._check_loops()
         self._check_finite(self.state, 0)
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
         """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
 
-    # ---------------------------------------------------------------- launches
+    # ---------------------------------------------------------------- options the scene decides
     @property
     def _split_systems(self) -> bool:
         """Whether the Cholesky solver factors the tree's and the loop joints' systems apart (formulation "split",
@@ -364,239 +351,6 @@ class Simulator:
         )
         return ", ".join(why for needed, why in reasons if needed)
 
-    def _record(self, kernel, dim: int, data_in: State | None = None, data_out: State | None = None, **values):
-        """A recorded launch whose parameters are bound by name to the Model, Frames, Control and the
-        simulator's scratch arrays (`launch.record`)."""
-        sources = (self.model, self.frames, self.control, self)
-        return record(kernel, dim, self.model.device, sources, data_in, data_out, **values)
-
-    def _capture(self, *work) -> wp.Graph:
-        return capture(self.model.device, *work)
-
-    def _record_launches(self) -> None:
-        s, (nb, nc) = self.state, self._counts
-        self._rows = self._row_arrays()  # one struct for both schedules' row launches
-        self._inertia = self._record(inertia_kernels.world_inverse_inertia, nb, s)
-        self._frames = self._record(self.kernels.frames, nc, s)
-        self._velocity_errors = self._record(self.kernels.velocity_errors, nc, s)
-        self._apply = self._record(impulse_kernels.apply_impulses, nb, data_out=s)
-        self._sweep_velocities = self._record(iterative_kernels.sweep_velocities, 1, s, s, constraint_count=nc)
-        self._check_states = {id(st): self._record(rigid_kernels.summarize_state, nb, st) for st in (s, self.pred)}
-        # Batched worlds: per-world summaries, and right-hand sides masked to the worlds still iterating.
-        self._world_checks = {}
-        self._mask = []
-        if self.batch is not None:
-            self._world_checks = {id(st): self._record(world_kernels.summarize_worlds, nb, st) for st in (s, self.pred)}
-            self._mask = [self._record(world_kernels.mask_worlds, nc, rhs=self.rhs)]
-        prepare = self.linear.prepare_launches if self.linear is not None else []
-        frames = [self._inertia, self._frames, *prepare, *self._limit_system_launches()]
-        self._frames_graph = self._capture(*frames)
-        # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
-        self._accept_work = (lambda: self.state.copy_from(self.pred), *frames)
-        self._accept_graph = self._capture(*self._accept_work)
-        self._save_velocities = self._capture(
-            lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w), self.limit_impulse.zero_
-        )
-        self._direct = isinstance(self.linear, CholeskySolver)  # one solve is a fixed launch sequence
-        if self._direct:
-            solve = self.linear.solve_launches(self.rhs, self.impulse)
-            self._velocity_fix_work = (*self._mask, *solve, self._apply, self._velocity_errors)
-            self._velocity_fix = self._capture(*self._velocity_fix_work)
-        self._use_step_size(self.dt)
-
-    def _limit_system_launches(self) -> list:
-        """The rows' system S (limits and stiff motors) with the joints holding, at the current state and factor
-        (`kernels/limits.py`): one solve with the factor per row; with CG (no factor to reuse) the free bodies'
-        mobility."""
-        s, nl, nc = self.state, self.model.limit_count, self.model.constraint_count
-        if nl == 0:
-            return []
-        coupled = isinstance(self.linear, CholeskySolver)
-        launches = [self._record(limit_kernels.limit_sides, nl, s)]
-        if coupled:
-            launches.append(self._record(limit_kernels.limit_coupling, (nl, nc), s))
-            for l in range(nl):
-                rows = slice(l * nc, (l + 1) * nc)
-                launches += self.linear.solve_launches(self.limit_coupling[rows], self.limit_response[rows])
-        launches.append(self._record(limit_kernels.limit_matrix, (nl, nl), s, coupled=int(coupled)))
-        return launches
-
-    def _use_step_size(self, h: float) -> None:
-        """Point the launches that depend on the step size at h (recorded once per h, then cached)."""
-        if h not in self._launches_by_h:
-            s, p, (nb, nc) = self.state, self.pred, self._counts
-            if self._forced:
-                predict = self._coupled_prediction(h)
-            else:
-                group = rigid_kernels.LANES if self.model.device.is_cpu else 1  # bodies a thread
-                predict = self._record(rigid_kernels.predict, -(-nb // group), s, p, h=h, group_size=group)
-            integrate = self._record(force_kernels.integrate_drives, self.model.drive_count, s, h=h)
-            errors = self._record(self.kernels.position_errors, nc, p, inv_h=1.0 / h)
-            sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
-            # Measure a prediction: its joint errors, NaN/Inf bodies and fastest spin.
-            start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
-            limits = self._record(limit_kernels.limit_errors, self.model.limit_count, p, h=h, rows=self._rows, **start)
-            measure = [errors, limits, self.summary.zero_, self._check_states[id(p)]]
-            if self.batch is not None:
-                measure += [self.world_summary.zero_, self._world_checks[id(p)]]
-            nl, coupled = self.model.limit_count, int(self._direct)
-            correct_limits, correct_limit_velocities = (
-                self._record(limit_kernels.correct_rows, int(nl > 0), s, velocity=v, coupled=coupled, h=h,
-                             body_v=s.body_v, body_w=s.body_w, rows=self._rows)
-                for v in (0, 1)
-            )  # fmt: skip
-            iterate = iteration = iterate_first = first_iteration = None
-            if self._direct:  # solve, apply at t0, predict again, measure
-                solve = self.linear.solve_launches(self.rhs, self.impulse)
-                iteration = (*self._mask, *solve, self._apply, correct_limits, predict, *measure)
-                iterate = iterate_first = self._capture(*iteration)
-                first_iteration = iteration
-                carry_in, newton, carry_out = [], [], []
-                if self.carry:  # the first solves rhs + c, then measures the next c (`carry`)
-                    c, c_next = self._carry_arrays(h)
-                    carry_in = [self._record(carry_kernels.carry_in, nc, carry=c, rhs_out=self.rhs)]
-                    carry_out = [self._record(carry_kernels.carry_out, nc, carry=c, rhs_in=self.rhs,
-                                              carry_next_out=c_next)]  # fmt: skip
-                if self.newton:  # the first solves again with rhs - E lambda (`newton`)
-                    newton = [
-                        self._record(impulse_kernels.impulse_responses, nb, s),
-                        self._record(self.kernels.arm_corrections, nc, p, h=h),
-                        *self.linear.solve_launches(self.newton_rhs, self.impulse),
-                    ]
-                if carry_in or newton:
-                    first_iteration = (*carry_in, *self._mask, *solve, *newton, self._apply, correct_limits, predict,
-                                       *measure, *carry_out)  # fmt: skip
-                    iterate_first = self._capture(*first_iteration)
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
-                                      iterate_first, ((predict, *measure), first_iteration, iteration), integrate,
-                                      correct_limits, correct_limit_velocities)  # fmt: skip
-        (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
-         self._iterate_first, self._loop_work, self._integrate_drives, self._correct_limits,
-         self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
-        self._h = h
-
-    def _carry_arrays(self, h: float) -> tuple[wp.array, wp.array]:
-        """(c, the c measured in the step) for steps of h (`carry`): a stage's rows at dt, which the fused kernel
-        shares, or arrays of their own for a halved or split step size."""
-        if h in self._carry_rows:
-            r = self._carry_rows[h]
-            return self._carry[r], self._carry_next[r]
-        if h not in self._carry_other:
-            c = wp.zeros(self.model.constraint_count, dtype=wp.vec3d, device=self.model.device)
-            self._carry_other[h] = (c, wp.zeros_like(c))
-        return self._carry_other[h]
-
-    def _keep_carry(self, h: float) -> None:
-        """A kept step of h whose first solve ran: its c becomes the value it measured (`carry`)."""
-        wp.copy(*self._carry_arrays(h))
-
-    def _carries(self) -> dict[float, wp.array]:
-        """c of every step size that has one (`carry`)."""
-        return {h: self._carry_arrays(h)[0] for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
-
-    def _forget_carry(self, world: int | None = None) -> None:
-        """No c to carry, for one world or all: its state was set from outside the step (`reset`, `set_state`)."""
-        nc = self.model.world_constraint_count
-        rows = slice(None) if world is None else slice(world * nc, (world + 1) * nc)
-        for c in self._carries().values():
-            c[rows].zero_()
-
-    def _device_loops(self) -> tuple[wp.Graph, wp.Graph | None, wp.Graph | None] | None:
-        """The parallel schedule's loops at the current step size as graphs decided on the device (captured
-        once per step size): the joint correction, accepting the prediction with its factor and velocity
-        correction, and the velocity correction alone (the last two None with limits or split systems, whose
-        velocity rows the host sequences; the last is a deferred one, `defer_velocities`). None where the
-        host keeps its loops: other solvers, batched worlds (`worlds.py` decides per world), and the fused
-        schedule's rare parallel steps (a fused share must find nothing to capture when threads step it)."""
-        if not self._direct or self.batch is not None or self.schedule != "parallel":
-            return None
-        if self._h not in self._loops_by_h:
-            first, first_iteration, iteration = self._loop_work
-            errors = ((self.errors, self.model.constraint_world), (self.limit_error, self._limit_world))
-            correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations,
-                                         first_iteration=first_iteration)  # fmt: skip
-            finish = fix = None
-            if not self.model.limit_count and not self._split_systems:
-                first = (*self._accept_work, self._integrate_drives, self._velocity_errors)
-                finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance, 1)
-                fix = self._capture_loop((self._velocity_errors,), self._velocity_fix_work, errors[:1],
-                                         self.velocity_tolerance, 1)  # fmt: skip
-            self._loops_by_h[self._h] = (correct, finish, fix)
-        return self._loops_by_h[self._h]
-
-    def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int,
-                      first_iteration: tuple | None = None, **loop) -> wp.Graph:  # fmt: skip
-        """A correction loop as one graph (`kernels/loop.py`): the work `first` (which measures), then
-        `iteration` (which measures again) while, in any world, the largest of the `errors` ((error array, the
-        world of each error) pairs) is over `tolerance` and the policy allows (at most `limit` iterations),
-        decided on the device; the host reads the records after it (`_loop_record`). `first_iteration`, when
-        it is other work, takes the first iteration's place (the Newton step's, `newton`). `loop`: the
-        per-world records of batched worlds (`worlds.Batch`), else the one world's."""
-        worlds = self.model.world_count if loop else 1
-        decide = [
-            *(self._record(loop_kernels.loop_reduce, e.shape[0], errors=e, error_world=w, **loop) for e, w in errors),
-            self.loop_go.zero_,
-            self._record(loop_kernels.loop_decide, worlds, tolerance=tolerance, max_iterations=limit, **loop),
-        ]
-        start = [self._record(loop_kernels.loop_start, worlds, **loop)]
-        if not loop:  # the one world starts in the loop (batched worlds: the host writes which)
-            start.append(lambda: self.loop_batch.fill_(1))
-        body = (*iteration, *decide)
-        loop_work = [lambda: wp.capture_while(self.loop_go, lambda: run(*body))]
-        if first_iteration is not None and first_iteration is not iteration:
-            once = (*first_iteration, *decide)
-            loop_work.insert(0, lambda: wp.capture_if(self.loop_go, lambda: run(*once)))
-        return self._capture(*start, *first, *decide, *loop_work)
-
-    def _velocity_record(self) -> tuple[int, float]:
-        """(iterations, velocity error) of the velocity-correction loop graph just replayed; a NaN or Inf raises,
-        naming the bodies."""
-        vel_err, _, vel_it = self._loop_record()
-        if not math.isfinite(vel_err):
-            self._max_error("velocity")
-        return vel_it, vel_err
-
-    def _loop_record(self) -> tuple[float, float, int]:
-        """(largest error, best error, iterations) of the one-world loop graph just replayed."""
-        record = self.loop_state.numpy()[0]
-        last, best = float(record[loop_kernels.LOOP_LAST]), float(record[loop_kernels.LOOP_BEST])
-        return last, best, int(record[loop_kernels.LOOP_ITERATIONS])
-
-    def _coupled_prediction(self, h: float) -> Launches:
-        """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""
-        m, s, p, stage = self.model, self.state, self.pred, self._stage
-        start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
-        launches = []
-        for k in range(4):
-            at = s if k == 0 else stage
-            launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
-            launches.append(
-                self._record(force_kernels.drive_wrenches, m.force_drive_count, at, row_offset=m.spring_count)
-            )
-            launches.append(
-                self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
-            )
-        return Launches(launches)
-
-    def prepare_substeps(self) -> None:
-        """Record the launches of every substep size a step may take (dt / 2**k, k <= max_substep_depth) now,
-        instead of on first use: recording captures graphs, and a capture on a CPU takes in every launch of the
-        process, so threads that step simulators at once (`threads.py`) must find nothing left to capture."""
-        for k in range(self.max_substep_depth + 1):
-            self._use_step_size(self.dt / 2**k)
-            self._device_loops()
-            if self.batch is not None:
-                self.batch.device_loop()
-        self._use_step_size(self.dt)
-        if self.schedule == "fused":  # and the fused kernel's launch (a one-world share steps by it)
-            self._fused_launch(self.dt)
-
-    def _update_frames(self) -> None:
-        """P_i, J_ib and K at the current state; factor K for the coming solves."""
-        wp.capture_launch(self._frames_graph)
-        if self.linear is not None:
-            self.linear.check()
-
     # ---------------------------------------------------------------- forces
     def set_external_forces(self, force=None, torque=None, world: int | None = None) -> None:
         """World forces (N, at the centres of mass) and torques (N m), (n, 3) each, held until set again; with
@@ -613,12 +367,21 @@ class Simulator:
 
     def _world_values(self, values, what: str, world: int | None, shape=(3,)) -> tuple[slice, np.ndarray]:
         """The body rows of `world` (all when None) and `values` checked for them, flattened to (rows, *shape):
-        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds."""
+        (n, *shape) for one world or a one-world model, (W, n, *shape) for all batched worlds. A bad value names
+        its body."""
         m = self.model
         if world is None:
             lead = (m.body_count,) if m.world_count == 1 else (m.world_count, m.world_body_count)
-            return slice(None), self._checked(values, (*lead, *shape), what).reshape(-1, *shape)
-        return self._world_rows(world), self._checked(values, (m.world_body_count, *shape), what)
+            rows = slice(None)
+        else:
+            lead, rows = (m.world_body_count,), self._world_rows(world)
+        arr = checks.numbers(values, what)
+        if arr.shape != (*lead, *shape):
+            raise ValueError(f"{what} must have shape {(*lead, *shape)}, got {arr.shape}")
+        arr = arr.reshape(-1, *shape)
+        names = m.body_name[rows]
+        checks.finite_rows({what: arr.reshape(len(arr), -1)}, lambda i: f"body {names[i]!r}:")
+        return rows, arr
 
     def _world_rows(self, world: int) -> slice:
         """The body rows of `world`, checked."""
@@ -664,16 +427,8 @@ class Simulator:
             rows, values = self._world_values(arr, "inertia", world, shape=(3, 3))
             inertias[rows] = values
         dynamic = ~m.host.body_static
-        bad = dynamic & ~(masses > 0.0)
-        if not bad.any():
-            sym = np.abs(inertias - inertias.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 * np.abs(inertias).max()
-            bad = dynamic & ~sym
-            bad[dynamic] |= np.linalg.eigvalsh(0.5 * (inertias[dynamic] + inertias[dynamic].transpose(0, 2, 1)))[
-                :, 0] <= 0.0  # fmt: skip
-        if bad.any():
-            b = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"body {m.body_name[b]!r}: mass {masses[b]} and inertia {inertias[b].tolist()} must be "
-                             "positive (definite, symmetric)")  # fmt: skip
+        checks.mass_properties(masses, inertias, dynamic, lambda b: f"set_masses: body {m.body_name[b]!r}")
+        inertias = 0.5 * (inertias + inertias.transpose(0, 2, 1))  # symmetric to the last bit, as the builder's
         masses[~dynamic], inertias[~dynamic] = 0.0, 0.0
         m.set_masses(masses, inertias)
         if self.batch is not None:
@@ -695,16 +450,36 @@ class Simulator:
         values[drive] = target
         self.drive_target.assign(values)
 
-    @staticmethod
-    def _checked(values, shape, what) -> np.ndarray:
-        arr = checks.numbers(values, what)
-        if arr.shape != shape:
-            raise ValueError(f"{what} must have shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{what} contains NaN or Inf")
-        if np.abs(arr).max(initial=0.0) > checks.LARGEST:
-            raise ValueError(f"{what} holds values too large for double precision (> {checks.LARGEST:g})")
-        return arr
+    def set_controls(self, values) -> None:
+        """Set actuators' inputs as MuJoCo's `ctrl` does (`SceneBuilder.add_actuator`, `load_mjcf`): `values` is
+        one number per actuator in order, or {name or index: value} for some of them (the others keep theirs).
+        Each sets its motor's target to gain * clip(value, ctrl range) + bias, held until set again."""
+        m = self.model
+        names, h = m.actuator_name, m.host
+        if isinstance(values, dict):
+            items = list(values.items())
+        else:
+            arr = checks.numbers(values, "set_controls: values").reshape(-1)
+            if len(arr) != len(names):
+                raise ValueError(f"set_controls: {len(names)} actuators, got {len(arr)} values")
+            items = list(enumerate(arr.tolist()))
+        rows, controls = [], []
+        for key, value in items:
+            if isinstance(key, str):
+                if key not in names:
+                    raise ValueError(f"set_controls: no actuator named {key!r}")
+                key = names.index(key)
+            if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or not 0 <= key < len(names):
+                raise ValueError(f"set_controls: actuator {key!r} does not exist ({len(names)} actuators)")
+            value = float(value)
+            if not math.isfinite(value):
+                raise ValueError(f"set_controls: actuator {names[key]!r}: control must be finite, got {value}")
+            rows.append(int(key))
+            controls.append(value)
+        gain, bias, low, high = h.actuator_map[rows].T
+        targets = self.drive_target.numpy()
+        targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
+        self.drive_target.assign(targets)
 
     def forces_active(self) -> bool:
         """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:
@@ -753,14 +528,20 @@ class Simulator:
         # of a launch, written by the host before each replay.
         self._batch = wp.zeros(2, dtype=wp.int32, device=self.model.device)
         self._spin_in = wp.zeros(1, dtype=wp.float64, device=self.model.device)
-        # CPU arrays' memory, read and written without a copy
-        self._views = None if cuda else (self._status.numpy(), self._batch.numpy(), self._spin_in.numpy())
+        # CPU arrays' memory, read and written without a copy: the status rows, and as memoryviews (an element
+        # read or written in half numpy's time) their summary row, the batch words and the spin
+        status = None if cuda else self._status.numpy()
+        self._views = None if cuda else (
+            status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
+        )  # fmt: skip
         # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
         self._fused_stages = (1.0,) if rows else self.scheme.stages
+        fell_back = len(self._fused_stages) < len(self.scheme.stages)
+        self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
         rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
-        self._fused_by_h: dict[float, wp.Graph] = {}
+        self._fused_by_h: dict[float, wp.Graph | Packed] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
 
@@ -797,8 +578,9 @@ class Simulator:
         rows.response_rows = self.limit_response.reshape((nl, m.constraint_count))
         return rows
 
-    def _fused_launch(self, h: float) -> wp.Graph:
-        """The fused kernel's launch for steps of h, recorded and captured once per h."""
+    def _fused_launch(self, h: float) -> wp.Graph | Packed:
+        """The fused kernel's launch for steps of h, recorded once per h: packed on a CPU (its arguments once, a
+        call then costs ~0.3 us against a graph replay's ~1.7), captured as a graph on a GPU."""
         if h not in self._fused_by_h:
             p = self.pred
             direct = self.linear is not None
@@ -816,7 +598,7 @@ class Simulator:
                 limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
                 stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
             )  # fmt: skip
-            self._fused_by_h[h] = self._capture(launch)
+            self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
         return self._fused_by_h[h]
 
     def _steps_alike(self, limit: int) -> int:
@@ -840,63 +622,80 @@ class Simulator:
         schedule, which splits, halves or reports it. Returns the count of steps taken."""
         done = 0
         columns = step_kernels
-        order, fallback = self.order, ""
-        if len(self._fused_stages) < len(self.scheme.stages):
-            order, fallback = 2, ROWS_FALLBACK
+        order, fallback = self._fused_order
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
-            summary = status[-1].tolist()  # the OK steps, which the kernel stops after
-            first = int(summary[columns.STATUS_CODE])
+            status, summary = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
+            first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
-                out += self._fused_stats(status[:first], summary, order, fallback, combine)
+                out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                row = status[first]
-                code = int(row[columns.STATUS_CODE])
-                self._spin = float(row[columns.STATUS_SPIN])
-                if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
-                    if code == columns.RETRY and len(self._fused_stages) > 1:
-                        self._update_frames()  # of the restored start: a later stage may have failed
-                    out.append(self._step_parallel(done + 1 == n))
-                    done += 1
-                else:
-                    if code == columns.SINGULAR:
-                        self.linear.check()
-                    stats = self._status_stats(row.tolist(), 1, order, fallback)
-                    if code == columns.VELOCITY:
-                        self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
-                        stats.converged = False
-                    out.append(stats)
-                    self._advance_clock(1)
-                    done += 1
+                out.append(self._handed_back(status[first], done + 1 == n))
+                done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
             if self.linear is not None:
                 self.linear.check()  # and the redundant loop rows of the last factorization
         return done
 
+    def _fused_step(self) -> StepStats:
+        """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
+        loop's bookkeeping (one launch of one step, whose state is handed out)."""
+        self._update_forces()
+        status, summary = self._run_fused(1, True)
+        if summary[step_kernels.STATUS_CODE]:  # the step went OK
+            order, fallback = self._fused_order
+            stats = self._status_stats(summary, 1, order, fallback)
+            self._advance_clock(1)
+            self._spin = summary[step_kernels.STATUS_SPIN]
+        else:
+            stats = self._handed_back(status[0], True)
+        if self.linear is not None:
+            self.linear.check()  # and the redundant loop rows of the last factorization
+        return stats
+
+    def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
+        """The step whose status `row` stopped a fused launch: taken again by the parallel schedule where nothing
+        of it was kept (SPLIT, RETRY), else (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is
+        handed out (`defer_velocities`)."""
+        columns = step_kernels
+        code = int(row[columns.STATUS_CODE])
+        self._spin = float(row[columns.STATUS_SPIN])
+        if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
+            if code == columns.RETRY and len(self._fused_stages) > 1:
+                self._update_frames()  # of the restored start: a later stage may have failed
+            return self._step_parallel(hand_out)
+        if code == columns.SINGULAR:
+            self.linear.check()
+        stats = self._status_stats(row.tolist(), 1, *self._fused_order)
+        if code == columns.VELOCITY:
+            sweeps = int(row[columns.STATUS_VELOCITY_ITERATIONS]) if self.linear is None else 0
+            self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY], sweeps)
+            stats.converged = False
+        self._advance_clock(1)
+        return stats
+
     @classmethod
     def _fused_stats(
-        cls, status: np.ndarray, summary: list[float], order: int, fallback: str, combine: bool
+        cls, status: np.ndarray, ok: int, summary: list[float], order: int, fallback: str, combine: bool
     ) -> list[StepStats]:
-        """The StepStats of fused steps that went OK, one a status row; with `combine` (or one step), one StepStats
-        of them all: the kernel's summary row, which sums them up as `_combined` would (the host's numpy
+        """The StepStats of the `ok` fused steps that went OK, one a status row; with `combine` (or one step), one
+        StepStats of them all: the kernel's summary row, which sums them up as `combined` would (the host's numpy
         reductions of a batch cost ~12 us a launch, a StepStats a step ~0.5 us)."""
-        if combine or len(status) == 1:
-            return [cls._status_stats(summary, len(status), order, fallback)]
-        return [cls._status_stats(row, 1, order, fallback) for row in status.tolist()]
+        if combine or ok == 1:
+            return [cls._status_stats(summary, ok, order, fallback)]
+        return [cls._status_stats(row, 1, order, fallback) for row in status[:ok].tolist()]
 
     @staticmethod
     def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
         """A StepStats of a status row (or of the summary row of `steps` steps)."""
-        c = step_kernels
+        joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(row)
         return StepStats(
-            int(row[c.STATUS_JOINT_ITERATIONS]), int(row[c.STATUS_VELOCITY_ITERATIONS]), row[c.STATUS_JOINT_ERROR],
-            row[c.STATUS_VELOCITY_ERROR], True, int(row[c.STATUS_LINEAR_ITERATIONS]), steps, order, fallback,
-        )  # fmt: skip
+            int(joint), int(velocity), joint_error, velocity_error, True, int(linear), steps, order, fallback
+        )
 
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
@@ -918,27 +717,29 @@ class Simulator:
         self._clock = (self.time, self.step_count)
         self._alike = (0, 0)
 
-    def _run_fused(self, batch: int, hand_out: bool) -> np.ndarray:
-        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows
-        (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the last step's state is
-        handed out, so its velocities are corrected (`defer_velocities`)."""
-        graph = self._fused_launch(self.dt)
+    def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
+        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
+        the summary row's values (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the
+        last step's state is handed out, so its velocities are corrected (`defer_velocities`)."""
+        launch = self._fused_launch(self.dt)
         if self._views is None:
             self._batch.assign(np.array([batch, int(hand_out)], dtype=np.int32))
             self._spin_in.fill_(self._spin)
-            wp.capture_launch(graph)
-            return self._status.numpy()
-        status, batch_view, spin_view = self._views
+            wp.capture_launch(launch)
+            status = self._status.numpy()
+            return status, status[-1].tolist()
+        status, summary, batch_view, spin_view = self._views
         batch_view[0], batch_view[1], spin_view[0] = batch, int(hand_out), self._spin
-        wp.capture_launch(graph)
-        return status
+        launch.launch()
+        return status, summary.tolist()
 
-    def _velocity_failed(self, error: float) -> None:
+    def _velocity_failed(self, error: float, sweeps: int = 0) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
-        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit)."""
+        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit; the
+        iterative solver's `sweeps` are said)."""
         if not math.isfinite(error):
             self._max_error("velocity")
-        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True)
+        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True, sweeps=sweeps)
 
     # ---------------------------------------------------------------- the step
     def step(self, n: int = 1) -> StepStats:
@@ -956,18 +757,36 @@ class Simulator:
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
-        if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
-            raise ValueError(f"n must be an integer >= 1, got {n!r}")
         if self.accuracy is not None:  # n intervals of dt, in steps the controller sizes
             return self.accuracy.step(n)
-        stats = self._steps(n, combine=n > 1)
-        stats = stats[0] if len(stats) == 1 else _combined(stats)
+        lean = n.__class__ is int and n == 1 and self.schedule == "fused" and not self._fallback  # a control tick
+        if not lean and not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+            raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        start = self.time
+        try:
+            stats = [self._fused_step()] if lean else self._steps(n, combine=n > 1)
+        except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
+            note = self._runaway_note()
+            if not note or not err.where:
+                raise
+            raise SingularSystemError(f"the system matrix is singular at {err.where}: {note}", err.where) from None
+        for s in stats:
+            if s.fallback and s.fallback not in self.fallbacks:
+                self.fallbacks[s.fallback] = start
+                if self.verbose:
+                    print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
+        stats = stats[0] if len(stats) == 1 else combined(stats)
         stats.step_size = self.dt
         return stats
 
+    def fallback_note(self, reason: str) -> str:
+        """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""
+        return (f"order {self.order} was asked, but steps from t = {self.fallbacks[reason]:.6g} s on were taken at "
+                f"order 2 because of {reason}")  # fmt: skip
+
     def _steps(self, n: int, combine: bool = False) -> list[StepStats]:
         """n steps' stats, one a step; with `combine`, a run of fused steps may be one StepStats of them all
-        (`_combined`'s figures, substeps the steps' count), for a caller that combines them anyway."""
+        (`combined`'s figures, substeps the steps' count), for a caller that combines them anyway."""
         if self.batch is not None:
             return [self.batch.step() for _ in range(n)]
         if self.schedule != "fused":
@@ -982,322 +801,12 @@ class Simulator:
                 done += self._fused_steps(n - done, combine, out)
         return out
 
-    def _step_parallel(self, hand_out: bool = True) -> StepStats:
-        """One step by the parallel schedule: stage launches and graph replays, the host deciding between them.
-        `hand_out`: its state is handed out, so its velocities are corrected (`defer_velocities`)."""
-        self._update_forces()
-        stages, fallback = self.scheme.stages, self._fallback
-        if fallback:  # a non-reversible event in this step: composing it would not raise the order
-            stages, self._fallback = (1.0,), ""
-        elif len(stages) > 1 and self.model.limit_count:
-            stages, fallback = (1.0,), ROWS_FALLBACK
-        elif len(stages) > 1 and self._contacts_ahead(stages):
-            stages, fallback = (1.0,), "contacts"
-        depth = self._spin_depth(max(abs(g) for g in stages))
-        stats = _combined([self._advance(self.dt / 2**depth, depth, stages) for _ in range(2**depth)])
-        stats.order = self.order if len(stages) == len(self.scheme.stages) else 2
-        stats.fallback = fallback
-        if self.defer_velocities and hand_out:
-            self._hand_out_velocities(stats)
-        self._use_step_size(self.dt)
-        self._advance_clock(1)
-        return stats
-
-    def _hand_out_velocities(self, stats: StepStats) -> None:
-        """The velocity correction the step's base steps deferred (`defer_velocities`), at its end: as the fused
-        kernel does it in the step whose state it hands out, and reported in the step's `stats` under the
-        iteration policy."""
-        iterations, error, solves = self._correct_velocities()
-        stats.velocity_iterations += iterations
-        stats.linear_iterations += solves
-        stats.max_velocity_error = error
-        self._finish_step(stats, self._h)
-
-    def _contacts_ahead(self, stages: tuple[float, ...]) -> bool:
-        """Whether a composed step could meet a contact: any collider within the contact margin of another (or
-        of a ground) along its free motion from t0 to the furthest the stages reach forward. Contacts, impacts
-        and friction are not reversible, so such a step is taken at order 2 (`StepStats.fallback`)."""
-        if self.contact_stage is None:
-            return False
-        reach = self.dt * max(1.0, *np.cumsum(stages))
-        self._use_step_size(reach)
-        wp.capture_launch(self._evaluate)
-        return self.contact_stage.detect(reach) > 0
-
     def fall_back(self, reason: str) -> None:
         """Take the next step at order 2, recording `reason` in its StepStats. For whatever makes a step
         non-reversible (contacts, impacts, friction, a state edited within the step): a symmetric composition
         only raises the order of a symmetric step, and its backward substeps would run such an event
         backwards."""
         self._fallback = str(reason) or "unspecified"
-
-    def _advance(self, h: float, depth: int, stages: tuple[float, ...]) -> StepStats:
-        """One step of h composed of base steps of g h for g in `stages`; on a failed stage, the whole step is
-        undone and redone as two halves."""
-        final = depth >= self.max_substep_depth
-        whole = len(stages) == 1
-        wp.capture_launch(self._save_velocities if whole else self._save_start)
-        parts = []
-        for g in stages:
-            part, ok = self._base_step(g * h, final)
-            parts.append(part)
-            if not ok:
-                if whole:  # undo this attempt's impulses: the frames of t0 still hold
-                    wp.copy(self.state.body_v, self._v0)
-                    wp.copy(self.state.body_w, self._w0)
-                else:  # back to the start of the composed step, its drives' integrals and its frames
-                    self.state.copy_from(self._start)
-                    wp.copy(self.drive_integral, self._integral0)
-                    self._update_frames()
-                halves = _combined([self._advance(0.5 * h, depth + 1, stages) for _ in range(2)])
-                halves.joint_iterations += sum(p.joint_iterations for p in parts)  # the failed attempt's work
-                halves.velocity_iterations += sum(p.velocity_iterations for p in parts)
-                halves.linear_iterations += sum(p.linear_iterations for p in parts)
-                return halves
-        if self.carry:  # the step is kept: so are the c it measured
-            for g, part in zip(stages, parts):
-                if part.joint_iterations:
-                    self._keep_carry(g * h)
-        stats = _combined(parts)
-        stats.substeps = 1
-        return stats
-
-    def _base_step(self, h: float, final: bool) -> tuple[StepStats, bool]:
-        """The paper's step of h (h < 0 runs it backwards): its stats, and False when it failed and a smaller
-        step may still succeed (not `final`; the state then holds this attempt's impulses)."""
-        self._use_step_size(h)
-        if self.contact_stage is None:
-            joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
-        else:
-            joint_it, joint_err, linear_iterations, ok = self._correct_with_contacts(h, final)
-        if ok:
-            self._report_nonfinite(self.pred, self.step_count + 1)  # measured with the last prediction
-            if not final and self._turns(h) > 1.0:
-                ok = False  # a body turned further than max_rotation in the step: halve it (whips spin up in one)
-        if not ok:
-            return StepStats(joint_it, 0, joint_err, math.inf, False, linear_iterations, 1), False
-        finish = None if self.defer_velocities else (self._device_loops() or (None, None, None))[1]
-        if finish is not None:  # accept, factor and correct the velocities by one graph
-            wp.capture_launch(finish)
-            self.linear.check()  # a lost pivot raises here, before the corrected velocities are used
-            vel_it, vel_err = self._velocity_record()
-            linear_iterations += vel_it
-            return self._finish_step(StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1), h)
-        wp.capture_launch(self._accept_graph)
-        if self.linear is not None:
-            self.linear.check()
-        self._integrate_drives.launch()
-        if self.defer_velocities:  # accepted and factored; the velocities are the next step's (`defer_velocities`)
-            return self._finish_step(StepStats(joint_it, 0, joint_err, math.nan, True, linear_iterations, 1), h)
-
-        if self.linear is None:
-            vel_it, _ = self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
-            if self.model.limit_count:  # no constraints, only limits (distance constraints)
-                self._correct_limit_velocities.launch()
-            self._velocity_errors.launch()
-            vel_err = self._max_error("velocity")
-        else:
-            vel_it, vel_err, solves = self._correct_velocities()
-            linear_iterations += solves
-        return self._finish_step(StepStats(joint_it, vel_it, joint_err, vel_err, True, linear_iterations, 1), h)
-
-    def _correct_velocities(self) -> tuple[int, float, int]:
-        """The velocity correction of the state (its factor made): its iterations, the velocity error it leaves
-        and its linear iterations (rows, limits and stiff motors, take one more solve first). Decided on the
-        device where the parallel schedule's loops are (`_device_loops`), else by the host."""
-        fix = (self._device_loops() or (None, None, None))[2]
-        if fix is not None:
-            wp.capture_launch(fix)
-            vel_it, vel_err = self._velocity_record()
-            return vel_it, vel_err, vel_it
-        vel_it = solves = 0
-        self._velocity_errors.launch()
-        if self.model.limit_count:  # joints exact, then the limits, then the joints take up their reaction
-            solves += self._fix_velocities()
-            self._correct_limit_velocities.launch()
-            self._velocity_errors.launch()
-        vel_err = self._max_error("velocity")
-        # One exact solve, except with the split systems (section 4.6), which iterate side by side.
-        while vel_err > self.velocity_tolerance and vel_it < (self.max_iterations if self._split_systems else 1):
-            solves += self._fix_velocities()
-            vel_it += 1
-            vel_err = self._max_error("velocity")
-        return vel_it, vel_err, solves
-
-    def _finish_step(self, stats: StepStats, h: float) -> tuple[StepStats, bool]:
-        """The end of an accepted base step of h: the velocity correction's outcome under the iteration policy,
-        the contacts' velocity phase, and whether everything converged."""
-        vel_err = stats.max_velocity_error
-        if vel_err > self.velocity_tolerance and self.linear is not None:
-            # One exact solve should leave round-off: a linear solver that stopped short (CG on an
-            # ill-conditioned K) is reported under the same policy as an iteration limit.
-            self._velocity_failed(vel_err)
-        if self.contact_stage is not None:
-            self._contact_velocities(h, stats)
-        stats.converged = (
-            stats.max_joint_error <= self.tolerance
-            and (stats.max_velocity_error <= self.velocity_tolerance or math.isnan(vel_err))  # NaN: deferred
-            and stats.max_penetration <= self.tolerance
-        )
-        return stats, True
-
-    def _fix_velocities(self) -> int:
-        """The velocity correction's solve from the velocity errors just measured, applied, and the errors
-        measured again; returns the linear iterations it took."""
-        if self._direct:
-            wp.capture_launch(self._velocity_fix)
-            return 1
-        iterations = self.linear.solve(self.rhs, self.impulse, "velocity")
-        self._apply.launch()
-        self._velocity_errors.launch()
-        return iterations
-
-    def _spin_depth(self, reach: float) -> int:
-        """k such that 2**k substeps turn the fastest body of the state at most max_rotation in each base
-        step, the longest of which is `reach` substeps long (k <= max_substep_depth)."""
-        return self._depth_of(self._spin, reach)
-
-    def _depth_of(self, spin: float, reach: float = 1.0) -> int:
-        """The substep depth of a step whose fastest body spins at `spin` (rad/s), its longest base step
-        `reach` substeps long."""
-        turns = 0.0 if self.max_rotation is None else spin * abs(reach * self.dt) / self.max_rotation
-        return 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
-
-    def _turns(self, h: float) -> float:
-        """How many times max_rotation the fastest body of the last prediction turns in a step of h (either
-        way; 0 when steps are never split)."""
-        return 0.0 if self.max_rotation is None else self._spin * abs(h) / self.max_rotation
-
-    def _correct_joints(self, final: bool) -> tuple[int, float, int, bool]:
-        """Impulses at t0 until the predicted joints hold: (iterations, error, linear iterations, ok).
-
-        ok is False when the correction failed and a smaller step may still succeed (not `final`)."""
-        if self.linear is None and not self.model.limit_count:
-            sweeps, err = self._sweep(self._sweep_positions, self.tolerance, "joint", final)
-            wp.capture_launch(self._evaluate)
-            err = self._max_error("joint")
-            return sweeps, err, 0, err <= self.tolerance or final
-        loops = self._device_loops()
-        if loops is not None:
-            return self._correct_on_device(loops[0], final)
-        iterations, linear_iterations, best = 0, 0, math.inf
-        wp.capture_launch(self._evaluate)
-        while True:
-            err = self._max_error("joint")
-            best = min(best, err)
-            if err <= self.tolerance:
-                return iterations, err, linear_iterations, True
-            if not self._may_iterate(iterations, err, "joint", best, final):
-                return iterations, err, linear_iterations, final
-            if self._direct:
-                wp.capture_launch(self._iterate_first if iterations == 0 else self._iterate)
-                linear_iterations += 1 + int(self.newton and iterations == 0)
-            else:
-                if self.linear is not None:  # else only limits and distance constraints: no system to solve
-                    linear_iterations += self.linear.solve(self.rhs, self.impulse, "joint" if iterations == 0 else None)
-                    self._apply.launch()
-                self._correct_limits.launch()
-                wp.capture_launch(self._evaluate)
-            iterations += 1
-
-    def _correct_on_device(self, loop: wp.Graph, final: bool) -> tuple[int, float, int, bool]:
-        """`_correct_joints` by the loop graph (`_device_loops`): the same launches in the same order, the loop
-        decided on the device; the host reads its record and applies the iteration policy's outcome."""
-        wp.capture_launch(loop)
-        err, best, iterations = self._loop_record()
-        if not math.isfinite(err):
-            self._max_error("joint")  # raises, naming the bodies with a NaN or Inf
-        solves = iterations + self._newton_solves(iterations)
-        if err <= self.tolerance:
-            return iterations, err, solves, True
-        self._may_iterate(iterations, err, "joint", best, final)  # stopped: on the final try raise or warn
-        return iterations, err, solves, final
-
-    def _newton_solves(self, iterations):
-        """The Newton step's second solves in joint corrections of `iterations` iterations (an int, or an array
-        of them a world): one where a correction iterated at all, when `newton` is on."""
-        return int(self.newton) * (iterations > 0)
-
-    def _joint_iteration(self) -> int:
-        """One joint correction from the current prediction: impulses at t0, predict again, measure. Returns
-        the linear solves it took."""
-        if self.linear is None:
-            self._sweep_positions.launch()
-            wp.capture_launch(self._evaluate)
-            return 0
-        if self._direct:
-            wp.capture_launch(self._iterate)
-            return 1
-        solves = self.linear.solve(self.rhs, self.impulse, None)
-        self._apply.launch()
-        self._correct_limits.launch()
-        wp.capture_launch(self._evaluate)
-        return solves
-
-    def _correct_with_contacts(self, h: float, final: bool) -> tuple[int, float, int, bool]:
-        """`_correct_joints` with the contacts in the same loop (method paper's way; docs/contacts.md): correct the
-        joints first and detect on that prediction (it holds the motion motors and loops impose, which the free
-        prediction does not); then, until every joint and every contact holds to the tolerance, correct the
-        joints (one direct solve: the joints as one block), predict, and close the contacts' predicted gaps
-        with push-only impulses at t0 (Gauss-Seidel around that block), and predict again. The error returned
-        is the larger of the joints' and the deepest penetration."""
-        cs = self.contact_stage
-        joint_it, _, linear_iterations, ok = self._correct_joints(final)  # the joints' (and motors') motion first
-        if not ok:
-            return joint_it, math.inf, linear_iterations, False
-        cs.detect(h)
-        cs.couple(h)  # contacts on jointed bodies: rows solved with the joints, limits and motors
-        self._contact_sweeps = 0
-        iterations, best = joint_it, math.inf
-        joints = self.model.constraint_count > 0
-        while True:
-            joint_err = self._max_error("joint") if joints else 0.0
-            self._penetration = cs.measure(h)
-            err = max(joint_err, self._penetration)
-            best = min(best, err)
-            if err <= self.tolerance:
-                return iterations, joint_err, linear_iterations, True
-            if not self._may_iterate(iterations, err, "joint", best, final):
-                return iterations, joint_err, linear_iterations, final
-            if joint_err > self.tolerance:
-                linear_iterations += self._joint_iteration()
-                cs.measure(h)
-            self._contact_sweeps += cs.solve_positions(h)
-            wp.capture_launch(self._evaluate)
-            iterations += 1
-
-    def _contact_velocities(self, h: float, stats: StepStats) -> None:
-        """Restitution and friction at t0+h, alternated with the joints' velocity correction (at most
-        `VELOCITY_ALTERNATIONS` rounds), then a last joint correction: the joints hold to the tolerance at the
-        end of the step, the contacts' velocities as far as the rounds brought them (their positions are held
-        to the tolerance by the next step's position phase)."""
-        cs = self.contact_stage
-        sweeps = cs.solve_velocities(h)
-        if self.model.constraint_count:
-            self._velocity_errors.launch()
-            err = self._max_error("velocity")
-            rounds = 0
-            while err > self.velocity_tolerance and rounds <= VELOCITY_ALTERNATIONS:
-                if self.linear is None:
-                    self._sweep(self._sweep_velocities, self.velocity_tolerance, "velocity", True)
-                else:
-                    self._fix_velocities()
-                    if self.model.limit_count:  # the limits and stiff motors, as in the joint-only step
-                        self._correct_limit_velocities.launch()
-                        self._velocity_errors.launch()
-                        self._fix_velocities()
-                stats.velocity_iterations += 1
-                rounds += 1
-                if rounds <= VELOCITY_ALTERNATIONS:
-                    sweeps += cs.solve_velocities(h, first=False)
-                self._velocity_errors.launch()
-                err = self._max_error("velocity")
-            if err > self.velocity_tolerance:
-                self._velocity_failed(err)
-            stats.max_velocity_error = err
-        stats.contacts = cs.count
-        stats.max_penetration = self._penetration
-        stats.contact_sweeps = self._contact_sweeps + sweeps
 
     def contacts(self) -> Contacts:
         """The contacts of the last step at the current state (`contacts.Contacts`: bodies, points, normals,
@@ -1308,35 +817,14 @@ class Simulator:
                             np.zeros((0, 3)))  # fmt: skip
         return self.contact_stage.contacts()
 
-    def _sweep(self, launch: wp.Launch, tolerance: float, what: str, final: bool) -> tuple[int, float]:
-        sweeps, best = 0, math.inf
-        while True:
-            launch.launch()
-            err = float(self.sweep_error.numpy()[0])
-            best = min(best, err)
-            if err <= tolerance or not self._may_iterate(sweeps, err, what, best, final):
-                return sweeps, err
-            sweeps += 1
-
-    def _max_error(self, what: str) -> float:
-        """The largest constraint error of the `what` ("joint" or "velocity") correction just measured."""
-        err = float(self.errors.numpy().max()) if self.model.constraint_count else 0.0
-        if what == "joint" and self.model.limit_count:
-            err = max(err, float(self.limit_error.numpy().max()))
-        if not math.isfinite(err):
-            if what == "joint":
-                self._check_finite(self.pred, self.step_count + 1)
-            self._check_finite(self.state, self.step_count)
-            raise SimulationError(f"step {self.step_count + (what == 'joint')}: {what} errors are not finite")
-        return err
-
     def _may_iterate(
-        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False
-    ) -> bool:
+        self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False,
+        sweeps: int = 0,
+    ) -> bool:  # fmt: skip
         """Whether the correction may take another iteration. On its limit, or when it diverges (the error
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
-        (the velocity correction's solve), said as such."""
+        (the velocity correction's solve), said as such, with its `sweeps` where it took some."""
         diverges = diverging(error, best, iterations)
         if iterations < self.max_iterations and not diverges:
             return True
@@ -1354,18 +842,72 @@ class Simulator:
             or "a smaller dt, a looser tolerance or smaller mass ratios between jointed bodies may help"
         )
         failure = f"did not reach {tolerance:g} in {self.max_iterations} iterations (max error {error:.3g})"
+        if not diverges and what == "velocity" and self.linear is None:  # the iterative solver's, either schedule
+            stopped, sweeps = True, sweeps or iterations
         if stopped:
-            failure = f"left {error:.3g}, over its tolerance of {tolerance:g}"
+            after = f" after {sweeps} sweep{'s' if sweeps != 1 else ''}" if sweeps else ""
+            failure = f"left {error:.3g}{after}, over its tolerance of {tolerance:g}"
         elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
         msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
         if worst:
             msg += f"; worst joints: {worst}"
+        runaway = self._runaway_note()  # the cause, where a load no joint can hold is one
+        if runaway:
+            msg += f"; {runaway}"
         if self.on_max_iterations == "raise":
             raise SimulationError(msg)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
         return False
+
+    def _check_loops(self) -> None:
+        """Refuse a degenerate loop at build (`diagnose.degenerate_loop`): one whose redundant rows, regularised
+        by the factorization as if consistent, are stretched by a motion they allow to first order, so that the
+        correction could never converge. J comes from the velocity-error kernel at unit velocities, and at poses
+        moved along the allowed motions; the built state and its factor are restored. Scenes of more than
+        `diagnose.LOOP_CHECK_DOFS` dynamic degrees of freedom are not checked (a dense SVD)."""
+        m, st = self.model, self.state
+        dynamic = np.flatnonzero(~m.host.body_static)
+        if not 0 < 6 * len(dynamic) <= diagnose.LOOP_CHECK_DOFS:
+            return
+        x0, q0 = st.body_x.numpy(), st.body_q.numpy()
+        length = diagnose.length_scale(m)
+
+        def times(u: np.ndarray) -> np.ndarray:  # J u, u in m/s (angular ones times the length scale)
+            v, w = np.zeros((m.body_count, 3)), np.zeros((m.body_count, 3))
+            v[dynamic], w[dynamic] = u.reshape(-1, 6)[:, :3], u.reshape(-1, 6)[:, 3:] / length
+            st.body_v.assign(v)
+            st.body_w.assign(w)
+            self._velocity_errors.launch()
+            return -self.rhs.numpy().reshape(-1)
+
+        def moved(u: np.ndarray | None, s: float):  # the pose moved by s length scales along u
+            x, q = x0.copy(), q0.copy()
+            if u is not None:
+                x[dynamic] += s * length * u.reshape(-1, 6)[:, :3]
+                turn = s * u.reshape(-1, 6)[:, 3:]
+                for k, b in enumerate(dynamic):
+                    angle = float(np.linalg.norm(turn[k]))
+                    if angle > 0.0:
+                        q[b] = quat_mul(quat_from_axis_angle(turn[k], angle), q[b])
+            st.body_x.assign(x)
+            st.body_q.assign(q)
+            self._frames.launch()
+            return times
+
+        try:
+            note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic))
+        finally:
+            self.state.copy_from(m.state())
+            self._update_frames()
+        if note:
+            raise SingularSystemError(note)
+
+    def _runaway_note(self) -> str:
+        """`diagnose.runaway_note` of this step's loads."""
+        force, torque = self.control.body_force.numpy(), self.control.body_torque.numpy()
+        return diagnose.runaway_note(self.model, self.dt, force, torque)
 
     def _check_finite(self, state: State, step: int) -> None:
         """Counted on the device (two numbers come back); only a failure reads the state to name the bodies."""
@@ -1496,8 +1038,12 @@ class Simulator:
                 f"simulator ({n} bodies, dt={self.dt})"
             )
         for key, digest in self._fingerprint.items():
-            if str(data[f"scene_{key}"]) != digest:
-                raise refuse(f"checkpoint of another scene: its {key} differ from this simulator's")
+            theirs = str(data[f"scene_{key}"])
+            if theirs != digest:
+                count, here = theirs.split(":")[0], digest.split(":")[0]
+                how = f"{count} in the checkpoint, {here} here" if count != here else f"{here}, with other values"
+                raise refuse(f"checkpoint of another scene: its {diagnose.FINGERPRINT_PARTS[key]} differ from this "
+                             f"simulator's ({how})")  # fmt: skip
         if "stages" in data and (data["stages"].dtype.kind != "f" or data["stages"].ndim != 1):
             raise refuse("'stages' is not a list of numbers")
         stages = tuple(float(g) for g in data["stages"]) if "stages" in data else (1.0,)
@@ -1506,21 +1052,33 @@ class Simulator:
                 f"checkpoint taken with the composition {stages} of the base step; this simulator composes "
                 f"{self.scheme.stages} (order {self.order}): resuming would not continue the run"
             )
+        nd = self.model.drive_count
+        shapes.update(drive_target=(nd,), drive_integral=(nd,))
         for key, shape in shapes.items():
+            if key not in data:  # a checkpoint of a version without motors' targets: they stay as they are
+                continue
+            if data[key].dtype.kind not in "iuf":
+                raise refuse(f"'{key}' is not an array of numbers")
             if data[key].shape != shape:
                 raise refuse(f"'{key}' has shape {data[key].shape}, expected {shape}")
             if not np.all(np.isfinite(data[key])):
                 raise refuse(f"'{key}' contains NaN or Inf")
+            if np.abs(data[key]).max(initial=0.0) > checks.LARGEST:
+                raise refuse(f"'{key}' holds values too large for double precision (> {checks.LARGEST:g})")
+        if "fallback" in data and (data["fallback"].dtype.kind != "U" or data["fallback"].shape != ()):
+            raise refuse("'fallback' is not a string")
         if data["step_count"].dtype.kind == "f" or int(data["step_count"]) < 0 or float(data["time"]) < 0.0:
             raise refuse(f"step count {data['step_count']} at time {data['time']} is not a place in a run")
         if np.abs(np.linalg.norm(data["q"], axis=1) - 1.0).max(initial=0.0) > 1e-6:
             raise refuse("an orientation is not a unit quaternion")
         for key in data:
-            if key.startswith("warm_") and (data[key].shape != (nc, 3) or not np.all(np.isfinite(data[key]))):
-                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3)")
+            if key.startswith("warm_") and (data[key].dtype.kind not in "iuf" or data[key].shape != (nc, 3)
+                                            or not np.all(np.isfinite(data[key]))):  # fmt: skip
+                raise refuse(f"'{key}' has shape {data[key].shape} or non-finite values; expected ({nc}, 3) numbers")
         if "carry" in data:  # the carried right-hand sides (`carry`): a row of (nc, 3) for each step size
             sizes, carry = data.get("carry_h", np.zeros(0)), data["carry"]
-            if sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3) or not np.all(np.isfinite(carry)):
+            if (carry.dtype.kind not in "iuf" or sizes.ndim != 1 or carry.shape != (len(sizes), nc, 3)
+                    or not np.all(np.isfinite(carry))):  # fmt: skip
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
@@ -1544,6 +1102,7 @@ class Simulator:
         self._user_force, self._user_torque = np.zeros((n, 3)), np.zeros((n, 3))
         self._active_forces = None
         self._fallback = ""
+        self.fallbacks = {}
         getattr(self.linear, "_warm", {}).clear()
         self._forget_carry()
         self._update_frames()
@@ -1594,138 +1153,3 @@ class Simulator:
             self.accuracy.reset()
         self._update_frames()
         self._check_finite(self.state, self.step_count)
-
-    # ---------------------------------------------------------------- numpy accessors
-    # With batched worlds each takes `world=` for one world's (n, ...) rows and gives all of them as (W, n, ...)
-    # without it.
-    def positions(self, world: int | None = None) -> np.ndarray:
-        """(n, 3) centres of mass, world frame (m)."""
-        return self._per_world(self.state.body_x.numpy().copy(), world)
-
-    def orientations(self, world: int | None = None) -> np.ndarray:
-        """(n, 4) quaternions (x, y, z, w), body to world (USD's Gf.Quat constructors take w first)."""
-        return self._per_world(self.state.body_q.numpy().copy(), world)
-
-    def linear_velocities(self, world: int | None = None) -> np.ndarray:
-        """(n, 3) centre-of-mass velocities, world frame (m/s)."""
-        return self._per_world(self.state.body_v.numpy().copy(), world)
-
-    def angular_velocities(self, world: int | None = None) -> np.ndarray:
-        """(n, 3) angular velocities, world frame (rad/s)."""
-        return self._per_world(self.state.body_w.numpy().copy(), world)
-
-    def _joint_index(self, joint: int | str, world: int | None = None) -> int:
-        """The model's index of `joint` (index or name); with `world`, of that world's joint of this index or
-        of this name in the scene ("j3" for "world2/j3")."""
-        names = self.model.joint_name
-        first = 0
-        if world is not None:
-            first = self._world_rows(world).start // self.model.world_body_count * self.model.world_joint_count
-            names = names[first : first + self.model.world_joint_count]
-            if self.model.world_count > 1:
-                names = [n.partition("/")[2] for n in names]
-        if isinstance(joint, str):
-            if joint not in names:
-                raise ValueError(f"no joint named {joint!r}")
-            return first + names.index(joint)
-        if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
-            raise ValueError(f"a joint index or name is expected, got {joint!r}")
-        if not 0 <= int(joint) < len(names):
-            raise ValueError(f"joint index {joint} does not exist ({len(names)} joints)")
-        return first + int(joint)
-
-    def _state_arrays(self) -> tuple[np.ndarray, ...]:
-        """Every body's position, orientation, linear and angular velocity, flat over the worlds."""
-        return tuple(getattr(self.state, f"body_{k}").numpy().copy() for k in ("x", "q", "v", "w"))
-
-    def joint_coordinates(self, joint: int | str, world: int | None = None) -> np.ndarray:
-        """The joint's coordinates, zero at the build pose: a revolute's angle (rad, right-handed about its
-        axis), a prismatic's offset (m), cylindrical [offset, angle], universal [angle about the parent axis,
-        angle about the child axis], planar [x, y, angle] in the plane, a ball's relative rotation as a
-        quaternion (x, y, z, w) in the parent's frame, a fixed joint's empty array (`coordinates.py`). With
-        batched worlds, `world` picks the world and `joint` is then its index or name in the scene."""
-        return coordinates.coordinates(self.model, self._joint_index(joint, world), *self._state_arrays())
-
-    def joint_velocities(self, joint: int | str, world: int | None = None) -> np.ndarray:
-        """The rates of `joint_coordinates` (rad/s, m/s); a ball joint's relative angular velocity (rad/s) in
-        its parent's frame."""
-        return coordinates.velocities(self.model, self._joint_index(joint, world), *self._state_arrays())
-
-    @property
-    def redundant_rows(self) -> int:
-        """Constraint rows of loop-closing joints that the last factorization found redundant with the tree (a
-        planar four-bar has 3): information, not an error; they are regularised (`CholeskySolver`)."""
-        return getattr(self.linear, "redundant_rows", 0)
-
-    def joint_errors_from(self, constraint_errors: np.ndarray) -> np.ndarray:
-        out = np.zeros(self.model.joint_count)
-        np.maximum.at(out, self.model.constraint_joint, constraint_errors)
-        return out
-
-    def joint_errors(self, world: int | None = None) -> np.ndarray:
-        """The position error of every joint at the current state (max over its constraints, m or rad); with
-        batched worlds (W, joints) or one `world`'s."""
-        self.pred.copy_from(self.state)
-        self._position_errors.launch()
-        errors = self.joint_errors_from(self.errors.numpy())
-        m = self.model
-        if world is not None:
-            w = self._world_rows(world).start // m.world_body_count
-            return errors[w * m.world_joint_count : (w + 1) * m.world_joint_count]
-        return errors if m.world_count == 1 else errors.reshape(m.world_count, -1)
-
-    def _per_world_sum(self, per_body: np.ndarray, world: int | None) -> float | np.ndarray:
-        """A sum over bodies, per world: a number for a one-world model or one `world`, else (W,)."""
-        per_world = per_body.reshape(self.model.world_count, -1).sum(axis=1)
-        if world is not None:
-            return float(per_world[self._world_rows(world).start // self.model.world_body_count])
-        return float(per_world[0]) if self.model.world_count == 1 else per_world
-
-    def _kinetic_per_body(self) -> np.ndarray:
-        m = self.model.host.body_mass
-        _, q, v, w = self._state_arrays()
-        r = quat_to_matrix(q)
-        iw = np.einsum("nij,njk,nlk->nil", r, self.model.host.body_inertia, r)
-        return 0.5 * m * np.sum(v * v, axis=1) + 0.5 * np.einsum("ni,nij,nj->n", w, iw, w)
-
-    def kinetic_energy(self, world: int | None = None) -> float | np.ndarray:
-        """Translational plus rotational kinetic energy, J; with batched worlds (W,) or one `world`'s."""
-        return self._per_world_sum(self._kinetic_per_body(), world)
-
-    def potential_energy(self, world: int | None = None) -> float | np.ndarray:
-        """Gravity's potential energy plus the elastic energy of the springs and joint springs, J (zero for
-        gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
-        and store none. With batched worlds (W,) or one `world`'s."""
-        h, m = self.model.host, self.model
-        x = self.state.body_x.numpy()
-        gravity = np.atleast_1d(self._per_world_sum(-h.body_mass * (x @ h.gravity), None))
-        springs = np.zeros(0)
-        if len(h.spring_params):
-            q = self.state.body_q.numpy()
-            ends = []
-            for body, anchor in ((h.spring_body0, h.spring_anchor0), (h.spring_body1, h.spring_anchor1)):
-                world_end = body < 0  # an anchor on the world is a world point
-                pose_q = np.where(world_end[:, None], [0.0, 0.0, 0.0, 1.0], q[body])
-                pose_x = np.where(world_end[:, None], 0.0, x[body])
-                ends.append(pose_x + quat_rotate(pose_q, anchor))
-            stretch = np.linalg.norm(ends[1] - ends[0], axis=1) - h.spring_params[:, 2]
-            springs = 0.5 * h.spring_params[:, 0] * stretch**2
-        joint_springs = ~h.drive_motor & (h.drive_mode == DRIVE_MODES.index("position"))
-        ns, nd = m.spring_count // m.world_count, m.drive_count // m.world_count  # each world's, world-major
-        energy = []
-        for w in range(m.world_count):
-            e = float(gravity[w])
-            if ns:
-                e += float(np.sum(springs[w * ns : (w + 1) * ns]))
-            for d in w * nd + np.flatnonzero(joint_springs[w * nd : (w + 1) * nd]):
-                offset = self.joint_coordinates(int(h.drive_joint[d]))[0] - h.drive_target[d]
-                e += 0.5 * float(h.drive_gains[d, 0]) * offset**2
-            energy.append(e)
-        if world is not None:
-            return energy[self._world_rows(world).start // m.world_body_count]
-        return energy[0] if m.world_count == 1 else np.array(energy)
-
-    def energy(self, world: int | None = None) -> float | np.ndarray:
-        """Kinetic plus potential energy (`potential_energy`), J: conserved by a scene without loads, motors,
-        dampers or limits; with batched worlds (W,) or one `world`'s."""
-        return self.kinetic_energy(world) + self.potential_energy(world)

@@ -49,7 +49,12 @@ def loop_tolerance_for(tolerance: float) -> float:
 
 
 class SingularSystemError(RuntimeError):
-    """K is singular: redundant or degenerate constraints."""
+    """K is singular: redundant or degenerate constraints. `where` names the joint or body whose pivot was lost
+    ('' when the message is about something else), so that a caller who knows the cause can say it there."""
+
+    def __init__(self, message: str, where: str = "") -> None:
+        super().__init__(message)
+        self.where = where
 
 
 class Frames:
@@ -227,7 +232,7 @@ class CholeskySolver:
                 where = f"joint {m.joint_name[j]!r} ({m.joint_type[j]}, constraint {c})"
                 cause = "its constraints are redundant with others on the same bodies, or degenerate"
             # Masses 1e30 apart lose a pivot too: name them rather than call the joint redundant.
-            raise SingularSystemError(f"the system matrix is singular at {where}: {mass_ratio_note(m) or cause}")
+            raise SingularSystemError(f"the system matrix is singular at {where}: {mass_ratio_note(m) or cause}", where)
 
     def solve_launches(self, rhs: wp.array, out: wp.array) -> list[wp.Launch]:
         """The launches of one solve from `rhs` into `out`, recorded once per pair of arrays."""

@@ -285,9 +285,9 @@ class SplitSimulator(Simulator):
             worst = _max_or_nan(worst, value)
         return worst
 
-    def _run_fused(self, batch: int, hand_out: bool) -> np.ndarray:
+    def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
         """Up to `batch` steps of dt, each as `kernels/step.py`'s `cholesky_steps` takes it, with the status
-        rows it writes and their summary row."""
+        rows it writes and their summary row's values."""
         if self.threads == 1:
             return super()._run_fused(batch, hand_out)
         status = self._threaded_steps(batch, hand_out)
@@ -304,7 +304,7 @@ class SplitSimulator(Simulator):
             summary[s.STATUS_JOINT_ERROR] = max(0.0, rows[:, s.STATUS_JOINT_ERROR].max())
             summary[s.STATUS_VELOCITY_ERROR] = rows[-1, s.STATUS_VELOCITY_ERROR]
             summary[s.STATUS_SPIN] = rows[-1, s.STATUS_SPIN]
-        return status
+        return status, summary.tolist()
 
     def _threaded_steps(self, batch: int, hand_out: bool) -> np.ndarray:
         """`_run_fused`'s steps, their status rows written here."""

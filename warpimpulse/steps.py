@@ -50,3 +50,28 @@ class StepStats:
 
 def _figures(stats: StepStats) -> tuple:
     return tuple("NaN" if isinstance(v, float) and math.isnan(v) else v for v in astuple(stats))
+
+
+ROWS_FALLBACK = "joint limits, stiff motors or distance rows (impacts and saturation are not reversible)"
+"""Why a scene with such rows takes its steps at order 2 whatever order was asked: a composed step would run
+them backwards in its negative substeps (`StepStats.fallback`)."""
+
+
+def combined(parts: list[StepStats]) -> StepStats:
+    """The stats of one step taken as consecutive substeps."""
+    return StepStats(
+        sum(p.joint_iterations for p in parts),
+        sum(p.velocity_iterations for p in parts),
+        max(p.max_joint_error for p in parts),
+        parts[-1].max_velocity_error,
+        all(p.converged for p in parts),
+        sum(p.linear_iterations for p in parts),
+        sum(p.substeps for p in parts),
+        min(p.order for p in parts),
+        next((p.fallback for p in parts if p.fallback), ""),
+        parts[-1].contacts,
+        max(p.max_penetration for p in parts),
+        sum(p.contact_sweeps for p in parts),
+        min((p.step_size for p in parts if not math.isnan(p.step_size)), default=math.nan),
+        sum(p.error_estimate for p in parts),
+    )

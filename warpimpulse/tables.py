@@ -37,6 +37,10 @@ class Table:
     def __len__(self) -> int:
         return self.count
 
+    def row_bytes(self) -> int:
+        """The bytes of one row over all columns."""
+        return sum(a.itemsize * int(np.prod(a.shape[1:])) for a in self._arrays.values())
+
     def grow(self, count: int) -> slice:
         """Append `count` rows (zeros) and return their slice."""
         stop = self.count + count

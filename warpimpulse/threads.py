@@ -33,9 +33,10 @@ from .launch import capture
 from .model import Model
 from .options import take as take_options
 from .pool import run_shared
-from .simulator import SimulationError, Simulator, StepStats, _combined
+from .simulator import SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
 from .split import SplitSimulator
+from .steps import combined
 from .worlds import WorldStats
 
 
@@ -160,7 +161,7 @@ class ThreadedSimulator:
             steps = self._fused_step(n)
         else:
             steps = [self._batched_step() for _ in range(n)]
-        return steps[0] if n == 1 else _combined(steps)
+        return steps[0] if n == 1 else combined(steps)
 
     def _fused_step(self, n: int) -> list[StepStats]:
         """n steps of the one-world shares, each world's on whichever thread takes it."""

@@ -91,8 +91,9 @@ DISTANCE_COORDINATE = 2
 """The kernels' code of a distance constraint's coordinate (`SceneBuilder.add_distance`): the distance (m)
 between two anchors, limited like a joint coordinate."""
 
-DRIVE_MODES = ("position", "velocity")
-"""`SceneBuilder.add_motor(mode=...)`; the index is the code the kernels read."""
+DRIVE_MODES = ("position", "velocity", "effort")
+"""`SceneBuilder.add_motor(mode=...)`; the index is the code the kernels read. "effort" is the target itself as
+the torque (N m) or force (N), the gains unused: MuJoCo's `motor` actuator."""
 
 SCHEDULES = ("auto", "fused", "parallel")
 """`Simulator(schedule=...)`: how a step's stages are launched. "fused" runs whole steps (many a launch) on one

@@ -85,7 +85,8 @@ def record(
     simulation stops (SimulationError, FloatingPointError, Ctrl-C), the frames done so far are written,
     the file records the stop (warpimpulse:stoppedEarly), and the exception propagates. The energy gain over
     the run goes into the layer data too (warpimpulse:energyGain; `energy.EnergyWatch`), with a RuntimeWarning
-    above 5% of the largest kinetic energy: the step is then too large for the motion.
+    above 5% of the largest kinetic energy: the step is then too large for the motion. Why steps were taken at a
+    lower order than asked goes there as well (warpimpulse:fallbacks; `Simulator.fallbacks`).
     """
     frame_steps(sim.dt, fps)  # a bad fps is refused before a file is touched
     frame_count(duration, fps)
@@ -95,7 +96,8 @@ def record(
     )
     energy = EnergyWatch(sim)
     with writer:
-        frames = record_frames(sim, writer, duration, progress=progress, on_frame=energy.follow(writer.settings))
+        frames = record_frames(sim, writer, duration, progress=progress, on_frame=energy.follow(writer.settings),
+                               record=writer.settings)  # fmt: skip
     if energy.warning():
         warnings.warn(energy.warning(), RuntimeWarning, stacklevel=2)
     return Recording(writer.path, frames, writer.fps, sim.step_count - start_steps, time.perf_counter() - start)

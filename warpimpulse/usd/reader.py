@@ -211,6 +211,10 @@ def _collider_shape(prim, xforms: _Xforms, report: _Reporter) -> tuple[Shape, st
         report.note(f"{path}: mass of a {prim.GetTypeName()} collider approximated by its extent box")
         shape, kind = Shape("box", size=tuple(float(v) for v in size)), "box"
         sim.t = sim.t + quat_rotate(sim.q, 0.5 * (lo + hi) * sim.s)
+    if shape.zero_size():  # no volume to weigh, nothing to collide: before its mass is computed from it
+        sizes = f"size {list(shape.size)}" if kind == "box" else f"radius {shape.radius:g}"
+        sizes += f", height {shape.length:g}" if kind in ("capsule", "cylinder") else ""
+        raise UsdSceneError(f"{path}: the {prim.GetTypeName()} collider has zero size ({sizes}, its scale applied)")
     return shape, kind, axis, sim
 
 
@@ -453,6 +457,29 @@ def _limit_and_drive(
             return
         builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per, ki, 0.0,
                           max_force, stiff=stiff)  # fmt: skip
+
+
+def _extra_drives(builder: SceneBuilder, joint: int, prim, sign: float) -> None:
+    """The drives a joint's DriveAPI could not hold, from its warpimpulse:drive<n>:* attributes (the writer's
+    `_extra_drive`: SI units, the coordinate 0 as built), n = 1, 2, ...; the target turned with the joint."""
+    n = 1
+    while (mode := _authored(prim, f"warpimpulse:drive{n}:mode")) is not None:
+        values = {name: _authored(prim, f"warpimpulse:drive{n}:{name}") for name in
+                  ("target", "gains", "maxForce", "motor", "stiff")}  # fmt: skip
+        target = sign * float(values["target"] or 0.0)
+        kp, ki, kd = (float(g) for g in (values["gains"] or (0.0, 0.0, 0.0)))
+        max_force = math.inf if values["maxForce"] is None else float(values["maxForce"])
+        if values["motor"] is None or values["motor"]:
+            builder.add_motor(joint, str(mode), target, kp, ki, kd, max_force, stiff=bool(values["stiff"]))
+        else:
+            builder.add_joint_spring(joint, kp, kd, target)
+        n += 1
+
+
+def _authored(prim, name: str):
+    """The authored value of attribute `name`, or None."""
+    attr = prim.GetAttribute(name)
+    return attr.Get() if attr and attr.HasAuthoredValue() else None
 
 
 def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> UsdScene:
@@ -703,6 +730,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             if limit is not None or drive is not None:
                 x0 = _usd_coordinate(dof >= 3, dof % 3, a0, q0, a1, q1)
                 _limit_and_drive(builder, first_joint, jprim, limit, drive, dof >= 3, x0, sign, mpu, kpu, report)
+            _extra_drives(builder, first_joint, jprim, sign)
         except UnsupportedFeatureError:
             raise
         except SceneError as exc:

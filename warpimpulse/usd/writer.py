@@ -270,10 +270,26 @@ def _loop_joints(builder: SceneBuilder) -> set[int]:
     return loops
 
 
+def _extra_drive(drive, n: int) -> list[str]:
+    """A drive USD's DriveAPI cannot hold (a second drive on the joint's one axis, such as a joint damper beside a
+    motor, or an effort motor: a torque or force by itself) as warpimpulse:drive<n>:* attributes of the joint,
+    in the builder's terms: SI units, the coordinate 0 as built (`reader._extra_drives` reads them back)."""
+    kp, ki, kd = drive.kp, drive.ki, drive.kd
+    lines = [f'custom string warpimpulse:drive{n}:mode = "{DRIVE_MODES[drive.mode]}"',
+             f"custom double warpimpulse:drive{n}:target = {_f(drive.target)}",
+             f"custom double3 warpimpulse:drive{n}:gains = ({_f(kp)}, {_f(ki)}, {_f(kd)})",
+             f"custom bool warpimpulse:drive{n}:motor = {int(drive.motor)}",
+             f"custom bool warpimpulse:drive{n}:stiff = {int(drive.stiff)}"]  # fmt: skip
+    if math.isfinite(drive.max_force):
+        lines.append(f"custom double warpimpulse:drive{n}:maxForce = {_f(drive.max_force)}")
+    return lines
+
+
 def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[str]]]:
     """Per joint: the DriveAPI schema and the attribute lines of its limit and drive (revolute: degrees, gains
     per degree; prismatic: metres), the inverse of the reader's `_limit_and_drive`. USD has one drive per
-    joint axis, and no point-to-point spring: a joint with two drives, or a scene with springs, is refused."""
+    joint axis: a joint's further drives, and effort motors, are `_extra_drive` attributes. USD has no
+    point-to-point spring: a scene with springs is refused."""
     if builder.springs:
         raise SceneError(f"spring {builder.springs[0].name!r}: USD has no spring between two points; not written")
     out: dict[int, tuple[list[str], list[str]]] = {}
@@ -285,11 +301,14 @@ def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[
             if math.isfinite(value):
                 lines.append(f"float physics:{name} = {_f(value * unit)}")
         out[limit.joint] = ([], lines)
+    extra: dict[int, int] = {}  # per joint, the drives written as warpimpulse:drive<n>:* (`_extra_drive`)
     for drive in builder.drives:
         j = builder.joints[drive.joint]
-        what = f"joint {j.name!r}"
-        if drive.joint in out and out[drive.joint][0]:
-            raise SceneError(f"{what}: USD has one drive per joint axis; this joint has two (a spring and a motor)")
+        if (drive.joint in out and out[drive.joint][0]) or drive.mode == DRIVE_MODES.index("effort"):
+            extra[drive.joint] = extra.get(drive.joint, 0) + 1
+            schema, lines = out.get(drive.joint, ([], []))
+            out[drive.joint] = (schema, lines + _extra_drive(drive, extra[drive.joint]))
+            continue
         angular = j.kind == "revolute"
         unit = math.degrees(1.0) if angular else 1.0  # a coordinate in USD's unit
         per = 1.0 / unit  # a gain per USD unit
@@ -604,8 +623,9 @@ class AnimationWriter:
             data["warpimpulse:stoppedEarly"] = self.stopped_early
         if self.scene.source_path:
             data["warpimpulse:source"] = self.scene.source_path
-        for k, v in self.settings.items():
-            data[f"warpimpulse:{k}" if ":" not in k else k] = _vt_value(v)
+        for k, v in self.settings.items():  # a list holds strings (the fallbacks, `run.record_frames`)
+            value = self._Vt.StringArray(v) if isinstance(v, list) else _vt_value(v)
+            data[f"warpimpulse:{k}" if ":" not in k else k] = value
         self.layer.customLayerData = data
 
     # ------------------------------------------------------------------ frames
