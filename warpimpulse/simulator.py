@@ -775,9 +775,7 @@ class Simulator(Readout, Recording, ParallelSteps):
                 self.fallbacks[s.fallback] = start
                 if self.verbose:
                     print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
-        stats = stats[0] if len(stats) == 1 else combined(stats)
-        stats.step_size = self.dt
-        return stats
+        return stats[0] if len(stats) == 1 else combined(stats)
 
     def fallback_note(self, reason: str) -> str:
         """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""

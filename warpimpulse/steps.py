@@ -35,7 +35,9 @@ class StepStats:
     contacts: int = 0  # contact points detected (in the last substep)
     max_penetration: float = 0.0  # m, the deepest contact after the position correction
     contact_sweeps: int = 0  # Gauss-Seidel sweeps over the contacts, both phases, summed over the step
-    step_size: float = math.nan  # s: the step taken (the smallest of combined steps); set by `Simulator.step`
+    # s: with `Simulator(accuracy=...)`, the step the controller took (the smallest of combined steps); NaN with
+    # fixed steps, whose size is `Simulator.dt`.
+    step_size: float = math.nan
     # m: with `Simulator(accuracy=...)`, the estimated error the step added to the body centres' positions
     # (`accuracy.Controller`: the error constant of the last step-doubling check times the steps' h^(order+1),
     # summed over combined steps); NaN without.
