@@ -45,19 +45,21 @@ soak: $(STAMP)
 	$(PY) benchmarks/soak.py --json benchmarks/results/soak.json
 
 # The paper's tables, run time against error and scaling (apart, so each can be re-run alone), then the
-# plots, RESULTS.md and README.md's results block from the three JSON files (only this step edits README.md).
+# plots, RESULTS.md and docs/results.md's results block from the three JSON files; scene_kinds.py also writes
+# README.md's summary of its table.
 RESULTS := benchmarks/results
 bench: $(STAMP)
 	$(PY) -m pip install -q -e ".[bench]"
 	$(PY) benchmarks/paper_tables.py
 	$(PY) benchmarks/skips.py
-	$(PY) benchmarks/step_breakdown.py --readme README.md > /dev/null
-	$(PY) benchmarks/worlds.py --readme README.md > /dev/null
+	$(PY) benchmarks/step_breakdown.py --readme docs/results.md > /dev/null
+	$(PY) benchmarks/worlds.py --readme docs/guide.md > /dev/null
 	$(PY) benchmarks/run_vs_error.py --json $(RESULTS)/run_vs_error.json > /dev/null
 	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
 	$(PY) benchmarks/orders.py > /dev/null  # orders in time: orders.json, docs/time-order.md, README's orders block
+	$(PY) benchmarks/scene_kinds.py > /dev/null  # kinds of scene from MJCF: scene_kinds.json, plots, README block
 	$(PY) -m warpimpulse.bench.report --from-json $(RESULTS)/paper_tables.json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
-		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme README.md
+		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme docs/results.md
 
 clean:
 	rm -rf $(VENV) build *.egg-info out/tree127.usdc

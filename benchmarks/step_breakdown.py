@@ -19,7 +19,7 @@ chain10 with a +-0.3 rad limit on every hinge, chain10 with a stiff velocity mot
 walking machine and car held in the air (`collide=False`: joints, motors and springs alone; with their collision
 shapes they have a contact stage, which the fused step does not have).
 
-    python benchmarks/step_breakdown.py [--quick] [--json benchmarks/results/step_breakdown.json] [--readme README.md]
+    python benchmarks/step_breakdown.py [--quick] [--json results/step_breakdown.json] [--readme docs/results.md]
     python benchmarks/step_breakdown.py --mechanisms [--json benchmarks/results/fused_mechanisms.json]
 """
 

@@ -1,7 +1,7 @@
 """Many worlds, every core: batched worlds against separate simulators, and the speed-up per thread count.
 
     python benchmarks/worlds.py [--worlds 256] [--bodies 31] [--rounds 7] [--json benchmarks/results/worlds.json]
-                                [--readme README.md] [--from-json]
+                                [--readme docs/guide.md] [--from-json]
 
 1. Batched: `worlds` copies of the binary tree (`scenes.binary_tree(bodies)`) as one Model
    (`SceneBuilder.replicate`) on one thread, against `worlds` separate Simulators stepped in a loop: world-steps
@@ -272,7 +272,7 @@ def markdown(results: dict) -> str:
     cores = list(results["control_speedup"])
     lines = [
         "<!-- generated from benchmarks/results/worlds.json by `python benchmarks/worlds.py --from-json "
-        "--readme README.md` -->",
+        "--readme docs/guide.md` -->",
         "",
         f"`python benchmarks/worlds.py` on {m['cpus']} cores ({load}; Warp {m['warp']}), medians over rounds that "
         "time the variants in turn. Batched: "

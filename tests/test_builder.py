@@ -77,7 +77,7 @@ def test_quaternion_policy_is_documented():
     """A zero quaternion is refused and a non-unit one normalised with a warning: the docs say which."""
     doc = wi.SceneBuilder.add_body.__doc__
     assert "A zero quaternion is refused" in " ".join(doc.split()) and "normalised" in doc
-    readme = " ".join((Path(__file__).parents[1] / "README.md").read_text().split())
+    readme = " ".join((Path(__file__).parents[1] / "docs" / "guide.md").read_text().split())
     assert "zero orientation quaternion is refused, a non-unit one is normalised with a warning" in readme
 
 

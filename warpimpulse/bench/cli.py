@@ -17,6 +17,8 @@ from ..cliutil import EXIT_USAGE, ArgumentParser
 from ..types import SOLVERS
 from . import report, stress
 from .harness import (
+    MUJOCO_RATES,
+    QUICK_MUJOCO_RATES,
     QUICK_ORDERS,
     QUICK_RATES,
     QUICK_SCALING_BUDGET,
@@ -95,6 +97,7 @@ def bench(argv: list[str]) -> int:
             QUICK_TOLERANCES if args.quick else SWEEP_TOLERANCES,
             repeats, args.solver, not args.no_progress,
             args.orders or (QUICK_ORDERS if args.quick else SWEEP_ORDERS),
+            QUICK_MUJOCO_RATES if args.quick else MUJOCO_RATES,
         ) | {"meta": meta}  # fmt: skip
     if not args.no_scaling:
         budget = args.scaling_budget or (QUICK_SCALING_BUDGET if args.quick else SCALING_BUDGET)

@@ -46,7 +46,10 @@ from .peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
 from .peers.pinocchio import PinocchioRunner, PinocchioScene, pinocchio_available
 from .runner import Runner, StepFailed, advance
 
-SWEEP_RATES = (30, 60, 120, 300)  # steps per second: h = 1/30 ... 1/300
+SWEEP_RATES = (30, 60, 120, 300)  # steps per second of ours and pinocchio: h = 1/30 ... 1/300
+# MuJoCo's, from h = 1/10 to 1/1000 and fine enough that its front is not read between far-apart points.
+MUJOCO_RATES = (10, 15, 20, 30, 40, 60, 80, 120, 160, 240, 320, 480, 640, 1000)
+QUICK_MUJOCO_RATES = (10, 30, 100, 300, 1000)
 SWEEP_TOLERANCES = (1e-2, 1e-4, 1e-6, 1e-8)
 # Orders in time of ours: 2 (the paper's step) at every tolerance above; 4 and 6 (its compositions) at the
 # tolerance that follows h and the order (`composition.default_tolerance`), since a looser one caps the order.
@@ -59,7 +62,7 @@ QUICK_SCENES = ("double_pendulum", "tree31", "tree127")
 REFERENCE_RATE, CHECK_RATE = 3000, 6000
 ERROR_TIME = 2.0  # s: trajectory error is measured here
 DRIFT_DURATION = 10.0  # s of conservative motion after the last force stops
-SAMPLE_RATE = 30  # Hz: energy and joint-error samples (divides every rate of the sweep)
+SAMPLE_RATE = 30  # Hz: energy and joint-error samples (every round(rate / 30) steps; every step below 45)
 SCALING_TREES = tuple(2**k - 1 for k in range(5, 17))  # 31 ... 65535 bodies
 SCALING_CHAINS = (10, 100, 1000, 3000, 10000)
 QUICK_SCALING_TREES = (31, 127, 511, 2047)
@@ -219,7 +222,7 @@ def accuracy_run(runner: Runner, rate: int, probe: Probe, duration: float) -> di
     """Step to `duration`, sampling energy and anchor gap at SAMPLE_RATE, tracked points at ERROR_TIME."""
     n_total = int(round(duration * rate))
     n_error = int(round(ERROR_TIME * rate))
-    every = rate // SAMPLE_RATE
+    every = max(1, round(rate / SAMPLE_RATE))  # about SAMPLE_RATE samples a second at any rate
     e0, k0 = runner.energy()
     times, energy, kinetic, gaps = [0.0], [e0], [k0], [probe.anchor_gap(*runner.poses())]
     points = None
@@ -249,40 +252,79 @@ def accuracy_run(runner: Runner, rate: int, probe: Probe, duration: float) -> di
 
 TIMING = (  # how `time_steps` times a configuration, as the report states it
     f"Run time: the median over repeats of the first {ERROR_TIME:g} s from the scene's start, each engine's steps "
-    "in one call where it has one (our `step(n)`, MuJoCo's `mj_step` with nstep), pinocchio's one step a call"
+    "in one call where it has one (our `step(n)`, MuJoCo's `mj_step` with nstep), pinocchio's one step a call; "
+    "the trajectory error is read from the final state of those very runs; the clock is the process's CPU time"
 )
 
 
+@dataclass
+class Timed:
+    """Seconds per step of each timed run, what `finish` read from each run's final state (its error, say),
+    and why the runs stopped where they failed (then both lists are empty)."""
+
+    per_step: list[float]
+    finals: list
+    failed: str | None = None
+
+
 def time_steps(
-    factory: Callable[[], Runner], rate: int, repeats: int, duration: float = ERROR_TIME, min_total: float = 0.5
-) -> list[float]:
-    """Seconds per step for each repeat of the first `duration` seconds, from a fresh state each time.
+    factory: Callable[[], Runner],
+    rate: int,
+    repeats: int,
+    duration: float = ERROR_TIME,
+    min_total: float = 0.5,
+    finish: Callable[[Runner], object] | None = None,
+) -> Timed:
+    """Seconds per step for each repeat of the first `duration` seconds, from a fresh state each time, and
+    `finish(runner)` of each timed run, called after its clock stopped: the error of the very run that is timed.
 
     The n steps are one call where the engine has one (`runner.advance`: our step(n), MuJoCo's mj_step with
     nstep, split where a force switches off), else one step() a step. One extra run first is the warm-up
     (kernels loaded, caches warm) and is discarded. Cheap runs are repeated until `min_total` seconds are timed
-    (at most 100 repeats), so a short interruption by another process moves the median little. Python's garbage
-    collector is off inside the timed loop, which holds nothing but the steps.
+    (at most 100 repeats), so a short interruption by another process moves the median little. The clock is the
+    process's CPU time (every thread): on a shared machine wall time counts other processes' time slices, the
+    more the longer the run, which would favour the configurations that run shortest. Python's garbage
+    collector is off inside the timed loop, which holds nothing but the steps. A run that fails (StepFailed from
+    the engine or from `finish`) fails the configuration.
     """
     n = int(round(duration * rate))
     per_step: list[float] = []
+    finals: list = []
     wanted = repeats
     gc.collect()
     while len(per_step) < wanted:
         runner = factory()
         gc.disable()
         try:
-            start = time.perf_counter()
+            start = time.process_time()
             advance(runner, n)
-            elapsed = time.perf_counter() - start
-        except StepFailed:
-            return []
+            elapsed = time.process_time() - start
+        except StepFailed as e:
+            return Timed([], [], str(e))
         finally:
             gc.enable()
+        try:
+            final = finish(runner) if finish is not None else None
+        except StepFailed as e:
+            return Timed([], [], str(e))
         per_step.append(elapsed / n)
+        finals.append(final)
         if len(per_step) == 1:  # the warm-up: discard it, and size the repeats from it
             wanted = 1 + min(100, max(repeats, math.ceil(min_total / max(elapsed, 1e-9))))
-    return per_step[1:]
+    return Timed(per_step[1:], finals[1:])
+
+
+def final_points(probe: Probe) -> Callable[[Runner], np.ndarray]:
+    """`time_steps`' finish: the tracked points of a run's final state, after checking it did not diverge."""
+
+    def points(runner: Runner) -> np.ndarray:
+        runner.check()
+        x, q = runner.poses()
+        if not np.all(np.isfinite(x)):
+            raise StepFailed("non-finite positions at the end of the timed run")
+        return probe.points(x, q)
+
+    return points
 
 
 @dataclass
@@ -385,10 +427,18 @@ def run_vs_error(
     solver: str = "auto",
     progress: bool = True,
     orders: Iterable[int] = (2,),
+    mujoco_rates: Iterable[int] | None = None,
 ) -> dict:
     """The accuracy/time sweep of every scene, for every engine that is available; ours at order 2 for every
-    tolerance, and at each other order of `orders` with the tolerance that order takes by default."""
+    tolerance, and at each other order of `orders` with the tolerance that order takes by default. MuJoCo runs
+    at `mujoco_rates` (default `rates`), the others at `rates`.
+
+    Each row's trajectory error is that of its timed runs (`time_steps`' finish; they run one call for all
+    steps where the engine has one); "trajectory_error_stepwise" is the accuracy run's, one step a call, which
+    also gives the energy drift and the anchor gap. A row that failed anywhere (the accuracy run's 10 s after
+    the forces included) has no time, and the report lists it as excluded."""
     scene_names, rates, tolerances = list(scene_names), list(rates), list(tolerances)
+    mujoco_rates = rates if mujoco_rates is None else list(mujoco_rates)
     mujoco_missing, pin_missing = mujoco_available(), pinocchio_available()
     if mujoco_missing:
         raise RuntimeError(f"the reference needs MuJoCo: {mujoco_missing}")
@@ -398,7 +448,7 @@ def run_vs_error(
     configs += [] if pin_missing else [("pinocchio", "RK4", None, None)]
     configs += [("warpimpulse", solver, tol, 2) for tol in tolerances]
     configs += [("warpimpulse", solver, None, order) for order in orders if order != 2]
-    per_scene = len(rates) * len(configs)
+    per_scene = sum(len(mujoco_rates if c[0] == "mujoco" else rates) for c in configs)
     bar = Progress(len(scene_names) * (per_scene + 1), progress)
     rows, refs = [], {}
     for name in scene_names:
@@ -420,8 +470,9 @@ def run_vs_error(
                else f"; vs pinocchio RK4 h=1/{REFERENCE_RATE}: residual {ref.pinocchio_residual:.3g} m"))  # fmt: skip
         bar.advance(f"{name} reference")
         model = builder.finalize("cpu")
+        finish = final_points(probe)
         for engine, variant, tol, order in configs:
-            for rate in rates:
+            for rate in mujoco_rates if engine == "mujoco" else rates:
                 if engine == "mujoco":
                     factory = partial(MujocoRunner, mscene, variant, rate)
                     runner = MujocoRunner(mscene, variant, rate, energy=True)
@@ -439,9 +490,17 @@ def run_vs_error(
                     row["tolerance"] = runner.sim.tolerance  # the order's own where none was given
                     row["joint_error_internal_max"] = runner.max_step_error
                     row.update(runner.iteration_stats())
-                times = time_steps(factory, rate, repeats) if acc["failed"] is None else []
-                row["time_per_step_runs"] = times
-                row["time_per_step"] = statistics.median(times) if times else None
+                row["trajectory_error_stepwise"] = row.pop("trajectory_error")
+                row["trajectory_error"] = None
+                timed = Timed([], []) if acc["failed"] else time_steps(factory, rate, repeats, finish=finish)
+                if timed.failed:
+                    row["failed"] = f"timed run: {timed.failed}"
+                elif timed.finals:
+                    errors = [float(np.linalg.norm(p - ref.points, axis=1).max()) for p in timed.finals]
+                    row["trajectory_error"], row["trajectory_error_spread"] = max(errors), max(errors) - min(errors)
+                row["error_source"] = "timed run"
+                row["time_per_step_runs"] = timed.per_step
+                row["time_per_step"] = statistics.median(timed.per_step) if timed.per_step else None
                 rows.append(row)
                 bar.advance(f"{name} {engine} {variant} 1/{rate}" + (f" tol {tol:g}" if tol else "")
                             + (f" order {order}" if order not in (None, 2) else ""))  # fmt: skip

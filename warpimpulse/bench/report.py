@@ -1,42 +1,74 @@
 """The benchmark's write-up, from the harness's JSON: the markdown report (RESULTS.md), the plots, and
-README.md's results block.
+docs/results.md's results block.
 
-Nothing here measures. `python -m warpimpulse.bench.report --from-json ... --readme README.md` is how
-`make bench` regenerates the README block; `warpimpulse bench` itself never touches README.md.
+Nothing here measures. `python -m warpimpulse.bench.report --from-json ... --readme docs/results.md` is how
+`make bench` regenerates that block; `warpimpulse bench` itself never touches the docs.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from . import pareto
 from .harness import CHECK_RATE, DRIFT_DURATION, ERROR_TIME, REFERENCE_RATE, SCALING_RATE, SCALING_TOLERANCE, log
 
 BAR_SCENE = "tree127"  # the scene of "the bar": ours against the fastest MuJoCo at matched error
 
 
 # ------------------------------------------------------------------------------------------ the bar
-def speed_ratios(runs: list[dict], scene: str = BAR_SCENE) -> list[dict]:
+def _usable(runs: list[dict], scene: str, engine: str) -> list[dict]:
+    """The rows of one engine on `scene` that have both an error and a time (failed rows are `excluded`)."""
+    return [r for r in runs if r["scene"] == scene and r["engine"] == engine and r["failed"] is None
+            and r["time_per_step"] is not None and r["trajectory_error"] is not None]  # fmt: skip
+
+
+def _points(rows: list[dict]) -> list[dict]:
+    """Rows as pareto points: error (m) and cost (s per simulated second)."""
+    return [r | {"error": r["trajectory_error"], "cost": r["time_per_step"] * r["rate"]} for r in rows]
+
+
+def level_cells(runs: list[dict], scene: str, floor: float) -> list[dict]:
+    """Ours against MuJoCo at each of `pareto.LEVELS`, each engine's cost read off its front."""
+    ours, theirs = _points(_usable(runs, scene, "warpimpulse")), _points(_usable(runs, scene, "mujoco"))
+    return [pareto.compare(ours, theirs, level, floor) for level in pareto.LEVELS]
+
+
+def excluded(runs: list[dict], scene: str) -> list[str]:
+    """Every configuration of `scene` left out of the comparison, and why (diverged, failed, no time)."""
+    out = []
+    for r in runs:
+        if r["scene"] == scene and (r["failed"] is not None or r["time_per_step"] is None):
+            why = " ".join((r["failed"] or "no timing").split())[:100]
+            out.append(f"{r['engine']} {r['variant']}{_order_suffix(r)} 1/{r['rate']} ({why})")
+    return out
+
+
+def speed_ratios(runs: list[dict], scene: str = BAR_SCENE, floor: float = 0.0) -> list[dict]:
     """For each of our configurations on `scene`: the cheapest MuJoCo configuration whose trajectory error is
-    at most ours, and the ratio of its cost to ours (> 1: we are faster).
+    at most ours, and the ratio of its cost to ours (> 1: we are faster); None where no MuJoCo configuration
+    reached our error, which is no win: MuJoCo at a finer step might. "front_ratio": MuJoCo's cost read off its
+    Pareto front at exactly our error (`pareto.cost_at`) over ours, "front_bound" True where that cost is only an
+    upper bound; the measured match can be far more accurate than ours where MuJoCo's grid is coarse.
+    "under_floor" marks an error under `pareto.FLOOR_MARGIN` times the reference's floor, where errors are not
+    told apart.
 
     Cost is run time per simulated second (time per step / h), not per step: configurations with different
     step sizes reach the same simulated time in different numbers of steps.
     """
-    ok = [r for r in runs if r["scene"] == scene and r["failed"] is None and r["time_per_step"] is not None]
-    ours = [r for r in ok if r["engine"] == "warpimpulse"]
-    peers = [r for r in ok if r["engine"] == "mujoco" and r["trajectory_error"] is not None]
+    ours = _usable(runs, scene, "warpimpulse")
+    peers = _usable(runs, scene, "mujoco")
     out = []
     for r in sorted(ours, key=lambda r: r["trajectory_error"]):
         match = [p for p in peers if p["trajectory_error"] <= r["trajectory_error"]]
         best = min(match, key=lambda p: p["time_per_step"] * p["rate"]) if match else None
         cost = r["time_per_step"] * r["rate"]
+        on_front = pareto.cost_at(_points(peers), r["trajectory_error"], floor)
         out.append({
             "rate": r["rate"], "tolerance": r["tolerance"], "order": r.get("order", 2),
             "trajectory_error": r["trajectory_error"],
@@ -46,6 +78,9 @@ def speed_ratios(runs: list[dict], scene: str = BAR_SCENE) -> list[dict]:
             "mujoco_time_per_step": None if best is None else best["time_per_step"],
             "mujoco_time_per_second": None if best is None else best["time_per_step"] * best["rate"],
             "ratio": None if best is None else best["time_per_step"] * best["rate"] / cost,
+            "front_ratio": on_front["cost"] / cost if on_front["reached"] else None,
+            "front_bound": on_front["bound"],
+            "under_floor": r["trajectory_error"] < pareto.FLOOR_MARGIN * floor,
         })  # fmt: skip
     return out
 
@@ -93,7 +128,7 @@ def markdown(results: dict) -> str:
                     f"{_num(r.get('joint_iterations_mean'), '.2f')} | {(r['failed'] or '')[:60]} |"
                 )
             lines.append("")
-        lines += bar_markdown(sweep["runs"])
+        lines += bar_markdown(sweep["runs"], floor=_floor(sweep))
     if scale:
         lines += scaling_markdown(scale)
     return "\n".join(lines) + "\n"
@@ -176,24 +211,59 @@ def _provenance(section: dict) -> list[str]:
 
 
 def summary_markdown(sweep: dict, level: str = "##") -> list[str]:
-    """Per scene: how far the references agree, and in how many of our configurations we beat MuJoCo."""
+    """Per scene: how far the references agree, and ours against MuJoCo at each error level, each engine's cost
+    read off its Pareto front (`pareto`): a level one engine never reached has no ratio and is no win."""
+    levels = pareto.LEVELS
     lines = [f"{level} Where we win and lose", "",
-             "Per scene, each of our configurations (h, tolerance) against the cheapest MuJoCo configuration "
-             "(integrator, h) whose trajectory error is at most ours; ratio = its run time per simulated second "
-             "over ours (> 1: we are faster).", "",
-             "| scene | bodies | reference self-check (m) | pinocchio vs reference (m) | we are faster | "
-             "best ratio | worst ratio |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+             "Ratio = MuJoCo's cheapest run time per simulated second at that trajectory error over ours (> 1: we "
+             "are faster), each engine's cost interpolated (log-log) on its Pareto front over every configuration "
+             "(integrator or order, tolerance, h). \"not reached by MuJoCo\" is no ratio and no win; \"<=\" where "
+             "MuJoCo's coarsest step already beats the level, \">=\" likewise for ours; a level under "
+             f"{pareto.FLOOR_MARGIN:g}x the reference's floor (its self-check) is not compared.", "",
+             "| scene | bodies | reference self-check = floor (m) | pinocchio vs reference (m) | "
+             + " | ".join(f"{lv:g} m" for lv in levels) + " |",
+             "|---|---|---|---|" + "---|" * len(levels)]  # fmt: skip
+    notes = []
     for name, ref in sweep["references"].items():
-        ratios = speed_ratios(sweep["runs"], name)
-        wins = [r for r in ratios if r["ratio"] is None or r["ratio"] > 1.0]
-        known = [r for r in ratios if r["ratio"] is not None]
-        best = max(known, key=lambda r: r["ratio"], default=None)
-        worst = min(known, key=lambda r: r["ratio"], default=None)
-        lines.append(
-            f"| {name} | {ref['bodies']} | {ref['self_check_residual']:.2e} | {_num(ref.get('pinocchio_residual'))} "
-            f"| {len(wins)} of {len(ratios)} | {_ratio_cell(best)} | {_ratio_cell(worst)} |"
-        )
+        floor = ref["self_check_residual"]
+        cells = " | ".join(pareto.ratio_text(c) for c in level_cells(sweep["runs"], name, floor))
+        lines.append(f"| {name} | {ref['bodies']} | {floor:.2e} | {_num(ref.get('pinocchio_residual'))} | {cells} |")
+        left = excluded(sweep["runs"], name)
+        if left:
+            notes.append(f"- {name}: " + "; ".join(left) + ".")
+    lines += ["", *(["Excluded (failed or diverged anywhere in the run, the 10 s after the forces included):", "",
+                     *notes] if notes else ["No configuration failed or diverged."])]  # fmt: skip
+    counts = sorted({len(r["time_per_step_runs"]) for r in sweep["runs"] if r.get("time_per_step_runs")})
+    if counts:
+        lines += ["", f"Each time is the median of {counts[0]} to {counts[-1]} timed runs ("
+                  + spread_text([r["time_per_step_runs"] for r in sweep["runs"] if r.get("time_per_step_runs")])
+                  + "); every run's time is in the JSON."]  # fmt: skip
+    if any(r.get("error_source") != "timed run" for r in sweep["runs"]):
+        lines += [
+            "",
+            "In this JSON the trajectory error comes from a separate run stepped one step a call and the "
+            "time from runs of step(n) (the harness now reads the error from the timed runs themselves).",
+        ]
     return lines + [""]
+
+
+def spread_text(samples: list[list[float]]) -> str:
+    """How far repeated timings scatter: each configuration's interquartile range over its median, given for
+    the median configuration and the worst (a shared machine's load shows here)."""
+    spreads = []
+    for times in samples:
+        if len(times) >= 2:
+            q1, q2, q3 = np.percentile(times, [25, 50, 75])
+            spreads.append((q3 - q1) / q2)
+    if not spreads:
+        return "no repeated timings"
+    return (f"interquartile range over median: {np.median(spreads) * 100:.0f}% for the median configuration, "
+            f"{max(spreads) * 100:.0f}% at most")  # fmt: skip
+
+
+def _floor(sweep: dict, scene: str = BAR_SCENE) -> float:
+    ref = sweep["references"].get(scene)
+    return 0.0 if ref is None else ref["self_check_residual"]
 
 
 def _order_suffix(r: dict) -> str:
@@ -206,44 +276,57 @@ def _ours(r: dict) -> str:
     return f"tol {r['tolerance']:g}" + _order_suffix(r).replace(" order", ", order")
 
 
-def _ratio_cell(r: dict | None) -> str:
-    return "—" if r is None else f"{r['ratio']:.3g} (1/{r['rate']}, {_ours(r)} vs {r['mujoco']})"
+def _front_ratio(r: dict) -> str:
+    if r["front_ratio"] is None:
+        return "not reached by MuJoCo"
+    return ("<= " if r["front_bound"] else "") + f"{r['front_ratio']:.3g}"
 
 
-def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##") -> list[str]:
+def bar_markdown(runs: list[dict], scene: str = BAR_SCENE, level: str = "##", floor: float = 0.0) -> list[str]:
     if not any(r["scene"] == scene for r in runs):
         return []
-    ratios = speed_ratios(runs, scene)
+    ratios = speed_ratios(runs, scene, floor)
     if not ratios:
         return [f"{level} The bar ({scene})", "", "No warpimpulse run on this scene.", ""]
-    lines = [f"{level} The bar: {scene} at matched trajectory error", "",
-             "Ratio = run time per simulated second of the fastest MuJoCo configuration whose error is at most "
-             "ours, over ours (> 1: warpimpulse is faster). Per second, not per step: h differs between the two.",
-             "",
+    lines = [f"{level} The bar: {scene}, each of our configurations against MuJoCo", "",
+             "Run time per simulated second (per second, not per step: h differs between the two) of the fastest "
+             "MuJoCo configuration measured whose error is at most ours, and of MuJoCo's Pareto front read at "
+             "exactly our error (log-log between its two bracketing configurations; \"<=\" where its coarsest "
+             "step is already more accurate); ratio = that front's cost over ours (> 1: warpimpulse is faster), "
+             "counted below.", "",
              "| our h | tolerance, order | our error (m) | our µs/step | our ms/sim s | "
-             "fastest MuJoCo at ≤ that error | its error (m) | its µs/step | its ms/sim s | ratio |",
-             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "fastest MuJoCo at ≤ that error | its error (m) | its µs/step | its ms/sim s | its ratio | "
+             "ratio to MuJoCo's front at our error |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in ratios:
         theirs = r["mujoco_time_per_second"]
         lines.append(
             f"| 1/{r['rate']} | {_ours(r)} | {r['trajectory_error']:.3g} | {_us(r['time_per_step'])} | "
-            f"{r['time_per_second'] * 1e3:.1f} | {r['mujoco'] or 'none reaches it'} | {_num(r['mujoco_error'])} | "
+            f"{r['time_per_second'] * 1e3:.1f} | {r['mujoco'] or 'not reached by MuJoCo'} | "
+            f"{_num(r['mujoco_error'])} | "
             f"{_us(r['mujoco_time_per_step'])} | {'—' if theirs is None else f'{theirs * 1e3:.1f}'} | "
-            f"{_num(r['ratio'], '.3g')} |"
+            + f"{_num(r['ratio'], '.3g')} | "
+            + ("under the reference floor" if r["under_floor"] else _front_ratio(r))
+            + " |"
         )
-    wins = [r for r in ratios if r["ratio"] is None or r["ratio"] > 1.0]
-    losses = [r for r in ratios if r["ratio"] is not None and r["ratio"] <= 1.0]
-    lines += ["", f"We win in {len(wins)} of {len(ratios)} configurations and lose in {len(losses)}."]
+    counted = [r for r in ratios if not r["under_floor"] and r["front_ratio"] is not None]
+    wins = [r for r in counted if r["front_ratio"] > 1.0]
+    losses = [r for r in counted if r["front_ratio"] <= 1.0]
+    unmatched = [r for r in ratios if not r["under_floor"] and r["front_ratio"] is None]
+    floor_rows = [r for r in ratios if r["under_floor"]]
+    lines += ["", f"Of {len(ratios)} configurations, we are faster in {len(wins)} and slower in {len(losses)}; "
+              f"MuJoCo never reached the error of {len(unmatched)} (no ratio, not counted as a win), and "
+              f"{len(floor_rows)} are under {pareto.FLOOR_MARGIN:g}x the reference's floor of {floor:.2g} m "
+              "(not compared)."]  # fmt: skip
     if wins:
-        best = max(wins, key=lambda r: math.inf if r["ratio"] is None else r["ratio"])
+        best = max(wins, key=lambda r: r["front_ratio"])
         lines.append(f"Best: h=1/{best['rate']}, {_ours(best)}, error {best['trajectory_error']:.3g} m, "
-                     + ("no MuJoCo configuration of the sweep is that accurate." if best["ratio"] is None
-                        else f"{best['ratio']:.2f}x faster than MuJoCo {best['mujoco']}."))  # fmt: skip
+                     f"{_front_ratio(best)}x faster than MuJoCo's front at that error.")  # fmt: skip
         lines.append("We win at: " + ", ".join(f"1/{r['rate']} {_ours(r)}" for r in wins) + ".")
     if losses:
-        worst = min(losses, key=lambda r: r["ratio"])
+        worst = min(losses, key=lambda r: r["front_ratio"])
         lines.append(f"Worst: h=1/{worst['rate']}, {_ours(worst)}, error {worst['trajectory_error']:.3g} "
-                     f"m, {1.0 / worst['ratio']:.2f}x slower than MuJoCo {worst['mujoco']}.")  # fmt: skip
+                     f"m, {1.0 / worst['front_ratio']:.2f}x slower than MuJoCo's front at that error.")  # fmt: skip
     return lines + [""]
 
 
@@ -299,7 +382,7 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
     """The README's benchmark section, generated from the JSON so it is never typed by hand."""
     lines = [
         "<!-- generated from benchmarks/results/*.json by `python -m warpimpulse.bench.report --from-json ... "
-        "--readme README.md` (make bench): edit the generator, not this text -->",
+        "--readme docs/results.md` (make bench): edit the generator, not this text -->",
         "",
     ]
     if results.get("paper_tables"):
@@ -307,12 +390,17 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
     sweep, scale = results.get("run_vs_error"), results.get("scaling")
     if sweep:
         runs = sweep["runs"]
-        rates = sorted({r["rate"] for r in runs})
-        tolerances = sorted({r["tolerance"] for r in runs if r["tolerance"] is not None}, reverse=True)
+        rates = sorted({r["rate"] for r in runs if r["engine"] != "mujoco"})
+        mujoco_rates = sorted({r["rate"] for r in runs if r["engine"] == "mujoco"})
+        tolerances = sorted({r["tolerance"] for r in runs if r["tolerance"] is not None and (r.get("order") or 2) == 2},
+                            reverse=True)  # fmt: skip
         grid = (
             f"h in {{{', '.join(f'1/{r}' for r in rates)}}} and tolerance in "
-            f"{{{', '.join(f'{t:g}' for t in tolerances)}}}"
-        )
+            f"{{{', '.join(f'{t:g}' for t in tolerances)}}} (MuJoCo: h in "
+            f"{{{', '.join(f'1/{r}' for r in mujoco_rates)}}}"
+            + (")" if not mujoco_rates or mujoco_rates[0] <= 10 else
+               f"; its grid stops at 1/{mujoco_rates[0]}, so at loose errors its cost may be over-estimated)")
+        )  # fmt: skip
         peers = ", ".join(dict.fromkeys(f"{r['engine']} {r['variant']}" for r in runs if r["engine"] != "warpimpulse"))
         lines += [f"`warpimpulse bench` (`pip install 'warpimpulse[bench]'`; `make bench` regenerates the JSON, the "
                   f"plots, [RESULTS.md]({plots_dir}/RESULTS.md) and this section) runs {grid} "
@@ -320,7 +408,8 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
                   f"the reference (checked against h = 1/{CHECK_RATE} and against pinocchio)."
                   + (f" {sweep['timing']}." if sweep.get("timing") else ""),
                   "",
-                  *_provenance(sweep), *summary_markdown(sweep, "###"), *bar_markdown(runs, level="###")]  # fmt: skip
+                  *_provenance(sweep), *summary_markdown(sweep, "###"),
+                  *bar_markdown(runs, level="###", floor=_floor(sweep))]  # fmt: skip
         lines += [f"![Pareto {name}]({plots_dir}/pareto_{name}.png)" for name in sweep["references"]]
         lines += ["", f"![Energy drift]({plots_dir}/energy_drift.png)", ""]
     if scale:

@@ -1,0 +1,62 @@
+"""benchmarks/scene_kinds.py's models: each MJCF file is what its builder writes, loads in both engines as the
+same bodies, and both engines move it alike over a few small steps. Nothing here times anything."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def kinds():
+    spec = importlib.util.spec_from_file_location("scene_kinds", ROOT / "benchmarks/scene_kinds.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["scene_kinds"] = module  # its dataclasses look their module up there
+    spec.loader.exec_module(module)
+    yield module
+    del sys.modules["scene_kinds"]
+
+
+def test_the_model_files_are_what_their_builders_write(kinds, tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(kinds, "MODELS", tmp_path)
+    for path in kinds.write_models():
+        assert path.read_text() == (ROOT / "benchmarks/models" / path.name).read_text(), path.name
+
+
+@pytest.mark.parametrize("name", ["double_pendulum_3d", "arm7", "chain30", "humanoid", "tree127"])
+def test_a_scene_loads_in_both_engines_and_moves_alike(kinds, name) -> None:
+    kind = next(k for k in kinds.KINDS if k.name == name)
+    scene = kinds.load(kind)
+    assert scene.mismatch < 1e-9
+    assert len(scene.builder.bodies) == scene.mscene.model.nbody - 1
+    rate, steps = 1000, 20
+    ours, theirs = kinds.OursRun(scene, rate, 2, 1e-10), kinds.MujocoRun(scene, rate, "RK4")
+    start = None
+    for run in (ours, theirs):
+        run.start()
+        start = run.points() if start is None else start
+        np.testing.assert_allclose(run.points(), start, atol=1e-12)  # the same tracked points at t = 0
+        run.one_call(steps)
+    moved = np.linalg.norm(theirs.points() - start, axis=1).max()
+    gap = np.linalg.norm(ours.points() - theirs.points(), axis=1).max()
+    assert moved > 1e-4 and gap < 1e-3 * moved, (moved, gap)
+
+
+def test_the_readme_blocks_are_the_committed_json_written_up(kinds) -> None:
+    """docs/results.md's scene-kinds block and README.md's summary of it are generated from
+    benchmarks/results/scene_kinds.json, never typed."""
+    import json
+
+    results = json.loads((ROOT / "benchmarks/results/scene_kinds.json").read_text())
+    for path, begin, end, block in (
+        (ROOT / "docs/results.md", kinds.BEGIN, kinds.END, kinds.readme_block(results)),
+        (ROOT / "README.md", kinds.SUMMARY_BEGIN, kinds.SUMMARY_END, kinds.summary_block(results)),
+    ):
+        text = path.read_text()
+        assert text[text.index(begin) + len(begin) : text.index(end)].strip() == block.strip(), path
