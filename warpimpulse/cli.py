@@ -59,6 +59,13 @@ def _add_simulate(sub) -> None:
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
     p.add_argument("--tolerance", type=_positive(float),
                    help="joint tolerance, m or rad (default 1e-6; tighter at --order 4, 6)")  # fmt: skip
+    p.add_argument(
+        "--accuracy",
+        type=_positive(float),
+        metavar="E",
+        help="m: choose order, tolerance and step size (at most --dt, default 1/fps) so that the body "
+        "centres stay within about E of the exact trajectory over --duration (docs/accuracy.md)",
+    )
     p.add_argument("--order", type=int, choices=(2, 4, 6), default=2,
                    help="order in time: 2 is the paper's step, 4 and 6 compose it (default 2)")  # fmt: skip
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
@@ -282,6 +289,8 @@ def _simulate(args) -> int:
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
     checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
+    if args.accuracy is not None and args.order != 2:
+        raise SceneError(f"--accuracy chooses the order itself; drop --order {args.order}")
     if args.duration is not None and args.fps is not None:
         _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
     stage = None  # a USD scene file's (its time range and step size)
@@ -325,6 +334,7 @@ def _simulate(args) -> int:
         max_iterations=args.max_iterations,
         on_max_iterations=args.on_max_iterations,
         order=args.order,
+        accuracy=args.accuracy,
         options=StepOptions(
             max_rotation=None if args.whole_steps else args.max_rotation,
             newton=AUTO_ON_OFF[args.newton],
@@ -332,6 +342,10 @@ def _simulate(args) -> int:
             defer_velocities=AUTO_ON_OFF[args.defer_velocities],
         ),
     )
+    if sim.accuracy is not None:
+        sim.accuracy.horizon = args.duration
+        if sim.accuracy.plan.note:
+            print(f"warpimpulse: accuracy: {sim.accuracy.plan.note}", file=sys.stderr)
     if sim.split_note:
         print(f"warpimpulse: one thread: {sim.split_note}", file=sys.stderr)
     if sim.redundant_rows:  # information: loop joints repeating what the tree already holds (a planar loop in 3D)
@@ -367,8 +381,12 @@ def _simulate(args) -> int:
     _say_fallbacks(sim)
     if energy.warning():
         print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
+    steps = f"{sim.step_count} steps of {dt:.6g} s"
+    if sim.accuracy is not None:
+        steps = (f"{sim.step_count} steps of at most {dt:.6g} s at order {sim.order} "
+                 f"for an accuracy of {args.accuracy:g} m")  # fmt: skip
     print(
-        f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {sim.step_count} steps of {dt:.6g} s "
+        f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {steps} "
         f"in {elapsed:.2f} s ({1e3 * elapsed / max(sim.step_count, 1):.3f} ms a step, output included)"
     )
     return 0

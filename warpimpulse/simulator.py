@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from . import accuracy as accuracy_control
 from . import capabilities, checks, composition, diagnose
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .files import write_atomically
@@ -65,7 +66,7 @@ class Simulator(Readout, Recording, ParallelSteps):
     def __init__(
         self,
         model: Model,
-        dt: float,
+        dt: float | None = None,
         tolerance: float | None = None,
         velocity_tolerance: float | None = None,
         solver: str = "auto",
@@ -74,13 +75,15 @@ class Simulator(Readout, Recording, ParallelSteps):
         order: int = 2,
         contact_solver: str = "pgs",
         contact_margin: float = 0.005,
+        accuracy: float | None = None,
         verbose: bool = False,
         options: StepOptions | None = None,
         **legacy,
     ) -> None:
         """Args:
         model: the scene (`SceneBuilder.finalize()`).
-        dt: the step (s).
+        dt: the step (s); with `accuracy`, the interval each `step()` advances (a frame, a control tick), taken as
+            whole steps of at most dt (default `accuracy.DEFAULT_INTERVAL`).
         tolerance: the largest joint error a step may leave (m for translational constraints, rad for
             rotational ones); the joint correction iterates until every joint holds to it.
         velocity_tolerance: the same for the constraint velocities after the step (m/s, rad/s); defaults to
@@ -103,6 +106,11 @@ class Simulator(Readout, Recording, ParallelSteps):
             found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
             only if the corrections close them).
+        accuracy: m. Instead of a fixed step: the order, the joint tolerance (unless given) and the step size are
+            chosen so that the body centres stay within about this of the exact trajectory over
+            `sim.accuracy.horizon` seconds (1 s unless set), the step size following an error estimate
+            (`accuracy.py`, docs/accuracy.md); `StepStats.error_estimate` reports it. Contacts and batched worlds
+            are refused; scenes with limits, stiff motors or distance rows are controlled at order 2.
         options: the performance switches (`StepOptions`): schedule, formulation, composition scheme, Newton step,
             carried right-hand side, deferred velocity correction, kernel specialization, spin splits, halving
             depth and the contacts' broad phase and sweeps. Each chooses itself from the scene and the machine
@@ -120,6 +128,12 @@ class Simulator(Readout, Recording, ParallelSteps):
             options.max_substep_depth,
         )
         broad_phase, contact_sweeps = options.broad_phase, options.contact_sweeps
+        plan = None
+        if accuracy is not None:
+            plan = accuracy_control.plan(model, accuracy, dt, tolerance, order)
+            dt, order, tolerance = plan.dt, plan.order, plan.tolerance
+        elif dt is None:
+            raise ValueError("dt (the step, s) is required unless accuracy (m) is given")
         dt = checks.positive(dt, "dt", " (seconds)")
         self.order = checks.integer(order, "order", 2)
         self.scheme = composition.scheme(self.order, scheme)
@@ -188,6 +202,7 @@ class Simulator(Readout, Recording, ParallelSteps):
         self.specialized = specialize
         self.time = 0.0
         self.step_count = 0
+        self._clock = (0.0, 0)  # (time, step count) the clock counts steps of dt from (`_set_step_size`)
 
         self.state = model.state()
         self.pred = model.state()
@@ -215,9 +230,9 @@ class Simulator(Readout, Recording, ParallelSteps):
         # The first iteration's carried right-hand side (`carry`, kernels/carry.py): a row of c (and of the value
         # measured in the step, taken when it is kept) for each step size of a stage at dt, the others' on demand.
         self.carry = bool(carried if carry is None else carry)
-        fractions = tuple(dict.fromkeys((*self.scheme.stages, 1.0)))  # 1.0: the order-2 fallback of a composed step
-        self._carry_rows = {g * dt: r for r, g in enumerate(fractions)}
-        rows = len(fractions) if self.carry else 0
+        self._fractions = tuple(dict.fromkeys((*self.scheme.stages, 1.0)))  # 1.0: a composed step's order-2 fallback
+        self._carry_rows = {g * dt: r for r, g in enumerate(self._fractions)}
+        rows = len(self._fractions) if self.carry else 0
         self._carry = wp.zeros((rows, nc), dtype=wp.vec3d, device=d)
         self._carry_next = wp.zeros_like(self._carry)
         self._carry_other: dict[float, tuple[wp.array, wp.array]] = {}  # halved and split step sizes
@@ -313,6 +328,8 @@ class Simulator(Readout, Recording, ParallelSteps):
         if self.redundant_rows:
             self._check_loops()
         self._check_finite(self.state, 0)
+        self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
+        """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
 
     # ---------------------------------------------------------------- options the scene decides
     @property
@@ -592,7 +609,7 @@ class Simulator(Readout, Recording, ParallelSteps):
             return limit
         start, count = self._alike
         if not start <= self.step_count < start + count:
-            times = (self.step_count + np.arange(self.FUSED_BATCH)) * self.dt
+            times = self._clock_at(self.step_count + np.arange(self.FUSED_BATCH))
             active = times[:, None] < until[None, :]
             differ = np.flatnonzero((active != active[0]).any(axis=1))
             self._alike = (self.step_count, int(differ[0]) if len(differ) else self.FUSED_BATCH)
@@ -683,7 +700,22 @@ class Simulator(Readout, Recording, ParallelSteps):
     def _advance_clock(self, steps: int) -> None:
         """The step count and time after `steps` more whole steps (the time from the count: no summed drift)."""
         self.step_count += steps
-        self.time = self.step_count * self.dt
+        self.time = self._clock_at(self.step_count)
+
+    def _clock_at(self, count):
+        """The time (s) at step `count` (a number or an array): count dt, from where the step size was last set."""
+        time, start = self._clock
+        return time + (count - start) * self.dt
+
+    def _set_step_size(self, h: float) -> None:
+        """Take steps of h from the current time on (the accuracy controller's hook, `accuracy.py`). The carried
+        right-hand sides stay: those of the last step size start the first iteration nearer than nothing, and the
+        iterations after it hold the tolerance whatever it started from (`carry`)."""
+        if h not in self._carry_rows:
+            self._carry_rows = {g * h: r for r, g in enumerate(self._fractions)}
+        self.dt = h
+        self._clock = (self.time, self.step_count)
+        self._alike = (0, 0)
 
     def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
         """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
@@ -725,6 +757,8 @@ class Simulator(Readout, Recording, ParallelSteps):
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
+        if self.accuracy is not None:  # n intervals of dt, in steps the controller sizes
+            return self.accuracy.step(n)
         lean = n.__class__ is int and n == 1 and self.schedule == "fused" and not self._fallback  # a control tick
         if not lean and not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
             raise ValueError(f"n must be an integer >= 1, got {n!r}")
@@ -909,7 +943,7 @@ class Simulator(Readout, Recording, ParallelSteps):
     def simulate(self, duration: float, callback=None) -> list[StepStats]:
         """Run whole steps covering `duration` seconds; `callback(sim, stats)` after each."""
         steps = int(round(duration / self.dt))
-        if callback is None:
+        if callback is None and self.accuracy is None:
             return self._steps(steps) if steps else []
         stats = []
         for _ in range(steps):
@@ -948,6 +982,9 @@ class Simulator(Readout, Recording, ParallelSteps):
         for name in STATE:
             getattr(self.state, f"body_{name}").assign(data[name])
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
+        self._clock = (0.0, 0) if self.accuracy is None else (self.time, self.step_count)
+        if self.accuracy is not None:
+            self.accuracy.reset()
         self._user_force, self._user_torque = data["user_force"], data["user_torque"]
         self._fallback = str(data["fallback"]) if "fallback" in data else ""
         if "drive_target" in data:  # motors' targets and PID integrals
@@ -1054,6 +1091,9 @@ class Simulator(Readout, Recording, ParallelSteps):
         self.drive_target.assign(self.model.host.drive_target)
         self.drive_integral.zero_()
         self.time, self.step_count = 0.0, 0
+        self._clock = (0.0, 0)
+        if self.accuracy is not None:
+            self.accuracy.reset()
         if self.batch is not None:
             self.batch.reset()
         n = self.model.body_count
@@ -1107,5 +1147,7 @@ class Simulator(Readout, Recording, ParallelSteps):
             full[rows] = values
             getattr(self.state, field).assign(full)
         self._forget_carry(world)
+        if self.accuracy is not None:  # a check under way would compare with another trajectory
+            self.accuracy.reset()
         self._update_frames()
         self._check_finite(self.state, self.step_count)
