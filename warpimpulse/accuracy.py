@@ -38,7 +38,6 @@ from .steps import StepStats, combined
 
 if TYPE_CHECKING:
     from .model import Model
-    from .simulator import Simulator
 
 ORDER4_BELOW = 3e-3
 """m: accuracies below this are reached at order 4 (the composed step), from it up at order 2: where order 2 wins
@@ -107,7 +106,7 @@ class Controller:
     """Steps a Simulator interval by interval (`Simulator.dt`), each in whole steps whose size follows the
     estimated local error. `horizon` (s) is the time over which the accuracy is meant."""
 
-    def __init__(self, sim: Simulator, chosen: Plan) -> None:
+    def __init__(self, sim, chosen: Plan) -> None:  # sim: the Simulator it steps (which imports this module)
         self.sim = sim
         self.plan = chosen
         self.interval = chosen.dt
