@@ -8,6 +8,7 @@ control input onto a motor as MuJoCo's `ctrl` does. Anchors and axes are in worl
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -301,6 +302,11 @@ class Mechanisms:
             raise SceneError(f"{what} [{lower}, {upper}] excludes the built pose (coordinate 0)")
         if any(limit.joint == j for limit in self.limits):
             raise SceneError(f"{what}: the joint already has a limit")
+        if COORDINATES[self.joints[j].kind] == 0 and upper - lower >= 2.0 * math.pi:
+            # The angle is measured within the turn about the range's middle (kernels/limits.py, limit_error):
+            # a range of a turn or more holds all of it, so the limit never binds.
+            warnings.warn(f"{what} [{lower:.6g}, {upper:.6g}] rad spans a full turn or more: an angle is measured "
+                          "within one turn, so it never binds", stacklevel=2)  # fmt: skip
         self.limits.append(Limit(j, lower, upper))
         return len(self.limits) - 1
 
