@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[test,dev]"
+	$(PY) -m pip install -q -e ".[test,dev,robots]"  # robots: the real URDF robots the tests load
 	touch $(STAMP)
 
 run: $(STAMP)
@@ -43,6 +43,12 @@ stress: $(STAMP)
 # Long runs with a checkpoint and resume every 10,000 steps: joint drift, energy drift, memory (flat or exit 1).
 soak: $(STAMP)
 	$(PY) benchmarks/soak.py --json benchmarks/results/soak.json
+
+# Every URDF of example-robot-data (the [robots] extra) loaded, or refused with one line naming the element, and
+# run 10 s at h = 1 ms under gravity, contacts off, two robots at a time: benchmarks/results/robots.{json,md}.
+robots: $(STAMP)
+	$(PY) -m pip install -q -e ".[robots]"
+	$(PY) benchmarks/robots.py --processes 2
 
 # The paper's tables, run time against error and scaling (apart, so each can be re-run alone), then the
 # plots, RESULTS.md and docs/results.md's results block from the three JSON files; scene_kinds.py also writes

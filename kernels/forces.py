@@ -98,10 +98,16 @@ def coordinate_row(
 
 
 @wp.func
+def angle_near(x: f64, centre: f64) -> f64:
+    """x plus whole turns, in (centre - pi, centre + pi] (rad); x itself, bit for bit, where it lies there."""
+    pi = f64(3.141592653589793)
+    return x - f64(2.0) * pi * wp.floor((x - centre + pi) / (f64(2.0) * pi))
+
+
+@wp.func
 def wrap_angle(x: f64) -> f64:
     """x in (-pi, pi]."""
-    pi = f64(3.141592653589793)
-    return x - f64(2.0) * pi * wp.floor((x + pi) / (f64(2.0) * pi))
+    return angle_near(x, f64(0.0))
 
 
 @wp.func

@@ -26,7 +26,7 @@ wrapped for angles, with an impulse of at most max_force h either way. A saturat
 import warp as wp
 
 from .constraints import angular_times, pose_x, side_body
-from .forces import VELOCITY_MODE, coordinate_row, wrap_angle
+from .forces import VELOCITY_MODE, angle_near, coordinate_row, wrap_angle
 from .impulses import apply_to_body
 from .inertia import sym33d, symmetric_times
 
@@ -139,6 +139,10 @@ def limit_error(
         if (lam >= cap and value < f64(0.0)) or (lam <= -cap and value > f64(0.0)):
             err = f64(0.0)  # saturated: the motor gives all it has
     else:
+        if rows.coordinate_kind[r] == ANGLE_COORDINATE:
+            # An angle is measured within one turn: take the turn about the range's middle, so that a range
+            # past +-pi (Panda's joint 6: [-0.0175, 3.75]) is one interval, not a jump of 2 pi at pi.
+            value = angle_near(value, f64(0.5) * (bounds[0] + bounds[1]))
         err = wp.max(wp.max(bounds[0] - value, value - bounds[1]), f64(0.0))
         if lam > f64(0.0):
             err = wp.abs(value - bounds[0])

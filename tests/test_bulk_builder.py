@@ -100,7 +100,7 @@ def test_bulk_bodies_and_joints_equal_one_at_a_time():
 
 @pytest.mark.parametrize("kind", sorted(wi.joints.JOINT_TYPES))
 def test_every_joint_type_bulk_equals_one_at_a_time(kind):
-    """A one-row add computes its geometry on Python floats, a batch on arrays (`builder._parts`): for every
+    """A one-row add computes its geometry on Python floats, a batch on arrays (`joint_builder._parts`): for every
     joint type (axes, child axes, rest angles), from orientations a little off unit length (normalised without
     a warning), both give the same Model bit for bit."""
     rng = np.random.default_rng(11)

@@ -265,6 +265,30 @@ def test_pendulum_into_a_limit_never_passes_it_and_gains_no_energy():
     assert all(s.converged for s in stats)
 
 
+@pytest.mark.parametrize("spin", [4.0, -4.0])
+def test_a_limit_past_pi_holds_its_range_as_one_interval(spin):
+    """A rod spun at 4 rad/s either way on a hinge limited to [-0.5, 3.6] rad (or its mirror) turns through
+    pi, where the angle read within one turn jumps by 2 pi, and stops at 3.6 rad, at rest. Panda's joint 6
+    ([-0.0175, 3.7525] rad) once read that jump as 3.11 rad below its lower bound and diverged."""
+    b, body, joint = rod_on_hinge()
+    bound = 3.6 * math.copysign(1.0, spin)
+    b.add_joint_limit(joint, min(bound, -0.5 * bound / 3.6), max(bound, -0.5 * bound / 3.6))
+    b.bodies[body].angular_velocity = np.array([0.0, 0.0, spin])
+    b.bodies[body].linear_velocity = np.array([0.0, 0.5 * spin, 0.0])
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    _, angles = run(sim, 120, rod_angle)  # 1.2 s: the stop is reached at 0.9 s
+    turned = np.unwrap(angles)
+    assert np.abs(turned).max() <= 3.6 + 1e-6
+    assert turned[-1] == pytest.approx(bound, abs=1e-6)
+    assert abs(sim.angular_velocities()[0, 2]) < 1e-6
+
+
+def test_a_limit_of_a_full_turn_is_said_to_never_bind():
+    b, _, joint = rod_on_hinge()
+    with pytest.warns(UserWarning, match=r"'hinge': limit \[-3.2, 3.2\] rad spans a full turn or more"):
+        b.add_joint_limit(joint, -3.2, 3.2)
+
+
 @pytest.mark.parametrize("solver", ["cholesky", "cg"])
 def test_prismatic_limit_stops_a_falling_slider(solver):
     """A slider falling along -z stops at its lower limit -0.2 m and rests there, at rest."""

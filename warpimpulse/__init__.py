@@ -18,6 +18,7 @@ from .simulator import CheckpointError, SimulationError, Simulator, StepStats
 from .solver import SingularSystemError
 from .threads import ThreadedSimulator
 from .types import WORLD, ConstraintKind, Quat, Vec3
+from .urdf import UrdfError, load_urdf
 from .verbosity import quiet_by_default
 from .worlds import WorldStats
 
@@ -39,6 +40,7 @@ __all__ = [
     "StepOptions",
     "StepStats",
     "ThreadedSimulator",
+    "UrdfError",
     "WorldStats",
     "Quat",
     "Vec3",
@@ -46,6 +48,7 @@ __all__ = [
     "WriteError",
     "__version__",
     "load_mjcf",
+    "load_urdf",
     "run",
     "scenes",
     "sweep",

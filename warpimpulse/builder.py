@@ -1,7 +1,8 @@
 """SceneBuilder: bodies, joints and forces described on the host, validated, then finalized to a Model.
 
 Anchors and axes are given in world coordinates at build time and stored in each body's frame.
-Every joint is a list of basic constraints (method paper, sections 4.2-4.4); see `joints.py`.
+Every joint is a list of basic constraints (method paper, sections 4.2-4.4; `joints.py`, `joint_builder.py`);
+force elements and rows are `mechanisms.py`.
 
 Bodies, joints and basic constraints are columns of arrays (`tables.Table`), added many at a time
 (`add_bodies`, `add_joints`: numpy arrays in, index arrays out) or one at a time (`add_body`, `add_joint`: the
@@ -23,12 +24,13 @@ import numpy as np
 
 from . import checks
 from .checks import SceneError
-from .joints import JOINT_TYPES
+from .joint_builder import JointBuilder, _norms, _rows
+from .mechanisms import Actuator, Distance, Drive, Force, Limit, Mechanisms, Spring
 from .model import Model
 from .shapes import SHAPE_CODES, Colliders, Shape
 from .tables import Body, Constraint, Joint, Rows, Table
-from .transforms import mul_components, quat_conj, quat_mul, quat_rotate, rotate_components
-from .types import COORDINATES, DRIVE_MODES, WORLD, ConstraintKind, Quat, Vec3
+from .transforms import quat_conj, quat_mul, quat_rotate
+from .types import WORLD, BodyRef, Names, Quat, Vec3
 
 __all__ = [
     "Actuator",
@@ -42,13 +44,6 @@ __all__ = [
     "checked_material",
 ]
 
-BodyRef = int | str | None
-"""A body: its index, its name, or None for the world."""
-
-Names = str | Sequence[str] | None
-"""Names of rows added at once: None ("body<index>", "joint<index>"), a format template filled with each row's
-index ("b{}"), or one name per row."""
-
 
 @dataclass
 class Ground:
@@ -58,89 +53,6 @@ class Ground:
     height: float
     friction: float
     restitution: float
-
-
-@dataclass
-class Force:
-    """A constant world-frame force (at the centre of mass) and torque, active while t < until."""
-
-    body: int
-    force: np.ndarray
-    torque: np.ndarray
-    until: float = math.inf
-
-
-@dataclass
-class Spring:
-    """A spring-damper between a point of body0 and a point of body1 (either may be WORLD), along the line
-    joining them: force = -stiffness (length - rest_length) - damping d(length)/dt, in N (method paper,
-    section 4.4: the car's wheel dampers)."""
-
-    name: str
-    body0: int
-    body1: int
-    anchor0: np.ndarray  # body0 frame (world frame for WORLD)
-    anchor1: np.ndarray  # body1 frame
-    stiffness: float  # N/m
-    damping: float  # N s/m
-    rest_length: float  # m
-
-
-@dataclass
-class Drive:
-    """A torque about a revolute axis (N m) or a force along a prismatic axis (N) from the joint coordinate
-    (rad or m, 0 as built) and its rate: a joint spring-damper, or a servo motor with a PID controller
-    (method paper, section 4.4). Position mode: kp (target - x) + ki integral(target - x) - kd dx/dt;
-    velocity mode: kp (target - dx/dt) + ki integral(target - dx/dt) - kd d2x/dt2 (kd is taken 0 there).
-    The output is clamped to +-max_force. A joint spring is a position drive with ki = 0 and no clamp."""
-
-    name: str
-    joint: int
-    mode: int  # an index into DRIVE_MODES: 0 position, 1 velocity, 2 effort
-    target: float  # rad, m (position) or rad/s, m/s (velocity)
-    kp: float
-    ki: float
-    kd: float
-    max_force: float
-    motor: bool  # False for a joint spring
-    stiff: bool = False  # an impulse-level velocity constraint instead of a force (velocity mode only)
-
-
-@dataclass
-class Limit:
-    """lower <= coordinate <= upper on a revolute (rad) or prismatic (m) joint: a push-only constraint."""
-
-    joint: int
-    lower: float
-    upper: float
-
-
-@dataclass
-class Distance:
-    """lower <= |B - A| <= upper (m) between a point A of body0 and a point B of body1 (either may be WORLD): a
-    rope (upper) or a strut (lower), push-only like a joint limit, and no other constraint (a distance joint)."""
-
-    name: str
-    body0: int
-    body1: int
-    anchor0: np.ndarray  # body0 frame (world frame for WORLD)
-    anchor1: np.ndarray  # body1 frame
-    axis0: np.ndarray  # body0 frame: the push direction while A and B meet (the built one, else gravity's)
-    lower: float
-    upper: float
-
-
-@dataclass
-class Actuator:
-    """A named control input that sets a motor's target as MuJoCo's `ctrl` does its actuator's:
-    target = gain * clip(control, ctrl_range) + bias (rad, m, rad/s, m/s, or N m / N in effort mode), the
-    control starting at 0. `Simulator.set_controls` sets them by name or index."""
-
-    name: str
-    drive: int  # an index into SceneBuilder.drives (a motor)
-    gain: float
-    bias: float
-    ctrl_range: tuple[float, float] = (-math.inf, math.inf)
 
 
 VISUAL_KINDS = ("box", "sphere", "cylinder", "capsule", "mesh")
@@ -155,7 +67,7 @@ class Visual:
     body: the body index, or WORLD (-1) for geometry fixed to the world.
     kind: one of `VISUAL_KINDS`. size (m): box (full edges x, y, z); sphere (radius, 0, 0); cylinder and capsule
         (radius, length, 0), along the local z axis (a capsule's length is its cylinder part); mesh: the scale
-        applied to the vertices along the local x, y, z.
+        applied to the vertices along the local x, y, z (a negative one mirrors).
     position, orientation: the geometry's frame in the body's frame (the centre of mass frame: m, (x, y, z, w)).
     rgba: colour and opacity in [0, 1].
     mesh_path: the file the mesh came from (for a mesh; reported, not read again).
@@ -192,20 +104,6 @@ def checked_material(friction, restitution, what: str) -> tuple[float, float]:
     return friction, restitution
 
 
-def _finite(value, what: str) -> float:
-    x = checks.real(value, what)
-    if not math.isfinite(x):
-        raise SceneError(f"{what} must be finite, got {x}")
-    return x
-
-
-def _nonnegative(value, what: str) -> float:
-    x = _finite(value, what)
-    if x < 0.0:
-        raise SceneError(f"{what} must be >= 0, got {x}")
-    return x
-
-
 def _axis(value, what: str) -> np.ndarray:
     arr = _vec(value, what)
     norm = float(np.linalg.norm(arr))
@@ -214,64 +112,7 @@ def _axis(value, what: str) -> np.ndarray:
     return arr / norm
 
 
-def _rows(value, count: int, shape: tuple[int, ...], what: str) -> np.ndarray:
-    """`value` as (count, *shape) floats: one row per item, or one value (or a single number) for all."""
-    arr = checks.numbers(value, what)
-    if arr.shape == (count, *shape):
-        return arr
-    if count == 1 and (arr.shape == shape or arr.ndim == 0):  # one row (add_body, add_joint): broadcast_to's
-        return arr[None] if arr.shape == shape else np.full((1, *shape), arr)  # values, without its overhead
-    if arr.shape == shape or arr.ndim == 0:
-        return np.broadcast_to(arr, (count, *shape))
-    if not shape:
-        raise SceneError(f"{what} must be a single number or {count} numbers, got {value!r}")
-    if len(shape) == 1:
-        raise SceneError(f"{what} must have {shape[0]} components, got shape {arr.shape}")
-    raise SceneError(f"{what} must have shape {shape} or {(count, *shape)}, got shape {arr.shape}")
-
-
-def _dot(a: list, b: list) -> np.ndarray:
-    """Row-wise dot products (n,) of 3-vectors given as `_parts`, component by component: a row gives the same
-    bits in a batch of any size (a reduction might not)."""
-    (ax, ay, az), (bx, by, bz) = a, b
-    return np.asarray(ax * bx + ay * by + az * bz).reshape(-1)  # (np.reshape is slow on a float)
-
-
-def _parts(rows: np.ndarray) -> list:
-    """The components of rows (n, k): k Python floats for one row, else k arrays (n,). The joint geometry is
-    written once over components; Python's float arithmetic is numpy's element-wise IEEE double arithmetic, so a
-    joint added alone gets the bits it gets in a batch (tests/test_bulk_builder.py), without numpy's per-call
-    cost on arrays of one row."""
-    return rows[0].tolist() if len(rows) == 1 else [rows[:, k] for k in range(rows.shape[1])]
-
-
-def _whole(parts) -> np.ndarray:
-    """Rows (n, k) from components as `_parts` gives them."""
-    return np.stack(parts, axis=-1) if isinstance(parts[0], np.ndarray) else np.array([parts])
-
-
-def _norms(rows: np.ndarray) -> np.ndarray:
-    """The length of each row (n, k), its squares summed component by component, left to right, as `_dot`
-    does (on Python floats for one row: the same bits, fewer numpy calls)."""
-    parts = _parts(rows)
-    squares = parts[0] * parts[0]
-    for x in parts[1:]:
-        squares = squares + x * x
-    return np.sqrt(np.asarray(squares).reshape(-1))
-
-
-def _unit_rows(value, count: int, what: str, label, field: str) -> np.ndarray:
-    """Directions (count, 3), any length but zero, normalised."""
-    arr = _rows(value, count, (3,), what)
-    checks.finite_rows({field: arr}, label)
-    norm = _norms(arr)
-    i = checks.first(norm < 1e-12)
-    if i is not None:
-        raise SceneError(f"{label(i)} {field} is a zero vector")
-    return arr / norm[:, None]
-
-
-class SceneBuilder:
+class SceneBuilder(Mechanisms, JointBuilder):
     """Collects a scene. Call `finalize()` to get the device-side `Model`."""
 
     def __init__(self, gravity=(0.0, 0.0, -9.81)) -> None:
@@ -616,7 +457,7 @@ class SceneBuilder:
         if kind not in VISUAL_KINDS:
             raise SceneError(f"{what}: kind must be one of {VISUAL_KINDS}, got {kind!r}")
         size = _vec(size, f"{what} size")
-        if not (np.isfinite(size).all() and (size >= 0.0).all()):
+        if not (np.isfinite(size).all() and (kind == "mesh" or (size >= 0.0).all())):  # a mesh's scale may mirror
             raise SceneError(f"{what}: size must be finite and >= 0, got {size.tolist()}")
         rgba = checks.numbers(rgba, f"{what} rgba")
         if rgba.shape != (4,) or not ((rgba >= 0.0) & (rgba <= 1.0)).all():
@@ -696,457 +537,7 @@ class SceneBuilder:
     #   parent: the parent body's index or name, or None for the world; child: the child body.
     #   anchor: the joint point (m). axis: the joint axis or plane normal (any length but zero).
     # and returns the joint's index. The joint holds the relative pose the bodies have when it is added.
-    def add_joint_ball(self, parent: BodyRef, child: BodyRef, anchor: Vec3, name: str | None = None) -> int:
-        """A spherical joint: the anchor stays common to both bodies (3 translational DOF removed)."""
-        return self.add_joint("ball", parent, child, anchor, None, None, name)
-
-    def add_joint_revolute(
-        self, parent: BodyRef, child: BodyRef, anchor: Vec3, axis: Vec3, name: str | None = None
-    ) -> int:
-        """A hinge: the anchor is common and the bodies turn about `axis` only (5 DOF removed)."""
-        return self.add_joint("revolute", parent, child, anchor, axis, None, name)
-
-    def add_joint_prismatic(
-        self, parent: BodyRef, child: BodyRef, anchor: Vec3, axis: Vec3, name: str | None = None
-    ) -> int:
-        """A slider: the child's anchor moves along `axis` (fixed to the parent) without turning (5 DOF)."""
-        return self.add_joint("prismatic", parent, child, anchor, axis, None, name)
-
-    def add_joint_cylindrical(
-        self, parent: BodyRef, child: BodyRef, anchor: Vec3, axis: Vec3, name: str | None = None
-    ) -> int:
-        """A slider that may also turn about its `axis` (4 DOF removed)."""
-        return self.add_joint("cylindrical", parent, child, anchor, axis, None, name)
-
-    def add_joint_universal(
-        self,
-        parent: BodyRef,
-        child: BodyRef,
-        anchor: Vec3,
-        axis_parent: Vec3,
-        axis_child: Vec3,
-        name: str | None = None,
-    ) -> int:
-        """A Cardan joint: the anchor is common and the angle between `axis_parent` (fixed to the parent) and
-        `axis_child` (fixed to the child) stays as built (4 DOF removed); the axes must not be parallel."""
-        return self.add_joint("universal", parent, child, anchor, axis_parent, axis_child, name)
-
-    def add_joint_fixed(self, parent: BodyRef, child: BodyRef, anchor: Vec3, name: str | None = None) -> int:
-        """A weld: the relative pose stays as built (6 DOF removed)."""
-        return self.add_joint("fixed", parent, child, anchor, None, None, name)
-
-    def add_joint_planar(
-        self, parent: BodyRef, child: BodyRef, anchor: Vec3, normal: Vec3, name: str | None = None
-    ) -> int:
-        """The child's anchor stays in the plane through the anchor normal to `normal` (fixed to the parent),
-        and the child turns only about the normal (3 DOF removed)."""
-        return self.add_joint("planar", parent, child, anchor, normal, None, name)
-
-    def add_constraint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None) -> int:
-        """A joint made of one basic constraint (`ConstraintKind` or its name, e.g. "line").
-
-        Combine several on the same pair of bodies to build custom joints. Returns the joint index.
-        """
-        try:
-            kind = ConstraintKind.parse(kind)
-        except (ValueError, TypeError) as exc:
-            raise SceneError(f"joint {name or f'joint{len(self.joints)}'!r}: {exc}") from None
-        return self.add_joint(kind.name.lower(), parent, child, anchor, axis, axis_child, name, (kind,))
-
-    def _body_index(self, index, what: str) -> int:
-        if index is None:
-            return WORLD
-        if isinstance(index, (bool, np.bool_)):  # True would silently mean body 1
-            raise SceneError(f"{what}: a body index or name is expected, got {index!r}")
-        if isinstance(index, str):
-            if index not in self._body_names:
-                raise SceneError(f"{what}: no body named {index!r}")
-            return self._body_names[index]
-        if not isinstance(index, (int, np.integer)):
-            raise SceneError(f"{what}: a body index (an integer) or name is expected, got {index!r}")
-        if not 0 <= int(index) < len(self.bodies):
-            raise SceneError(f"{what}: body index {index!r} does not exist ({len(self.bodies)} bodies)")
-        return int(index)
-
-    def add_joint(self, kind, parent, child, anchor, axis=None, axis_child=None, name=None, kinds=None) -> int:
-        """A joint of a catalogue type (`joints.JOINT_TYPES`) by name; the typed add_joint_* call this
-        (`add_joints` with one joint)."""
-        name = self._new_name(name, "joint", self._joints.count)
-        what = f"joint {name!r}"
-        self._open(what)
-        p = self._body_index(parent, f"{what} parent")
-        c = self._body_index(child, f"{what} child")
-        return int(self._add_joints(kind, np.array([p]), np.array([c]), anchor, axis, axis_child, [name], kinds)[0])
-
-    def add_joints(
-        self, kind: str, parent, child, anchor, axis=None, axis_child=None, name: Names = None
-    ) -> np.ndarray:
-        """Add n joints of one catalogue type at once and return their indices (n,); as `add_joint`, per joint.
-
-        Args:
-            kind: the type (`joints.JOINT_TYPES`), for all n.
-            parent: (n,) body indices, WORLD (-1) for the world. child: (n,) body indices; its length is n.
-            anchor: (n, 3) world points (m), or one for all. axis, axis_child: (n, 3) or one for all, where the
-                type takes them.
-            name: `Names`: None ("joint<index>"), a template such as "j{}", or n names.
-        The checks are those of `add_joint`, vectorised; the first bad joint is named, and nothing is added.
-        """
-        p, c = (np.asarray(x) for x in (parent, child))
-        for side, x in (("parent", p), ("child", c)):
-            if x.ndim != 1 or (len(x) and x.dtype.kind not in "iu"):
-                raise SceneError(f"add_joints: {side} must be a 1-D array of body indices, got {x!r}")
-        if len(p) != len(c):
-            raise SceneError(f"add_joints: {len(p)} parents for {len(c)} children")
-        names = self._names(name, "joint", self._joints.count, len(c))
-        return self._add_joints(kind, p.astype(np.int64), c.astype(np.int64), anchor, axis, axis_child, names)
-
-    def _add_joints(self, kind, p, c, anchor, axis, axis_child, names, kinds=None) -> np.ndarray:
-        """Append joints between bodies p and c (WORLD = -1), each made of the basic constraints `kinds` (by
-        default the catalogue's for `kind`): the one path of add_joint and add_joints."""
-        count, nb = len(c), self._bodies.count
-        batch = f"joint {names[0]!r}" if count == 1 else f"joints {names[0]!r}..{names[-1]!r}"
-        self._open(batch)
-        if count == 0:
-            return np.zeros(0, dtype=np.int64)
-
-        def label(i: int) -> str:
-            return f"joint {names[i]!r}"
-
-        ends = np.concatenate([p, c])  # parents, then children
-        i = checks.first((ends < WORLD) | (ends >= nb))
-        if i is not None:
-            side = "parent" if i < count else "child"
-            raise SceneError(f"{label(i % count)} {side}: body index {ends[i]} does not exist ({nb} bodies)")
-        i = checks.first(c == WORLD)
-        if i is not None:
-            raise SceneError(f"{label(i)}: the child must be a body, not the world")
-        i = checks.first(p == c)
-        if i is not None:
-            raise SceneError(f"{label(i)}: connects body {self._body_name[c[i]]!r} to itself")
-        static = self._bodies["static"]
-        i = checks.first(((p == WORLD) | static[np.maximum(p, 0)]) & static[c])
-        if i is not None:
-            raise SceneError(f"{label(i)}: both bodies are static; the joint constrains nothing")
-        if kinds is None:
-            if not isinstance(kind, str) or kind not in JOINT_TYPES:
-                raise SceneError(f"{batch}: unknown joint type {kind!r}; expected one of {sorted(JOINT_TYPES)}")
-            kinds = JOINT_TYPES[kind]
-        needs_axis = any(k.needs_axis for k in kinds)
-        needs_child_axis = any(k == ConstraintKind.ANGLE for k in kinds)
-        anchor = _rows(anchor, count, (3,), f"{batch} anchor")
-        checks.finite_rows({"anchor": anchor}, label)
-        none = np.full((count, 3), np.nan)  # no axis
-        has_axis = needs_axis or axis is not None
-        axis = _unit_rows(axis, count, f"{batch} axis", label, "axis") if has_axis else none
-        if needs_child_axis:
-            axis_child = _unit_rows(axis_child if axis_child is not None else axis, count, f"{batch} child axis",
-                                    label, "child axis")  # fmt: skip
-            i = checks.first(np.abs(_dot(_parts(axis), _parts(axis_child))) > 1.0 - 1e-9)
-            if i is not None:
-                raise SceneError(f"{label(i)}: the two axes of an angle constraint are parallel")
-        else:
-            axis_child = none
-        kind = kind if isinstance(kind, str) else str(kind)
-        if kind not in self._joint_kinds:
-            self._joint_kinds.append(kind)
-        per = len(kinds)
-        first_joint, first_constraint = self._joints.count, self._constraints.count
-        joint = np.arange(first_joint, first_joint + count)
-        self._joints.append(count, dict(kind=self._joint_kinds.index(kind), parent=p, child=c, anchor=anchor, axis=axis,
-                                        axis_child=axis_child, first=first_constraint + per * np.arange(count),
-                                        constraint_count=per))  # fmt: skip
-        self._joint_name.extend(names)
-        # The constraints, joint by joint: the axis where the joint has none is z, the child axis the axis.
-        a0 = axis if has_axis else np.broadcast_to(np.array([0.0, 0.0, 1.0]), (count, 3))
-        a1 = axis_child if needs_child_axis else a0
-        columns = self._constraint_geometry(p, c, anchor, a0, a1)
-        columns["joint"] = joint
-        rows = self._constraints.view(self._constraints.grow(per * count))
-        for k, values in columns.items():  # each joint's values on its `per` rows, through (count, per, ...) views
-            rows[k].reshape(count, per, *values.shape[1:])[:] = values[:, None]
-        rows["kind"].reshape(count, per)[:] = [int(k) for k in kinds]
-        return joint
-
-    def _frames(self, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Positions and orientations of bodies `b` (the world's origin and identity for WORLD)."""
-        if not self._bodies.count:  # only the world yet
-            return np.zeros((len(b), 3)), np.tile([0.0, 0.0, 0.0, 1.0], (len(b), 1))
-        at = np.maximum(b, 0)
-        x, q = self._bodies["position"][at], self._bodies["orientation"][at]
-        world = b == WORLD
-        if world.any():
-            x, q = np.where(world[:, None], 0.0, x), np.where(world[:, None], (0.0, 0.0, 0.0, 1.0), q)
-        return x, q
-
-    def _frame(self, b: int) -> tuple[np.ndarray, np.ndarray]:
-        x, q = self._frames(np.array([b]))
-        return x[0], q[0]
-
-    def _constraint_geometry(self, p, c, anchor, a0, a1) -> dict[str, np.ndarray]:
-        """The anchor and axes of a constraint between bodies p and c in each body's frame, q0^-1 q1 and the
-        angle between the axes, as built (element-wise: a joint gets the same bits alone or in a batch)."""
-        n = len(p)
-        x, q = self._frames(np.concatenate([p, c]))
-        inverse = quat_conj(q)
-        inverse0, inverse1 = _parts(inverse[:n]), _parts(inverse[n:])
-        anchor, a0, a1 = _parts(anchor), _parts(a0), _parts(a1)
-        arm0, arm1 = ([a - o for a, o in zip(anchor, _parts(origin))] for origin in (x[:n], x[n:]))
-        anchor0, axis0 = rotate_components(inverse0, arm0, a0)
-        anchor1, axis1 = rotate_components(inverse1, arm1, a1)
-        # All in one array (n, 16), handed out as column views.
-        out = _whole(anchor0 + anchor1 + axis0 + axis1 + mul_components(inverse0, _parts(q[n:])))
-        return dict(
-            body0=p,
-            body1=c,
-            anchor0=out[:, 0:3],
-            anchor1=out[:, 3:6],
-            axis0=out[:, 6:9],
-            axis1=out[:, 9:12],
-            rest_rotation=out[:, 12:16],
-            rest_angle=np.arccos(np.minimum(np.maximum(_dot(a0, a1), -1.0), 1.0)),  # np.clip's bits, cheaper
-        )
-
     # ---------------------------------------------------------------- forces
-    def add_force(self, body, force=0.0, torque=0.0, until: float = math.inf) -> int:
-        """A constant world-frame force and torque on `body`, applied while the simulated time < `until`."""
-        self._open("force")
-        b = self._body_index(body, "force")
-        if b == WORLD or self.bodies[b].static:
-            raise SceneError(f"force: body {body!r} is not dynamic")
-        what = f"force on body {self.bodies[b].name!r}"
-        until = checks.real(until, f"{what}: until")
-        if math.isnan(until):
-            raise SceneError(f"{what}: until is NaN")
-        self.forces.append(Force(b, _vec(force, f"{what}: force"), _vec(torque, f"{what}: torque"), until))
-        return len(self.forces) - 1
-
-    def add_spring(
-        self, body0, body1, anchor0, anchor1, stiffness: float, damping: float = 0.0, rest_length=None, name=None
-    ) -> int:
-        """A spring-damper between `anchor0` on `body0` and `anchor1` on `body1` (world points at build time; a
-        body of None is the world). `rest_length` (m) defaults to the built distance. Returns its index."""
-        name = name or f"spring{len(self.springs)}"
-        what = f"spring {name!r}"
-        self._open(what)
-        b0 = self._body_index(body0, f"{what} body0")
-        b1 = self._body_index(body1, f"{what} body1")
-        if b0 == b1:
-            raise SceneError(f"{what}: both ends are on the same body")
-        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
-        stiffness = _nonnegative(stiffness, f"{what}: stiffness")
-        damping = _nonnegative(damping, f"{what}: damping")
-        rest = float(np.linalg.norm(a1 - a0))
-        if rest_length is not None:
-            rest = _nonnegative(rest_length, f"{what}: rest_length")
-        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
-        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
-        self.springs.append(Spring(name, b0, b1, local0, local1, stiffness, damping, rest))
-        return len(self.springs) - 1
-
-    def add_joint_spring(self, joint, stiffness: float, damping: float = 0.0, rest: float = 0.0) -> int:
-        """A spring-damper on a revolute angle (N m/rad, N m s/rad, rest in rad) or a prismatic offset (N/m,
-        N s/m, rest in m), the coordinate being 0 as built. Returns its index among the joint springs."""
-        j = self._coordinate_joint(joint, "a joint spring")
-        what = f"joint {self.joints[j].name!r}: joint spring"
-        stiffness = _nonnegative(stiffness, f"{what} stiffness")
-        damping = _nonnegative(damping, f"{what} damping")
-        rest = _finite(rest, f"{what} rest")
-        return self._add_drive(Drive(f"{self.joints[j].name}.spring", j, 0, rest, stiffness, 0.0, damping,
-                                     math.inf, motor=False))  # fmt: skip
-
-    def add_motor(
-        self, joint, mode: str = "position", target: float = 0.0, kp: float = 1.0, ki: float = 0.0, kd: float = 0.0,
-        max_force: float = math.inf, stiff: bool = False,
-    ) -> int:  # fmt: skip
-        """A servo motor on a revolute (torque, N m) or prismatic (force, N) joint, driven by a PID controller on
-        the joint's angle/offset ("position", target in rad or m) or its rate ("velocity", rad/s or m/s), and
-        clamped to +-max_force. The torque acts on both bodies, equal and opposite. Returns the motor index
-        for `Simulator.set_motor_target`.
-
-        The PID torque is a force inside the prediction (explicit RK4, each body predicted alone): stable while
-        kp h / I, kd h / I (velocity, position mode) and h sqrt(kp / I) stay below about 2, with I the inertia
-        about the axis of the lighter body of the joint, alone; a light crank or steering knuckle driven hard
-        breaks that. `stiff=True` (the gains unused) makes the motor an impulse-level constraint instead: each
-        step the joint turns by h target exactly (velocity mode) or reaches the target (position mode), with an
-        impulse of at most max_force h, solved with the joints and limits (`kernels/limits.py`), stable at any
-        stiffness. Use the PID for compliant, tuned servos on bodies heavy enough; `stiff` for a speed or
-        angle that must hold, or a light body. "effort" mode applies the target itself as the torque or force
-        (the gains unused, still clamped to +-max_force): a plain motor, MuJoCo's `motor` actuator."""
-        j = self._coordinate_joint(joint, "a motor")
-        what = f"joint {self.joints[j].name!r}: motor"
-        if mode not in DRIVE_MODES:
-            raise SceneError(f"{what} mode must be one of {DRIVE_MODES}, got {mode!r}")
-        if stiff and mode == "effort":
-            raise SceneError(f"{what}: an effort motor is a force, not a stiff constraint")
-        kp, ki, kd = (_nonnegative(g, f"{what} {n}") for g, n in ((kp, "kp"), (ki, "ki"), (kd, "kd")))
-        max_force = checks.real(max_force, f"{what} max_force")
-        if not max_force > 0.0:
-            raise SceneError(f"{what} max_force must be positive, got {max_force}")
-        target = _finite(target, f"{what} target")
-        drive = Drive(f"{self.joints[j].name}.motor", j, DRIVE_MODES.index(mode), target, kp, ki, kd, max_force,
-                      motor=True, stiff=bool(stiff))  # fmt: skip
-        return self._add_drive(drive)
-
-    def add_actuator(self, motor: int, gain: float = 1.0, bias: float = 0.0, ctrl_range=None, name=None) -> int:
-        """A named control input of motor `motor` (`add_motor`'s index): its target becomes
-        gain * clip(control, ctrl_range) + bias, and is that at control 0 from the start (`Actuator`). Returns
-        its index for `Simulator.set_controls`."""
-        name = name or f"actuator{len(self.actuators)}"
-        what = f"actuator {name!r}"
-        self._open(what)
-        motors = [i for i, d in enumerate(self.drives) if d.motor]
-        if isinstance(motor, bool) or not isinstance(motor, (int, np.integer)) or not 0 <= motor < len(motors):
-            raise SceneError(f"{what}: motor {motor!r} does not exist ({len(motors)} motors)")
-        if any(a.name == name for a in self.actuators):
-            raise SceneError(f"{what}: an actuator of that name already exists")
-        gain, bias = _finite(gain, f"{what} gain"), _finite(bias, f"{what} bias")
-        low, high = (-math.inf, math.inf) if ctrl_range is None else (checks.real(x, f"{what} ctrl_range")
-                                                                      for x in ctrl_range)  # fmt: skip
-        if not low <= high:
-            raise SceneError(f"{what}: ctrl_range [{low}, {high}] is empty")
-        drive = motors[motor]
-        self.drives[drive].target = gain * min(max(0.0, low), high) + bias
-        self.actuators.append(Actuator(name, drive, gain, bias, (low, high)))
-        return len(self.actuators) - 1
-
-    def chain_joints(self, joints: Sequence[int]) -> None:
-        """Joints in series between two bodies through light bodies (each joint's child the next one's parent), as
-        MJCF's several joints in one body: a joint spring or PID motor on one of them acts on the chain's two end
-        bodies, not on the light bodies, along the direction that does work on its own coordinate only (the
-        reciprocal of the chain's axes of its kind; a force at the hinges' common anchor). With the light bodies
-        massless that is the same motion, and no force falls on a body of almost no inertia (which would make
-        the explicit prediction unstable)."""
-        self._open("chain_joints")
-        chain = tuple(int(j) for j in joints)
-        if len(chain) < 2 or not all(0 <= j < len(self.joints) for j in chain):
-            raise SceneError(f"chain_joints: two or more existing joints are expected, got {joints!r}")
-        for a, b in zip(chain, chain[1:]):
-            if self.joints[a].child != self.joints[b].parent:
-                raise SceneError(f"chain_joints: joint {self.joints[b].name!r} does not start where "
-                                 f"{self.joints[a].name!r} ends")  # fmt: skip
-        if any(set(chain) & set(c) for c in self.chains):
-            raise SceneError(f"chain_joints: joint {self.joints[chain[0]].name!r} is in a chain already")
-        self.chains.append(chain)
-
-    def _drive_chains(self) -> tuple[np.ndarray, np.ndarray]:
-        """Each drive's (sibling joint, sibling joint, anchor joint) and (body, body) for `Model` (drive_chain,
-        drive_ends): for a drive on a chained joint, the chain's other joints of its kind, the hinge whose
-        anchor a force acts at, and the chain's ends; checked that the direction exists."""
-        j = self._joints
-        chain = np.array([(-1, -1, d.joint) for d in self.drives], dtype=np.int64).reshape(-1, 3)
-        ends = np.array([(j["parent"][d.joint], j["child"][d.joint]) for d in self.drives], dtype=np.int64)
-        of = {joint: c for c in self.chains for joint in c}
-        kinds = self.joint_types()
-        for i, drive in enumerate(self.drives):
-            links = of.get(drive.joint)
-            if links is None or drive.stiff:  # a stiff motor is a row of the correction loop, not a force
-                continue
-            what = f"drive {drive.name!r} on chain {[kinds[k] for k in links]}"
-            if "ball" in (kinds[k] for k in links):
-                raise SceneError(f"{what}: a chain with a ball joint takes no joint springs or motors")
-            same = [k for k in links if kinds[k] == kinds[drive.joint] and k != drive.joint]
-            hinges = [k for k in links if kinds[k] == "revolute"]
-            if len(same) > 2:
-                raise SceneError(f"{what}: more than three joints of one kind")
-            axes = j["axis"][[drive.joint, *same]]
-            if abs(np.linalg.det(axes @ axes.T)) < 1e-9:
-                raise SceneError(f"{what}: the chain's axes of its kind are dependent")
-            if kinds[drive.joint] == "prismatic" and hinges:
-                anchors = j["anchor"][hinges]
-                if np.abs(anchors - anchors[0]).max() > 1e-9:
-                    raise SceneError(f"{what}: a force along a chain needs its hinges' anchors to coincide")
-            chain[i] = (*(same + [-1, -1])[:2], hinges[0] if kinds[drive.joint] == "prismatic" and hinges else
-                        drive.joint)  # fmt: skip
-            ends[i] = (j["parent"][links[0]], j["child"][links[-1]])
-        return chain, ends.reshape(-1, 2)
-
-    def mark_loop_joint(self, joint) -> None:
-        """Close a kinematic loop with `joint` where the spanning tree has a choice (method paper, section 4.6;
-        USD's physics:excludeFromArticulation): its constraints go to the loop part of the system."""
-        if isinstance(joint, str):
-            names = [j.name for j in self.joints]
-            if joint not in names:
-                raise SceneError(f"mark_loop_joint: no joint named {joint!r}")
-            joint = names.index(joint)
-        if not isinstance(joint, (int, np.integer)) or not 0 <= int(joint) < len(self.joints):
-            raise SceneError(f"mark_loop_joint: joint {joint!r} does not exist ({len(self.joints)} joints)")
-        self._open("mark_loop_joint")
-        self.joints[int(joint)].loop = True
-
-    def add_joint_limit(self, joint, lower: float, upper: float) -> int:
-        """Keep a revolute angle (rad) or prismatic offset (m), 0 as built, within [lower, upper]."""
-        j = self._coordinate_joint(joint, "a limit")
-        what = f"joint {self.joints[j].name!r}: limit"
-        lower, upper = checks.real(lower, f"{what} lower"), checks.real(upper, f"{what} upper")
-        if math.isnan(lower) or math.isnan(upper):
-            raise SceneError(f"{what} is NaN")
-        self._open(what)
-        if lower > upper:
-            raise SceneError(f"{what} lower {lower} > upper {upper}")
-        if not lower <= 0.0 <= upper:
-            raise SceneError(f"{what} [{lower}, {upper}] excludes the built pose (coordinate 0)")
-        if any(limit.joint == j for limit in self.limits):
-            raise SceneError(f"{what}: the joint already has a limit")
-        self.limits.append(Limit(j, lower, upper))
-        return len(self.limits) - 1
-
-    def add_distance(
-        self, body0, body1, anchor0, anchor1, min_distance: float = 0.0, max_distance: float = math.inf, name=None
-    ) -> int:
-        """Keep the distance between `anchor0` on `body0` and `anchor1` on `body1` (world points at build time; a
-        body of None is the world) within [min_distance, max_distance] (m), by push-only impulses in the
-        correction loop (`kernels/limits.py`): a rope of length max_distance, a strut of min_distance, or both.
-        The built distance may lie outside; the first step brings it in. Returns its index."""
-        name = name or f"distance{len(self.distances)}"
-        what = f"distance {name!r}"
-        self._open(what)
-        b0 = self._body_index(body0, f"{what} body0")
-        b1 = self._body_index(body1, f"{what} body1")
-        if b0 == b1:
-            raise SceneError(f"{what}: both ends are on the same body")
-        if (b0 == WORLD or self.bodies[b0].static) and (b1 == WORLD or self.bodies[b1].static):
-            raise SceneError(f"{what}: both ends are static")
-        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
-        lower = _nonnegative(min_distance, f"{what}: min_distance")
-        upper = checks.real(max_distance, f"{what}: max_distance")
-        if math.isnan(upper) or upper < lower:
-            raise SceneError(f"{what}: max_distance {upper} must be >= min_distance {lower}")
-        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
-        # The push direction while A and B meet: B - A as built, else gravity's (B hangs below A), else x.
-        gap = a1 - a0
-        for direction in (gap, np.asarray(self.gravity, dtype=np.float64), np.array([1.0, 0.0, 0.0])):
-            if np.linalg.norm(direction) > 1e-12:
-                direction = direction / np.linalg.norm(direction)
-                break
-        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
-        self.distances.append(Distance(name, b0, b1, local0, local1, quat_rotate(quat_conj(q0), direction), lower,
-                                       upper))  # fmt: skip
-        return len(self.distances) - 1
-
-    def _add_drive(self, drive: Drive) -> int:
-        """Append a drive; its index among the drives of its kind (motors, or joint springs)."""
-        self._open(f"joint {self.joints[drive.joint].name!r}: {'motor' if drive.motor else 'joint spring'}")
-        self.drives.append(drive)
-        return sum(d.motor == drive.motor for d in self.drives) - 1
-
-    def _coordinate_joint(self, joint, what: str) -> int:
-        """The index of `joint` (index or name), which must have one coordinate (revolute or prismatic)."""
-        if isinstance(joint, str):
-            matches = [j for j, jt in enumerate(self.joints) if jt.name == joint]
-            if not matches:
-                raise SceneError(f"{what}: no joint named {joint!r}")
-            joint = matches[0]
-        if isinstance(joint, (bool, np.bool_)) or not isinstance(joint, (int, np.integer)):
-            raise SceneError(f"{what}: a joint index or name is expected, got {joint!r}")
-        if not 0 <= int(joint) < len(self.joints):
-            raise SceneError(f"{what}: joint index {joint} does not exist ({len(self.joints)} joints)")
-        jt = self.joints[int(joint)]
-        if jt.kind not in COORDINATES:
-            raise SceneError(
-                f"joint {jt.name!r} ({jt.kind}) has no single coordinate for {what}; only revolute and prismatic do"
-            )
-        return int(joint)
-
     # ---------------------------------------------------------------- output
     @property
     def body_count(self) -> int:
@@ -1226,37 +617,6 @@ class SceneBuilder:
             plane_friction=np.array([g.friction for g in planes]),
             plane_restitution=np.array([g.restitution for g in planes]),
             filter_pairs=np.unique(pairs, axis=0).astype(np.int64).reshape(-1, 2),
-        )
-
-    def _mechanism_arrays(self) -> dict:
-        """The springs, drives, limits and distances as `Model` arguments."""
-        springs, drives, limits = self.springs, self.drives, self.limits
-        return dict(
-            spring_name=[s.name for s in springs],
-            spring_body0=np.array([s.body0 for s in springs], dtype=np.int64),
-            spring_body1=np.array([s.body1 for s in springs], dtype=np.int64),
-            spring_anchor0=np.array([s.anchor0 for s in springs]).reshape(-1, 3),
-            spring_anchor1=np.array([s.anchor1 for s in springs]).reshape(-1, 3),
-            spring_params=np.array([(s.stiffness, s.damping, s.rest_length) for s in springs]).reshape(-1, 3),
-            drive_name=[x.name for x in drives],
-            drive_joint=np.array([x.joint for x in drives], dtype=np.int64),
-            drive_mode=np.array([x.mode for x in drives], dtype=np.int32),
-            drive_target=np.array([x.target for x in drives]),
-            drive_gains=np.array([(x.kp, x.ki, x.kd) for x in drives]).reshape(-1, 3),
-            drive_max_force=np.array([x.max_force for x in drives]),
-            drive_motor=np.array([x.motor for x in drives], dtype=bool),
-            drive_stiff=np.array([x.stiff for x in drives], dtype=bool),
-            **dict(zip(("drive_chain", "drive_ends"), self._drive_chains())),
-            limit_joint=np.array([x.joint for x in limits], dtype=np.int64),
-            limit_bounds=np.array([(x.lower, x.upper) for x in limits]).reshape(-1, 2),
-            joint_loop=self._joints["loop"].copy(),
-            distance_name=[x.name for x in self.distances],
-            distance_body=np.array([(x.body0, x.body1) for x in self.distances], dtype=np.int64).reshape(-1, 2),
-            distance_anchor=np.array([(x.anchor0, x.anchor1, x.axis0) for x in self.distances]).reshape(-1, 3, 3),
-            distance_bounds=np.array([(x.lower, x.upper) for x in self.distances]).reshape(-1, 2),
-            actuator_name=[a.name for a in self.actuators],
-            actuator_drive=np.array([a.drive for a in self.actuators], dtype=np.int64),
-            actuator_map=np.array([(a.gain, a.bias, *a.ctrl_range) for a in self.actuators]).reshape(-1, 4),
         )
 
     def _check_arrays(self) -> None:

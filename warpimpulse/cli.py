@@ -1,4 +1,4 @@
-"""Command line: `warpimpulse simulate | preview | sweep | bench | stress`.
+"""Command line: `warpimpulse simulate | convert | preview | sweep | bench | stress`.
 
 User mistakes (bad flags, bad scene files) print one clear line and exit 2, never a traceback. A run
 that stops early (divergence, joints that do not converge, Ctrl-C, SIGTERM, SIGHUP) keeps the frames done
@@ -59,6 +59,13 @@ def _add_simulate(sub) -> None:
                    help="step size, s; 1/fps must be a multiple (default: the scene file's, else 1/fps)")  # fmt: skip
     p.add_argument("--tolerance", type=_positive(float),
                    help="joint tolerance, m or rad (default 1e-6; tighter at --order 4, 6)")  # fmt: skip
+    p.add_argument(
+        "--accuracy",
+        type=_positive(float),
+        metavar="E",
+        help="m: choose order, tolerance and step size (at most --dt, default 1/fps) so that the body "
+        "centres stay within about E of the exact trajectory over --duration (docs/accuracy.md)",
+    )
     p.add_argument("--order", type=int, choices=(2, 4, 6), default=2,
                    help="order in time: 2 is the paper's step, 4 and 6 compose it (default 2)")  # fmt: skip
     p.add_argument("--velocity-tolerance", type=_positive(float), help="default: the joint tolerance")
@@ -100,6 +107,57 @@ def _add_simulate(sub) -> None:
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")
+
+
+def _add_convert(sub) -> None:
+    p = sub.add_parser("convert", help="write a robot (URDF, MJCF) or a scene file as a UsdPhysics scene")
+    p.add_argument("input", type=Path, help="a .urdf, an MJCF .xml, or a UsdPhysics scene (.usd/.usda/.usdc)")
+    p.add_argument("--out", "-o", type=Path, required=True, help="the UsdPhysics scene to write (.usda/.usdc/.usd)")
+    p.add_argument("--ignore-unsupported", action="store_true",
+                   help="drop what is not simulated with a warning naming it, instead of stopping")  # fmt: skip
+    p.add_argument("--floating", action=argparse.BooleanOptionalAction, default=None,
+                   help="URDF: the root link free (a floating base), or fixed to the world (default: fixed "
+                   "unless the URDF joins it to the world by a floating joint)")  # fmt: skip
+    p.add_argument("--no-collisions", action="store_true", help="URDF: no collision shapes (no contacts)")
+
+
+def _load_robot_or_scene(source: Path, args) -> tuple:
+    """(builder, the step size the input asks for or None) from a URDF, an MJCF file or a UsdPhysics scene,
+    by extension; what --ignore-unsupported drops is one warning line each."""
+    from . import usd
+    from .urdf import load_urdf
+
+    if not source.is_file():
+        raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
+    ext = source.suffix.lower()
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")  # every note, whatever the caller's filters
+        warnings.showwarning = _one_line
+        if ext == ".urdf":
+            builder = load_urdf(source, ignore_unsupported=args.ignore_unsupported, floating=args.floating,
+                                collisions=not args.no_collisions)  # fmt: skip
+            return builder, None
+        if ext in MJCF_SUFFIXES:
+            from .mjcf import load_mjcf
+
+            return load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported), None
+        if ext in (".usd", ".usda", ".usdc"):
+            scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+            return scene.builder, scene.dt
+    raise SceneError(f"{source}: not a .urdf, an MJCF {'/'.join(MJCF_SUFFIXES)} or a .usd/.usda/.usdc file")
+
+
+def _convert(args) -> int:
+    from . import usd
+
+    builder, dt = _load_robot_or_scene(args.input, args)
+    if same_file(args.out, args.input):
+        raise SceneError(f"{args.out}: is the input; the output would replace it (choose another --out)")
+    check_writable(args.out)
+    path = usd.save_scene(builder, args.out, dt=dt)
+    print(f"wrote {path}: {len(builder.bodies)} bodies, {len(builder.joints)} joints, {len(builder.limits)} limits, "
+          f"{len(builder.drives)} drives, {len(builder.visuals)} visuals")  # fmt: skip
+    return 0
 
 
 def _add_preview(sub) -> None:
@@ -231,6 +289,8 @@ def _simulate(args) -> int:
     if args.input and args.scene:
         raise SceneError("give either a scene file or --scene, not both")
     checks.device(args.device)  # before the scene is read: a long load must not end on a missing GPU
+    if args.accuracy is not None and args.order != 2:
+        raise SceneError(f"--accuracy chooses the order itself; drop --order {args.order}")
     if args.duration is not None and args.fps is not None:
         _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
     stage = None  # a USD scene file's (its time range and step size)
@@ -274,6 +334,7 @@ def _simulate(args) -> int:
         max_iterations=args.max_iterations,
         on_max_iterations=args.on_max_iterations,
         order=args.order,
+        accuracy=args.accuracy,
         options=StepOptions(
             max_rotation=None if args.whole_steps else args.max_rotation,
             newton=AUTO_ON_OFF[args.newton],
@@ -281,6 +342,10 @@ def _simulate(args) -> int:
             defer_velocities=AUTO_ON_OFF[args.defer_velocities],
         ),
     )
+    if sim.accuracy is not None:
+        sim.accuracy.horizon = args.duration
+        if sim.accuracy.plan.note:
+            print(f"warpimpulse: accuracy: {sim.accuracy.plan.note}", file=sys.stderr)
     if sim.split_note:
         print(f"warpimpulse: one thread: {sim.split_note}", file=sys.stderr)
     if sim.redundant_rows:  # information: loop joints repeating what the tree already holds (a planar loop in 3D)
@@ -316,8 +381,12 @@ def _simulate(args) -> int:
     _say_fallbacks(sim)
     if energy.warning():
         print(f"warpimpulse: warning: {energy.warning()}", file=sys.stderr)
+    steps = f"{sim.step_count} steps of {dt:.6g} s"
+    if sim.accuracy is not None:
+        steps = (f"{sim.step_count} steps of at most {dt:.6g} s at order {sim.order} "
+                 f"for an accuracy of {args.accuracy:g} m")  # fmt: skip
     print(
-        f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {sim.step_count} steps of {dt:.6g} s "
+        f"wrote {out}: {frames} frames of {sim.model.body_count} bodies, {steps} "
         f"in {elapsed:.2f} s ({1e3 * elapsed / max(sim.step_count, 1):.3f} ms a step, output included)"
     )
     return 0
@@ -343,6 +412,8 @@ def _command(parser, args, rest: list[str]) -> int:
         return preview_main(args.input, args.out, args.frames, args.gif_frames)
     if args.command == "sweep":
         return _sweep(args)
+    if args.command == "convert":
+        return _convert(args)
     with signals_interrupt():  # SIGTERM and SIGHUP end a run as Ctrl-C does, keeping its frames
         return _simulate(args)
 
@@ -352,6 +423,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--version", action="version", version=f"warpimpulse {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_simulate(sub)
+    _add_convert(sub)
     _add_preview(sub)
     _add_sweep(sub)
     sub.add_parser("bench", help="benchmark harness (see `warpimpulse bench --help`)", add_help=False)

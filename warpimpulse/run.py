@@ -69,6 +69,7 @@ def settings(sim: Any) -> dict[str, Any]:
         "newton": sim.newton,  # the first joint iteration's Newton step
         "carry": sim.carry,  # the first joint iteration's carried right-hand side
         "defer_velocities": sim.defer_velocities,  # velocities corrected only where a frame is handed out
+        **({"accuracy": sim.accuracy.plan.accuracy} if sim.accuracy is not None else {}),  # m: dt is the largest step
     }
 
 

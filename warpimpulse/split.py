@@ -210,6 +210,9 @@ class SplitSimulator(Simulator):
         if gap is not None:
             self.split_note = gap[1].note
             return
+        if self.accuracy is not None:
+            self.split_note = "accuracy control changes the step size; the split step is recorded for one"
+            return
         if self.schedule != "fused" or self.linear is None or model.device.is_cuda:
             self.split_note = f"the fused schedule does not run: {self.schedule_note or 'a GPU or free bodies'}"
             return

@@ -35,6 +35,13 @@ class StepStats:
     contacts: int = 0  # contact points detected (in the last substep)
     max_penetration: float = 0.0  # m, the deepest contact after the position correction
     contact_sweeps: int = 0  # Gauss-Seidel sweeps over the contacts, both phases, summed over the step
+    # s: with `Simulator(accuracy=...)`, the step the controller took (the smallest of combined steps); NaN with
+    # fixed steps, whose size is `Simulator.dt`.
+    step_size: float = math.nan
+    # m: with `Simulator(accuracy=...)`, the estimated error the step added to the body centres' positions
+    # (`accuracy.Controller`: the error constant of the last step-doubling check times the steps' h^(order+1),
+    # summed over combined steps); NaN without.
+    error_estimate: float = math.nan
 
     def __eq__(self, other: object) -> bool:
         """Every figure the same, a velocity error not measured (NaN) like another."""
@@ -67,4 +74,6 @@ def combined(parts: list[StepStats]) -> StepStats:
         parts[-1].contacts,
         max(p.max_penetration for p in parts),
         sum(p.contact_sweeps for p in parts),
+        min((p.step_size for p in parts if not math.isnan(p.step_size)), default=math.nan),
+        sum(p.error_estimate for p in parts),
     )

@@ -61,6 +61,8 @@ class ThreadedSimulator:
             self.threads, self.split_note, self.parts = split.threads, split.split_note, [split]
             self.starts = np.zeros(1, dtype=int)
         else:
+            if settings.get("accuracy") is not None:
+                raise ValueError(f"accuracy: batched worlds ({model.world_count}) step together at one dt; give dt")
             self.threads = min(threads, model.world_count)
             # One-world shares correct every step's velocities, as batched worlds do (`Simulator.defer_velocities`),
             # so that however the worlds are shared the run is the batched run.

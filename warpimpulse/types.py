@@ -113,3 +113,10 @@ DIVERGENCE_AFTER = 3
 DIVERGENCE_GROWTH-fold over the smallest it reached: it stops there (and the step is halved) instead of running
 to its iteration limit. One rule for every correction loop: `kernels/loop.py` `diverging` on the device, its
 host twin `diverging` in `warpimpulse/steps.py`."""
+
+BodyRef = int | str | None
+"""A body: its index, its name, or None for the world."""
+
+Names = str | Sequence[str] | None
+"""Names of rows added at once: None ("body<index>", "joint<index>"), a format template filled with each row's
+index ("b{}"), or one name per row."""

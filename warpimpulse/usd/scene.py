@@ -90,7 +90,7 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
     for b in builder.bodies:
         base = Tf.MakeValidIdentifier(b.name.strip("/").replace("/", "_") or "body")
         name, k = base, 1
-        while name in used or name in ("Joints", "PhysicsScene", "Instancer"):
+        while name in used or name in ("Joints", "PhysicsScene", "Instancer", "Looks", "Visuals", "PhysicsMaterials"):
             name, k = f"{base}_{k}", k + 1
         used.add(name)
         paths.append(f"{WORLD_PATH}/{name}")

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..builder import WORLD, SceneBuilder, SceneError
+from ..builder import WORLD, SceneBuilder, SceneError, Visual
 from ..files import Interrupted, interrupts_deferred, same_file, write_atomically
 from ..shapes import Shape
 from ..transforms import quat_between, quat_conj, quat_from_matrix, quat_mul, quat_rotate
@@ -150,31 +150,121 @@ def _quat_text(q) -> str:
     return f"({_f(q[3])}, {_f(q[0])}, {_f(q[1])}, {_f(q[2])})"
 
 
-def _geometry_usda(name: str, shape: Shape, indent: str, material: str | None = None) -> str:
-    """One Capsule / Cube / Sphere / Cylinder prim (local z axis, centred) with a display colour, as usda;
-    with `material` (a physics material's path), a collider (CollisionAPI) bound to it."""
+def _solid_lines(shape: Shape) -> tuple[str, list[str]]:
+    """A Capsule / Cube / Sphere / Cylinder prim's type and attribute lines (local z axis, centred; a box as a
+    unit Cube scaled by its edges, the scale op last)."""
     r, ln = shape.radius, shape.length
     if shape.kind in ("capsule", "cylinder"):
         cap = r if shape.kind == "capsule" else 0.0
         type_name = "Capsule" if shape.kind == "capsule" else "Cylinder"
-        body = [f"double radius = {_f(r)}", f"double height = {_f(ln)}", 'uniform token axis = "Z"']
+        lines = [f"double radius = {_f(r)}", f"double height = {_f(ln)}", 'uniform token axis = "Z"']
         lo, hi = (-r, -r, -(0.5 * ln + cap)), (r, r, 0.5 * ln + cap)
     elif shape.kind == "sphere":
-        type_name, body = "Sphere", [f"double radius = {_f(r)}"]
+        type_name, lines = "Sphere", [f"double radius = {_f(r)}"]
         lo, hi = (-r, -r, -r), (r, r, r)
     else:
-        type_name = "Cube"
-        body = ["double size = 1", f"double3 xformOp:scale = {_tup(shape.size)}",
-                'uniform token[] xformOpOrder = ["xformOp:scale"]']  # fmt: skip
+        type_name, lines = "Cube", ["double size = 1"]
         lo, hi = (-0.5, -0.5, -0.5), (0.5, 0.5, 0.5)
-    body.append(f"float3[] extent = [{_tup(lo)}, {_tup(hi)}]")
-    body.append(f'color3f[] primvars:displayColor = [{_tup(shape.color)}] (interpolation = "constant")')
+    lines.append(f"float3[] extent = [{_tup(lo)}, {_tup(hi)}]")
+    return type_name, lines
+
+
+def _prim_usda(type_name: str, name: str, lines: list[str], schemas: list[str], indent: str) -> str:
     meta = ""
-    if material is not None:
-        body.append(f"rel material:binding:physics = <{material}>")
-        meta = f' (\n{indent}    prepend apiSchemas = ["PhysicsCollisionAPI", "MaterialBindingAPI"]\n{indent})'
-    inner = "".join(f"{indent}    {line}\n" for line in body)
+    if schemas:
+        listed = ", ".join(f'"{x}"' for x in schemas)
+        meta = f" (\n{indent}    prepend apiSchemas = [{listed}]\n{indent})"
+    inner = "".join(f"{indent}    {line}\n" for line in lines)
     return f'{indent}def {type_name} "{name}"{meta}\n{indent}{{\n{inner}{indent}}}\n'
+
+
+def _geometry_usda(
+    name: str, shape: Shape, indent: str, material: str | None = None, look: str | None = None, guide: bool = False
+) -> str:
+    """One Capsule / Cube / Sphere / Cylinder prim (`_solid_lines`) with a display colour, as usda; with
+    `material` (a physics material's path), a collider (CollisionAPI) bound to it; with `look` (a
+    UsdPreviewSurface material's path), that material bound for rendering; `guide`: drawn only as a guide (a
+    collider under visual geometry)."""
+    type_name, lines = _solid_lines(shape)
+    if shape.kind == "box":
+        lines += [f"double3 xformOp:scale = {_tup(shape.size)}", 'uniform token[] xformOpOrder = ["xformOp:scale"]']
+    lines.append(f'color3f[] primvars:displayColor = [{_tup(shape.color)}] (interpolation = "constant")')
+    if guide:
+        lines.append('uniform token purpose = "guide"')
+    schemas = []
+    if material is not None:
+        lines.append(f"rel material:binding:physics = <{material}>")
+        schemas = ["PhysicsCollisionAPI", "MaterialBindingAPI"]
+    if look is not None:
+        lines.append(f"rel material:binding = <{look}>")
+        schemas = schemas or ["MaterialBindingAPI"]
+    return _prim_usda(type_name, name, lines, schemas, indent)
+
+
+LOOKS_PATH = "/World/Looks"
+
+
+def _rgba(color) -> tuple[float, ...]:
+    """An RGB or RGBA colour as RGBA (opaque by default)."""
+    return tuple(float(c) for c in color) + ((1.0,) if len(color) == 3 else ())
+
+
+def _looks_usda(builder: SceneBuilder) -> tuple[str, dict[tuple[float, ...], str]]:
+    """One UsdPreviewSurface Material per distinct colour of the bodies' shapes and the visuals, under
+    /World/Looks, so that a renderer (Blender, usdview, Omniverse) shows the colours, not a default grey;
+    returns the usda and each colour's material path."""
+    colors = [_rgba(b.shape.color) for b in builder.bodies if b.shape is not None]
+    colors += [_rgba(v.rgba) for v in builder.visuals]
+    paths = {rgba: f"{LOOKS_PATH}/color{k}" for k, rgba in enumerate(dict.fromkeys(colors))}
+    if not paths:
+        return "", paths
+    out = ['    def Scope "Looks"\n    {\n']
+    for rgba, path in paths.items():
+        name = path.rsplit("/", 1)[1]
+        out.append(f'        def Material "{name}"\n        {{\n'
+                   f"            token outputs:surface.connect = <{path}/PreviewSurface.outputs:surface>\n"
+                   f'            def Shader "PreviewSurface"\n            {{\n'
+                   f'                uniform token info:id = "UsdPreviewSurface"\n'
+                   f"                color3f inputs:diffuseColor = {_tup(rgba[:3])}\n"
+                   f"                float inputs:opacity = {_f(rgba[3])}\n"
+                   f"                float inputs:roughness = 0.5\n"
+                   f"                token outputs:surface\n            }}\n        }}\n")  # fmt: skip
+    out.append("    }\n")
+    return "".join(out), paths
+
+
+def _numbers(values: np.ndarray, fmt: str) -> str:
+    """Rows of numbers as usda tuples "(a, b, c), ..." (`fmt` per number)."""
+    row = "(" + ", ".join([fmt] * values.shape[1]) + ")"
+    return ", ".join(row % tuple(v) for v in values.tolist())
+
+
+def _visual_usda(visual: Visual, name: str, indent: str, look: str) -> str:
+    """A `Visual` as a display-only prim (no physics schema) placed in its body's frame, bound to `look`."""
+    if visual.kind == "mesh":
+        v, f = np.asarray(visual.vertices, dtype=np.float64), np.asarray(visual.faces, dtype=np.int64)
+        type_name, scale = "Mesh", visual.size
+        lines = [
+            f"point3f[] points = [{_numbers(v, '%.9g')}]",
+            f"int[] faceVertexCounts = [{', '.join(['3'] * len(f))}]",
+            f"int[] faceVertexIndices = [{', '.join(map(str, f.reshape(-1).tolist()))}]",
+            f"float3[] extent = [{_tup(v.min(axis=0))}, {_tup(v.max(axis=0))}]",
+            'uniform token subdivisionScheme = "none"',
+        ]
+    else:
+        r, length = visual.size[0], visual.size[1]
+        solid = Shape("box", size=visual.size) if visual.kind == "box" else Shape(visual.kind, r, length)
+        type_name, lines = _solid_lines(solid)
+        scale = visual.size if visual.kind == "box" else (1.0, 1.0, 1.0)
+    lines += [
+        f'color3f[] primvars:displayColor = [{_tup(visual.rgba[:3])}] (interpolation = "constant")',
+        f"rel material:binding = <{look}>",
+        f"double3 xformOp:translate = {_tup(visual.position)}",
+        f"quatd xformOp:orient = {_quat_text(visual.orientation)}",
+        f"double3 xformOp:scale = {_tup(scale)}",
+        'uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:orient", "xformOp:scale"]',
+    ]
+    return _prim_usda(type_name, name, lines, ["MaterialBindingAPI"], indent)
 
 
 def _materials_usda(builder: SceneBuilder) -> tuple[str, dict[tuple[float, float], str]]:
@@ -354,6 +444,11 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
     out.append(f"        float physics:gravityMagnitude = {_f(mag)}\n    }}\n")
     materials_usda, materials = _materials_usda(builder)
     out.append(materials_usda)
+    looks_usda, looks = _looks_usda(builder)
+    out.append(looks_usda)
+    visuals: dict[int, list[Visual]] = {}
+    for v in builder.visuals:
+        visuals.setdefault(v.body, []).append(v)
     out.append(_grounds_usda(builder, materials))
     filters: dict[int, list[int]] = {}
     for a, b in sorted(builder.collision_filters):
@@ -403,11 +498,22 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
             'uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:orient"]',
         ]
         out.append("".join(f"        {line}\n" for line in lines))
-        shape = _body_display_shape(b)
-        material = materials[(b.friction, b.restitution)] if b.shape is not None and b.shape.collide else None
-        if (shape, material) not in geometry:
-            geometry[shape, material] = _geometry_usda("geom", shape, "        ", material)
-        out.append(geometry[shape, material])
+        own = visuals.get(i, [])
+        for k, v in enumerate(own):
+            out.append(_visual_usda(v, f"visual{k}", "        ", looks[_rgba(v.rgba)]))
+        if not own or b.shape is not None:  # visuals replace the inertia sphere; a shape of its own stays
+            shape = _body_display_shape(b)
+            material = materials[(b.friction, b.restitution)] if b.shape is not None and b.shape.collide else None
+            key = (shape, material, bool(own))
+            if key not in geometry:
+                look = looks.get(_rgba(shape.color)) if b.shape is not None else None
+                geometry[key] = _geometry_usda("geom", shape, "        ", material, look, guide=bool(own))
+            out.append(geometry[key])
+        out.append("    }\n")
+    if visuals.get(WORLD):
+        out.append('    def Xform "Visuals"\n    {\n')
+        for k, v in enumerate(visuals[WORLD]):
+            out.append(_visual_usda(v, f"visual{k}", "        ", looks[_rgba(v.rgba)]))
         out.append("    }\n")
     if builder.joints or builder.distances:
         loops = _loop_joints(builder)

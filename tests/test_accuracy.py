@@ -1,0 +1,150 @@
+"""Accuracy on request (`Simulator(accuracy=E)`, `warpimpulse.accuracy`): the trajectory stays within the asked
+error of an independent reference (reduced coordinates, tests/reference.py), frames land on their times, and bad
+values are one clear line. Nothing here is timed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from cli_helpers import assert_one_line_error, run
+from rigs import ball_chain
+
+import warpimpulse as wi
+from warpimpulse import accuracy
+from warpimpulse.run import record_frames
+
+FRAME = 0.1  # s: the interval step() advances, the largest step
+DURATION = 1.0
+
+
+def pendulum():
+    """One rod on a ball joint, released 60 degrees out and spinning about its axis: a conical swing."""
+    return ball_chain([(0.8, 0.3, -0.5)], [1.0], [1.0], [(0.0, 0.0, 2.0)])
+
+
+def chain():
+    """Three rods on ball joints hung 30-45 degrees out in 3D, the lowest spinning: a swinging chain. (A chain
+    released horizontal tumbles chaotically and amplifies early errors beyond what a local estimate sees:
+    docs/accuracy.md.)"""
+    return ball_chain([(0.6, 0.0, -1.0), (0.3, 0.8, -1.0), (-0.5, 0.4, -1.0)], [0.6, 0.5, 0.4], [1.0, 0.8, 0.6],
+                      [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 3.0)])  # fmt: skip
+
+
+def error_against_reference(make, target: float) -> tuple[float, wi.Simulator]:
+    """The largest centre-of-mass distance from the reference at the frames of DURATION s, with accuracy `target`
+    over that horizon."""
+    builder, ref = make()
+    frames = int(round(DURATION / FRAME))
+    com, _, _ = ref.solve(np.arange(frames + 1) * FRAME)
+    sim = wi.Simulator(builder.finalize(), FRAME, accuracy=target)
+    sim.accuracy.horizon = DURATION
+    error = 0.0
+    for f in range(1, frames + 1):
+        sim.step()
+        error = max(error, float(np.linalg.norm(sim.positions() - com[f], axis=1).max()))
+    return error, sim
+
+
+@pytest.mark.parametrize("make", [pendulum, chain])
+@pytest.mark.parametrize("target", [1e-2, 1e-4])
+def test_error_stays_near_the_asked_accuracy(make, target):
+    """The measured error is within the asked accuracy, and not wastefully below it (E/30): the controller sizes
+    the step for E, it does not simply take tiny steps."""
+    error, sim = error_against_reference(make, target)
+    print(f"\n{make.__name__} E={target:g}: error {error:.3g} m, order {sim.order}, {sim.step_count} steps")
+    assert error <= target
+    assert error >= target / 30.0
+
+
+def test_order_and_tolerance_follow_the_accuracy():
+    """Order 2 at loose accuracies, 4 below `ORDER4_BELOW`; the joint tolerance a share of E (at most its cap)."""
+    model = pendulum()[0].finalize()
+    loose, tight = wi.Simulator(model, accuracy=1e-2), wi.Simulator(model, accuracy=1e-5)
+    assert (loose.order, tight.order) == (2, 4)
+    assert loose.tolerance == accuracy.TOLERANCE_CAP
+    assert tight.tolerance == pytest.approx(accuracy.TOLERANCE_SHARE * 1e-5)
+    assert loose.dt == accuracy.DEFAULT_INTERVAL
+
+
+def test_frames_land_on_their_times():
+    """Each step() advances exactly one interval, taken as whole steps of dt / k; the recorder's frames are at f / fps
+    and the step size and error estimate are reported."""
+    builder, _ = chain()
+    sim = wi.Simulator(builder.finalize(), FRAME, accuracy=1e-4)
+    sizes = set()
+    for f in range(1, 11):
+        stats = sim.step()
+        assert sim.time == f * FRAME
+        assert sim.dt == FRAME
+        steps = FRAME / stats.step_size
+        assert steps == pytest.approx(round(steps), rel=1e-12)
+        assert math.isfinite(stats.error_estimate) and stats.error_estimate >= 0.0
+        sizes.add(stats.step_size)
+    assert sim.step_count > 10 and len(sizes) > 1  # more than one step a frame, sized as the motion asks
+
+    class Writer:
+        fps = 1.0 / FRAME
+
+        def __init__(self):
+            self.times = []
+
+        def write_frame(self, frame, positions, orientations):
+            self.times.append(sim.time)
+
+    sim.reset()
+    writer = Writer()
+    assert record_frames(sim, writer, 10 * FRAME, progress=False) == 11
+    assert writer.times == [f * FRAME for f in range(11)]
+
+
+def test_fixed_steps_report_no_estimate():
+    """Without `accuracy` the step is dt and nothing is estimated: both figures are NaN, as in every StepStats the
+    schedules compare bit for bit."""
+    sim = wi.Simulator(pendulum()[0].finalize(), 0.01)
+    for stats in (sim.step(), sim.step(3)):
+        assert math.isnan(stats.step_size) and math.isnan(stats.error_estimate)
+
+
+@pytest.mark.parametrize("value", [0.0, -1e-3, math.nan, math.inf, "1e-3", True])
+def test_bad_accuracy_is_one_clear_line(value):
+    model = pendulum()[0].finalize()
+    with pytest.raises(ValueError, match="accuracy must be positive and finite|accuracy must be numeric") as info:
+        wi.Simulator(model, accuracy=value)
+    assert "\n" not in str(info.value)
+
+
+def test_what_accuracy_cannot_control_is_refused():
+    model = pendulum()[0].finalize()
+    with pytest.raises(ValueError, match="dt .* is required unless accuracy"):
+        wi.Simulator(model)
+    with pytest.raises(ValueError, match="accuracy chooses the order"):
+        wi.Simulator(model, accuracy=1e-3, order=4)
+    with pytest.raises(ValueError, match="accuracy: the scene has contacts"):
+        wi.Simulator(wi.scenes.box_stack(2).finalize(), accuracy=1e-3)
+
+
+def test_limits_are_controlled_at_order_two():
+    """A scene whose steps fall back to order 2 (a joint limit) is controlled at order 2, and the plan says so."""
+    b = wi.scenes.double_pendulum()
+    b.add_joint_limit("hinge1", -1.0, 1.0)
+    sim = wi.Simulator(b.finalize(), accuracy=1e-5)
+    assert sim.order == 2 and "order 2" in sim.accuracy.plan.note
+    sim.step(2)
+    assert sim.time == 2 * sim.dt
+
+
+def test_cli_accuracy(tmp_path, capsys):
+    """`--accuracy E` runs with the controller, records E in the file, and a bad value is one line, exit 2."""
+    from pxr import Sdf
+
+    out = tmp_path / "x.usda"
+    argv = ["simulate", "--scene", "double_pendulum", "--duration", "0.2", "--out", str(out)]
+    code, _ = run([*argv, "--accuracy", "1e-3"], capsys)
+    assert code == 0
+    data = Sdf.Layer.FindOrOpen(str(out)).customLayerData
+    assert data["warpimpulse:accuracy"] == 1e-3 and data["warpimpulse:order"] == 4
+    assert_one_line_error([*argv, "--accuracy", "0"], "--accuracy: must be positive", capsys)
+    assert_one_line_error([*argv, "--accuracy", "nan"], "--accuracy: must be positive", capsys)
+    assert_one_line_error([*argv, "--accuracy", "1e-3", "--order", "6"], "accuracy chooses the order", capsys)

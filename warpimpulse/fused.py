@@ -1,0 +1,197 @@
+"""The fused schedule: whole steps, many a launch, as one kernel on a CPU.
+
+`kernels/step.py` runs the paper's stages of every step of a batch in one launch (predict, correct the joints,
+rows, accept and factor, correct the velocities where the state is handed out), stopping at a step it cannot
+take alone (a spin that splits it, a failed correction) and handing that step to the parallel schedule. The host
+reads one status row a step back, or one summary row of the batch."""
+
+from __future__ import annotations
+
+import operator
+
+import numpy as np
+import warp as wp
+
+from .kernels import limits as limit_kernels
+from .kernels import step as step_kernels
+from .launch import Packed, record
+from .steps import StepStats
+
+# A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
+# each column's name takes five.
+_STATUS_FIGURES = operator.itemgetter(
+    step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
+    step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
+)  # fmt: skip
+
+
+class FusedSteps:
+    """The fused schedule of a `Simulator` (a part of it: one kernel over its arrays, the host reading a row a step)."""
+
+    def _force_elements(self) -> step_kernels.ForceElements:
+        """The force elements and the coupled prediction's scratch, for the fused kernel (empty without)."""
+        elements = step_kernels.ForceElements()
+        if not self._forced:
+            return elements
+        m = self.model
+        for field in step_kernels.ForceElements.vars:
+            if hasattr(m, field):
+                setattr(elements, field, getattr(m, field))
+        elements.drive_target, elements.drive_integral = self.drive_target, self.drive_integral
+        elements.integral0 = self._integral0
+        elements.wrench_force, elements.wrench_torque = self.wrench_force, self.wrench_torque
+        elements.stage_x, elements.stage_q = self._stage.body_x, self._stage.body_q
+        elements.stage_v, elements.stage_w = self._stage.body_v, self._stage.body_w
+        elements.rk4_sum_x, elements.rk4_sum_q = self.rk4_sum_x, self.rk4_sum_q
+        elements.rk4_sum_v, elements.rk4_sum_w = self.rk4_sum_v, self.rk4_sum_w
+        return elements
+
+    def _row_arrays(self) -> limit_kernels.Rows:
+        """The rows of the correction loop and their scratch, for the row kernels of both schedules (empty
+        without)."""
+        rows = limit_kernels.Rows()
+        m, nl = self.model, self.model.limit_count
+        if not nl:
+            return rows
+        for field in limit_kernels.Rows.vars:
+            source = self if hasattr(self, field) else m
+            if hasattr(source, field):
+                setattr(rows, field, getattr(source, field))
+        rows.coupling_rows = self.limit_coupling.reshape((nl, m.constraint_count))
+        rows.response_rows = self.limit_response.reshape((nl, m.constraint_count))
+        return rows
+
+    def _fused_launch(self, h: float) -> wp.Graph | Packed:
+        """The fused kernel's launch for steps of h, recorded once per h: packed on a CPU (its arguments once, a
+        call then costs ~0.3 us against a graph replay's ~1.7), captured as a graph on a GPU."""
+        if h not in self._fused_by_h:
+            p = self.pred
+            direct = self.linear is not None
+            kernel = self._fused.cholesky_steps if direct else self._fused.iterative_steps
+            sources = (self.model, self.frames, self.control, self)
+            if direct:
+                sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
+            launch = record(
+                kernel, 1, self.model.device, sources, data_out=self.state,
+                h=h, stages=self._stages, reach=max(abs(g) for g in self._fused_stages), batch_in=self._batch,
+                defer=int(self.defer_velocities),
+                max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
+                pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
+                q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
+                limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
+                stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
+            )  # fmt: skip
+            self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
+        return self._fused_by_h[h]
+
+    def _steps_alike(self, limit: int) -> int:
+        """How many of the next steps (at most `limit`) share this step's active model forces (`_update_forces`
+        decides by the same comparison); the answer holds until that step, so it is kept."""
+        until = self.model.host.force_until
+        if not len(until):
+            return limit
+        start, count = self._alike
+        if not start <= self.step_count < start + count:
+            times = self._clock_at(self.step_count + np.arange(self.FUSED_BATCH))
+            active = times[:, None] < until[None, :]
+            differ = np.flatnonzero((active != active[0]).any(axis=1))
+            self._alike = (self.step_count, int(differ[0]) if len(differ) else self.FUSED_BATCH)
+            start, count = self._alike
+        return min(limit, start + count - self.step_count)
+
+    def _fused_steps(self, n: int, combine: bool, out: list[StepStats]) -> int:
+        """n steps by the fused schedule, as few launches as the forces allow, their stats appended to `out`
+        (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is taken by the parallel
+        schedule, which splits, halves or reports it. Returns the count of steps taken."""
+        done = 0
+        columns = step_kernels
+        order, fallback = self._fused_order
+        while done < n:
+            self._update_forces()
+            batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
+            status, summary = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
+            first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
+            if first:
+                out += self._fused_stats(status, first, summary, order, fallback, combine)
+            self._advance_clock(first)
+            done += first
+            if first < batch:
+                out.append(self._handed_back(status[first], done + 1 == n))
+                done += 1
+            elif first:
+                self._spin = summary[columns.STATUS_SPIN]
+            if self.linear is not None:
+                self.linear.check()  # and the redundant loop rows of the last factorization
+        return done
+
+    def _fused_step(self) -> StepStats:
+        """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
+        loop's bookkeeping (one launch of one step, whose state is handed out)."""
+        self._update_forces()
+        status, summary = self._run_fused(1, True)
+        if summary[step_kernels.STATUS_CODE]:  # the step went OK
+            order, fallback = self._fused_order
+            stats = self._status_stats(summary, 1, order, fallback)
+            self._advance_clock(1)
+            self._spin = summary[step_kernels.STATUS_SPIN]
+        else:
+            stats = self._handed_back(status[0], True)
+        if self.linear is not None:
+            self.linear.check()  # and the redundant loop rows of the last factorization
+        return stats
+
+    def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
+        """The step whose status `row` stopped a fused launch: taken again by the parallel schedule where nothing
+        of it was kept (SPLIT, RETRY), else (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is
+        handed out (`defer_velocities`)."""
+        columns = step_kernels
+        code = int(row[columns.STATUS_CODE])
+        self._spin = float(row[columns.STATUS_SPIN])
+        if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
+            if code == columns.RETRY and len(self._fused_stages) > 1:
+                self._update_frames()  # of the restored start: a later stage may have failed
+            return self._step_parallel(hand_out)
+        if code == columns.SINGULAR:
+            self.linear.check()
+        stats = self._status_stats(row.tolist(), 1, *self._fused_order)
+        if code == columns.VELOCITY:
+            sweeps = int(row[columns.STATUS_VELOCITY_ITERATIONS]) if self.linear is None else 0
+            self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY], sweeps)
+            stats.converged = False
+        self._advance_clock(1)
+        return stats
+
+    @classmethod
+    def _fused_stats(
+        cls, status: np.ndarray, ok: int, summary: list[float], order: int, fallback: str, combine: bool
+    ) -> list[StepStats]:
+        """The StepStats of the `ok` fused steps that went OK, one a status row; with `combine` (or one step), one
+        StepStats of them all: the kernel's summary row, which sums them up as `combined` would (the host's numpy
+        reductions of a batch cost ~12 us a launch, a StepStats a step ~0.5 us)."""
+        if combine or ok == 1:
+            return [cls._status_stats(summary, ok, order, fallback)]
+        return [cls._status_stats(row, 1, order, fallback) for row in status[:ok].tolist()]
+
+    @staticmethod
+    def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
+        """A StepStats of a status row (or of the summary row of `steps` steps)."""
+        joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(row)
+        return StepStats(
+            int(joint), int(velocity), joint_error, velocity_error, True, int(linear), steps, order, fallback
+        )
+
+    def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
+        """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
+        the summary row's values (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the
+        last step's state is handed out, so its velocities are corrected (`defer_velocities`)."""
+        launch = self._fused_launch(self.dt)
+        if self._views is None:
+            self._batch.assign(np.array([batch, int(hand_out)], dtype=np.int32))
+            self._spin_in.fill_(self._spin)
+            wp.capture_launch(launch)
+            status = self._status.numpy()
+            return status, status[-1].tolist()
+        status, summary, batch_view, spin_view = self._views
+        batch_view[0], batch_view[1], spin_view[0] = batch, int(hand_out), self._spin
+        launch.launch()
+        return status, summary.tolist()
