@@ -33,7 +33,7 @@ import platform
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -60,10 +60,16 @@ SUMMARY_BEGIN, SUMMARY_END = "<!-- scene-kinds-summary:begin -->", "<!-- scene-k
 
 MUJOCO_INTEGRATORS = ("Euler", "implicitfast", "RK4")
 MUJOCO_RATES = (10, 15, 20, 30, 40, 60, 80, 120, 160, 240, 320, 480, 640, 1000)  # h = 1/10 ... 1/1000
-OURS = (  # (order, tolerance or None for the order's own, rates)
+# (order, tolerance or None for the order's own, rates). Order 4 runs to h = 1/480: to 1/120 at its own
+# tolerance (`composition.default_tolerance`, 10 h^5: 4e-10 at 1/120), then at 1e-9, far under its error there,
+# so a front that stops short of 1e-5 m stops because the error does, not the grid. (Its own goes on down to
+# 1e-12, under the round-off of the light bodies of the dm_control humanoid, whose velocity correction stalls
+# at 1e-10 to 5e-10.)
+OURS = (
     (2, 1e-4, (15, 20, 30, 40, 60, 80, 120, 160, 240, 320, 480)),
     (2, 1e-6, (15, 20, 30, 40, 60, 80, 120, 160, 240, 320, 480)),
     (4, None, (8, 10, 15, 20, 30, 40, 60, 80, 120)),
+    (4, 1e-9, (160, 240, 320, 480)),
 )
 QUICK_MUJOCO_RATES = (10, 30, 100, 300, 1000)
 QUICK_OURS = ((2, 1e-6, (30, 120)), (4, None, (15, 60)))
@@ -144,6 +150,12 @@ def humanoid() -> SceneBuilder:
     return b
 
 
+def centres_of_mass(builder: SceneBuilder) -> Probe:
+    """Every body's centre of mass and nothing else: a robot's leaf is a foot or a hand, not a capsule with a tip."""
+    probe = Probe.from_builder(builder)
+    return replace(probe, bodies=np.arange(len(builder.bodies)), local=np.zeros((len(builder.bodies), 3)))
+
+
 def tree127() -> SceneBuilder:
     """The paper's tree (`warpimpulse.scenes.tree_arrays`), ball joints; its root torque is a push of `KINDS`."""
     b = SceneBuilder()
@@ -166,15 +178,43 @@ class Push:
 class Kind:
     """One scene of the benchmark: the MJCF model both engines read, the window at whose end the error is taken,
     the pushes, the tracked points (`probe`), and the builder that wrote the file (None for a model from
-    elsewhere, a robot's MJCF say: then only --write-models skips it)."""
+    elsewhere, a robot's MJCF say: then only --write-models skips it).
+
+    A robot's model ships with an installed package (`package`, the [mjcf-robots] extra): `model` is its path
+    inside that package, read where pip put it, never copied here. Both engines read it with contacts and
+    joint limits off (MuJoCo's are soft, ours hold exactly: they would differ by design, not by error),
+    armature and frictionloss zeroed (armature has no rigid-body equivalent; frictionloss is a soft constraint
+    in MuJoCo), as in tests/test_mjcf.py, and joint damping off: ours is an explicit force, unstable where
+    kd h / I > 2 (docs/mjcf.md), and without the armature the ant's legs (damping 1) are split down to
+    h = 1/960 at every step asked (2 s took 3 to 15 s of ours at any h). It starts from joint velocities drawn
+    standard normal with `seed` times `speed`, so every limb moves. A free base falls under gravity: the limbs'
+    motion relative to it is what tests the solver, and the fall is the same in both engines."""
 
     name: str
     title: str
-    model: str  # file name in benchmarks/models
+    model: str  # file name in benchmarks/models, or a path inside `package`
     window: float = 2.0  # s
     pushes: tuple[Push, ...] = ()
     probe: Callable[[SceneBuilder], Probe] = Probe.from_builder
     build: Callable[[], SceneBuilder] | None = None
+    package: str | None = None
+    seed: int | None = None  # joint velocities standard normal from this seed, times `speed`; None: at rest
+    speed: float = 1.0  # rad/s (m/s for a slide)
+
+    def path(self) -> Path:
+        """The MJCF file: in benchmarks/models, or inside the installed `package`."""
+        if self.package is None:
+            return MODELS / self.model
+        import importlib.util
+
+        spec = importlib.util.find_spec(self.package)
+        if spec is None or spec.origin is None:
+            raise FileNotFoundError(f"{self.name}: {self.package} is not installed (pip install "
+                                    "'warpimpulse[mjcf-robots]')")  # fmt: skip
+        return Path(spec.origin).parent / self.model
+
+    def where(self) -> str:
+        return f"{self.package}/{self.model} (installed)" if self.package else f"benchmarks/models/{self.model}"
 
 
 KINDS = (
@@ -184,6 +224,12 @@ KINDS = (
     Kind("humanoid", "humanoid-like tree: torso, head, limbs of 3-4 hinges", "humanoid.xml", build=humanoid),
     Kind("tree127", "the paper's tree, 127 ball joints, root torque", "tree127.xml",
          pushes=(Push("b0", (scenes.START_TORQUE, 0.0, 0.0), scenes.START_TORQUE_DURATION),), build=tree127),
+    Kind("reacher", "dm_control reacher: a 2-hinge arm", "suite/reacher.xml", package="dm_control", seed=0,
+         speed=10.0, probe=centres_of_mass),  # flat, no gravity along its hinges: it moves as it is started
+    Kind("ant", "gymnasium ant: 4 legs of 2 hinges, free base", "envs/mujoco/assets/ant.xml", package="gymnasium",
+         seed=0, probe=centres_of_mass),
+    Kind("dm_humanoid", "dm_control humanoid: 21 hinges, free base", "suite/humanoid.xml", package="dm_control",
+         seed=0, probe=centres_of_mass),
 )  # fmt: skip
 
 
@@ -222,27 +268,61 @@ class Loaded:
     mismatch: float  # m: largest distance between the two engines' initial centres of mass
 
 
-def load(kind: Kind) -> Loaded:
+def mujoco_model(kind: Kind):
+    """MuJoCo's compiled model of the scene; a robot's with contacts and limits off, armature and frictionloss
+    zeroed (see `Kind`)."""
     import mujoco
 
-    path = MODELS / kind.model
-    mj_model = mujoco.MjModel.from_xml_path(str(path))
-    builder, source = load_mjcf(str(path)), "warpimpulse.load_mjcf"
+    path = kind.path()
+    m = mujoco.MjModel.from_xml_path(str(path))
+    if kind.package is not None:
+        for flag in ("CONTACT", "LIMIT", "DAMPER"):
+            m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"))
+        m.dof_armature[:] = 0.0
+        m.dof_frictionloss[:] = 0.0
+        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+    return m
+
+
+def body_id(mj_model, name: str) -> int:
+    """MuJoCo's id of our body `name`: by name, or "body<id>" for a body MuJoCo has no name for (load_mjcf's
+    naming); -1 for a light body of a chain of joints ("<body>/<joint>"), which is no MuJoCo body."""
+    import mujoco
+
+    found = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, name)
+    if found < 0 and name.startswith("body") and name[4:].isdigit() and int(name[4:]) < mj_model.nbody:
+        if not mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_BODY, int(name[4:])):
+            found = int(name[4:])
+    return found
+
+
+def load(kind: Kind) -> Loaded:
+    """Both engines' scene from the one compiled model. Our bodies are MuJoCo's bodies that have joints, each
+    with the bodies welded to it merged in, and a light body between two joints of one MuJoCo body: those are
+    no MuJoCo body and are not tracked."""
+
+    mj_model = mujoco_model(kind)
+    qvel = None if kind.seed is None else kind.speed * np.random.default_rng(kind.seed).standard_normal(mj_model.nv)
+    builder, source = load_mjcf(mj_model, qvel=qvel), "warpimpulse.load_mjcf"
     names = [body.name for body in builder.bodies]
     for push in kind.pushes:
         builder.add_force(names.index(push.body), torque=push.torque, until=push.until)
-    ids = np.array([mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names], dtype=np.int64)
-    if (ids < 0).any():
-        raise ValueError(f"{path}: body {names[int(np.argmin(ids))]!r} of our scene is not in MuJoCo's model")
-    mscene = MujocoScene(builder, mj_model, ids)
+    ids = np.array([body_id(mj_model, n) for n in names], dtype=np.int64)
+    mscene = MujocoScene(builder, mj_model, ids, qvel)
     probe = kind.probe(builder)
+    keep = ids[probe.bodies] >= 0
+    probe = replace(probe, bodies=probe.bodies[keep], local=probe.local[keep])
     data = mscene.make_data()
     world = probe.points(np.array([b.position for b in builder.bodies]), np.array([b.orientation for b in
                                                                                   builder.bodies]))  # fmt: skip
     mids = ids[probe.bodies]
     rot = data.xmat[mids].reshape(-1, 3, 3)
     local = np.einsum("nji,nj->ni", rot, world - data.xpos[mids])
-    mismatch = float(np.linalg.norm(data.xipos[ids] - np.array([b.position for b in builder.bodies]), axis=1).max())
+    tracked = np.unique(probe.bodies)
+    welded = [np.flatnonzero(mj_model.body_weldid == ids[b]) for b in tracked]  # a body and those welded to it
+    centres = [mj_model.body_mass[w] @ data.xipos[w] / mj_model.body_mass[w].sum() for w in welded]
+    mismatch = float(np.linalg.norm(np.array(centres) - np.array([builder.bodies[b].position for b in tracked]),
+                                    axis=1).max())  # fmt: skip
     return Loaded(kind, builder, builder.finalize("cpu"), mscene, probe, local, source, mismatch)
 
 
@@ -387,7 +467,7 @@ def run_scene(kind: Kind, quick: bool) -> dict:
     log(f"{kind.name}: {len(scene.builder.bodies)} bodies ({scene.source}), reference floor {ref['floor']:.2g} m, "
         f"initial centres of mass agree to {scene.mismatch:.2g} m")  # fmt: skip
     if scene.mismatch > 1e-9:
-        raise RuntimeError(f"{kind.model}: the two engines' initial centres of mass differ by {scene.mismatch:.3g} m")
+        raise RuntimeError(f"{kind.where()}: the two engines' initial centres of mass differ by {scene.mismatch:.3g} m")
     runs: list[OursRun | MujocoRun] = [
         OursRun(scene, rate, order, tol) for order, tol, rates in (QUICK_OURS if quick else OURS) for rate in rates
     ]
@@ -406,7 +486,7 @@ def run_scene(kind: Kind, quick: bool) -> dict:
             gc.enable()
         log(f"  round {round_}/{repeats} done, {time.perf_counter() - start:.0f} s")
     rows = [m.row() for m in measured]
-    return {"title": kind.title, "model": f"benchmarks/models/{kind.model}", "source": scene.source,
+    return {"title": kind.title, "model": kind.where(), "source": scene.source,
             "bodies": len(scene.builder.bodies), "tracked_points": len(scene.probe.bodies), "window": kind.window,
             "pushes": [vars(p) | {"torque": list(p.torque)} for p in kind.pushes],
             "reference": {k: v for k, v in ref.items() if k != "points"}, "initial_mismatch": scene.mismatch,
@@ -486,8 +566,9 @@ def _grid(results: dict) -> tuple[str, str]:
     rates = sorted({r["rate"] for r in ours})
     parts = []
     for order in sorted({r["order"] for r in ours}):
-        tols = sorted({r["variant"].split("tol ")[1] for r in ours if r["order"] == order and "tol " in r["variant"]})
-        parts.append(f"order {order} at " + (f"tolerance {' and '.join(tols)}" if tols else "its own tolerance"))
+        tols = sorted({r["variant"].split("tol ")[1] if "tol " in r["variant"] else "its own"
+                       for r in ours if r["order"] == order})  # fmt: skip
+        parts.append(f"order {order} at tolerance {' and '.join(tols)}")
     return mujoco, f"{', '.join(parts)}, h = 1/{rates[0]} ... 1/{rates[-1]}"
 
 
@@ -502,12 +583,23 @@ def readme_block(results: dict) -> str:
     meta = results["meta"]
     repeats = sorted({s["repeats"] for s in scenes_.values()})
     mujoco, ours = _grid(results)
+    robots = [s["model"] for s in scenes_.values() if s["model"].endswith("(installed)")]
+    robot_text = (
+        f" The robots' files ({', '.join(r.split(' ')[0] for r in robots)}) are read where pip installed them "
+        "(the [mjcf-robots] extra), with contacts, joint limits and joint damping off and armature and frictionloss "
+        "zeroed on both sides (see `Kind` in benchmarks/scene_kinds.py for why), from joint velocities drawn "
+        "standard normal (seed 0; the reacher's times 10 rad/s, it lies flat across gravity); their free bases "
+        "fall; their tracked points are the bodies' centres of mass."
+        if robots
+        else ""
+    )
     lines = [
         "<!-- generated from benchmarks/results/scene_kinds.json by `python benchmarks/scene_kinds.py --from-json`"
         " (make bench): edit the generator, not this text -->",
         "Ratio = MuJoCo's cheapest run time per simulated second / ours, at the same trajectory error (> 1: "
         "warpimpulse is cheaper), each engine's cost read off its Pareto front by log-log interpolation. Both "
-        f"engines read the same MJCF file (benchmarks/models/; ours through {', '.join(sources)}). MuJoCo: {mujoco}; "
+        f"engines read the same MJCF file (benchmarks/models/; ours through {', '.join(sources)}).{robot_text} "
+        f"MuJoCo: {mujoco}; "
         f"ours: {ours}. Error: the largest distance of a centre of mass or leaf tip after "
         f"{' / '.join(f'{w:g}' for w in windows)} s from {'; '.join(refs)}, read from the very run that is timed; "
         f'a level under {FLOOR_MARGIN:g}x the floor is not compared. "not reached by MuJoCo" (or by warpimpulse) '

@@ -149,7 +149,8 @@ class MujocoScene:
 
     builder: SceneBuilder
     model: mujoco.MjModel
-    body_ids: np.ndarray  # MuJoCo body id of each builder body
+    body_ids: np.ndarray  # MuJoCo body id of each builder body (-1: none, a light body of a chain of joints)
+    qvel: np.ndarray | None = None  # MuJoCo's initial joint velocities, where the builder was made from them
 
     @classmethod
     def from_builder(
@@ -177,11 +178,14 @@ class MujocoScene:
         )
 
     def make_data(self) -> mujoco.MjData:
-        """MjData at the builder's initial pose and velocities (qvel fitted by least squares to the
-        bodies' velocities, since MuJoCo's velocity coordinates are per joint, not per body)."""
+        """MjData at the builder's initial pose and velocities: `qvel` where given (the builder was loaded from
+        this model with it), else fitted by least squares to the bodies' velocities, since MuJoCo's velocity
+        coordinates are per joint, not per body."""
         import mujoco
 
         data = mujoco.MjData(self.model)
+        if self.qvel is not None:
+            data.qvel[:] = self.qvel
         mujoco.mj_forward(self.model, data)
         dynamic = [b for b, body in enumerate(self.builder.bodies) if not body.static]
         target = np.concatenate(
@@ -190,7 +194,7 @@ class MujocoScene:
                 for b in dynamic
             ]
         )
-        if np.any(target != 0.0):
+        if self.qvel is None and np.any(target != 0.0):
             nv = self.model.nv
             rows = np.zeros((6 * len(dynamic), nv))
             for k, b in enumerate(dynamic):
