@@ -22,6 +22,8 @@ WORLD_PATH = "/World"
 INSTANCER_PATH = "/World/Instancer"
 MODE_KEY = "warpimpulse:mode"  # customLayerData: "procedural", "layered" or "instancer"
 IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
+# The prims a procedural output puts under /World besides the bodies (a body of that name is renamed)
+RESERVED_NAMES = ("Joints", "PhysicsScene", "Instancer", "Looks", "Visuals", "PhysicsMaterials", "Actuators")
 
 
 class UsdSceneError(SceneError):
@@ -90,7 +92,7 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
     for b in builder.bodies:
         base = Tf.MakeValidIdentifier(b.name.strip("/").replace("/", "_") or "body")
         name, k = base, 1
-        while name in used or name in ("Joints", "PhysicsScene", "Instancer", "Looks", "Visuals", "PhysicsMaterials"):
+        while name in used or name in RESERVED_NAMES:
             name, k = f"{base}_{k}", k + 1
         used.add(name)
         paths.append(f"{WORLD_PATH}/{name}")
