@@ -33,11 +33,15 @@ def pytest_addoption(parser):
 
 
 def pytest_collection_modifyitems(config, items):
+    """Under --schedule parallel (`make test`'s second pass), skip the tests of the fused schedule itself and the
+    tests that step no simulator (`schedule_free`: the CUDA compilation, the wheel), which the first pass ran."""
     if config.getoption("--schedule") == "parallel":
-        skip = pytest.mark.skip(reason="a test of the fused schedule itself")
+        reasons = {"fused": "a test of the fused schedule itself", "schedule_free": "steps no simulator: run once"}
         for item in items:
-            if "fused" in item.keywords:
-                item.add_marker(skip)
+            for marker, reason in reasons.items():
+                if marker in item.keywords:
+                    item.add_marker(pytest.mark.skip(reason=reason))
+                    break
 
 
 @pytest.fixture(autouse=True)
