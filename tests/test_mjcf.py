@@ -28,7 +28,6 @@ def _package(name: str) -> Path:
     return Path(spec.origin).parent if spec and spec.origin else Path("/nonexistent") / name
 
 
-
 def compiled(xml, off=("contact", "limit")):
     """An MjModel for comparison: `off` disabled, RK4 at H_REF, armature and frictionloss zeroed."""
     m = wi.mjcf.compile_mjcf(xml)
@@ -483,6 +482,8 @@ def test_drives_chains_and_actuators_round_trip_through_the_output(tmp_path, cap
         sim.set_controls({"sx": 0.7, "sy": -0.4, "el": 1.0, "sl": 0.1})
         sim.step(48)
     assert np.abs(sims[0].positions() - sims[1].positions()).max() < 1e-6
+    kept = wi.usd.scene.builder_from_model(sims[0].model).actuators  # a Model written without its builder
+    assert [(a.name, a.gain, a.bias) for a in kept] == [(a.name, a.gain, a.bias) for a in built.actuators]
 
 
 def test_a_converted_humanoid_moves_as_its_mjcf_under_the_same_controls(tmp_path, capsys):
