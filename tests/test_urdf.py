@@ -518,3 +518,28 @@ def test_self_collisions_filter_as_mujoco_does():
     assert {(min(trunk, fr0), max(trunk, fr0)), (min(fr0, fr1), max(fr0, fr1))} <= on.collision_filters
     shaped = [i for i, x in enumerate(off.bodies) if x.shape is not None]
     assert len(off.collision_filters) == len(shaped) * (len(shaped) - 1) // 2
+
+
+@needs_robots
+def test_simulate_a_legged_robot_on_a_ground(tmp_path, capsys):
+    """`warpimpulse simulate a1.urdf --floating --ground`: the robot lands on a ground under its feet (written with
+    the scene) instead of falling for ever; --ground is refused for an MJCF, and for a robot without collisions."""
+    path = Path(ROBOTS) / "a1_description/urdf/a1.urdf"
+    out = tmp_path / "a1.usda"
+    code, lines = run(["simulate", str(path), "--floating", "--ground", "-o", str(out), "--duration", "0.3", "--fps",
+                       "10", "--dt", "0.001"], capsys)  # fmt: skip
+    assert code == 0, lines
+    assert usd.validate(out) == []
+    from pxr import Usd, UsdPhysics
+
+    stage = Usd.Stage.Open(str(out))
+    planes = [p for p in stage.Traverse() if p.GetTypeName() == "Plane" and p.HasAPI(UsdPhysics.CollisionAPI)]
+    assert len(planes) == 1
+    anim = usd.read_animation(out)
+    drop = anim.positions[0][:, 2] - anim.positions[-1][:, 2]
+    assert 0.05 < drop.max() < 0.4  # it fell onto the ground, not through it (0.44 m of free fall in 0.3 s)
+    (tmp_path / "arm.xml").write_text(MJCF_ARM)
+    assert_one_line_error(["simulate", str(tmp_path / "arm.xml"), "--ground", "-o", str(out)],
+                          "arm.xml: --ground is for a URDF", capsys)  # fmt: skip
+    assert_one_line_error(["simulate", str(path), "--floating", "--ground", "--no-collisions", "-o", str(out)],
+                          "--ground with --no-collisions", capsys)  # fmt: skip

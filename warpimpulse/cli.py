@@ -125,12 +125,17 @@ def _add_urdf_flags(p) -> None:
                    help="URDF: the root link free (a floating base), or fixed to the world (default: fixed "
                    "unless the URDF joins it to the world by a floating joint)")  # fmt: skip
     p.add_argument("--no-collisions", action="store_true", help="URDF: no collision shapes (no contacts)")
+    p.add_argument("--self-collisions", action="store_true",
+                   help="URDF: the links collide with each other, but for jointed ones (default: off)")  # fmt: skip
+    p.add_argument("--ground", action="store_true",
+                   help="URDF: a ground plane 1 mm under the robot's lowest collision shape, as built")  # fmt: skip
 
 
 def _load_input(source: Path, args):
     """A URDF or an MJCF file as a SceneBuilder, a UsdPhysics scene as its `UsdScene` (with the prim paths and the
     step size it asks for), by extension; what --ignore-unsupported drops is one warning line each. The URDF
-    flags (--floating, --no-collisions) are refused for any other input rather than ignored."""
+    flags (--floating, --no-collisions, --self-collisions, --ground) are refused for any other input rather than
+    ignored."""
     from . import usd
     from .urdf import load_urdf
 
@@ -138,16 +143,23 @@ def _load_input(source: Path, args):
         raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
     ext = source.suffix.lower()
     if ext != ".urdf":
-        for flag, given in (("--floating/--no-floating", args.floating is not None),
-                            ("--no-collisions", args.no_collisions)):  # fmt: skip
-            if given:
-                raise SceneError(f"{source}: {flag} is for a URDF")
+        for flag in _given_urdf_flags(args):
+            raise SceneError(f"{source}: {flag} is for a URDF")
+    if args.ground and args.no_collisions:
+        raise SceneError("--ground with --no-collisions: the robot would have nothing to stand on")
     with warnings.catch_warnings():
         warnings.simplefilter("always")  # every note, whatever the caller's filters
         warnings.showwarning = _one_line
         if ext == ".urdf":
-            return load_urdf(source, ignore_unsupported=args.ignore_unsupported, floating=args.floating,
-                             collisions=not args.no_collisions)  # fmt: skip
+            builder = load_urdf(source, ignore_unsupported=args.ignore_unsupported, floating=args.floating,
+                                collisions=not args.no_collisions, self_collisions=args.self_collisions)  # fmt: skip
+            if args.ground:
+                shaped = [b for b in builder.bodies if b.shape is not None]
+                if not shaped:
+                    raise SceneError(f"{source}: --ground: the robot has no collision shape to stand on (its "
+                                     "collisions are meshes, or --no-collisions)")  # fmt: skip
+                builder.add_ground(min(b.position[2] - b.shape.bounding_radius() for b in shaped) - 1e-3)
+            return builder
         if ext in MJCF_SUFFIXES:
             from .mjcf import load_mjcf
 
@@ -155,6 +167,13 @@ def _load_input(source: Path, args):
         if ext in USD_SUFFIXES:
             return usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
     raise SceneError(f"{source}: not a .urdf, an MJCF {'/'.join(MJCF_SUFFIXES)} or a {'/'.join(USD_SUFFIXES)} file")
+
+
+def _given_urdf_flags(args) -> list[str]:
+    """The URDF-only flags given, which any other input refuses rather than ignores."""
+    given = [("--floating/--no-floating", args.floating is not None), ("--no-collisions", args.no_collisions),
+             ("--self-collisions", args.self_collisions), ("--ground", args.ground)]  # fmt: skip
+    return [flag for flag, on in given if on]
 
 
 def _convert(args) -> int:
@@ -312,8 +331,8 @@ def _simulate(args) -> int:
         builder = stage.builder if stage else loaded
         name = source.stem
     else:
-        if args.floating is not None or args.no_collisions:
-            raise SceneError("--floating and --no-collisions are for a URDF input")
+        if _given_urdf_flags(args):
+            raise SceneError(f"{', '.join(_given_urdf_flags(args))}: for a URDF input")
         name = args.scene or "tree127"
         builder = SCENES[name]()
     scene = stage or builder
