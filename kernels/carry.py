@@ -11,6 +11,13 @@ loop stops on the measured error alone, so c only moves where the iteration star
 A step's new c is held aside (`carry_next`) and taken (`carry_commit`) only when the whole (composed) step is
 accepted, so a failed step, redone or halved, starts from the same c in every schedule. Each step size (each stage
 of a composition, each halving) keeps its own c: E scales with the step.
+
+c changes from step to step as the motion does, and a whipping chain or arm turns its links' arms by a good part
+of a radian in a few steps: the last step's c then leaves a first residual of several percent, and a step takes
+2-3 iterations. So the c a step starts from is extrapolated from the last three measured: the parabola through
+them at the next step, 3 m0 - 3 m1 + m2 (m0 the newest), its error third order in the step where the last
+value's is first order (docs/architecture.md, "Fewer joint iterations"). Where fewer are known (after `reset`,
+`set_state`, a new step size), the line through two or the last value alone; an unknown past value is NaN.
 """
 
 import warp as wp
@@ -18,6 +25,34 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
+f64 = wp.float64
+
+
+@wp.func
+def extrapolated(m0: vec3d, m1: vec3d, m2: vec3d) -> vec3d:
+    """The next step's c from the last three measured (m0 the newest, m/s or rad/s): the parabola through
+    them at the next step, the line through m0 and m1 where m2 is unknown (NaN), m0 where m1 is."""
+    if wp.isnan(m1[0]):
+        return m0
+    if wp.isnan(m2[0]):
+        return f64(2.0) * m0 - m1
+    return f64(3.0) * (m0 - m1) + m2
+
+
+@wp.func
+def carry_take(
+    i: int,
+    carry: wp.array(dtype=vec3d),
+    carry_next: wp.array(dtype=vec3d),
+    past1: wp.array(dtype=vec3d),
+    past2: wp.array(dtype=vec3d),
+):
+    """Constraint i of a kept step: the value it measured (carry_next) joins the past (past1 the last step's,
+    past2 the one before), and c for the next step is extrapolated from the three (`extrapolated`)."""
+    m0 = carry_next[i]
+    carry[i] = extrapolated(m0, past1[i], past2[i])
+    past2[i] = past1[i]
+    past1[i] = m0
 
 
 @wp.func
@@ -77,18 +112,36 @@ def carry_out(
 
 @wp.func
 def commit_carry(
-    measured: int, constraint_count: int, carry: wp.array2d(dtype=vec3d), carry_next: wp.array2d(dtype=vec3d)
+    measured: int,
+    constraint_count: int,
+    carry: wp.array2d(dtype=vec3d),
+    carry_next: wp.array2d(dtype=vec3d),
+    carry_past: wp.array2d(dtype=vec3d),
 ):
     """A kept step's c: every row whose bit is set in `measured` (the step sizes whose first solve ran) takes
-    the value measured in the step (`carry_measure`); the others keep theirs."""
+    the value measured in the step into its past and extrapolates its next c (`carry_take`; row r's past is
+    carry_past[2 r] and [2 r + 1]); the others keep theirs."""
     r = wp.int32(0)
     while r < carry.shape[0]:
         if (measured >> r) & 1 != 0:
             i = wp.int32(0)
             while i < constraint_count:
-                carry[r, i] = carry_next[r, i]
+                carry_take(i, carry[r], carry_next[r], carry_past[2 * r], carry_past[2 * r + 1])
                 i += 1
         r += 1
+
+
+@wp.kernel
+def carry_keep(
+    # Data in:
+    carry_next: wp.array(dtype=vec3d),
+    # Data out:
+    carry_out: wp.array(dtype=vec3d),
+    past1_out: wp.array(dtype=vec3d),
+    past2_out: wp.array(dtype=vec3d),
+):
+    """A kept step's c and past (`carry_take`), a constraint a thread."""
+    carry_take(wp.tid(), carry_out, carry_next, past1_out, past2_out)
 
 
 @wp.kernel
@@ -100,9 +153,11 @@ def carry_commit(
     carry_next: wp.array(dtype=vec3d),
     # Data out:
     carry_out: wp.array(dtype=vec3d),
+    past1_out: wp.array(dtype=vec3d),
+    past2_out: wp.array(dtype=vec3d),
 ):
-    """Batched worlds: the c measured in the step, for the constraints of the worlds that keep it (world_take
-    != 0: their step is kept and its first solve ran), a constraint a thread."""
+    """Batched worlds: `carry_keep` for the constraints of the worlds that keep their step (world_take != 0:
+    their step is kept and its first solve ran), a constraint a thread."""
     c = wp.tid()
     if world_take[constraint_world[c]] != 0:
-        carry_out[c] = carry_next[c]
+        carry_take(c, carry_out, carry_next, past1_out, past2_out)

@@ -140,9 +140,9 @@ def projection(kind: int, q0: quatd, q1: quatd, axis0: vec3d, axis1: vec3d) -> m
     """P_i: the rows of the directions the constraint removes (sections 4.2, 4.3)."""
     if kind == POINT or kind == ROTATION:
         return wp.identity(n=3, dtype=f64)
-    a0 = wp.quat_rotate(q0, axis0)
     if kind == LINE or kind == AXIS:
-        return perpendicular_basis(a0)
+        return perpendicular_basis(axis0) * wp.transpose(wp.quat_to_matrix(q0))
+    a0 = wp.quat_rotate(q0, axis0)
     if kind == PLANE:
         return single_row(a0)
     return single_row(wp.normalize(wp.cross(a0, wp.quat_rotate(q1, axis1))))

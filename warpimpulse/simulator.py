@@ -225,7 +225,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         rows = len(self._fractions) if self.carry else 0
         self._carry = wp.zeros((rows, nc), dtype=wp.vec3d, device=d)
         self._carry_next = wp.zeros_like(self._carry)
-        self._carry_other: dict[float, tuple[wp.array, wp.array]] = {}  # halved and split step sizes
+        # The values measured in the last two kept steps of each size (rows 2 r, 2 r + 1), NaN where unknown: c
+        # is extrapolated from them (kernels/carry.py).
+        self._carry_past = wp.full((2 * rows, nc), wp.vec3d(math.nan, math.nan, math.nan), dtype=wp.vec3d, device=d)
+        self._carry_other: dict[float, tuple[wp.array, ...]] = {}  # halved and split step sizes
         self.linear = None
         if nc == 0:  # free bodies only: nothing to solve
             pass
