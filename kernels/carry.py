@@ -30,13 +30,16 @@ f64 = wp.float64
 
 @wp.func
 def extrapolated(m0: vec3d, m1: vec3d, m2: vec3d) -> vec3d:
-    """The next step's c from the last three measured (m0 the newest, m/s or rad/s): the parabola through
-    them at the next step, the line through m0 and m1 where m2 is unknown (NaN), m0 where m1 is."""
+    """The next step's c from the last three measured (m0 the newest, m/s or rad/s): the line through m0 and m1
+    where that line, drawn a step earlier through m1 and m2, would have come nearer m0 than m1 did; else m0.
+    m0 where m1 is unknown (NaN); with m2 unknown the line is taken."""
     if wp.isnan(m1[0]):
         return m0
     if wp.isnan(m2[0]):
         return f64(2.0) * m0 - m1
-    return f64(3.0) * (m0 - m1) + m2
+    if wp.length_sq(m0 - (f64(2.0) * m1 - m2)) < wp.length_sq(m0 - m1):
+        return f64(2.0) * m0 - m1
+    return m0
 
 
 @wp.func
