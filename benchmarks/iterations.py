@@ -11,11 +11,16 @@ Part two, error: the same settings on the MJCF scenes of benchmarks/scene_kinds.
 (arm7, chain30, tree127 with its root torque), the largest distance of a tracked point from MuJoCo RK4 at
 h = 1/32000 at the end of the window, both ways of calling.
 
-Each run is labelled (`--label before|after`) and merged into the JSON, so one code version's numbers can be
-set beside another's (their timings are then from separate processes: say so with them); with both labels in
-the JSON the figure is drawn.
+Part three, what changed: the 25 scenes of benchmarks/state_hashes.py as it runs them (one `step()` a call):
+their iterations a step and final positions, so that two code versions' can be compared body by body.
 
-    .venv/bin/python benchmarks/iterations.py --label after [--json benchmarks/results/iterations.json]
+Each run is labelled (`--label before|after`) and merged into the JSON, so one code version's numbers can be
+set beside another's. Their timings then come from separate processes on a machine others share: run the
+timing part of the two versions in turn, several times (`--parts iterations`); each run's rounds are added to
+the label's, and the median is taken over all of them. With both labels in the JSON the figure is drawn and
+the state comparison printed.
+
+    .venv/bin/python benchmarks/iterations.py --label after [--parts iterations errors states]
     .venv/bin/python benchmarks/iterations.py --plot
 """
 
@@ -42,6 +47,7 @@ FIGURE = ROOT / "docs/images/iterations.png"
 H, TOLERANCE, WINDOW, BATCH, ROUNDS = 1 / 120, 1e-6, 2.0, 100, 7
 BUILT = {"chain20": lambda: scenes.chain(20), "arm7": scene_kinds.arm7, "tree127": lambda: scenes.binary_tree(127)}
 MJCF = ("arm7", "chain30", "tree127")
+PARTS = ("iterations", "errors", "states")
 
 
 def iterations(make) -> dict:
@@ -50,17 +56,53 @@ def iterations(make) -> dict:
     sim = wi.Simulator(model, H, tolerance=TOLERANCE)
     steps = int(round(WINDOW / H))
     per_call = sum(sim.step().joint_iterations for _ in range(steps)) / steps
-    times, batched = [], 0.0
+    rounds, batched = [], 0.0
     for _ in range(ROUNDS + 1):  # the first round compiles and warms up
         sim.reset()
         its, start = 0, time.process_time()
         for _ in range(steps // BATCH):
             its += sim.step(BATCH).joint_iterations
-        times.append((time.process_time() - start) / (steps // BATCH * BATCH) / model.body_count * 1e6)
+        rounds.append((time.process_time() - start) / (steps // BATCH * BATCH) / model.body_count * 1e6)
         batched = its / (steps // BATCH * BATCH)
-    timed = times[1:]
     return {"bodies": model.body_count, "iterations_batched": batched, "iterations_per_call": per_call,
-            "us_per_body_step": statistics.median(timed), "us_spread": [min(timed), max(timed)]}  # fmt: skip
+            "us_rounds": rounds[1:]}  # fmt: skip
+
+
+def merge_timings(old: dict | None, new: dict) -> dict:
+    """`new` with the rounds of `old` (an earlier run of the same label) added, and their median and range."""
+    for name, row in new.items():
+        if old and name in old:
+            row["us_rounds"] = old[name]["us_rounds"] + row["us_rounds"]
+        row["us_per_body_step"] = statistics.median(row["us_rounds"])
+        row["us_spread"] = [min(row["us_rounds"]), max(row["us_rounds"])]
+    return new
+
+
+def states() -> dict:
+    """Iterations a step and final positions of benchmarks/state_hashes.py's scenes, run as it runs them."""
+    import warnings
+
+    import state_hashes
+
+    out = {}
+    for name, (make, dt, steps, settings, switches) in state_hashes.SCENES.items():
+        sim = state_hashes._simulator(make().finalize("cpu"), dt, settings, switches)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            its = sum(sim.step().joint_iterations for _ in range(steps))
+        out[name] = {"iterations": its / steps, "positions": sim.positions().tolist()}
+    return out
+
+
+def compare_states(results: dict) -> list[str]:
+    """A line a scene: iterations a step before -> after and the largest difference of a final position (m)."""
+    before, after = results["before"]["states"], results["after"]["states"]
+    lines = []
+    for name in after:
+        moved = float(np.abs(np.array(after[name]["positions"]) - np.array(before[name]["positions"])).max())
+        lines.append(f"{name:28s} {before[name]['iterations']:7.3f} -> {after[name]['iterations']:7.3f} it/step, "
+                     f"final positions differ by {moved:.1e} m")  # fmt: skip
+    return lines
 
 
 def errors(name: str) -> dict:
@@ -104,30 +146,41 @@ def plot(results: dict) -> Path:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--label", choices=("before", "after"))
+    p.add_argument("--parts", nargs="+", choices=PARTS, default=PARTS)
     p.add_argument("--json", type=Path, default=JSON)
     p.add_argument("--plot", action="store_true", help="only the figure, from the JSON")
     args = p.parse_args(argv)
     results = json.loads(args.json.read_text()) if args.json.exists() else {}
     if args.label:
         scene_kinds.quiet_warp()
-        run = {"iterations": {n: iterations(make) for n, make in BUILT.items()}}
-        run["errors"] = {n: errors(n) for n in MJCF}
+        run = results.setdefault(args.label, {})
+        if "iterations" in args.parts:
+            fresh = {n: iterations(make) for n, make in BUILT.items()}
+            run["iterations"] = merge_timings(run.get("iterations"), fresh)
+        if "errors" in args.parts:
+            run["errors"] = {n: errors(n) for n in MJCF}
+        if "states" in args.parts:
+            run["states"] = states()
         command = "python benchmarks/iterations.py " + " ".join(sys.argv[1:])
-        run["meta"] = scene_kinds.meta([]) | {"command": command, "commit": _commit()}
-        results[args.label] = run
+        run.setdefault("meta", []).append(scene_kinds.meta([]) | {"command": command, "code": _code()})
         args.json.write_text(json.dumps(results, indent=1) + "\n")
-        print(json.dumps(run, indent=1))
+        print(json.dumps({k: v for k, v in run.items() if k != "states"}, indent=1))
     if len(results) >= 2 or args.plot:
         print("figure:", plot(results))
+    if all("states" in results.get(label, {}) for label in ("before", "after")):
+        print("\n".join(compare_states(results)))
     return 0
 
 
-def _commit() -> str:
+def _code() -> str:
+    """The commit checked out, and a note where warpimpulse/ or kernels/ differ from it (a version under test)."""
     import subprocess
 
-    return subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
-    ).stdout.strip()
+    def git(*a: str) -> str:
+        return subprocess.run(["git", *a], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+
+    changed = git("status", "--porcelain", "--", "warpimpulse", "kernels")
+    return git("rev-parse", "--short", "HEAD") + (" with warpimpulse/, kernels/ changed" if changed else "")
 
 
 if __name__ == "__main__":
