@@ -15,6 +15,7 @@ import warp as wp
 
 from . import checks, diagnose
 from .files import write_atomically
+from .kernels import carry as carry_kernels
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
 
@@ -157,9 +158,8 @@ class Checkpoints:
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
-            past = data.get("carry_past")  # the values measured in the last two steps, NaN where unknown
-            if past is not None and (past.dtype.kind != "f" or past.shape != (len(sizes), 2, nc, 3)
-                                     or np.any(np.isinf(past))):  # fmt: skip
-                raise refuse(f"'carry_past' has shape {past.shape} or infinite values; expected ({len(sizes)}, 2, "
-                             f"{nc}, 3)")  # fmt: skip
+            past = data.get("carry_past")  # the values measured in the last steps, NaN where unknown
+            shape = (len(sizes), carry_kernels.PAST, nc, 3)
+            if past is not None and (past.dtype.kind != "f" or past.shape != shape or np.any(np.isinf(past))):
+                raise refuse(f"'carry_past' has shape {past.shape} or infinite values; expected {shape}")
         return data

@@ -137,32 +137,33 @@ class Recording:
          self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
         self._h = h
 
-    def _carry_arrays(self, h: float) -> tuple[wp.array, wp.array, wp.array, wp.array]:
-        """(c, the c measured in the step, the values measured in the last kept step and the one before) for
+    def _carry_arrays(self, h: float) -> tuple[wp.array, ...]:
+        """(c, the c measured in the step, the values measured in the last kept steps, the newest first) for
         steps of h (`carry`): a stage's rows at dt, which the fused kernel shares, or arrays of their own for a
         halved or split step size."""
         if h in self._carry_rows:
             r = self._carry_rows[h]
-            return self._carry[r], self._carry_next[r], self._carry_past[2 * r], self._carry_past[2 * r + 1]
+            past = (self._carry_past[carry_kernels.PAST * r + k] for k in range(carry_kernels.PAST))
+            return self._carry[r], self._carry_next[r], *past
         if h not in self._carry_other:
             c = wp.zeros(self.model.constraint_count, dtype=wp.vec3d, device=self.model.device)
             unknown = wp.vec3d(math.nan, math.nan, math.nan)
-            self._carry_other[h] = (c, wp.zeros_like(c), *(wp.full_like(c, unknown) for _ in range(2)))
+            self._carry_other[h] = (c, wp.zeros_like(c), *(wp.full_like(c, unknown) for _ in range(carry_kernels.PAST)))
         return self._carry_other[h]
 
     def _keep_carry(self, h: float) -> None:
         """A kept step of h whose first solve ran: the value it measured joins the past and c is extrapolated
         for the next step (`carry`, kernels/carry.py)."""
-        c, c_next, past1, past2 = self._carry_arrays(h)
-        wp.launch(carry_kernels.carry_keep, c.shape[0], inputs=[c_next], outputs=[c, past1, past2],
+        c, c_next, *past = self._carry_arrays(h)
+        wp.launch(carry_kernels.carry_keep, c.shape[0], inputs=[c_next], outputs=[c, *past],
                   device=self.model.device)  # fmt: skip
 
-    def _carries_of(self, h: float) -> tuple[wp.array, wp.array, wp.array]:
-        """What steps of h carry to the next (`carry`): c, the last value measured and the one before."""
-        c, _, past1, past2 = self._carry_arrays(h)
-        return c, past1, past2
+    def _carries_of(self, h: float) -> tuple[wp.array, ...]:
+        """What steps of h carry to the next (`carry`): c and the values measured in the last kept steps."""
+        c, _, *past = self._carry_arrays(h)
+        return c, *past
 
-    def _carries(self) -> dict[float, tuple[wp.array, wp.array, wp.array]]:
+    def _carries(self) -> dict[float, tuple[wp.array, ...]]:
         """`_carries_of` every step size that has them (`carry`)."""
         return {h: self._carries_of(h) for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
 

@@ -230,10 +230,10 @@ class Batch:
         stats.substeps[batch] += 1
         if sim.carry:  # the worlds kept whose first solve ran keep the c it measured (`Simulator.carry`)
             if h not in self._commits:
-                c, c_next, past1, past2 = sim._carry_arrays(h)
+                c, c_next, *past = sim._carry_arrays(h)
                 self._commits[h] = sim._record(carry_kernels.carry_commit, sim.model.constraint_count,
                                                world_take=self.world_take, carry_next=c_next, carry_out=c,
-                                               past1_out=past1, past2_out=past2)  # fmt: skip
+                                               **{f"past{k + 1}_out": p for k, p in enumerate(past)})  # fmt: skip
             self.world_take.assign((batch & (iterations > 0)).astype(np.int32))
             self._commits[h].launch()
 
