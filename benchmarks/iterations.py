@@ -11,7 +11,10 @@ Part two, error: the same settings on the MJCF scenes of benchmarks/scene_kinds.
 (arm7, chain30, tree127 with its root torque), the largest distance of a tracked point from MuJoCo RK4 at
 h = 1/32000 at the end of the window, both ways of calling.
 
-Part three, what changed: the 25 scenes of benchmarks/state_hashes.py as it runs them (one `step()` a call):
+Part three, iterations over step sizes: chains of 10, 20, 30 and 50 hinges, the arm, the tree and the planar
+double pendulum at h = 1/60 and 1/120 (`GRID`), 2 s from rest in `step(20)` calls: iterations a step.
+
+Part four, what changed: the 25 scenes of benchmarks/state_hashes.py as it runs them (one `step()` a call):
 their iterations a step and final positions, so that two code versions' can be compared body by body.
 
 Each run is labelled (`--label before|after`) and merged into the JSON, so one code version's numbers can be
@@ -47,7 +50,15 @@ FIGURE = ROOT / "docs/images/iterations.png"
 H, TOLERANCE, WINDOW, BATCH, ROUNDS = 1 / 120, 1e-6, 2.0, 100, 7
 BUILT = {"chain20": lambda: scenes.chain(20), "arm7": scene_kinds.arm7, "tree127": lambda: scenes.binary_tree(127)}
 MJCF = ("arm7", "chain30", "tree127")
-PARTS = ("iterations", "errors", "states")
+PARTS = ("iterations", "errors", "grid", "states")
+GRID = (  # name, builder, 1/h
+    ("chain10", lambda: scenes.chain(10), 60), ("chain20", lambda: scenes.chain(20), 60),
+    ("chain30", lambda: scenes.chain(30), 60), ("chain50", lambda: scenes.chain(50), 60),
+    ("arm7", scene_kinds.arm7, 60), ("tree127", lambda: scenes.binary_tree(127), 60),
+    ("chain20", lambda: scenes.chain(20), 120), ("chain30", lambda: scenes.chain(30), 120),
+    ("chain50", lambda: scenes.chain(50), 120), ("arm7", scene_kinds.arm7, 120),
+    ("tree127", lambda: scenes.binary_tree(127), 120), ("double_pendulum", scenes.double_pendulum, 120),
+)  # fmt: skip
 
 
 def iterations(make) -> dict:
@@ -76,6 +87,21 @@ def merge_timings(old: dict | None, new: dict) -> dict:
         row["us_per_body_step"] = statistics.median(row["us_rounds"])
         row["us_spread"] = [min(row["us_rounds"]), max(row["us_rounds"])]
     return new
+
+
+def grid() -> dict:
+    """Iterations a step over `WINDOW` s from rest in step(20) calls, a scene and step size of `GRID` each."""
+    out = {}
+    for name, make, rate in GRID:
+        sim = wi.Simulator(make().finalize("cpu"), 1.0 / rate, tolerance=TOLERANCE)
+        steps = int(round(WINDOW * rate))
+        out[f"{name} h=1/{rate}"] = sum(sim.step(20).joint_iterations for _ in range(steps // 20)) / steps
+    return out
+
+
+def compare_grid(results: dict) -> list[str]:
+    before, after = results["before"]["grid"], results["after"]["grid"]
+    return [f"{k:28s} {before[k]:6.3f} -> {after[k]:6.3f} it/step ({after[k] / before[k] - 1:+.1%})" for k in after]
 
 
 def states() -> dict:
@@ -159,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
             run["iterations"] = merge_timings(run.get("iterations"), fresh)
         if "errors" in args.parts:
             run["errors"] = {n: errors(n) for n in MJCF}
+        if "grid" in args.parts:
+            run["grid"] = grid()
         if "states" in args.parts:
             run["states"] = states()
         command = "python benchmarks/iterations.py " + " ".join(sys.argv[1:])
@@ -167,8 +195,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({k: v for k, v in run.items() if k != "states"}, indent=1))
     if len(results) >= 2 or args.plot:
         print("figure:", plot(results))
-    if all("states" in results.get(label, {}) for label in ("before", "after")):
-        print("\n".join(compare_states(results)))
+    for part, compare in (("grid", compare_grid), ("states", compare_states)):
+        if all(part in results.get(label, {}) for label in ("before", "after")):
+            print("\n".join(compare(results)))
     return 0
 
 
