@@ -24,7 +24,7 @@ the label's, and the median is taken over all of them. With both labels in the J
 the state comparison printed.
 
     .venv/bin/python benchmarks/iterations.py --label after [--parts iterations errors states]
-    .venv/bin/python benchmarks/iterations.py --plot
+    .venv/bin/python benchmarks/iterations.py --plot --doc   # figure and docs/results.md's block from the JSON
 """
 
 from __future__ import annotations
@@ -47,6 +47,8 @@ import scene_kinds  # noqa: E402  (a sibling script: its scenes and MuJoCo refer
 
 JSON = ROOT / "benchmarks/results/iterations.json"
 FIGURE = ROOT / "docs/images/iterations.png"
+DOC = ROOT / "docs/results.md"
+BEGIN, END = "<!-- iterations:begin -->", "<!-- iterations:end -->"
 H, TOLERANCE, WINDOW, BATCH, ROUNDS = 1 / 120, 1e-6, 2.0, 100, 7
 BUILT = {"chain20": lambda: scenes.chain(20), "arm7": scene_kinds.arm7, "tree127": lambda: scenes.binary_tree(127)}
 MJCF = ("arm7", "chain30", "tree127")
@@ -169,12 +171,60 @@ def plot(results: dict) -> Path:
     return FIGURE
 
 
+def doc_block(results: dict) -> str:
+    """docs/results.md's block: the figure, the tables of iterations, time and error, before and after."""
+    before, after = results["before"], results["after"]
+    rows = ["| scene | iterations a step, step(100) | step() a call | CPU µs a body-step, step(100): median (range) |",
+            "|---|---:|---:|---:|"]  # fmt: skip
+    for n, a in after["iterations"].items():
+        b = before["iterations"][n]
+        rows.append(f"| {n} | {b['iterations_batched']:.3f} -> {a['iterations_batched']:.3f} | "
+                    f"{b['iterations_per_call']:.3f} -> {a['iterations_per_call']:.3f} | "
+                    f"{b['us_per_body_step']:.3f} ({b['us_spread'][0]:.2f}-{b['us_spread'][1]:.2f}) -> "
+                    f"{a['us_per_body_step']:.3f} ({a['us_spread'][0]:.2f}-{a['us_spread'][1]:.2f}) |")  # fmt: skip
+    rounds = len(next(iter(after["iterations"].values()))["us_rounds"])
+    errors = [
+        "| MJCF scene | error, step(n) (m) | error, step() a call (m) | reference floor (m) |",
+        "|---|---:|---:|---:|",
+    ]
+    for n, a in after["errors"].items():
+        b = before["errors"][n]
+        one, per = (f"{b[k]:.6g} -> {a[k]:.6g}" for k in ("error_one_call", "error_per_call"))
+        errors.append(f"| {n} | {one} | {per} | {a['reference_floor']:.1e} |")
+    grid_rows = ["| scene, h | iterations a step, step(20) |", "|---|---:|"]
+    grid_rows += [f"| {k} | {before['grid'][k]:.3f} -> {v:.3f} ({v / before['grid'][k] - 1:+.1%}) |"
+                  for k, v in after["grid"].items()]  # fmt: skip
+    codes = f"before: {before['meta'][0]['code']}; after: {after['meta'][0]['code']}"
+    return "\n".join([
+        f"Joint iterations and cost at h = 1/{round(1 / H)}, tolerance {TOLERANCE:g}, {WINDOW:g} s from rest, before "
+        f"and after the carried right-hand side was extrapolated (kernels/carry.py). Iterations are deterministic; the "
+        f"times are CPU time (`time.process_time`), the median of {rounds} rounds from processes of the two versions "
+        "run in turn on a loaded 2-core machine (their ranges overlap: read the iterations, and the time only where "
+        "it moves with them).", "", "![iterations](images/iterations.png)", "", *rows, "",
+        "The error at the end of the window against MuJoCo RK4 at h = 1/32000 (the MJCF scenes of "
+        "benchmarks/scene_kinds.py that both engines read):", "", *errors, "",
+        "Iterations a step over step sizes (2 s from rest):", "", *grid_rows, "",
+        f"{codes}; `python benchmarks/iterations.py --label before|after`, then `--plot --doc`.",
+    ])  # fmt: skip
+
+
+def write_doc(results: dict) -> None:
+    text = DOC.read_text()
+    block = f"{BEGIN}\n{doc_block(results)}\n{END}"
+    if BEGIN in text:
+        text = text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) :]
+    else:
+        text = text.rstrip("\n") + "\n\n### Joint iterations on serial mechanisms\n\n" + block + "\n"
+    DOC.write_text(text)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--label", choices=("before", "after"))
     p.add_argument("--parts", nargs="+", choices=PARTS, default=PARTS)
     p.add_argument("--json", type=Path, default=JSON)
     p.add_argument("--plot", action="store_true", help="only the figure, from the JSON")
+    p.add_argument("--doc", action="store_true", help=f"write {DOC.name}'s block from the JSON")
     args = p.parse_args(argv)
     results = json.loads(args.json.read_text()) if args.json.exists() else {}
     if args.label:
@@ -195,6 +245,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps({k: v for k, v in run.items() if k != "states"}, indent=1))
     if len(results) >= 2 or args.plot:
         print("figure:", plot(results))
+    if args.doc:
+        write_doc(results)
     for part, compare in (("grid", compare_grid), ("states", compare_states)):
         if all(part in results.get(label, {}) for label in ("before", "after")):
             print("\n".join(compare(results)))
