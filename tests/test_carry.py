@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 import warp as wp
 from option_runs import assert_saves_iterations, off_and_on
+from scipy.spatial.transform import Rotation
 from warpimpulse.kernels import carry as carry_kernels
+from warpimpulse.kernels import constraints as constraint_kernels
 
 import warpimpulse as wi
 from warpimpulse import scenes
@@ -151,3 +153,29 @@ def test_where_the_carry_is_taken():
     assert not wi.Simulator(stack, 1 / 60).carry
     with pytest.raises(ValueError, match="carry needs.*colliders"):
         wi.Simulator(stack, 1 / 60, options=wi.StepOptions(carry=True))
+
+
+@wp.kernel
+def _axis_rows(q0: wp.array(dtype=wp.quatd), axis0: wp.vec3d, rows: wp.array(dtype=wp.mat33d)):
+    i = wp.tid()
+    rows[i] = constraint_kernels.projection(constraint_kernels.AXIS, q0[i], q0[i], axis0, axis0)
+
+
+def test_a_hinge_axis_rows_turn_with_its_first_body():
+    """The two rows an axis constraint removes (the frame c is measured in) are perpendicular to the axis in
+    the world and turn with the first body: the rows at orientation q are those at the identity turned by q,
+    also where the axis turns past 0.7 of x (a basis made from the world axis switched its helper there, and the
+    carried values were then taken in the wrong rows)."""
+    axis = np.array([0.0, 0.0, 1.0])
+    angles = np.linspace(0.0, np.pi, 37)  # the axis turns from z through x (|a_x| > 0.7 from 0.78 rad)
+    quats = np.array([[0.0, np.sin(a / 2), 0.0, np.cos(a / 2)] for a in angles])  # about y, (x, y, z, w)
+    q = wp.array(quats, dtype=wp.quatd, device="cpu")
+    rows = wp.zeros(len(angles), dtype=wp.mat33d, device="cpu")
+    wp.launch(_axis_rows, len(angles), inputs=[q, wp.vec3d(*axis)], outputs=[rows], device="cpu")
+    rows = rows.numpy()
+    turn = Rotation.from_quat(quats).as_matrix()
+    for p, r in zip(rows, turn, strict=True):
+        world_axis = r @ axis
+        np.testing.assert_allclose(p[:2] @ p[:2].T, np.eye(2), atol=1e-12)
+        np.testing.assert_allclose(p[:2] @ world_axis, 0.0, atol=1e-12)
+        np.testing.assert_allclose(p, rows[0] @ r.T, atol=1e-12)
