@@ -137,12 +137,16 @@ def joint_points(kind: int, x0: vec3d, q0: quatd, x1: vec3d, q1: quatd, anchor0:
 
 @wp.func
 def projection(kind: int, q0: quatd, q1: quatd, axis0: vec3d, axis1: vec3d) -> mat33d:
-    """P_i: the rows of the directions the constraint removes (sections 4.2, 4.3)."""
+    """P_i: the rows of the directions the constraint removes (sections 4.2, 4.3). A line's or an axis's two rows
+    are made in body0's frame (axis0 is in it) and turned with the body: any basis of the plane removes the same
+    motion, but this one turns smoothly with the joint, so the values the first iteration carries from step to
+    step in these rows (kernels/carry.py) stay in one frame; one made from the world axis switches its helper
+    vector as the axis turns."""
     if kind == POINT or kind == ROTATION:
         return wp.identity(n=3, dtype=f64)
-    a0 = wp.quat_rotate(q0, axis0)
     if kind == LINE or kind == AXIS:
-        return perpendicular_basis(a0)
+        return perpendicular_basis(axis0) * wp.transpose(wp.quat_to_matrix(q0))
+    a0 = wp.quat_rotate(q0, axis0)
     if kind == PLANE:
         return single_row(a0)
     return single_row(wp.normalize(wp.cross(a0, wp.quat_rotate(q1, axis1))))

@@ -964,6 +964,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         stage_carry: wp.array(dtype=int),
         carry: wp.array2d(dtype=vec3d),
         carry_next: wp.array2d(dtype=vec3d),
+        carry_past: wp.array2d(dtype=vec3d),
         # Data out: the state, advanced in place, and a status row a step
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
@@ -1234,7 +1235,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     failed = max_or_nan(failed, verr)
                 stage += 1
             if code == OK or code == VELOCITY:  # the step is kept: its carry rows are taken
-                commit_carry(measured, constraint_count, carry, carry_next)
+                commit_carry(measured, constraint_count, carry, carry_next, carry_past)
             finish(
                 status_out, k, code, iterations, velocity_iterations,
                 iterations + velocity_iterations + row_solves + newton_solves,

@@ -35,7 +35,7 @@ def test_split_step_is_the_fused_step_bit_for_bit(threads):
     assert a == b
     for x, y in zip(state_of(one), state_of(split)):
         assert np.array_equal(x, y)
-    assert sum(s.joint_iterations for s in b) > 90  # the correction iterated: the solve was exercised
+    assert min(s.joint_iterations for s in b) >= 1  # every step's correction solved: the solve was exercised
     assert all(s.velocity_iterations == 1 for s in b)  # so was the velocity correction's
     split.close()
 

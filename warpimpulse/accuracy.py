@@ -115,7 +115,8 @@ class Controller:
         self.order = 2 if sim.model.limit_count else sim.order
         self._start = sim.model.state()  # the state a check returns to
         self._integral = wp.zeros_like(sim.drive_integral)
-        self._carry = wp.zeros_like(sim._carry)  # the carried right-hand sides (`Simulator.carry`)
+        self._carry = wp.zeros_like(sim._carry)  # the carried right-hand sides (`Simulator.carry`) and their past
+        self._carry_past = wp.zeros_like(sim._carry_past)
         self._copies = self._pairs()
         host = sim.model.host  # radii of gyration (m): sqrt(trace(I) / m), 0 for static bodies
         mass = np.where(host.body_mass > 0.0, host.body_mass, np.inf)
@@ -254,7 +255,7 @@ class Controller:
         carried right-hand sides; on a CPU as numpy views, copied without a launch (~0.2 us against ~10 us)."""
         sim = self.sim
         pairs = [(getattr(sim.state, f), getattr(self._start, f)) for f in ("body_x", "body_q", "body_v", "body_w")]
-        pairs += [(sim.drive_integral, self._integral), (sim._carry, self._carry)]
+        pairs += [(sim.drive_integral, self._integral), (sim._carry, self._carry), (sim._carry_past, self._carry_past)]
         if sim.model.device.is_cpu:
             return [(a.numpy(), b.numpy()) for a, b in pairs]
         return pairs

@@ -15,6 +15,7 @@ import warp as wp
 
 from . import checks, diagnose
 from .files import write_atomically
+from .kernels import carry as carry_kernels
 
 STATE = ("x", "q", "v", "w")  # the state arrays in a checkpoint (State.body_x, ...)
 
@@ -40,9 +41,10 @@ class Checkpoints:
         data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
-        if self.carry:  # the first iterations' carried right-hand sides, a row a step size
+        if self.carry:  # the first iterations' carried right-hand sides and their past, a row a step size
             carries = self._carries()
-            data.update(carry_h=np.array(list(carries)), carry=np.stack([c.numpy() for c in carries.values()]))
+            data.update(carry_h=np.array(list(carries)), carry=np.stack([c.numpy() for c, *_ in carries.values()]),
+                        carry_past=np.stack([[p.numpy() for p in past] for _, *past in carries.values()]))  # fmt: skip
         write_atomically(path, lambda tmp: np.savez(tmp, **data), ".npz")
 
     def load_checkpoint(self, path) -> None:
@@ -70,8 +72,12 @@ class Checkpoints:
                     warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
         self._forget_carry()
         if self.carry and "carry" in data:
-            for h, c in zip(data["carry_h"].tolist(), data["carry"]):
-                self._carry_arrays(h)[0].assign(c)
+            for k, (h, c) in enumerate(zip(data["carry_h"].tolist(), data["carry"])):
+                mine = self._carries_of(h)
+                mine[0].assign(c)
+                if "carry_past" in data:  # else (an older checkpoint) unknown: c is extrapolated once it is known
+                    for p, past in zip(mine[1:], data["carry_past"][k]):
+                        p.assign(past)
         self._active_forces = None
         self._update_frames()
         self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
@@ -152,4 +158,8 @@ class Checkpoints:
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
+            past = data.get("carry_past")  # the values measured in the last steps, NaN where unknown
+            shape = (len(sizes), carry_kernels.PAST, nc, 3)
+            if past is not None and (past.dtype.kind != "f" or past.shape != shape or np.any(np.isinf(past))):
+                raise refuse(f"'carry_past' has shape {past.shape} or infinite values; expected {shape}")
         return data

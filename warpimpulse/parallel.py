@@ -151,10 +151,9 @@ class ParallelSteps:
                 halves.velocity_iterations += sum(p.velocity_iterations for p in parts)
                 halves.linear_iterations += sum(p.linear_iterations for p in parts)
                 return halves
-        if self.carry:  # the step is kept: so are the c it measured
-            for g, part in zip(stages, parts):
-                if part.joint_iterations:
-                    self._keep_carry(g * h)
+        if self.carry:  # the step is kept: so are the c it measured, once a step size (stages may share one)
+            for size in dict.fromkeys(g * h for g, part in zip(stages, parts) if part.joint_iterations):
+                self._keep_carry(size)
         stats = combined(parts)
         stats.substeps = 1
         return stats

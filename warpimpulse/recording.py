@@ -6,6 +6,8 @@ Python work. Step sizes other than dt (substeps, composed stages) get their own 
 
 from __future__ import annotations
 
+import math
+
 import warp as wp
 
 from .kernels import carry as carry_kernels
@@ -113,7 +115,7 @@ class Recording:
                 first_iteration = iteration
                 carry_in, newton, carry_out = [], [], []
                 if self.carry:  # the first solves rhs + c, then measures the next c (`carry`)
-                    c, c_next = self._carry_arrays(h)
+                    c, c_next, *_ = self._carry_arrays(h)
                     carry_in = [self._record(carry_kernels.carry_in, nc, carry=c, rhs_out=self.rhs)]
                     carry_out = [self._record(carry_kernels.carry_out, nc, carry=c, rhs_in=self.rhs,
                                               carry_next_out=c_next)]  # fmt: skip
@@ -135,31 +137,44 @@ class Recording:
          self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
         self._h = h
 
-    def _carry_arrays(self, h: float) -> tuple[wp.array, wp.array]:
-        """(c, the c measured in the step) for steps of h (`carry`): a stage's rows at dt, which the fused kernel
-        shares, or arrays of their own for a halved or split step size."""
+    def _carry_arrays(self, h: float) -> tuple[wp.array, ...]:
+        """(c, the c measured in the step, the values measured in the last kept steps, the newest first) for
+        steps of h (`carry`): a stage's rows at dt, which the fused kernel shares, or arrays of their own for a
+        halved or split step size."""
         if h in self._carry_rows:
             r = self._carry_rows[h]
-            return self._carry[r], self._carry_next[r]
+            past = (self._carry_past[carry_kernels.PAST * r + k] for k in range(carry_kernels.PAST))
+            return self._carry[r], self._carry_next[r], *past
         if h not in self._carry_other:
             c = wp.zeros(self.model.constraint_count, dtype=wp.vec3d, device=self.model.device)
-            self._carry_other[h] = (c, wp.zeros_like(c))
+            unknown = wp.vec3d(math.nan, math.nan, math.nan)
+            self._carry_other[h] = (c, wp.zeros_like(c), *(wp.full_like(c, unknown) for _ in range(carry_kernels.PAST)))
         return self._carry_other[h]
 
     def _keep_carry(self, h: float) -> None:
-        """A kept step of h whose first solve ran: its c becomes the value it measured (`carry`)."""
-        wp.copy(*self._carry_arrays(h))
+        """A kept step of h whose first solve ran: the value it measured joins the past and c is extrapolated
+        for the next step (`carry`, kernels/carry.py)."""
+        c, c_next, *past = self._carry_arrays(h)
+        wp.launch(carry_kernels.carry_keep, c.shape[0], inputs=[c_next], outputs=[c, *past],
+                  device=self.model.device)  # fmt: skip
 
-    def _carries(self) -> dict[float, wp.array]:
-        """c of every step size that has one (`carry`)."""
-        return {h: self._carry_arrays(h)[0] for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
+    def _carries_of(self, h: float) -> tuple[wp.array, ...]:
+        """What steps of h carry to the next (`carry`): c and the values measured in the last kept steps."""
+        c, _, *past = self._carry_arrays(h)
+        return c, *past
+
+    def _carries(self) -> dict[float, tuple[wp.array, ...]]:
+        """`_carries_of` every step size that has them (`carry`)."""
+        return {h: self._carries_of(h) for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
 
     def _forget_carry(self, world: int | None = None) -> None:
         """No c to carry, for one world or all: its state was set from outside the step (`reset`, `set_state`)."""
         nc = self.model.world_constraint_count
         rows = slice(None) if world is None else slice(world * nc, (world + 1) * nc)
-        for c in self._carries().values():
+        for c, *past in self._carries().values():
             c[rows].zero_()
+            for p in past:
+                p[rows].fill_(wp.vec3d(math.nan, math.nan, math.nan))
 
     def _coupled_prediction(self, h: float) -> Launches:
         """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""

@@ -26,6 +26,7 @@ from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .failures import Failures
 from .fused import FusedSteps
 from .inputs import Inputs
+from .kernels import carry as carry_kernels
 from .kernels import constraints as constraint_kernels
 from .kernels import loop as loop_kernels
 from .kernels import step as step_kernels
@@ -225,7 +226,12 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         rows = len(self._fractions) if self.carry else 0
         self._carry = wp.zeros((rows, nc), dtype=wp.vec3d, device=d)
         self._carry_next = wp.zeros_like(self._carry)
-        self._carry_other: dict[float, tuple[wp.array, wp.array]] = {}  # halved and split step sizes
+        # The values measured in the last kept steps of each size (rows PAST r ... PAST r + PAST - 1, the newest
+        # first), NaN where unknown: c is extrapolated from them (kernels/carry.py).
+        self._carry_past = wp.full(
+            (carry_kernels.PAST * rows, nc), wp.vec3d(math.nan, math.nan, math.nan), dtype=wp.vec3d, device=d
+        )
+        self._carry_other: dict[float, tuple[wp.array, ...]] = {}  # halved and split step sizes
         self.linear = None
         if nc == 0:  # free bodies only: nothing to solve
             pass

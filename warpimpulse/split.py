@@ -238,7 +238,7 @@ class SplitSimulator(Simulator):
         self._singular = wp.zeros((count, 2), dtype=wp.int32, device=d)
         self._out_view, self._singular_view = self._out.numpy(), self._singular.numpy()
         p = self.pred
-        c, c_next = self._carry_arrays(self.dt) if self.carry else (self.rhs, self.rhs)  # (`Simulator.carry`)
+        c, c_next, *_ = self._carry_arrays(self.dt) if self.carry else (self.rhs, self.rhs)  # (`Simulator.carry`)
         scratch = dict(pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, v0=self._v0, w0=self._w0,
                        carrying=int(self.carry), carry=c, carry_next=c_next)  # fmt: skip
         sources = (self.linear.fused_args, self.model, self.frames, self.control, self, self.linear.device_pattern,

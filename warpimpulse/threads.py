@@ -310,7 +310,7 @@ class _Snapshot:
         ]
         if integral.size:
             pairs.append((integral, sim.drive_integral))
-        pairs += [(wp.clone(c), c) for c in sim._carries().values()]
+        pairs += [(wp.clone(c), c) for arrays in sim._carries().values() for c in arrays]
         self._take = capture(sim.model.device, *(functools.partial(wp.copy, a, b) for a, b in pairs))
         self._back = capture(sim.model.device, *(functools.partial(wp.copy, b, a) for a, b in pairs))
         self.clock = (sim.time, sim.step_count, sim._spin, sim._fallback)
