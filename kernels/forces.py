@@ -564,3 +564,242 @@ def rk4_stage(
         body_torque, wrench_force, wrench_torque, rk4_sum_x, rk4_sum_q, rk4_sum_v, rk4_sum_w, body_x_out,
         body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
+
+
+@wp.func
+def unit_response(
+    b: int,
+    angular: bool,
+    a: vec3d,
+    point: vec3d,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+):
+    """(dv, dw): the change of body b's velocity (m/s, rad/s) for a unit impulse of a damper on its coordinate
+    of world axis a: a torque impulse of 1 N m s about a (`angular`) or a force impulse of 1 N s along a at the
+    world point `point`. Zero for the world or a static body."""
+    if b < 0:
+        return vec3d(), vec3d()
+    inv_mass = body_inv_mass[b]
+    if inv_mass == f64(0.0):
+        return vec3d(), vec3d()
+    r = wp.quat_to_matrix(body_q[b])
+    ji = r * body_inv_inertia[b] * wp.transpose(r)
+    if angular:
+        return vec3d(), ji * a
+    return a * inv_mass, ji * wp.cross(point - body_x[b], a)
+
+
+@wp.func
+def rate_response(angular: bool, a: vec3d, point: vec3d, x: vec3d, dv: vec3d, dw: vec3d) -> f64:
+    """The change of a coordinate's rate (rad/s, m/s) from one side's velocity change (dv, dw) of a body at x."""
+    if angular:
+        return wp.dot(a, dw)
+    return wp.dot(a, dv + wp.cross(dw, point - x))
+
+
+@wp.func
+def damper_coordinate(
+    i: int,
+    drive_coordinate: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+):
+    """Drive i's coordinate at the given state as its damper sees it: (rate, k, dv0, dw0, dv1, dw1), with k
+    (1/(kg m^2) or 1/kg) the rate's change for a unit impulse (+ on body1, - on body0) of the two bodies alone,
+    and (dv, dw) each body's velocity change for it (`unit_response`). The two-body k bounds the articulated
+    one from above: the other joints can only add inertia along the coordinate."""
+    r = drive_coordinate[i]
+    value, rate, a, point = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    angular = coordinate_kind[r] == ANGLE_COORDINATE
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    dv0, dw0 = unit_response(b0, angular, a, point, body_x, body_q, body_inv_mass, body_inv_inertia)
+    dv1, dw1 = unit_response(b1, angular, a, point, body_x, body_q, body_inv_mass, body_inv_inertia)
+    k = rate_response(angular, a, point, pose_x(b1, body_x), dv1, dw1) + rate_response(
+        angular, a, point, pose_x(b0, body_x), dv0, dw0
+    )
+    return rate, k, dv0, dw0, dv1, dw1
+
+
+@wp.kernel
+def damper_rates(
+    # Model:
+    drive_coordinate: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    # Data in:
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out:
+    damper_k_out: wp.array(dtype=f64),
+):
+    """Every drive's two-body k at the given state (`damper_coordinate`), for the host to pick the dampers
+    that go implicit (`Simulator`'s `implicit_dampers`)."""
+    i = wp.tid()
+    rate, k, dv0, dw0, dv1, dw1 = damper_coordinate(
+        i, drive_coordinate, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+        body_inv_mass, body_inv_inertia,
+    )  # fmt: skip
+    damper_k_out[i] = k
+
+
+@wp.func
+def turned(q: quatd, angle: vec3d) -> quatd:
+    """q turned by the rotation vector `angle` (rad, world frame)."""
+    length = wp.length(angle)
+    if length == f64(0.0):
+        return q
+    return wp.normalize(wp.quat_from_axis_angle(angle / length, length) * q)
+
+
+@wp.func
+def implicit_damper(
+    d: int,
+    h: f64,
+    damper_drive: wp.array(dtype=int),
+    damper_gain: wp.array(dtype=f64),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_target: wp.array(dtype=f64),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Damper d of a stiff drive, implicit, on the prediction of a step of h (in place): the damper's force
+    c (goal - rate) (goal 0 for a joint damper, the target rate of a velocity drive) held constant over the step
+    at its value at the step's end, implicit Euler: with r the predicted end rate (the RK4 prediction without
+    this damper) and k its two-body response (`damper_coordinate`), the impulse p = c h (goal - r) / (1 + c h k)
+    makes the end rate r + k p = (r + c h k goal) / (1 + c h k), stable and dissipative at any c h k; the
+    constant force moves the poses by half the velocity change times h. k over-estimates the articulated
+    response, so a damper of a light body on a heavy chain is damped somewhat less than implicit Euler of the
+    whole system would; first order in the damper either way."""
+    i = damper_drive[d]
+    rate, k, dv0, dw0, dv1, dw1 = damper_coordinate(
+        i, drive_coordinate, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        body_inv_mass, body_inv_inertia,
+    )  # fmt: skip
+    goal = f64(0.0)
+    if drive_mode[i] == VELOCITY_MODE:
+        goal = drive_target[i]
+    ch = damper_gain[d] * h
+    p = ch * (goal - rate) / (f64(1.0) + ch * k)
+    half = f64(0.5) * h * p
+    r = drive_coordinate[i]
+    b1 = coordinate_body1[r]
+    if b1 >= 0:
+        body_v[b1] = body_v[b1] + dv1 * p
+        body_w[b1] = body_w[b1] + dw1 * p
+        body_x[b1] = body_x[b1] + dv1 * half
+        body_q[b1] = turned(body_q[b1], dw1 * half)
+    b0 = coordinate_body0[r]
+    if b0 >= 0:
+        body_v[b0] = body_v[b0] - dv0 * p
+        body_w[b0] = body_w[b0] - dw0 * p
+        body_x[b0] = body_x[b0] - dv0 * half
+        body_q[b0] = turned(body_q[b0], dw0 * (-half))
+
+
+@wp.func
+def implicit_dampers_all(
+    h: f64,
+    damper_drive: wp.array(dtype=int),
+    damper_gain: wp.array(dtype=f64),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_target: wp.array(dtype=f64),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Every implicit damper on the prediction, one after the other (Gauss-Seidel: each sees the velocities the
+    ones before it left, so dampers that share a body need no atomics and give the same result on every
+    device), `implicit_damper`."""
+    d = wp.int32(0)
+    while d < damper_drive.shape[0]:
+        implicit_damper(
+            d, h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind,
+            coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
+            coordinate_rest_rotation, body_inv_mass, body_inv_inertia, body_x, body_q, body_v, body_w,
+        )  # fmt: skip
+        d += 1
+
+
+@wp.kernel
+def implicit_dampers(
+    # Model:
+    h: f64,
+    damper_drive: wp.array(dtype=int),
+    damper_gain: wp.array(dtype=f64),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    # Data in: control
+    drive_target: wp.array(dtype=f64),
+    # Data in/out: the prediction
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Every implicit damper on the prediction, on one thread (`implicit_dampers_all`)."""
+    implicit_dampers_all(
+        h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind, coordinate_body0,
+        coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation,
+        body_inv_mass, body_inv_inertia, body_x_out, body_q_out, body_v_out, body_w_out,
+    )  # fmt: skip
