@@ -567,75 +567,86 @@ def rk4_stage(
 
 
 @wp.func
-def unit_response(
+def turned(q: quatd, angle: vec3d) -> quatd:
+    """q turned by the rotation vector `angle` (rad, world frame)."""
+    length = wp.length(angle)
+    if length == f64(0.0):
+        return q
+    return wp.normalize(wp.quat_from_axis_angle(angle / length, length) * q)
+
+
+@wp.func
+def skew(r: vec3d) -> mat33d:
+    """[r]x: [r]x w = r x w."""
+    return mat33d(f64(0.0), -r[2], r[1], r[2], f64(0.0), -r[0], -r[1], r[0], f64(0.0))
+
+
+@wp.func
+def body_mobility(
     b: int,
-    angular: bool,
-    a: vec3d,
     point: vec3d,
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
 ):
-    """(dv, dw): the change of body b's velocity (m/s, rad/s) for a unit impulse of a damper on its coordinate
-    of world axis a: a torque impulse of 1 N m s about a (`angular`) or a force impulse of 1 N s along a at the
-    world point `point`. Zero for the world or a static body."""
+    """(1/m, world J^-1, [point - x]x) of body b; zeros for the world or a static body."""
     if b < 0:
-        return vec3d(), vec3d()
+        return f64(0.0), mat33d(), mat33d()
     inv_mass = body_inv_mass[b]
     if inv_mass == f64(0.0):
-        return vec3d(), vec3d()
+        return f64(0.0), mat33d(), mat33d()
     r = wp.quat_to_matrix(body_q[b])
-    ji = r * body_inv_inertia[b] * wp.transpose(r)
-    if angular:
-        return vec3d(), ji * a
-    return a * inv_mass, ji * wp.cross(point - body_x[b], a)
+    return inv_mass, r * body_inv_inertia[b] * wp.transpose(r), skew(point - body_x[b])
 
 
 @wp.func
-def rate_response(angular: bool, a: vec3d, point: vec3d, x: vec3d, dv: vec3d, dw: vec3d) -> f64:
-    """The change of a coordinate's rate (rad/s, m/s) from one side's velocity change (dv, dw) of a body at x."""
-    if angular:
-        return wp.dot(a, dw)
-    return wp.dot(a, dv + wp.cross(dw, point - x))
-
-
-@wp.func
-def damper_coordinate(
-    i: int,
-    drive_coordinate: wp.array(dtype=int),
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
+def joint_response(
+    angular: bool,
+    a: vec3d,
+    point: vec3d,
+    b0: int,
+    b1: int,
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
 ):
-    """Drive i's coordinate at the given state as its damper sees it: (rate, k, dv0, dw0, dv1, dw1), with k
-    (1/(kg m^2) or 1/kg) the rate's change for a unit impulse (+ on body1, - on body0) of the two bodies alone,
-    and (dv, dw) each body's velocity change for it (`unit_response`). The two-body k bounds the articulated
-    one from above: the other joints can only add inertia along the coordinate."""
-    r = drive_coordinate[i]
-    value, rate, a, point = coordinate_row(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
-    )  # fmt: skip
-    angular = coordinate_kind[r] == ANGLE_COORDINATE
-    b0 = coordinate_body0[r]
-    b1 = coordinate_body1[r]
-    dv0, dw0 = unit_response(b0, angular, a, point, body_x, body_q, body_inv_mass, body_inv_inertia)
-    dv1, dw1 = unit_response(b1, angular, a, point, body_x, body_q, body_inv_mass, body_inv_inertia)
-    k = rate_response(angular, a, point, pose_x(b1, body_x), dv1, dw1) + rate_response(
-        angular, a, point, pose_x(b0, body_x), dv0, dw0
-    )
-    return rate, k, dv0, dw0, dv1, dw1
+    """(k, rate_l, rate_a, dv0, dw0, dv1, dw1) of a coordinate of world axis a at `point` (a hinge's anchor, a
+    slider's point B) with its own joint holding: k (1/(kg m^2) or 1/kg) the rate's change for a unit impulse on
+    it; (rate_l, rate_a) the rate the joint's bodies have once their velocities are projected onto the joint
+    (rate = rate_l . e_l + rate_a . e_a with e_l, e_a the point's relative velocity and the relative angular
+    velocity); and (dv, dw) each body's velocity change for a unit change of the rate that leaves the joint's
+    other five rows (those relative velocities, less the coordinate) unchanged.
+
+    The six rows D (the point's relative velocity, then the relative angular velocity) have A = D M^-1 D^T with
+    blocks A_ll = sum 1/m - [r]x J^-1 [r]x, A_la = sum -[r]x J^-1, A_aa = sum J^-1 (r = point - x, both bodies).
+    The row impulse mu = A^-1 (0, a) (hinge) or A^-1 (a, 0) (slider) changes the coordinate's rate by 1 and the
+    other five rows by 0; through the Schur complement S of the other block, mu's coordinate block is S^-1 a
+    and k = 1 / (a . S^-1 a); the mass-weighted projection's rate is k mu . e. The articulated response can
+    only be smaller (more rows hold), so k bounds it: the damper then keeps between none and all of its
+    implicit Euler damping, never more."""
+    m0, j0, x0 = body_mobility(b0, point, body_x, body_q, body_inv_mass, body_inv_inertia)
+    m1, j1, x1 = body_mobility(b1, point, body_x, body_q, body_inv_mass, body_inv_inertia)
+    eye = wp.identity(n=3, dtype=f64)
+    a_ll = eye * (m0 + m1) - x0 * j0 * x0 - x1 * j1 * x1
+    a_la = -(x0 * j0) - x1 * j1
+    a_aa = j0 + j1
+    if angular:
+        s_inv = wp.inverse(a_aa - wp.transpose(a_la) * wp.inverse(a_ll) * a_la)
+        mu_a = s_inv * a
+        mu_l = -(wp.inverse(a_ll) * (a_la * mu_a))
+    else:
+        s_inv = wp.inverse(a_ll - a_la * wp.inverse(a_aa) * wp.transpose(a_la))
+        mu_l = s_inv * a
+        mu_a = -(wp.inverse(a_aa) * (wp.transpose(a_la) * mu_l))
+    k = f64(1.0) / wp.dot(a, s_inv * a)
+    # body i: (1/m mu_l, J^-1 ([r]x mu_l + mu_a)), body1 + and body0 -
+    dv0 = -(mu_l * m0)
+    dw0 = -(j0 * (x0 * mu_l + mu_a))
+    dv1 = mu_l * m1
+    dw1 = j1 * (x1 * mu_l + mu_a)
+    return k, mu_l * k, mu_a * k, dv0, dw0, dv1, dw1
 
 
 @wp.kernel
@@ -659,24 +670,21 @@ def damper_rates(
     # Data out:
     damper_k_out: wp.array(dtype=f64),
 ):
-    """Every drive's two-body k at the given state (`damper_coordinate`), for the host to pick the dampers
-    that go implicit (`Simulator`'s `implicit_dampers`)."""
+    """Every drive's k at the given state: its coordinate rate's change for a unit impulse on the two bodies
+    predicted alone (1/(kg m^2) or 1/kg), which makes a damper of gain c a decay of rate c k in the explicit
+    prediction; for the host to pick the dampers that go implicit (`dampers.pick`)."""
     i = wp.tid()
-    rate, k, dv0, dw0, dv1, dw1 = damper_coordinate(
-        i, drive_coordinate, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
-        body_inv_mass, body_inv_inertia,
+    r = drive_coordinate[i]
+    value, rate, a, point = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
     )  # fmt: skip
-    damper_k_out[i] = k
-
-
-@wp.func
-def turned(q: quatd, angle: vec3d) -> quatd:
-    """q turned by the rotation vector `angle` (rad, world frame)."""
-    length = wp.length(angle)
-    if length == f64(0.0):
-        return q
-    return wp.normalize(wp.quat_from_axis_angle(angle / length, length) * q)
+    m0, j0, x0 = body_mobility(coordinate_body0[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
+    m1, j1, x1 = body_mobility(coordinate_body1[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
+    if coordinate_kind[r] == ANGLE_COORDINATE:
+        damper_k_out[i] = wp.dot(a, (j0 + j1) * a)
+    else:  # a force along a at the point: 1/m, and the turn of the arm r x a
+        damper_k_out[i] = m0 + m1 + wp.dot(x0 * a, j0 * (x0 * a)) + wp.dot(x1 * a, j1 * (x1 * a))
 
 
 @wp.func
@@ -705,36 +713,47 @@ def implicit_damper(
     """Damper d of a stiff drive, implicit, on the prediction of a step of h (in place): the damper's force
     c (goal - rate) (goal 0 for a joint damper, the target rate of a velocity drive) held constant over the step
     at its value at the step's end, implicit Euler: with r the predicted end rate (the RK4 prediction without
-    this damper) and k its two-body response (`damper_coordinate`), the impulse p = c h (goal - r) / (1 + c h k)
-    makes the end rate r + k p = (r + c h k goal) / (1 + c h k), stable and dissipative at any c h k; the
-    constant force moves the poses by half the velocity change times h. k over-estimates the articulated
-    response, so a damper of a light body on a heavy chain is damped somewhat less than implicit Euler of the
-    whole system would; first order in the damper either way."""
+    this damper) and k its response with its joint holding (`joint_response`), the rate changes by
+    delta = c h k (goal - r) / (1 + c h k), so the end rate is (r + c h k goal) / (1 + c h k): stable and
+    dissipative at any c h k. The constant force moves the poses by half the velocity change times h. Exact
+    implicit Euler of the damper where nothing else holds the joint's bodies (a pendulum); on a chain the other
+    joints add inertia, so it damps somewhat less than implicit Euler of the whole system; first order in the
+    damper either way."""
     i = damper_drive[d]
-    rate, k, dv0, dw0, dv1, dw1 = damper_coordinate(
-        i, drive_coordinate, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
-        body_inv_mass, body_inv_inertia,
+    r = drive_coordinate[i]
+    value, rate, a, point = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
     )  # fmt: skip
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    k, rate_l, rate_a, dv0, dw0, dv1, dw1 = joint_response(
+        coordinate_kind[r] == ANGLE_COORDINATE, a, point, b0, b1, body_x, body_q, body_inv_mass, body_inv_inertia
+    )
+    # The predicted end rate as the velocity correction will leave it: the joint correction's impulses at t0 and
+    # the free prediction leave the joint's bodies apart at the point (a pendulum's fall), which that
+    # correction turns into rate; the rate read off the bodies alone misses it.
+    v0 = pose_v(b0, body_v)
+    w0 = pose_v(b0, body_w)
+    w1 = pose_v(b1, body_w)
+    gap = pose_v(b1, body_v) + wp.cross(w1, point - pose_x(b1, body_x)) - v0 - wp.cross(w0, point - pose_x(b0, body_x))
+    rate = wp.dot(rate_l, gap) + wp.dot(rate_a, w1 - w0)
     goal = f64(0.0)
     if drive_mode[i] == VELOCITY_MODE:
         goal = drive_target[i]
-    ch = damper_gain[d] * h
-    p = ch * (goal - rate) / (f64(1.0) + ch * k)
-    half = f64(0.5) * h * p
-    r = drive_coordinate[i]
-    b1 = coordinate_body1[r]
+    chk = damper_gain[d] * h * k
+    delta = chk * (goal - rate) / (f64(1.0) + chk)
+    half = f64(0.5) * h * delta
     if b1 >= 0:
-        body_v[b1] = body_v[b1] + dv1 * p
-        body_w[b1] = body_w[b1] + dw1 * p
+        body_v[b1] = body_v[b1] + dv1 * delta
+        body_w[b1] = body_w[b1] + dw1 * delta
         body_x[b1] = body_x[b1] + dv1 * half
         body_q[b1] = turned(body_q[b1], dw1 * half)
-    b0 = coordinate_body0[r]
     if b0 >= 0:
-        body_v[b0] = body_v[b0] - dv0 * p
-        body_w[b0] = body_w[b0] - dw0 * p
-        body_x[b0] = body_x[b0] - dv0 * half
-        body_q[b0] = turned(body_q[b0], dw0 * (-half))
+        body_v[b0] = body_v[b0] + dv0 * delta
+        body_w[b0] = body_w[b0] + dw0 * delta
+        body_x[b0] = body_x[b0] + dv0 * half
+        body_q[b0] = turned(body_q[b0], dw0 * half)
 
 
 @wp.func

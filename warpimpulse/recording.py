@@ -171,8 +171,13 @@ class Recording:
             at = s if k == 0 else stage
             launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
             launches.append(
-                self._record(force_kernels.drive_wrenches, m.force_drive_count, at, row_offset=m.spring_count,
-                             drive_gains=self._dampers.drive_gains)  # fmt: skip
+                self._record(
+                    force_kernels.drive_wrenches,
+                    m.force_drive_count,
+                    at,
+                    row_offset=m.spring_count,
+                    drive_gains=self._dampers.drive_gains,
+                )  # fmt: skip
             )
             launches.append(
                 self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
