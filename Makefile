@@ -15,7 +15,7 @@ run: $(STAMP)
 	$(VENV)/bin/warpimpulse simulate --scene tree127 --duration 10 --fps 30  # -> out/tree127.usdc
 
 # The suite on the default schedule (fused on a CPU), then on the parallel schedule, what a GPU runs (the tests
-# of the fused schedule itself are skipped there).
+# of the fused schedule itself, and those that step no simulator, such as the CUDA compilation, are skipped there).
 test: $(STAMP)
 	$(PY) -m pytest -q -m "not slow" tests
 	$(PY) -m pytest -q -m "not slow" tests --schedule parallel

@@ -3,6 +3,7 @@ engine's state), reference.py (reduced-coordinate and free-body references), rig
 cli_helpers.py (running the command line); tests import those, never each other."""
 
 import os
+import signal
 
 import pytest
 import warp as wp
@@ -14,6 +15,11 @@ wp.config.quiet = True
 # Warp 1.19 no longer reads `config.quiet`; its start-up and module-load messages are info-level logs.
 wp.config.log_level = getattr(wp, "LOG_WARNING", 30)
 
+
+# A suite started in the background inherits SIGINT ignored (a shell does that to its background jobs), and so would
+# the runs its interrupt tests start: give them SIGINT as a terminal does.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # `make test` draws no new cases: every Hypothesis test runs the same examples on every machine (derandomized,
 # no example database), so CI cannot fail by chance. `make fuzz` explores with fresh seeds and keeps what fails.
@@ -33,11 +39,15 @@ def pytest_addoption(parser):
 
 
 def pytest_collection_modifyitems(config, items):
+    """Under --schedule parallel (`make test`'s second pass), skip the tests of the fused schedule itself and the
+    tests that step no simulator (`schedule_free`: the CUDA compilation, the wheel), which the first pass ran."""
     if config.getoption("--schedule") == "parallel":
-        skip = pytest.mark.skip(reason="a test of the fused schedule itself")
+        reasons = {"fused": "a test of the fused schedule itself", "schedule_free": "steps no simulator: run once"}
         for item in items:
-            if "fused" in item.keywords:
-                item.add_marker(skip)
+            for marker, reason in reasons.items():
+                if marker in item.keywords:
+                    item.add_marker(pytest.mark.skip(reason=reason))
+                    break
 
 
 @pytest.fixture(autouse=True)

@@ -24,7 +24,10 @@ def cuda_compiler() -> bool:
     return bool(runtime.is_cuda_enabled)
 
 
-pytestmark = pytest.mark.skipif(not cuda_compiler(), reason="this Warp build has no CUDA compiler")
+pytestmark = [
+    pytest.mark.skipif(not cuda_compiler(), reason="this Warp build has no CUDA compiler"),
+    pytest.mark.schedule_free,  # ~5 minutes of compilation on 2 cores: once a `make test`, not once a schedule
+]
 
 
 def kernel_modules() -> list:

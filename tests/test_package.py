@@ -9,7 +9,10 @@ import venv
 import zipfile
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.schedule_free
 
 
 def test_wheel_installs_and_imports(tmp_path):

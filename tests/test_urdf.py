@@ -14,6 +14,7 @@ from cli_helpers import run
 
 import warpimpulse as wi
 from warpimpulse import usd
+from warpimpulse.shapes import PIECE_SHARES
 from warpimpulse.transforms import quat_to_matrix
 from warpimpulse.urdf import example_robots
 
@@ -91,8 +92,9 @@ def test_links_joints_and_merged_mass_properties(tmp_path):
     centre of mass and inertia composed by hand here); the massless camera dropped; the world link and the
     base merged into the world; every note one line naming its elements."""
     b, notes = _load(_write(tmp_path, ARM))
-    assert [x.name for x in b.bodies] == ["upper", "lower"]
-    assert [j.name for j in b.joints] == ["shoulder", "elbow"]
+    # The tool's box, off the centre of mass of lower + tool, collides as a piece welded to it.
+    assert [x.name for x in b.bodies] == ["upper", "lower", "lower/collision0"]
+    assert [j.name for j in b.joints] == ["shoulder", "elbow", "lower/collision0"]  # the URDF's joints first
     # The elbow's limits exclude 0: built at 0.3 (the nearest end), its limit shifted to [0, 2.2].
     assert [(lim.lower, lim.upper) for lim in b.limits] == [(-2.0, 2.0), (0.0, pytest.approx(2.2))]
     rz = _rot([0, 0, 0.2])
@@ -114,9 +116,13 @@ def test_links_joints_and_merged_mass_properties(tmp_path):
     origin = shoulder + rz @ [0, 0, -0.5]
     c_lower, c_tool = origin + frame @ [0, 0, -0.2], origin + frame @ [0.05, 0, -0.4]
     com = (1.0 * c_lower + 0.5 * c_tool) / 1.5
-    lower = b.bodies[1]
-    assert lower.mass == pytest.approx(1.5)
-    np.testing.assert_allclose(lower.position, com, atol=1e-14)
+    lower, piece = b.bodies[1], b.bodies[2]
+    box = origin + frame @ [0, 0, -0.4]  # the tool's origin, where its box is
+    np.testing.assert_allclose(piece.position, box, atol=1e-14)
+    assert (piece.shape.kind, piece.shape.size) == ("box", (0.1, 0.1, 0.1))
+    assert lower.mass + piece.mass == pytest.approx(1.5, rel=1e-14)
+    assert any(piece.mass == pytest.approx(share * 1.5) for share in PIECE_SHARES)  # half, or less: 0.25 here
+    np.testing.assert_allclose((lower.mass * lower.position + piece.mass * piece.position) / 1.5, com, atol=1e-14)
 
     def about(m, inertia, d):
         return inertia + m * (d @ d * np.eye(3) - np.outer(d, d))
@@ -124,15 +130,20 @@ def test_links_joints_and_merged_mass_properties(tmp_path):
     world_inertia = about(1.0, frame @ np.diag([0.0135, 0.0135, 0.0005]) @ frame.T, c_lower - com) + about(
         0.5, frame @ np.diag([0.001, 0.002, 0.002]) @ frame.T, c_tool - com
     )
-    body_frame = quat_to_matrix(lower.orientation)
-    np.testing.assert_allclose(body_frame @ lower.inertia @ body_frame.T, world_inertia, atol=1e-14)
+    # The two bodies together have the merged link's inertia about its centre of mass, exactly.
+    together = sum(
+        about(x.mass, quat_to_matrix(x.orientation) @ x.inertia @ quat_to_matrix(x.orientation).T, x.position - com)
+        for x in (lower, piece)
+    )
+    np.testing.assert_allclose(together, world_inertia, atol=1e-14)
+    assert b.joints[2].kind == "fixed"
     # The joints: anchors at the child links' origins, axes turned into the world.
     np.testing.assert_allclose(b.joints[1].anchor, origin, atol=1e-15)
     np.testing.assert_allclose(b.joints[1].axis, rz @ axis, atol=1e-15)
     # The shoulder's damper (stiffness 0); friction, effort/velocity, gazebo, the camera: one line each.
     assert [(d.kp, d.kd, d.motor) for d in b.drives] == [(0.0, 0.05, False)]
     for words in ("<gazebo> (1)", "'shoulder': <dynamics friction>", "'shoulder', 'elbow': <limit effort/velocity>",
-                  "links 'camera' have no mass", "primitives off the centre of mass of links 'tool'"):  # fmt: skip
+                  "links 'camera' have no mass"):  # fmt: skip
         assert sum(words in n for n in notes) == 1, (words, notes)
     assert all("\n" not in n for n in notes)
 
@@ -191,14 +202,14 @@ def test_bad_or_unsupported_elements_are_one_line_naming_them(tmp_path, change, 
 def test_floating_base_and_configuration(tmp_path):
     path = _write(tmp_path, ARM)
     b, _ = _load(path, floating=True, configuration={"shoulder": 0.5, "elbow": 1.0})
-    assert [x.name for x in b.bodies] == ["base", "upper", "lower"]  # the world link a frame on the free base
+    assert [x.name for x in b.bodies] == ["base", "upper", "lower", "lower/collision0"]  # world link: a frame on base
     assert b.joints[0].parent == 0 and b.bodies[0].mass == 2.0
     assert [(lim.lower, lim.upper) for lim in b.limits] == [(-2.5, 1.5), (pytest.approx(-0.7), pytest.approx(1.5))]
     with pytest.raises(wi.SceneError, match="joint 'elbow' = 3.0 is outside its limits"):
         wi.load_urdf(path, configuration={"elbow": 3.0})
     floating = ARM.replace('<joint name="anchor" type="fixed">', '<joint name="anchor" type="floating">')
     b, _ = _load(_write(tmp_path, floating, "free.urdf"))
-    assert [x.name for x in b.bodies] == ["base", "upper", "lower"]  # said by the URDF: the base is free
+    assert [x.name for x in b.bodies] == ["base", "upper", "lower", "lower/collision0"]  # the URDF says: free base
     assert b.joints[0].parent == 0
 
 
@@ -331,7 +342,8 @@ def test_convert_a_real_robot_round_trip(tmp_path, capsys):
     assert usd.validate(out) == []
     builder = wi.load_urdf(path, ignore_unsupported=True)
     again = usd.load_stage(out).builder
-    assert len(again.bodies) == len(builder.bodies) == 9 and len(again.limits) == 9
+    assert len(again.bodies) == len(builder.bodies) and len(again.limits) == 9
+    assert sum("/collision" not in x.name for x in builder.bodies) == 9  # and the links' collision pieces
     assert sum(v.kind == "mesh" for v in builder.visuals) == 11
     assert _same_motion(builder, again, 0.5) < 1e-6
 
@@ -419,3 +431,61 @@ def test_convert_mjcf_round_trip(tmp_path, capsys):
     again = usd.load_stage(out).builder
     assert len(again.bodies) == 2 and len(again.limits) == 1 and len(again.drives) == len(builder.drives) == 1
     assert _same_motion(builder, again, 1.0) < 1e-6
+
+
+def _mujoco_rest_height(path: Path, ground: float, duration: float) -> float:
+    """The height (m) of the root body's centre of mass over `ground` after `duration` s, by MuJoCo (implicitfast,
+    h = 1 ms) on the same URDF, free: its meshes stripped (MuJoCo reads no Collada) and the near-zero base
+    inertia that MuJoCo refuses (off-diagonal as large as its diagonal) made diagonal."""
+    import re
+
+    mujoco = pytest.importorskip("mujoco")
+    text = path.read_text()
+    for element in ("visual", "gazebo", "transmission"):
+        text = re.sub(rf"<{element}\b.*?</{element}>", "", text, flags=re.S)
+    text = re.sub(r"<collision>(?:(?!</collision>).)*<mesh(?:(?!</collision>).)*</collision>", "", text, flags=re.S)
+    text = re.sub(r'(ix[yz]|iyz)="1e-6"', r'\1="0"', text)
+    spec = mujoco.MjSpec.from_string(text)
+    spec.worldbody.first_body().add_freejoint()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[5, 5, 0.1], pos=[0, 0, ground])
+    m = spec.compile()
+    m.opt.timestep, m.opt.integrator = 1e-3, mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    d = mujoco.MjData(m)
+    mujoco.mj_step(m, d, round(duration / 1e-3))
+    return float(d.xipos[1, 2] - ground)
+
+
+@needs_robots
+def test_a_legged_robot_lies_on_the_ground_as_in_mujoco():
+    """Unitree A1, free and unactuated, dropped from its built pose onto a ground just under its feet: its feet,
+    thighs and hips collide as pieces welded to their links (the links' own primitives are off their centres of
+    mass), it folds and lies on its trunk, at the height MuJoCo gives the same URDF (within 2 mm: MuJoCo's soft
+    contacts sink ~0.4 mm), and its joints hold."""
+    path = Path(ROBOTS) / "a1_description/urdf/a1.urdf"
+    b, _ = _load(path, floating=True, visuals=False)
+    assert sum("/collision" in x.name for x in b.bodies) >= 4  # at least the four feet
+    ground = min(x.position[2] - x.shape.bounding_radius() for x in b.bodies if x.shape is not None) - 1e-3
+    b.add_ground(height=ground)
+    sim = wi.Simulator(b.finalize(), 1e-3)
+    stats = sim.step(1000)
+    assert stats.converged and stats.max_joint_error <= 1e-6 and stats.contacts > 0
+    ours = float(sim.positions()[0, 2] - ground)
+    theirs = _mujoco_rest_height(path, ground, 1.0)
+    assert abs(ours - theirs) < 2e-3, (ours, theirs)  # measured 0.0550 against 0.0554 m
+
+
+@needs_robots
+def test_self_collisions_filter_as_mujoco_does():
+    """With self_collisions, A1's hip pieces collide with each other (siblings) but not with the trunk's pieces
+    (their links are jointed), nor with their own link's other pieces; without, no two of its bodies collide."""
+    path = Path(ROBOTS) / "a1_description/urdf/a1.urdf"
+    on, _ = _load(path, floating=True, visuals=False, self_collisions=True)
+    off, _ = _load(path, floating=True, visuals=False)
+    index = {x.name: i for i, x in enumerate(on.bodies)}
+    names = ("trunk/collision0", "FR_hip/collision0", "FR_hip/collision1", "FL_hip/collision0")
+    trunk, fr0, fr1, fl0 = (index[n] for n in names)
+    assert [x.name for x in on.bodies] == [x.name for x in off.bodies]
+    assert (min(fr0, fl0), max(fr0, fl0)) not in on.collision_filters  # siblings collide
+    assert {(min(trunk, fr0), max(trunk, fr0)), (min(fr0, fr1), max(fr0, fr1))} <= on.collision_filters
+    shaped = [i for i, x in enumerate(off.bodies) if x.shape is not None]
+    assert len(off.collision_filters) == len(shaped) * (len(shaped) - 1) // 2

@@ -142,19 +142,12 @@ class Mechanisms:
         body of None is the world). `rest_length` (m) defaults to the built distance. Returns its index."""
         name = name or f"spring{len(self.springs)}"
         what = f"spring {name!r}"
-        self._open(what)
-        b0 = self._body_index(body0, f"{what} body0")
-        b1 = self._body_index(body1, f"{what} body1")
-        if b0 == b1:
-            raise SceneError(f"{what}: both ends are on the same body")
-        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
+        b0, b1, a0, a1, local0, local1, _ = self._two_ends(body0, body1, anchor0, anchor1, what)
         stiffness = _nonnegative(stiffness, f"{what}: stiffness")
         damping = _nonnegative(damping, f"{what}: damping")
         rest = float(np.linalg.norm(a1 - a0))
         if rest_length is not None:
             rest = _nonnegative(rest_length, f"{what}: rest_length")
-        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
-        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
         self.springs.append(Spring(name, b0, b1, local0, local1, stiffness, damping, rest))
         return len(self.springs) - 1
 
@@ -322,29 +315,35 @@ class Mechanisms:
         The built distance may lie outside; the first step brings it in. Returns its index."""
         name = name or f"distance{len(self.distances)}"
         what = f"distance {name!r}"
-        self._open(what)
-        b0 = self._body_index(body0, f"{what} body0")
-        b1 = self._body_index(body1, f"{what} body1")
-        if b0 == b1:
-            raise SceneError(f"{what}: both ends are on the same body")
+        b0, b1, a0, a1, local0, local1, q0 = self._two_ends(body0, body1, anchor0, anchor1, what)
         if (b0 == WORLD or self.bodies[b0].static) and (b1 == WORLD or self.bodies[b1].static):
             raise SceneError(f"{what}: both ends are static")
-        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
         lower = _nonnegative(min_distance, f"{what}: min_distance")
         upper = checks.real(max_distance, f"{what}: max_distance")
         if math.isnan(upper) or upper < lower:
             raise SceneError(f"{what}: max_distance {upper} must be >= min_distance {lower}")
-        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
         # The push direction while A and B meet: B - A as built, else gravity's (B hangs below A), else x.
         gap = a1 - a0
         for direction in (gap, np.asarray(self.gravity, dtype=np.float64), np.array([1.0, 0.0, 0.0])):
             if np.linalg.norm(direction) > 1e-12:
                 direction = direction / np.linalg.norm(direction)
                 break
-        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
         self.distances.append(Distance(name, b0, b1, local0, local1, quat_rotate(quat_conj(q0), direction), lower,
                                        upper))  # fmt: skip
         return len(self.distances) - 1
+
+    def _two_ends(self, body0, body1, anchor0, anchor1, what: str):
+        """The two ends of a spring or a distance: (body0's index, body1's, the anchors as world points (m), the
+        anchors in their bodies' frames, body0's orientation as built); the bodies must differ."""
+        self._open(what)
+        b0 = self._body_index(body0, f"{what} body0")
+        b1 = self._body_index(body1, f"{what} body1")
+        if b0 == b1:
+            raise SceneError(f"{what}: both ends are on the same body")
+        a0, a1 = _vec(anchor0, f"{what} anchor0"), _vec(anchor1, f"{what} anchor1")
+        (x0, q0), (x1, q1) = self._frame(b0), self._frame(b1)
+        local0, local1 = quat_rotate(quat_conj(q0), a0 - x0), quat_rotate(quat_conj(q1), a1 - x1)
+        return b0, b1, a0, a1, local0, local1, q0
 
     def _add_drive(self, drive: Drive) -> int:
         """Append a drive; its index among the drives of its kind (motors, or joint springs)."""

@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from .builder import SceneBuilder, SceneError
-from .shapes import Shape
+from .shapes import Shape, collision_pieces, parallel_axis
 from .transforms import quat_from_matrix
 
 LIGHT = 1e-6
@@ -195,7 +195,7 @@ class _Loader:
         if mass <= 0.0:
             raise SceneError(f"body {name!r}: it moves but has no mass")
         com = sum(m.body_mass[p] * d.xipos[p] for p in parts) / mass
-        inertia = sum(_placed(m.body_mass[p], d.ximat[p].reshape(3, 3) @ np.diag(m.body_inertia[p]) @
+        inertia = sum(parallel_axis(m.body_mass[p], d.ximat[p].reshape(3, 3) @ np.diag(m.body_inertia[p]) @
                               d.ximat[p].reshape(3, 3).T, d.xipos[p] - com) for p in parts)  # fmt: skip
         geoms = [g for p in parts for g in range(m.body_geomadr[p], m.body_geomadr[p] + m.body_geomnum[p])
                  if self._collides(g) and _shape_kind(self.mj, m.geom_type[g]) is not None]  # fmt: skip
@@ -234,27 +234,15 @@ class _Loader:
                                      shape=self._shape(geom), friction=friction)  # fmt: skip
 
     def _pieces(self, name: str, geoms: list[int], mass: float, com, inertia):
-        """A body's colliding geoms as pieces of its mass welded to what remains of it (warpimpulse bodies carry
-        one shape, at their centre of mass), the whole unchanged: each piece a solid of its shape with a share
-        of the mass by volume (half of it, or less until what remains has a valid inertia), the rest on the
-        body. Returns the body's (mass, centre, inertia) and the pieces' (geom, mass, world inertia about the
-        geom's centre); a body whose remainder is never valid keeps its geoms for display, said."""
+        """A body's colliding geoms as pieces of its mass welded to what remains of it (`shapes.collision_pieces`).
+        Returns the body's (mass, centre, inertia) and the pieces' (geom, mass, world inertia about the geom's
+        centre); a body whose remainder is never valid keeps its geoms for display, said."""
         d = self.d
-        volumes = np.array([self._shape(g).volume() for g in geoms])
-        for share in (0.5, 0.25, 0.1, 0.03, 0.01):
-            masses = share * mass * volumes / volumes.sum()
-            pieces = []
-            for g, piece_mass in zip(geoms, masses):
-                rot = d.geom_xmat[g].reshape(3, 3)
-                pieces.append((g, float(piece_mass), rot @ self._shape(g).inertia(piece_mass) @ rot.T))
-            rest = mass - masses.sum()
-            centre = (mass * com - sum(pm * d.geom_xpos[g] for g, pm, _ in pieces)) / rest
-            # The whole's inertia about its centre, less the pieces', about the remainder's centre.
-            about = inertia - sum(_placed(pm, pi, d.geom_xpos[g] - com) for g, pm, pi in pieces)
-            about -= _placed(rest, np.zeros((3, 3)), centre - com)
-            moments = np.linalg.eigvalsh(0.5 * (about + about.T))
-            if moments[0] > 1e-9 * moments[-1] and moments[0] + moments[1] >= moments[2] * (1.0 + 1e-9):
-                return rest, centre, about, pieces
+        shapes = [(self._shape(g), d.geom_xpos[g], d.geom_xmat[g].reshape(3, 3)) for g in geoms]
+        split = collision_pieces(mass, com, inertia, shapes)
+        if split is not None:
+            rest, centre, about, pieces = split
+            return rest, centre, about, [(g, m, i) for g, (m, i) in zip(geoms, pieces)]
         for g in geoms:
             warnings.warn(f"geom {self.name('geom', g)!r}: its body {name!r} has no mass to spare for it as a "
                           "collision piece; the geom is display only", stacklevel=2)  # fmt: skip
@@ -561,11 +549,6 @@ class _Loader:
             if any(not collide(g1, p) for p in planes) and not b.bodies[shapes[g1]].static:
                 warnings.warn(f"geom {self.name('geom', g1)!r}: MuJoCo keeps it off a plane (contype/conaffinity); "
                               "here it touches every ground", stacklevel=2)  # fmt: skip
-
-
-def _placed(mass: float, inertia: np.ndarray, arm: np.ndarray) -> np.ndarray:
-    """A body's inertia tensor (world frame, about its centre) moved to a point `arm` away (parallel axes)."""
-    return inertia + mass * (arm @ arm * np.eye(3) - np.outer(arm, arm))
 
 
 def _shape_kind(mujoco, kind: int) -> str | None:

@@ -96,6 +96,49 @@ class Shape:
         return mass, self.inertia(mass)
 
 
+def parallel_axis(mass: float, inertia: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """A body's inertia tensor about its centre of mass (kg m^2, world axes) moved to a point `offset` (m) away."""
+    return inertia + mass * (float(offset @ offset) * np.eye(3) - np.outer(offset, offset))
+
+
+PIECE_SHARES = (0.5, 0.25, 0.1, 0.03, 0.01)
+"""The shares of a body's mass its collision pieces take (`collision_pieces`), tried in turn."""
+
+
+def collision_pieces(
+    mass: float, com: np.ndarray, inertia: np.ndarray, shapes: list[tuple[Shape, np.ndarray, np.ndarray]]
+):
+    """A body's collision shapes as pieces of its mass, to be welded to what remains of it: a body carries one
+    shape, centred on its centre of mass (`kernels/collide.py`), so a foot sphere at the end of a shank, or a
+    link's second shape, becomes a body of its own. The whole keeps its mass, centre and inertia exactly: each
+    piece is a solid of its shape with a share of the mass by volume (half, or less until what remains has a
+    physical inertia: positive moments that meet the triangle inequality), the rest stays on the body.
+
+    Args:
+        mass, com, inertia: the body's mass (kg), centre of mass (m, world) and inertia about it (world axes).
+        shapes: each piece's (shape, centre (m, world), orientation (3x3, world from shape)).
+
+    Returns:
+        (the remainder's mass, centre, inertia about that centre, [(each piece's mass, inertia about its centre,
+        world axes)]), or None when no share leaves a physical remainder (the caller says so).
+    """
+    volumes = np.array([shape.volume() for shape, _, _ in shapes])
+    weights = volumes / volumes.sum() if volumes.sum() > 0.0 else np.full(len(shapes), 1.0 / len(shapes))
+    for share in PIECE_SHARES:
+        masses = share * mass * weights
+        pieces = [(float(m), rot @ shape.inertia(float(m)) @ rot.T) for m, (shape, _, rot) in zip(masses, shapes)]
+        rest = mass - float(masses.sum())
+        centre = (mass * com - sum(m * c for m, (_, c, _) in zip(masses, shapes))) / rest
+        # The whole's inertia about its centre, less the pieces' about it, moved to the remainder's centre.
+        about = inertia - sum(parallel_axis(m, i, c - com) for (m, i), (_, c, _) in zip(pieces, shapes))
+        about = 0.5 * (about + about.T) - rest * (float((centre - com) @ (centre - com)) * np.eye(3)
+                                                  - np.outer(centre - com, centre - com))  # fmt: skip
+        moments = np.linalg.eigvalsh(about)
+        if moments[0] > 1e-9 * moments[-1] and moments[0] + moments[1] >= moments[2] * (1.0 + 1e-9):
+            return rest, centre, about, pieces
+    return None
+
+
 @dataclass
 class Colliders:
     """A scene's collision geometry on the host (`SceneBuilder.finalize` fills it, `contacts.ContactStage` puts it

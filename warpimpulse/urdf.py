@@ -28,8 +28,9 @@ The mapping (URDF spec: wiki.ros.org/urdf/XML):
 - the root link is fixed to the world by default (merged into it: the world's bodies do not move), free
   with `floating=True` or when the URDF joins it to a massless root ("world") by a floating joint;
 - collision box / sphere / cylinder / capsule -> the body's collision shape when it is the body's only one and
-  centred on its centre of mass (our shapes are centred there); mesh collisions and off-centre or extra
-  primitives -> one warning naming the links;
+  centred on its centre of mass (our shapes are centred there); off-centre or extra primitives -> pieces of the
+  link's mass welded to it, each with its shape (the whole's mass properties exact); mesh collisions -> one
+  warning naming the links; the robot's links do not collide with each other unless `self_collisions`;
 - <visual> box / sphere / cylinder / mesh with the material's colour (a Collada mesh without one: the file's
   own) -> `SceneBuilder.visuals` (display only);
   meshes resolved from package://PKG/... (an ancestor folder named PKG, one holding PKG, `package_dirs`,
@@ -53,7 +54,7 @@ import numpy as np
 
 from .builder import WORLD, SceneBuilder, SceneError
 from .meshes import MeshError, read_mesh
-from .shapes import Shape
+from .shapes import Shape, collision_pieces, parallel_axis
 from .transforms import quat_from_matrix
 
 __all__ = ["UrdfError", "example_robots", "load_urdf"]
@@ -361,17 +362,13 @@ class _Parser:
         return joint
 
 
-def _inertia_about(mass: float, inertia: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """The inertia of a body about a point `offset` away from its centre of mass (parallel axis theorem)."""
-    return inertia + mass * (float(offset @ offset) * np.eye(3) - np.outer(offset, offset))
-
-
 def load_urdf(
     path: str | os.PathLike,
     ignore_unsupported: bool = False,
     floating: bool | None = None,
     configuration: dict[str, float] | None = None,
     collisions: bool = True,
+    self_collisions: bool = False,
     visuals: bool = True,
     package_dirs: list[str] | None = None,
     gravity=(0.0, 0.0, -9.81),
@@ -388,7 +385,13 @@ def load_urdf(
         configuration: URDF joint values (rad, m) to build the robot at, by joint name; each other joint at 0,
             or at the nearest end of its limits when 0 lies outside them. The built pose is coordinate 0 of
             every joint of the builder (limits and dampers are shifted to it).
-        collisions: give bodies their collision primitives (False: no collision shapes, no contacts).
+        collisions: give bodies their collision primitives (False: no collision shapes, no contacts). A body
+            carries one shape at its centre of mass, so a primitive off it (a foot at the end of a shank) or a
+            link's second one is a piece of the link's mass welded to it (`shapes.collision_pieces`: the link's
+            mass, centre and inertia unchanged).
+        self_collisions: the robot's links collide with each other (but for jointed ones, as MuJoCo's
+            filterparent); off by default, as in Gazebo and PyBullet: a URDF's collision geometry of neighbouring
+            links often overlaps, which pushes the links apart at the first step.
         visuals: keep the visual geometry on `builder.visuals`, reading the meshes (False: none, no mesh read).
         package_dirs: folders to look for package://NAME/... in (NAME itself, or a folder holding NAME), before
             ROS_PACKAGE_PATH and the URDF's own ancestors.
@@ -398,14 +401,16 @@ def load_urdf(
     report = _Report(path, ignore_unsupported)
     urdf = _Parser(path, report, list(package_dirs or []))
     try:
-        return _build(urdf, report, floating, dict(configuration or {}), collisions, visuals, gravity)
+        return _build(urdf, report, floating, dict(configuration or {}), collisions, self_collisions, visuals, gravity)
     except UrdfError:
         raise
     except SceneError as err:  # the builder's check of a link's values (an inertia that no body has)
         raise UrdfError(f"{path}: {err}") from None
 
 
-def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, visuals, gravity) -> SceneBuilder:
+def _build(
+    urdf: _Parser, report: _Report, floating, configuration, collisions, self_collisions, visuals, gravity
+) -> SceneBuilder:
     """The builder of a parsed URDF (`load_urdf`'s arguments)."""
     links, joints = urdf.links, urdf.joints
     if not links:
@@ -503,7 +508,8 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
 
     builder = SceneBuilder(gravity)
     body_of: dict[str, int] = {}
-    shape_notes: dict[str, list[str]] = {"mesh": [], "off": [], "extra": []}
+    shape_notes: dict[str, list[str]] = {"mesh": [], "spare": []}
+    welds = []  # (body, collision piece, anchor, name)
     for g in [n for n in order if group[n] == n]:
         if not kept[g]:
             continue
@@ -518,23 +524,34 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
         for n in members[g]:
             r = pose[n][:3, :3]
             c = r @ links[n].com + pose[n][:3, 3]
-            inertia += _inertia_about(links[n].mass, r @ links[n].inertia @ r.T, c - com)
-        shape, orientation = None, rot
-        if collisions:
-            shape, orientation = _collision_shape(g, members[g], links, pose, com, rot, shape_notes)
+            inertia += parallel_axis(links[n].mass, r @ links[n].inertia @ r.T, c - com)
         name = next(n for n in members[g] if links[n].mass > 0.0)  # not a massless "world" frame above it
+        found = _collision_primitives(members[g], links, pose, shape_notes) if collisions else []
+        shape, orientation, pieces = None, rot, []
+        if len(found) == 1 and np.linalg.norm(found[0][2][:3, 3] - com) <= _CENTRED * max(1.0, np.linalg.norm(com)):
+            shape, orientation = found[0][1], found[0][2][:3, :3]  # the body's frame is its shape's
+        elif found:  # off the centre of mass (a foot at the end of a shank), or several: pieces welded to the link
+            split = collision_pieces(mass, com, inertia, [(sh, w[:3, 3], w[:3, :3]) for _, sh, w in found])
+            if split is None:
+                shape_notes["spare"].append(name)
+            else:
+                mass, com, inertia, pieces = split
         body_of[g] = builder.add_body(mass, orientation.T @ inertia @ orientation, com, quat_from_matrix(orientation),
                                       name=name, shape=shape)  # fmt: skip
+        for k, ((_, piece_shape, world), (piece_mass, piece_inertia)) in enumerate(zip(found, pieces)):
+            r, centre = world[:3, :3], world[:3, 3]
+            piece = builder.add_body(piece_mass, r.T @ piece_inertia @ r, centre, quat_from_matrix(r),
+                                     name=f"{name}/collision{k}", shape=piece_shape)  # fmt: skip
+            welds.append((body_of[g], piece, centre, f"{name}/collision{k}"))  # after the URDF's joints
     if collisions and any(shape_notes.values()):
         parts = []
         if shape_notes["mesh"]:
-            parts.append(f"mesh collisions of links {_names(shape_notes['mesh'])}")
-        if shape_notes["off"]:
-            parts.append(f"primitives off the centre of mass of links {_names(shape_notes['off'])}")
-        if shape_notes["extra"]:
-            parts.append(f"second and further primitives of links {_names(shape_notes['extra'])}")
-        report.note(f"{'; '.join(parts)} do not collide (warpimpulse collides one box, sphere, capsule or cylinder a "
-                    "body, centred on its centre of mass)")  # fmt: skip
+            parts.append(f"mesh collisions of links {_names(shape_notes['mesh'])} do not collide (warpimpulse "
+                         "collides boxes, spheres, capsules and cylinders)")  # fmt: skip
+        if shape_notes["spare"]:
+            parts.append(f"links {_names(shape_notes['spare'])} have no mass to spare for their collision "
+                         "primitives as pieces welded to them: those do not collide")  # fmt: skip
+        report.note("; ".join(parts))
     if not len(builder.bodies):
         raise report.error(f"nothing moves: every link is fixed to root link {root!r}, which is fixed to the world "
                            "(floating=True / --floating makes the robot a free body)")  # fmt: skip
@@ -584,6 +601,7 @@ def _build(urdf: _Parser, report: _Report, floating, configuration, collisions, 
             frictions.append(j.name)
         if j.effort is not None or j.velocity is not None:
             actuator_limits.append(j.name)
+    _weld_pieces(builder, welds, self_collisions)
     if frictions:
         report.note(f"joints {_names(frictions)}: <dynamics friction> (dry friction in the joint) is not modelled")
     if composed:
@@ -609,32 +627,42 @@ def _hinge_bridge(g: str, above: _Joint, below: list[str], parent_joint: dict, p
     return bool(gap <= _CENTRED * max(1.0, float(np.linalg.norm(pose[g][:3, 3]))))
 
 
-def _collision_shape(g, names, links, pose, com, rot, notes) -> tuple[Shape | None, np.ndarray]:
-    """The body's collision shape (with the body frame it needs: the primitive's) when the group's only
-    collision primitive is centred on its centre of mass, else (None, the link frame); what does not collide
-    is added to `notes`."""
+def _weld_pieces(builder: SceneBuilder, welds: list, self_collisions: bool) -> None:
+    """Weld each collision piece to its link (`welds`: (link body, piece, anchor, name)) and filter the robot's
+    collisions: without `self_collisions` no two of its bodies collide (Gazebo's and PyBullet's default for a
+    URDF, whose neighbouring links' collision geometry often overlaps); with it, a piece collides with what its
+    link collides with, as one MuJoCo body of several geoms does: not with its link's other pieces, nor with the
+    links jointed to its link (MuJoCo's filterparent) or their pieces."""
+    for body, piece, anchor, name in welds:
+        builder.add_joint_fixed(body, piece, anchor, name=name)
+    link = {piece: body for body, piece, _, _ in welds}
+    jointed = {(link.get(j.parent, j.parent), link.get(j.child, j.child)) for j in builder.joints}
+    shaped = [i for i, x in enumerate(builder.bodies) if x.shape is not None and x.shape.collide]
+    for k, a in enumerate(shaped):
+        for b in shaped[k + 1 :]:
+            la, lb = link.get(a, a), link.get(b, b)
+            if not self_collisions or la == lb or (la, lb) in jointed or (lb, la) in jointed:
+                builder.filter_collision(a, b)
+
+
+def _collision_primitives(names, links, pose, notes) -> list[tuple[str, Shape, np.ndarray]]:
+    """The collision primitives of a group of links: (link, its shape, its world pose 4x4); mesh collisions are
+    added to `notes`."""
     found = []
     for n in names:
         for geo in links[n].collisions:
             if geo.kind == "mesh":
                 notes["mesh"].append(n)
+                continue
+            r, length = geo.size[0], geo.size[1]
+            if geo.kind == "box":
+                shape = Shape("box", size=geo.size)
+            elif geo.kind == "sphere":
+                shape = Shape("sphere", radius=r)
             else:
-                found.append((n, pose[n] @ geo.pose, geo))
-    if not found:
-        return None, rot
-    n, world, geo = found[0]
-    notes["extra"].extend(m for m, _, _ in found[1:])
-    if np.linalg.norm(world[:3, 3] - com) > _CENTRED * max(1.0, float(np.linalg.norm(com))):
-        notes["off"].append(n)
-        return None, rot
-    r, length = geo.size[0], geo.size[1]
-    if geo.kind == "box":
-        shape = Shape("box", size=geo.size)
-    elif geo.kind == "sphere":
-        shape = Shape("sphere", radius=r)
-    else:
-        shape = Shape(geo.kind, radius=r, length=length)
-    return shape, world[:3, :3]
+                shape = Shape(geo.kind, radius=r, length=length)
+            found.append((n, shape, pose[n] @ geo.pose))
+    return found
 
 
 def _add_visuals(builder: SceneBuilder, urdf: _Parser, order, body_of, pose, report: _Report) -> None:
