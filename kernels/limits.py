@@ -680,6 +680,8 @@ def row_setup(
     wants."""
     active = int(0)  # noqa: UP018
     goal = f64(0.0)
+    up = int(0)  # noqa: UP018 (a limit row pushing up from its lower bound; by the side, not by the goal: a
+    # joint locked by lower == upper, as URDF's revolute joints without bounds, has one goal for both sides)
     if motor >= 0:
         if velocity == 0 or drive_mode[motor] == VELOCITY_MODE:
             active = 1
@@ -691,6 +693,7 @@ def row_setup(
         if lam > f64(0.0) or (lam == f64(0.0) and current < bounds[0]):
             active = 1
             goal = bounds[0]
+            up = 1
         elif lam < f64(0.0) or current > bounds[1]:
             active = 1
             goal = bounds[1]
@@ -703,7 +706,7 @@ def row_setup(
     if motor >= 0:
         low = -drive_max_force[motor] * h
         high = drive_max_force[motor] * h
-    elif lam > f64(0.0) or (velocity == 0 and lam == f64(0.0) and goal == bounds[0]):
+    elif lam > f64(0.0) or up == 1:
         low = wp.where(velocity == 0, f64(0.0), lam)
     else:
         high = wp.where(velocity == 0, f64(0.0), lam)

@@ -347,6 +347,19 @@ def test_a_limit_past_pi_holds_its_range_as_one_interval(spin):
     assert abs(sim.angular_velocities()[0, 2]) < 1e-6
 
 
+@pytest.mark.parametrize("pull", [9.81, -9.81])
+def test_a_limit_of_no_range_locks_the_joint_against_either_side(pull):
+    """lower == upper (URDF's revolute joints without bounds: centauro's wheels) locks the joint: gravity
+    pulling the rod either way, the angle stays within the tolerance of 0 for 1 s. A row pushing down from the
+    upper bound was once taken for one pushing up from the lower (the same goal), kept from pushing, and the
+    angle crept past the tolerance (centauro stopped at step 8)."""
+    b, _, joint = rod_on_hinge(gravity=(0.0, pull, 0.0))
+    b.add_joint_limit(joint, 0.0, 0.0)
+    sim = wi.Simulator(b.finalize(), dt=0.01)
+    _, angles = run(sim, 100, rod_angle)
+    assert np.abs(angles).max() <= 1e-6
+
+
 def test_a_limit_of_a_full_turn_is_said_to_never_bind():
     b, _, joint = rod_on_hinge()
     with pytest.warns(UserWarning, match=r"'hinge': limit \[-3.2, 3.2\] rad spans a full turn or more"):

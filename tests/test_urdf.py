@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import run
+from cli_helpers import assert_one_line_error, run
 
 import warpimpulse as wi
 from warpimpulse import usd
@@ -346,6 +346,35 @@ def test_convert_a_real_robot_round_trip(tmp_path, capsys):
     assert sum("/collision" not in x.name for x in builder.bodies) == 9  # and the links' collision pieces
     assert sum(v.kind == "mesh" for v in builder.visuals) == 11
     assert _same_motion(builder, again, 0.5) < 1e-6
+
+
+@needs_robots
+def test_simulate_a_real_urdf_writes_its_motion_with_meshes_and_colours(tmp_path, capsys):
+    """`warpimpulse simulate ur5_robot.urdf -o ur5.usda`: the robot as `convert` writes it (its Collada meshes,
+    UsdPreviewSurface colours; valid), animated: 0.1 s at h = 1 ms, the arm falling from its zero pose as the
+    library run does (the same numbers). A URDF flag on an MJCF, and a bad URDF, are one line and exit 2."""
+    pytest.importorskip("collada")
+    path = Path(ROBOTS) / "ur_description/urdf/ur5_robot.urdf"
+    out = tmp_path / "ur5.usda"
+    code, lines = run(["simulate", str(path), "-o", str(out), "--duration", "0.1", "--fps", "20", "--dt", "0.001"],
+                      capsys)  # fmt: skip
+    assert code == 0, lines
+    assert usd.validate(out) == []
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(out))
+    types = [p.GetTypeName() for p in stage.Traverse()]
+    assert types.count("Mesh") == 7 and "Shader" in types
+    anim = usd.read_animation(out)
+    sim = wi.Simulator(wi.load_urdf(path).finalize(), 1e-3)
+    sim.step(100)
+    assert len(anim.time_codes) == 3 and np.abs(anim.positions[-1] - anim.positions[0]).max() > 1e-3
+    np.testing.assert_allclose(anim.positions[-1], sim.positions(), atol=1e-9)
+    (tmp_path / "arm.xml").write_text(MJCF_ARM)
+    assert_one_line_error(["simulate", str(tmp_path / "arm.xml"), "--floating", "-o", str(out)],
+                          "arm.xml: --floating/--no-floating is for a URDF", capsys)  # fmt: skip
+    bad = _write(tmp_path, ARM.replace('<limit lower="0.3" upper="2.5"', '<limit lower="2.5" upper="0.3"'))
+    assert_one_line_error(["simulate", str(bad), "-o", str(out)], "joint 'elbow': limit lower 2.5 > upper 0.3", capsys)
 
 
 # A link hung from the world by three hinges through one point, two massless links between them (a ball, as

@@ -29,7 +29,8 @@ AUTO_ON_OFF = {"auto": None, "on": True, "off": False}  # a switch's choices on 
 
 DEFAULT_DURATION = 10.0  # s, without --duration and without a time range in the scene file
 DEFAULT_FPS = 30.0  # without --fps, for built-in scenes
-MJCF_SUFFIXES = (".xml", ".mjcf")  # MuJoCo models (`mjcf.load_mjcf`); any other input is read as USD
+MJCF_SUFFIXES = (".xml", ".mjcf")  # MuJoCo models (`mjcf.load_mjcf`)
+USD_SUFFIXES = (".usd", ".usda", ".usdc")
 
 
 def _positive(kind):
@@ -47,8 +48,8 @@ def _positive(kind):
 
 def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scene and write USD animation")
-    p.add_argument("input", nargs="?", help="a UsdPhysics scene file (.usd/.usda/.usdc) or a MuJoCo model (.xml, "
-                   "needs the [mjcf] extra); or use --scene")  # fmt: skip
+    p.add_argument("input", nargs="?", type=Path, help="a UsdPhysics scene file (.usd/.usda/.usdc), a URDF robot "
+                   "(.urdf) or a MuJoCo model (.xml, needs the [mjcf] extra); or use --scene")  # fmt: skip
     p.add_argument("--scene", choices=sorted(SCENES), help="a built-in procedural scene (default: tree127)")
     p.add_argument("--out", "-o", type=Path, help="output USD file (default: out/<scene>.usdc)")
     p.add_argument("--duration", type=_positive(float),
@@ -102,8 +103,9 @@ def _add_simulate(sub) -> None:
     p.add_argument("--instancer", action=argparse.BooleanOptionalAction, default=None,
                    help="write a PointInstancer (default: automatic above a body count)")  # fmt: skip
     p.add_argument("--ignore-unsupported", action="store_true",
-                   help="drop what is not simulated (cone limits, break forces, MJCF tendons, ...) with a warning "
-                   "instead of stopping")  # fmt: skip
+                   help="drop what is not simulated (cone limits, break forces, MJCF tendons, URDF mimics, ...) with "
+                   "a warning instead of stopping")  # fmt: skip
+    _add_urdf_flags(p)
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar (default: when stderr is a terminal)")  # fmt: skip
     p.add_argument("--verbose", action="store_true", help="show Warp's start-up banner and module loads")
@@ -115,42 +117,51 @@ def _add_convert(sub) -> None:
     p.add_argument("--out", "-o", type=Path, required=True, help="the UsdPhysics scene to write (.usda/.usdc/.usd)")
     p.add_argument("--ignore-unsupported", action="store_true",
                    help="drop what is not simulated with a warning naming it, instead of stopping")  # fmt: skip
+    _add_urdf_flags(p)
+
+
+def _add_urdf_flags(p) -> None:
     p.add_argument("--floating", action=argparse.BooleanOptionalAction, default=None,
                    help="URDF: the root link free (a floating base), or fixed to the world (default: fixed "
                    "unless the URDF joins it to the world by a floating joint)")  # fmt: skip
     p.add_argument("--no-collisions", action="store_true", help="URDF: no collision shapes (no contacts)")
 
 
-def _load_robot_or_scene(source: Path, args) -> tuple:
-    """(builder, the step size the input asks for or None) from a URDF, an MJCF file or a UsdPhysics scene,
-    by extension; what --ignore-unsupported drops is one warning line each."""
+def _load_input(source: Path, args):
+    """A URDF or an MJCF file as a SceneBuilder, a UsdPhysics scene as its `UsdScene` (with the prim paths and the
+    step size it asks for), by extension; what --ignore-unsupported drops is one warning line each. The URDF
+    flags (--floating, --no-collisions) are refused for any other input rather than ignored."""
     from . import usd
     from .urdf import load_urdf
 
     if not source.is_file():
         raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
     ext = source.suffix.lower()
+    if ext != ".urdf":
+        for flag, given in (("--floating/--no-floating", args.floating is not None),
+                            ("--no-collisions", args.no_collisions)):  # fmt: skip
+            if given:
+                raise SceneError(f"{source}: {flag} is for a URDF")
     with warnings.catch_warnings():
         warnings.simplefilter("always")  # every note, whatever the caller's filters
         warnings.showwarning = _one_line
         if ext == ".urdf":
-            builder = load_urdf(source, ignore_unsupported=args.ignore_unsupported, floating=args.floating,
-                                collisions=not args.no_collisions)  # fmt: skip
-            return builder, None
+            return load_urdf(source, ignore_unsupported=args.ignore_unsupported, floating=args.floating,
+                             collisions=not args.no_collisions)  # fmt: skip
         if ext in MJCF_SUFFIXES:
             from .mjcf import load_mjcf
 
-            return load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported), None
-        if ext in (".usd", ".usda", ".usdc"):
-            scene = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
-            return scene.builder, scene.dt
-    raise SceneError(f"{source}: not a .urdf, an MJCF {'/'.join(MJCF_SUFFIXES)} or a .usd/.usda/.usdc file")
+            return load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported)
+        if ext in USD_SUFFIXES:
+            return usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
+    raise SceneError(f"{source}: not a .urdf, an MJCF {'/'.join(MJCF_SUFFIXES)} or a {'/'.join(USD_SUFFIXES)} file")
 
 
 def _convert(args) -> int:
     from . import usd
 
-    builder, dt = _load_robot_or_scene(args.input, args)
+    loaded = _load_input(args.input, args)
+    builder, dt = (loaded.builder, loaded.dt) if isinstance(loaded, usd.UsdScene) else (loaded, None)
     if same_file(args.out, args.input):
         raise SceneError(f"{args.out}: is the input; the output would replace it (choose another --out)")
     check_writable(args.out)
@@ -297,18 +308,14 @@ def _simulate(args) -> int:
         _refuse_no_frame(args.duration, args.fps)  # before the scene is read, when the flags settle it
     stage = None  # a USD scene file's (its time range and step size)
     if args.input:
-        source = Path(args.input)
-        if not source.is_file():
-            raise SceneError(f"{source}: " + ("not a file" if source.exists() else "no such file"))
-        if source.suffix.lower() in MJCF_SUFFIXES:  # warnings: one line each (`_one_line`)
-            from .mjcf import load_mjcf
-
-            builder = load_mjcf(str(source), ignore_unsupported=args.ignore_unsupported)
-        else:
-            stage = usd.load_stage(source, ignore_unsupported=args.ignore_unsupported)
-            builder = stage.builder
+        source = args.input
+        loaded = _load_input(source, args)  # a robot (URDF, MJCF) is written whole, with its visuals
+        stage = loaded if isinstance(loaded, usd.UsdScene) else None
+        builder = stage.builder if stage else loaded
         name = source.stem
     else:
+        if args.floating is not None or args.no_collisions:
+            raise SceneError("--floating and --no-collisions are for a URDF input")
         name = args.scene or "tree127"
         builder = SCENES[name]()
     scene = stage or builder

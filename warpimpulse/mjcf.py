@@ -14,8 +14,9 @@ or (where no exact equivalent exists but the motion barely depends on it) mapped
   "<body>/<joint>". MuJoCo evaluates a body's joints in order, each about the frame the previous ones left,
   which is exactly a chain. limited range -> joint limit; stiffness/springref and damping -> joint spring;
   frictionloss -> a stiff velocity motor of target 0 whose force is capped at the frictionloss (dry friction,
-  exact); armature -> a warning naming the joint (MuJoCo adds it to the joint-space mass matrix: no rigid body
-  has that inertia).
+  exact); armature -> on a hinge whose parent cannot turn (the world, or a body on slides from it), a massless
+  disc of that moment on the child (exact); elsewhere one warning naming the joints (MuJoCo adds it to the
+  joint-space mass matrix: no rigid body has that inertia).
 - actuators on a joint with gain "fixed" and bias "none" or "affine" (motor, position, velocity, and general
   ones of those forms) -> a motor (effort, velocity or position mode) and an `Actuator` that maps the control
   as `ctrl` does: force = gain ctrl + b0 + b1 length + b2 velocity, length = gear q, torque = gear force.
@@ -44,7 +45,7 @@ import numpy as np
 
 from .builder import SceneBuilder, SceneError
 from .shapes import Shape, collision_pieces, parallel_axis
-from .transforms import quat_from_matrix
+from .transforms import quat_from_matrix, quat_to_matrix
 
 LIGHT = 1e-6
 """The mass of a light body in a chain of joints, as a fraction of the mass of the body it carries; its
@@ -261,6 +262,8 @@ class _Loader:
         m, d, b, mj = self.m, self.d, self.builder, self.mj
         ours = np.full(m.njnt, -1, dtype=np.int64)
         types = mj.mjtJoint
+        still: set[int] = set()  # our bodies that cannot turn: joined to the world by slides only
+        self.armature_left: list[str] = []  # the joints whose armature is not modelled (`_armature`)
         for body in range(1, m.nbody):
             count, first = int(m.body_jntnum[body]), int(m.body_jntadr[body])
             if not count or int(m.jnt_type[first]) == types.mjJNT_FREE:
@@ -293,14 +296,39 @@ class _Loader:
                     ours[jnt] = b.add_joint_prismatic(jparent, link, anchor, axis, name=name)
                 else:
                     ours[jnt] = b.add_joint_ball(jparent, link, anchor, name=name)
+                steady = parent < 0 or parent in still  # the joint's parent side cannot turn
+                if kind == types.mjJNT_SLIDE and steady:
+                    still.add(link)
                 self._joint_elements(jnt, int(ours[jnt]), name)
+                self._armature(jnt, link if kind == types.mjJNT_HINGE and steady else None, axis, name)
                 parent = link
             if count > 1:
                 b.chain_joints(ours[first : first + count])
+        if self.armature_left:
+            warnings.warn(f"armature not modelled on {len(self.armature_left)} joints: "
+                          f"{', '.join(self.armature_left)} (MuJoCo adds it to the joint-space mass matrix, a rotor's "
+                          "inertia reflected on the joint's rate alone; no rigid body has it unless the joint's "
+                          "parent cannot turn; docs/mjcf.md)", stacklevel=2)  # fmt: skip
         return ours
 
+    def _armature(self, jnt: int, link: int | None, axis: np.ndarray, name: str) -> None:
+        """MuJoCo's armature a of a joint: kinetic energy a (dq/dt)^2 / 2 on its rate alone. On a hinge whose parent
+        cannot turn (`link`: its child) the child turns at dq/dt about the fixed axis n, so a massless disc of
+        moment a about n, a/2 (1 + n n^T) welded to the child, adds exactly that (and keeps the inertia a
+        rigid body's); elsewhere it would add the parent's turning too, and is said (`armature_left`)."""
+        armature = float(self.m.dof_armature[self.m.jnt_dofadr[jnt]])
+        if armature <= 0.0:
+            return
+        if link is None:
+            self.armature_left.append(f"{name!r} ({armature:g})")
+            return
+        body = self.builder.bodies[link]
+        rot = quat_to_matrix(np.asarray(body.orientation))
+        disc = 0.5 * armature * (np.eye(3) + np.outer(axis, axis))
+        body.inertia = body.inertia + rot.T @ disc @ rot
+
     def _joint_elements(self, jnt: int, joint: int, name: str) -> None:
-        """The limit, spring-damper, dry friction and armature of mj joint `jnt` on our `joint`."""
+        """The limit, spring-damper and dry friction of mj joint `jnt` on our `joint`."""
         m, d, b, mj = self.m, self.d, self.builder, self.mj
         what = f"joint {name!r}"
         kind, adr, dof = int(m.jnt_type[jnt]), int(m.jnt_qposadr[jnt]), int(m.jnt_dofadr[jnt])
@@ -326,9 +354,6 @@ class _Loader:
                 b.add_joint_spring(joint, stiffness, damping, float(m.qpos_spring[adr]) - built)
             if friction > 0.0:
                 b.add_motor(joint, "velocity", 0.0, max_force=friction, stiff=True)
-        if m.dof_armature[dof] > 0.0:
-            warnings.warn(f"{what}: armature {float(m.dof_armature[dof]):g} is not modelled (MuJoCo adds it to "
-                          "the joint-space mass matrix; no rigid body has that inertia)", stacklevel=2)  # fmt: skip
         if m.jnt_actfrclimited[jnt]:
             self.unsupported(f"{what}: actuatorfrcrange (a limit on the sum of its actuators' forces) is not "
                              "supported")  # fmt: skip

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -29,9 +30,11 @@ from ..files import fd2_captured, usd_message, usd_warnings
 from ..joints import JOINT_TYPES
 from ..shapes import Shape
 from ..transforms import quat_conj, quat_from_matrix, quat_mul, quat_rotate, quat_to_matrix
+from ..types import DRIVE_MODES
 from .scene import IDENTITY_QUAT, UnsupportedFeatureError, UsdScene, UsdSceneError, open_stage, pxr
 
 JOINT_GAP = 1e-5  # m per m of the anchor's distance from the origin (at least 1 m): float32 localPos round-off
+VELOCITY = DRIVE_MODES.index("velocity")
 _DOFS = ("transX", "transY", "transZ", "rotX", "rotY", "rotZ")
 _EYE = np.eye(3)
 
@@ -409,7 +412,7 @@ def _usd_coordinate(angular: bool, k: int, a0: np.ndarray, q0: np.ndarray, a1: n
 def _limit_and_drive(
     builder: SceneBuilder, joint: int, prim, limit, drive, angular: bool, x0: float, sign: float, mpu: float,
     kpu: float, report: _Reporter,
-) -> None:  # fmt: skip
+) -> tuple[float, float]:  # fmt: skip
     """A USD limit (lower, upper) and DriveAPI on a joint's one DOF (a revolute or prismatic joint, or a D6 joint
     with one free axis) as warpimpulse limits, motors and joint springs, on the coordinate sign (x - x0): x the
     DOF as USD measures it (`_usd_coordinate`), x0 its value as built, sign -1 where the reader turned the joint
@@ -421,9 +424,13 @@ def _limit_and_drive(
     target velocity within maxForce, `SceneBuilder.add_motor(stiff=True)`) unless the file says otherwise: the
     large damping of a velocity drive is beyond an explicit PID (kp h / I < 2) and PhysX's drives are implicit.
     warpimpulse's extras on the joint prim: warpimpulse:drive:ki (per the unit of the coordinate and second),
-    warpimpulse:drive:stiff and warpimpulse:drive:jointSpring (a joint spring, not a motor)."""
+    warpimpulse:drive:stiff and warpimpulse:drive:jointSpring (a joint spring, not a motor).
+
+    Returns (scale, offset): the drive's target in the builder is scale * (its USD target) + offset (an actuator
+    maps its control through it, `_read_actuators`)."""
     jpath = str(prim.GetPath())
     unit = math.radians(1.0) if angular else mpu  # USD's unit of the coordinate, in rad or m
+    scale = sign * unit
     if limit is not None:
         lower, upper = sorted(sign * (v * unit - x0) for v in limit)
         if lower > 1e-6 or upper < -1e-6:  # the engine's limits hold a built pose inside them
@@ -432,7 +439,7 @@ def _limit_and_drive(
         if math.isfinite(lower) or math.isfinite(upper):
             builder.add_joint_limit(joint, min(lower, 0.0), max(upper, 0.0))  # round-off at a bound is on it
     if drive is None:
-        return
+        return scale, 0.0
     force_unit = kpu * mpu * (mpu if angular else 1.0)  # USD's unit of force (torque) in N (N m)
     per = force_unit / unit  # a gain per USD unit, as one per rad or m
     attrs = {name: prim.GetAttribute(f"warpimpulse:drive:{name}") for name in ("ki", "stiff", "jointSpring")}
@@ -447,16 +454,18 @@ def _limit_and_drive(
     elif drive.stiffness > 0.0:
         if drive.targetVelocity != 0.0:
             report.unsupported(jpath, "a drive with a stiffness and a targetVelocity (tracking both)")
-            return
+            return scale, 0.0
         builder.add_motor(joint, "position", target, drive.stiffness * per, ki, drive.damping * per, max_force,
                           stiff=bool(extra["stiff"]))  # fmt: skip
     else:
         stiff = drive.damping > 0.0 if extra["stiff"] is None else bool(extra["stiff"])
         if not (stiff or drive.damping > 0.0 or ki > 0.0):
             report.note(f"{jpath}: a drive with neither stiffness nor damping exerts nothing; ignored")
-            return
-        builder.add_motor(joint, "velocity", sign * drive.targetVelocity * unit, drive.damping * per, ki, 0.0,
+            return scale, 0.0
+        builder.add_motor(joint, "velocity", scale * drive.targetVelocity, drive.damping * per, ki, 0.0,
                           max_force, stiff=stiff)  # fmt: skip
+        return scale, 0.0
+    return scale, -sign * x0
 
 
 def _extra_drives(builder: SceneBuilder, joint: int, prim, sign: float) -> None:
@@ -474,6 +483,62 @@ def _extra_drives(builder: SceneBuilder, joint: int, prim, sign: float) -> None:
         else:
             builder.add_joint_spring(joint, kp, kd, target)
         n += 1
+
+
+def _read_chains(stage, builder: SceneBuilder, joint_index: dict[str, int]) -> None:
+    """Joints in series through light bodies (`SceneBuilder.chain_joints`, MJCF's several joints in one body):
+    the writer's custom rel warpimpulse:chain on a chain's first joint, targeting its joints in order."""
+    for jpath in joint_index:
+        rel = stage.GetPrimAtPath(jpath).GetRelationship("warpimpulse:chain")
+        if not rel:
+            continue
+        targets = [str(t) for t in rel.GetTargets()]
+        missing = [t for t in targets if t not in joint_index]
+        if missing:
+            raise UsdSceneError(f"{jpath}: warpimpulse:chain targets {missing[0]}, which is no joint read")
+        try:
+            builder.chain_joints([joint_index[t] for t in targets])
+        except SceneError as exc:
+            raise UsdSceneError(f"{jpath}: warpimpulse:chain: {exc}") from None
+
+
+_API_TARGET = re.compile(r"drive:[A-Za-z]+:physics:target(Position|Velocity)")
+_EXTRA_TARGET = re.compile(r"warpimpulse:drive([1-9][0-9]*):target")
+
+
+def _read_actuators(stage, builder: SceneBuilder, slots: dict[tuple[str, str], tuple[int, float, float]]) -> None:
+    """The writer's actuators (`writer._actuators_usda`), in file order: prims with warpimpulse:target, the joint
+    attribute their control sets, on the joint warpimpulse:joint targets. `slots`: per (joint prim, "api" for
+    its DriveAPI or n for warpimpulse:drive<n>), the builder's drive and the map (scale, offset) of that drive's
+    USD target to the builder's."""
+    for prim in stage.Traverse():
+        target = _authored(prim, "warpimpulse:target")
+        if target is None:
+            continue
+        path = str(prim.GetPath())
+        joints = prim.GetRelationship("warpimpulse:joint").GetTargets() if prim.HasRelationship(
+            "warpimpulse:joint") else []  # fmt: skip
+        api, extra = _API_TARGET.fullmatch(str(target)), _EXTRA_TARGET.fullmatch(str(target))
+        key = (str(joints[0]) if len(joints) == 1 else "", "api" if api else extra.group(1) if extra else "")
+        if key not in slots:
+            raise UsdSceneError(f"{path}: an actuator needs warpimpulse:joint targeting one joint and "
+                                f"warpimpulse:target naming a drive target of it; got {[str(j) for j in joints]}, "
+                                f"{target!r}")  # fmt: skip
+        drive, scale, offset = slots[key]
+        mode = builder.drives[drive].mode
+        if not builder.drives[drive].motor or (api and (api.group(1) == "Velocity") != (mode == VELOCITY)):
+            raise UsdSceneError(f"{path}: warpimpulse:target {target!r} is no motor's target")
+        gain = _real(path, "warpimpulse:gain", _authored(prim, "warpimpulse:gain") or 1.0)
+        bias = _real(path, "warpimpulse:bias", _authored(prim, "warpimpulse:bias") or 0.0)
+        low, high = (math.copysign(math.inf, x) if abs(x) >= 1e300 else float(x) for x in
+                     _real(path, "warpimpulse:ctrlRange", _authored(prim, "warpimpulse:ctrlRange") or
+                           (-math.inf, math.inf), infinite_ok=True))  # fmt: skip
+        motor = sum(d.motor for d in builder.drives[:drive])
+        name = _authored(prim, "warpimpulse:name") or prim.GetName()
+        try:
+            builder.add_actuator(motor, scale * float(gain), scale * float(bias) + offset, (low, high), str(name))
+        except SceneError as exc:
+            raise UsdSceneError(f"{path}: {exc}") from None
 
 
 def _authored(prim, name: str):
@@ -603,6 +668,7 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
         parent_pos[i], parent_quat[i], parent_scale[i] = rel.t, rel.q, rel.s[0]
 
     joint_paths: list[str] = []
+    slots: dict[tuple[str, str], tuple[int, float, float]] = {}  # a joint's drives, for `_read_actuators`
     distance_paths: list[str] = []
     loop_joints: list[str] = []
     supported = {T.RevoluteJoint, T.PrismaticJoint, T.SphericalJoint, T.FixedJoint, T.D6Joint, T.DistanceJoint}
@@ -727,14 +793,26 @@ def load_stage(path: str | os.PathLike, ignore_unsupported: bool = False) -> Usd
             if desc.excludeFromArticulation:
                 for k in range(first_joint, len(builder.joints)):
                     builder.mark_loop_joint(k)
+            before = len(builder.drives)
             if limit is not None or drive is not None:
                 x0 = _usd_coordinate(dof >= 3, dof % 3, a0, q0, a1, q1)
-                _limit_and_drive(builder, first_joint, jprim, limit, drive, dof >= 3, x0, sign, mpu, kpu, report)
+                scale, offset = _limit_and_drive(builder, first_joint, jprim, limit, drive, dof >= 3, x0, sign, mpu,
+                                                 kpu, report)  # fmt: skip
+                if len(builder.drives) > before:
+                    slots[(jpath, "api")] = (before, scale, offset)
+            before = len(builder.drives)
             _extra_drives(builder, first_joint, jprim, sign)
+            for n in range(1, len(builder.drives) - before + 1):
+                slots[(jpath, str(n))] = (before + n - 1, sign, 0.0)
         except UnsupportedFeatureError:
             raise
         except SceneError as exc:
             raise UsdSceneError(str(exc) if jpath in str(exc) else f"{jpath}: {exc}") from None
+    joint_index: dict[str, int] = {}
+    for k, jpath in enumerate(joint_paths):
+        joint_index.setdefault(jpath, k)
+    _read_chains(stage, builder, joint_index)
+    _read_actuators(stage, builder, slots)
     parsed_joints = {j[0] for j in all_joints}
     for prim in stage.Traverse():  # typed joints the parser did not report (e.g. custom joint schemas)
         if prim.IsA(UsdPhysics.Joint) and str(prim.GetPath()) not in parsed_joints:

@@ -22,6 +22,8 @@ WORLD_PATH = "/World"
 INSTANCER_PATH = "/World/Instancer"
 MODE_KEY = "warpimpulse:mode"  # customLayerData: "procedural", "layered" or "instancer"
 IDENTITY_QUAT = np.array([0.0, 0.0, 0.0, 1.0])  # (x, y, z, w)
+# The prims a procedural output puts under /World besides the bodies (a body of that name is renamed)
+RESERVED_NAMES = ("Joints", "PhysicsScene", "Instancer", "Looks", "Visuals", "PhysicsMaterials", "Actuators")
 
 
 class UsdSceneError(SceneError):
@@ -90,7 +92,7 @@ def scene_from_builder(builder: SceneBuilder) -> UsdScene:
     for b in builder.bodies:
         base = Tf.MakeValidIdentifier(b.name.strip("/").replace("/", "_") or "body")
         name, k = base, 1
-        while name in used or name in ("Joints", "PhysicsScene", "Instancer", "Looks", "Visuals", "PhysicsMaterials"):
+        while name in used or name in RESERVED_NAMES:
             name, k = f"{base}_{k}", k + 1
         used.add(name)
         paths.append(f"{WORLD_PATH}/{name}")
@@ -144,8 +146,9 @@ def builder_from_model(model: Model) -> SceneBuilder:
 
 
 def _mechanisms_from_model(builder: SceneBuilder, model: Model) -> None:
-    """The model's springs, drives, limits, distance constraints and loop marks back on `builder` (whose bodies
-    and joints are the model's, in order)."""
+    """The model's springs, drives and actuators, limits, distance constraints and loop marks back on `builder`
+    (whose bodies and joints are the model's, in order). Chains of joints (`chain_joints`) are not restored: a drive on
+    a chained joint comes back acting on its own joint's bodies."""
     h = model.host
     for k in np.flatnonzero(h.joint_loop).tolist():
         builder.mark_loop_joint(k)
@@ -163,6 +166,9 @@ def _mechanisms_from_model(builder: SceneBuilder, model: Model) -> None:
         else:
             builder.add_motor(joint, DRIVE_MODES[h.drive_mode[i]], h.drive_target[i], kp, ki, kd,
                               h.drive_max_force[i], stiff=bool(h.drive_stiff[i]))  # fmt: skip
+    motors = np.cumsum(h.drive_motor) - 1  # each drive's index among the motors (`add_actuator`'s)
+    for name, drive, (gain, bias, low, high) in zip(model.actuator_name, h.actuator_drive, h.actuator_map):
+        builder.add_actuator(int(motors[drive]), gain, bias, (low, high), name)
     for joint, (lower, upper), drive in zip(h.limit_joint, h.limit_bounds, h.limit_drive):
         if drive < 0 and joint >= 0:  # the stiff motors' rows come back with their motors, distances below
             builder.add_joint_limit(int(joint), lower, upper)

@@ -375,14 +375,16 @@ def _extra_drive(drive, n: int) -> list[str]:
     return lines
 
 
-def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[str]]]:
+def _joint_mechanisms(builder: SceneBuilder) -> tuple[dict[int, tuple[list[str], list[str]]], dict[int, tuple]]:
     """Per joint: the DriveAPI schema and the attribute lines of its limit and drive (revolute: degrees, gains
     per degree; prismatic: metres), the inverse of the reader's `_limit_and_drive`. USD has one drive per
     joint axis: a joint's further drives, and effort motors, are `_extra_drive` attributes. USD has no
-    point-to-point spring: a scene with springs is refused."""
+    point-to-point spring: a scene with springs is refused. Also per drive: the joint prim's attribute that
+    holds its target and that attribute's unit in the builder's (degrees per rad, or 1), for `_actuators_usda`."""
     if builder.springs:
         raise SceneError(f"spring {builder.springs[0].name!r}: USD has no spring between two points; not written")
     out: dict[int, tuple[list[str], list[str]]] = {}
+    targets: dict[int, tuple[str, float]] = {}
     for limit in builder.limits:
         j = builder.joints[limit.joint]
         unit = math.degrees(1.0) if j.kind == "revolute" else 1.0
@@ -392,18 +394,20 @@ def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[
                 lines.append(f"float physics:{name} = {_f(value * unit)}")
         out[limit.joint] = ([], lines)
     extra: dict[int, int] = {}  # per joint, the drives written as warpimpulse:drive<n>:* (`_extra_drive`)
-    for drive in builder.drives:
+    for d, drive in enumerate(builder.drives):
         j = builder.joints[drive.joint]
         if (drive.joint in out and out[drive.joint][0]) or drive.mode == DRIVE_MODES.index("effort"):
             extra[drive.joint] = extra.get(drive.joint, 0) + 1
             schema, lines = out.get(drive.joint, ([], []))
             out[drive.joint] = (schema, lines + _extra_drive(drive, extra[drive.joint]))
+            targets[d] = (f"warpimpulse:drive{extra[drive.joint]}:target", 1.0)
             continue
         angular = j.kind == "revolute"
         unit = math.degrees(1.0) if angular else 1.0  # a coordinate in USD's unit
         per = 1.0 / unit  # a gain per USD unit
         kind = "angular" if angular else "linear"
         velocity = drive.mode == DRIVE_MODES.index("velocity")
+        targets[d] = (f"drive:{kind}:physics:target{'Velocity' if velocity else 'Position'}", unit)
         stiffness, damping = (0.0, drive.kp) if velocity else (drive.kp, drive.kd)
         attrs = {
             "type": '"force"',
@@ -426,7 +430,36 @@ def _joint_mechanisms(builder: SceneBuilder) -> dict[int, tuple[list[str], list[
             lines.append("custom bool warpimpulse:drive:jointSpring = 1")
         limit_lines = out.get(drive.joint, ([], []))[1]
         out[drive.joint] = ([f'"PhysicsDriveAPI:{kind}"'], limit_lines + lines)
-    return out
+    return out, targets
+
+
+def _actuators_usda(scene: UsdScene, targets: dict[int, tuple[str, float]]) -> str:
+    """Each actuator (`SceneBuilder.actuators`, in order: a control's index) as a Scope under /World/Actuators
+    holding warpimpulse:* attributes, UsdPhysics having no actuator: the joint prim (warpimpulse:joint), the
+    attribute of it whose value the control sets (warpimpulse:target: a DriveAPI's targetPosition or
+    targetVelocity, or a warpimpulse:drive<n>:target), and the map, in that attribute's units,
+    target = gain * clip(control, ctrlRange) + bias (the reader's `_read_actuators`)."""
+    _, _, Tf, *_ = pxr()
+    builder = scene.builder
+    out, used = ['    def Scope "Actuators"\n    {\n'], set()
+    for a in builder.actuators:
+        base = Tf.MakeValidIdentifier(a.name) or "actuator"
+        name, k = base, 1
+        while name in used:
+            name, k = f"{base}_{k}", k + 1
+        used.add(name)
+        target, unit = targets[a.drive]
+        low, high = (max(x, -1e300) if x < 0 else min(x, 1e300) for x in a.ctrl_range)  # usda has no inf
+        text = a.name.replace("\\", "\\\\").replace('"', '\\"')
+        lines = [f'custom string warpimpulse:name = "{text}"',
+                 f"custom rel warpimpulse:joint = <{scene.joint_paths[builder.drives[a.drive].joint]}>",
+                 f'custom string warpimpulse:target = "{target}"',
+                 f"custom double warpimpulse:gain = {_f(a.gain * unit)}",
+                 f"custom double warpimpulse:bias = {_f(a.bias * unit)}",
+                 f"custom double2 warpimpulse:ctrlRange = ({_f(low)}, {_f(high)})"]  # fmt: skip
+        out.append(_prim_usda("Scope", name, lines, [], "        "))
+    out.append("    }\n")
+    return "".join(out)
 
 
 def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | None) -> str:
@@ -519,7 +552,8 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
         loops = _loop_joints(builder)
         out.append('    def Scope "Joints"\n    {\n')
         bodies = builder.bodies
-        mechanisms = _joint_mechanisms(builder)
+        mechanisms, targets = _joint_mechanisms(builder)
+        chains = {c[0]: c for c in builder.chains}
         for dist, dpath in zip(builder.distances, scene.distance_paths):
             lines = [f"rel physics:body{side} = <{scene.body_paths[bi]}>"
                      for side, bi in ((0, dist.body0), (1, dist.body1)) if bi != WORLD]  # fmt: skip
@@ -553,12 +587,17 @@ def _physics_scene_usda(scene: UsdScene, poses: tuple[np.ndarray, np.ndarray] | 
                 lines.append(f'uniform token physics:axis = "{axis}"')
             if k in loops:
                 lines.append("bool physics:excludeFromArticulation = 1")
+            if k in chains:  # joints in series through light bodies (`SceneBuilder.chain_joints`); USD has none
+                listed = ", ".join(f"<{scene.joint_paths[c]}>" for c in chains[k])
+                lines.append(f"custom rel warpimpulse:chain = [{listed}]")
             for dof in locked:
                 lines += [f"float limit:{dof}:physics:low = 1", f"float limit:{dof}:physics:high = -1"]
             lines += drive_lines
             out.append("".join(f"            {line}\n" for line in lines))
             out.append("        }\n")
         out.append("    }\n")
+        if builder.actuators:
+            out.append(_actuators_usda(scene, targets))
     out.append("}\n")
     return "".join(out)
 
