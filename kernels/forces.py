@@ -564,3 +564,261 @@ def rk4_stage(
         body_torque, wrench_force, wrench_torque, rk4_sum_x, rk4_sum_q, rk4_sum_v, rk4_sum_w, body_x_out,
         body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
+
+
+@wp.func
+def turned(q: quatd, angle: vec3d) -> quatd:
+    """q turned by the rotation vector `angle` (rad, world frame)."""
+    length = wp.length(angle)
+    if length == f64(0.0):
+        return q
+    return wp.normalize(wp.quat_from_axis_angle(angle / length, length) * q)
+
+
+@wp.func
+def skew(r: vec3d) -> mat33d:
+    """[r]x: [r]x w = r x w."""
+    return mat33d(f64(0.0), -r[2], r[1], r[2], f64(0.0), -r[0], -r[1], r[0], f64(0.0))
+
+
+@wp.func
+def body_mobility(
+    b: int,
+    point: vec3d,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+):
+    """(1/m, world J^-1, [point - x]x) of body b; zeros for the world or a static body."""
+    if b < 0:
+        return f64(0.0), mat33d(), mat33d()
+    inv_mass = body_inv_mass[b]
+    if inv_mass == f64(0.0):
+        return f64(0.0), mat33d(), mat33d()
+    r = wp.quat_to_matrix(body_q[b])
+    return inv_mass, r * body_inv_inertia[b] * wp.transpose(r), skew(point - body_x[b])
+
+
+@wp.func
+def joint_response(
+    angular: bool,
+    a: vec3d,
+    point: vec3d,
+    b0: int,
+    b1: int,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+):
+    """(k, rate_l, rate_a, dv0, dw0, dv1, dw1) of a coordinate of world axis a at `point` (a hinge's anchor, a
+    slider's point B) with its own joint holding: k (1/(kg m^2) or 1/kg) the rate's change for a unit impulse on
+    it; (rate_l, rate_a) the rate the joint's bodies have once their velocities are projected onto the joint
+    (rate = rate_l . e_l + rate_a . e_a with e_l, e_a the point's relative velocity and the relative angular
+    velocity); and (dv, dw) each body's velocity change for a unit change of the rate that leaves the joint's
+    other five rows (those relative velocities, less the coordinate) unchanged.
+
+    The six rows D (the point's relative velocity, then the relative angular velocity) have A = D M^-1 D^T with
+    blocks A_ll = sum 1/m - [r]x J^-1 [r]x, A_la = sum -[r]x J^-1, A_aa = sum J^-1 (r = point - x, both bodies).
+    The row impulse mu = A^-1 (0, a) (hinge) or A^-1 (a, 0) (slider) changes the coordinate's rate by 1 and the
+    other five rows by 0; through the Schur complement S of the other block, mu's coordinate block is S^-1 a
+    and k = 1 / (a . S^-1 a); the mass-weighted projection's rate is k mu . e. The articulated response can
+    only be smaller (more rows hold), so k bounds it: the damper then keeps between none and all of its
+    implicit Euler damping, never more."""
+    m0, j0, x0 = body_mobility(b0, point, body_x, body_q, body_inv_mass, body_inv_inertia)
+    m1, j1, x1 = body_mobility(b1, point, body_x, body_q, body_inv_mass, body_inv_inertia)
+    eye = wp.identity(n=3, dtype=f64)
+    a_ll = eye * (m0 + m1) - x0 * j0 * x0 - x1 * j1 * x1
+    a_la = -(x0 * j0) - x1 * j1
+    a_aa = j0 + j1
+    if angular:
+        s_inv = wp.inverse(a_aa - wp.transpose(a_la) * wp.inverse(a_ll) * a_la)
+        mu_a = s_inv * a
+        mu_l = -(wp.inverse(a_ll) * (a_la * mu_a))
+    else:
+        s_inv = wp.inverse(a_ll - a_la * wp.inverse(a_aa) * wp.transpose(a_la))
+        mu_l = s_inv * a
+        mu_a = -(wp.inverse(a_aa) * (wp.transpose(a_la) * mu_l))
+    k = f64(1.0) / wp.dot(a, s_inv * a)
+    # body i: (1/m mu_l, J^-1 ([r]x mu_l + mu_a)), body1 + and body0 -
+    dv0 = -(mu_l * m0)
+    dw0 = -(j0 * (x0 * mu_l + mu_a))
+    dv1 = mu_l * m1
+    dw1 = j1 * (x1 * mu_l + mu_a)
+    return k, mu_l * k, mu_a * k, dv0, dw0, dv1, dw1
+
+
+@wp.kernel
+def damper_rates(
+    # Model:
+    drive_coordinate: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    # Data in:
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    body_v_in: wp.array(dtype=vec3d),
+    body_w_in: wp.array(dtype=vec3d),
+    # Data out:
+    damper_k_out: wp.array(dtype=f64),
+):
+    """Every drive's k at the given state: its coordinate rate's change for a unit impulse on the two bodies
+    predicted alone (1/(kg m^2) or 1/kg), which makes a damper of gain c a decay of rate c k in the explicit
+    prediction; for the host to pick the dampers that go implicit (`dampers.pick`)."""
+    i = wp.tid()
+    r = drive_coordinate[i]
+    value, rate, a, point = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+    )  # fmt: skip
+    m0, j0, x0 = body_mobility(coordinate_body0[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
+    m1, j1, x1 = body_mobility(coordinate_body1[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
+    if coordinate_kind[r] == ANGLE_COORDINATE:
+        damper_k_out[i] = wp.dot(a, (j0 + j1) * a)
+    else:  # a force along a at the point: 1/m, and the turn of the arm r x a
+        damper_k_out[i] = m0 + m1 + wp.dot(x0 * a, j0 * (x0 * a)) + wp.dot(x1 * a, j1 * (x1 * a))
+
+
+@wp.func
+def implicit_damper(
+    d: int,
+    h: f64,
+    damper_drive: wp.array(dtype=int),
+    damper_gain: wp.array(dtype=f64),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_target: wp.array(dtype=f64),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Damper d of a stiff drive, implicit, on the prediction of a step of h (in place): the damper's force
+    c (goal - rate) (goal 0 for a joint damper, the target rate of a velocity drive) held constant over the step
+    at its value at the step's end, implicit Euler: with r the predicted end rate (the RK4 prediction without
+    this damper) and k its response with its joint holding (`joint_response`), the rate changes by
+    delta = c h k (goal - r) / (1 + c h k), so the end rate is (r + c h k goal) / (1 + c h k): stable and
+    dissipative at any c h k. The constant force moves the poses by half the velocity change times h. Exact
+    implicit Euler of the damper where nothing else holds the joint's bodies (a pendulum); on a chain the other
+    joints add inertia, so it damps somewhat less than implicit Euler of the whole system; first order in the
+    damper either way."""
+    i = damper_drive[d]
+    r = drive_coordinate[i]
+    value, rate, a, point = coordinate_row(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    k, rate_l, rate_a, dv0, dw0, dv1, dw1 = joint_response(
+        coordinate_kind[r] == ANGLE_COORDINATE, a, point, b0, b1, body_x, body_q, body_inv_mass, body_inv_inertia
+    )
+    # The predicted end rate as the velocity correction will leave it: the joint correction's impulses at t0 and
+    # the free prediction leave the joint's bodies apart at the point (a pendulum's fall), which that
+    # correction turns into rate; the rate read off the bodies alone misses it.
+    v0 = pose_v(b0, body_v)
+    w0 = pose_v(b0, body_w)
+    w1 = pose_v(b1, body_w)
+    gap = pose_v(b1, body_v) + wp.cross(w1, point - pose_x(b1, body_x)) - v0 - wp.cross(w0, point - pose_x(b0, body_x))
+    rate = wp.dot(rate_l, gap) + wp.dot(rate_a, w1 - w0)
+    goal = f64(0.0)
+    if drive_mode[i] == VELOCITY_MODE:
+        goal = drive_target[i]
+    chk = damper_gain[d] * h * k
+    delta = chk * (goal - rate) / (f64(1.0) + chk)
+    half = f64(0.5) * h * delta
+    if b1 >= 0:
+        body_v[b1] = body_v[b1] + dv1 * delta
+        body_w[b1] = body_w[b1] + dw1 * delta
+        body_x[b1] = body_x[b1] + dv1 * half
+        body_q[b1] = turned(body_q[b1], dw1 * half)
+    if b0 >= 0:
+        body_v[b0] = body_v[b0] + dv0 * delta
+        body_w[b0] = body_w[b0] + dw0 * delta
+        body_x[b0] = body_x[b0] + dv0 * half
+        body_q[b0] = turned(body_q[b0], dw0 * half)
+
+
+@wp.func
+def implicit_dampers_all(
+    h: f64,
+    damper_drive: wp.array(dtype=int),
+    damper_gain: wp.array(dtype=f64),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    drive_target: wp.array(dtype=f64),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Every implicit damper on the prediction, one after the other (Gauss-Seidel: each sees the velocities the
+    ones before it left, so dampers that share a body need no atomics and give the same result on every
+    device), `implicit_damper`."""
+    d = wp.int32(0)
+    while d < damper_drive.shape[0]:
+        implicit_damper(
+            d, h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind,
+            coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
+            coordinate_rest_rotation, body_inv_mass, body_inv_inertia, body_x, body_q, body_v, body_w,
+        )  # fmt: skip
+        d += 1
+
+
+@wp.kernel
+def implicit_dampers(
+    # Model:
+    h: f64,
+    damper_drive: wp.array(dtype=int),
+    damper_gain: wp.array(dtype=f64),
+    drive_coordinate: wp.array(dtype=int),
+    drive_mode: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    # Data in: control
+    drive_target: wp.array(dtype=f64),
+    # Data in/out: the prediction
+    body_x_out: wp.array(dtype=vec3d),
+    body_q_out: wp.array(dtype=quatd),
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Every implicit damper on the prediction, on one thread (`implicit_dampers_all`)."""
+    implicit_dampers_all(
+        h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind, coordinate_body0,
+        coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation,
+        body_inv_mass, body_inv_inertia, body_x_out, body_q_out, body_v_out, body_w_out,
+    )  # fmt: skip

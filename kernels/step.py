@@ -39,7 +39,7 @@ from .assemble import assemble_column, augmented_slot
 from .carry import carry_into_all, carry_measure_all, commit_carry
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
-from .forces import drive_wrench, integrate_drive, rk4_stage_body, spring_wrench
+from .forces import drive_wrench, implicit_dampers_all, integrate_drive, rk4_stage_body, spring_wrench
 from .impulses import apply_body, impulse_response
 from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
@@ -113,6 +113,8 @@ class ForceElements:
     rk4_sum_q: wp.array(dtype=quatd)
     rk4_sum_v: wp.array(dtype=vec3d)
     rk4_sum_w: wp.array(dtype=vec3d)
+    damper_drive: wp.array(dtype=int)  # the drives whose damping is implicit (`dampers.pick`)
+    damper_gain: wp.array(dtype=f64)
 
 
 @wp.func
@@ -393,9 +395,9 @@ def coupled_predict_all(
     pred_v: wp.array(dtype=vec3d),
     pred_w: wp.array(dtype=vec3d),
 ):
-    """RK4 over all bodies at once, the force elements evaluated at every stage state: the launches of
-    `Simulator._coupled_prediction` in the same order (stage 0 from the state, the next stage states in
-    el.stage_*, the last into the prediction)."""
+    """RK4 over all bodies at once, the force elements evaluated at every stage state, then the implicit
+    dampers on the prediction: the launches of `Simulator._coupled_prediction` in the same order (stage 0 from
+    the state, the next stage states in el.stage_*, the last into the prediction)."""
     element_wrenches(el, body_x, body_q, body_v, body_w)
     rk4_stage_all(
         0, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q, body_v, body_w,
@@ -415,6 +417,11 @@ def coupled_predict_all(
                 body_v, body_w, el.stage_x, el.stage_q, el.stage_v, el.stage_w, body_force, body_torque, pred_x,
                 pred_q, pred_v, pred_w,
             )  # fmt: skip
+    implicit_dampers_all(
+        h, el.damper_drive, el.damper_gain, el.drive_coordinate, el.drive_mode, el.drive_target, el.coordinate_kind,
+        el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0, el.coordinate_anchor1, el.coordinate_axis0,
+        el.coordinate_rest_rotation, body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
+    )  # fmt: skip
 
 
 @wp.func

@@ -301,9 +301,11 @@ def _refuse_no_frame(duration: float, fps: float) -> None:
 
 def _say_fallbacks(sim) -> None:
     """Each reason the run took steps at a lower order than --order asked, once (`Simulator.fallbacks`; the output
-    records them too, warpimpulse:fallbacks)."""
+    records them too, warpimpulse:fallbacks), and the dampers taken implicitly (warpimpulse:damperNote)."""
     for reason in sim.fallbacks:
         print(f"warpimpulse: {sim.fallback_note(reason)}", file=sys.stderr)
+    if getattr(sim, "damper_note", None) and sim.damper_note():
+        print(f"warpimpulse: {sim.damper_note()}", file=sys.stderr)
 
 
 def _simulate(args) -> int:

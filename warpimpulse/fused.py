@@ -38,6 +38,8 @@ class FusedSteps:
             if hasattr(m, field):
                 setattr(elements, field, getattr(m, field))
         elements.drive_target, elements.drive_integral = self.drive_target, self.drive_integral
+        elements.drive_gains = self._dampers.drive_gains  # without the implicit dampers' terms
+        elements.damper_drive, elements.damper_gain = self._dampers.drive, self._dampers.gain
         elements.integral0 = self._integral0
         elements.wrench_force, elements.wrench_torque = self.wrench_force, self.wrench_torque
         elements.stage_x, elements.stage_q = self._stage.body_x, self._stage.body_q

@@ -153,7 +153,8 @@ class Mechanisms:
 
     def add_joint_spring(self, joint, stiffness: float, damping: float = 0.0, rest: float = 0.0) -> int:
         """A spring-damper on a revolute angle (N m/rad, N m s/rad, rest in rad) or a prismatic offset (N/m,
-        N s/m, rest in m), the coordinate being 0 as built. Returns its index among the joint springs."""
+        N s/m, rest in m), the coordinate being 0 as built. Its damping is taken implicitly where it is stiff
+        for the step (`Simulator.implicit_dampers`). Returns its index among the joint springs."""
         j = self._coordinate_joint(joint, "a joint spring")
         what = f"joint {self.joints[j].name!r}: joint spring"
         stiffness = _nonnegative(stiffness, f"{what} stiffness")
@@ -172,13 +173,15 @@ class Mechanisms:
         for `Simulator.set_motor_target`.
 
         The PID torque is a force inside the prediction (explicit RK4, each body predicted alone): stable while
-        kp h / I, kd h / I (velocity, position mode) and h sqrt(kp / I) stay below about 2, with I the inertia
-        about the axis of the lighter body of the joint, alone; a light crank or steering knuckle driven hard
-        breaks that. `stiff=True` (the gains unused) makes the motor an impulse-level constraint instead: each
-        step the joint turns by h target exactly (velocity mode) or reaches the target (position mode), with an
-        impulse of at most max_force h, solved with the joints and limits (`kernels/limits.py`), stable at any
-        stiffness. Use the PID for compliant, tuned servos on bodies heavy enough; `stiff` for a speed or
-        angle that must hold, or a light body. "effort" mode applies the target itself as the torque or force
+        kp h / I and h sqrt(kp / I) (position mode) stay below about 2, with I the inertia about the axis of the
+        lighter body of the joint, alone; a light crank or steering knuckle driven hard breaks that. The damping
+        term (kd, or kp in velocity mode) of an uncapped motor is taken implicitly where it is stiff for the step
+        (`Simulator.implicit_dampers`, docs/mechanisms.md), stable at any gain. `stiff=True` (the gains unused)
+        makes the motor an impulse-level constraint instead: each step the joint turns by h target exactly
+        (velocity mode) or reaches the target (position mode), with an impulse of at most max_force h, solved
+        with the joints and limits (`kernels/limits.py`), stable at any stiffness. Use the PID for compliant,
+        tuned servos on bodies heavy enough; `stiff` for a speed or angle that must hold, or a
+        capped motor on a light body. "effort" mode applies the target itself as the torque or force
         (the gains unused, still clamped to +-max_force): a plain motor, MuJoCo's `motor` actuator."""
         j = self._coordinate_joint(joint, "a motor")
         what = f"joint {self.joints[j].name!r}: motor"

@@ -177,7 +177,8 @@ class Recording:
                 p[rows].fill_(wp.vec3d(math.nan, math.nan, math.nan))
 
     def _coupled_prediction(self, h: float) -> Launches:
-        """RK4 over all bodies at once, the springs and drives evaluated at every stage (`kernels/forces.py`)."""
+        """RK4 over all bodies at once, the springs and drives evaluated at every stage, then the implicit dampers
+        on the prediction (`kernels/forces.py`)."""
         m, s, p, stage = self.model, self.state, self.pred, self._stage
         start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
         launches = []
@@ -185,11 +186,20 @@ class Recording:
             at = s if k == 0 else stage
             launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
             launches.append(
-                self._record(force_kernels.drive_wrenches, m.force_drive_count, at, row_offset=m.spring_count)
+                self._record(
+                    force_kernels.drive_wrenches,
+                    m.force_drive_count,
+                    at,
+                    row_offset=m.spring_count,
+                    drive_gains=self._dampers.drive_gains,
+                )  # fmt: skip
             )
             launches.append(
                 self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
             )
+        dampers = int(len(self._dampers.names) > 0)  # one thread takes them in turn (`implicit_dampers_all`)
+        launches.append(self._record(force_kernels.implicit_dampers, dampers, data_out=p, h=h,
+                                     damper_drive=self._dampers.drive, damper_gain=self._dampers.gain))  # fmt: skip
         return Launches(launches)
 
     def prepare_substeps(self) -> None:

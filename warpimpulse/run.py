@@ -54,11 +54,13 @@ def frame_count(duration: float, fps: float) -> int:
 def settings(sim: Any) -> dict[str, Any]:
     """The simulator settings an output file records (customLayerData warpimpulse:*), so a run can be
     repeated from its file."""
-    notes = {"scheduleNote": getattr(sim, "schedule_note", ""), "splitNote": getattr(sim, "split_note", "")}
+    notes = {"scheduleNote": getattr(sim, "schedule_note", ""), "splitNote": getattr(sim, "split_note", ""),
+             "damperNote": sim.damper_note() if hasattr(sim, "damper_note") else ""}  # fmt: skip
     return {
         "dt": sim.dt,
         "schedule": getattr(sim, "schedule", ""),  # the fused step (a CPU's, one kernel) or the parallel stages
-        **{key: note for key, note in notes.items() if note},  # why the schedule or threads asked for are not used
+        **{key: note for key, note in notes.items() if note},  # why the schedule or threads asked for are not used,
+        # which dampers were taken implicitly
         "tolerance": sim.tolerance,
         "velocity_tolerance": sim.velocity_tolerance,
         "solver": sim.solver_name,

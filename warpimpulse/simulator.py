@@ -20,7 +20,7 @@ import numpy as np
 import warp as wp
 
 from . import accuracy as accuracy_control
-from . import capabilities, checks, composition, diagnose
+from . import capabilities, checks, composition, dampers, diagnose
 from .checkpoint import CheckpointError, Checkpoints
 from .contacts import BROAD_PHASES, CONTACT_SOLVERS, Contacts, ContactStage
 from .failures import Failures
@@ -38,7 +38,7 @@ from .parallel import ParallelSteps
 from .readout import Readout
 from .recording import Recording
 from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
-from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined
+from .steps import DAMPERS_FALLBACK, ROWS_FALLBACK, SimulationError, StepStats, combined
 from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch
@@ -260,6 +260,11 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             self.wrench_torque = wp.zeros(2 * model.element_count, dtype=wp.vec3d, device=d)
         self.drive_target = wp.array(model.host.drive_target, dtype=wp.float64, device=d)
         self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
+        self._dampers = dampers.pick(model, dt)  # the drives' damping stiff for dt: implicit (`dampers.py`)
+        self.implicit_dampers: tuple[str, ...] = self._dampers.names
+        """The drives (by name) whose damping the prediction takes implicitly: stiff for dt (`dampers.py`)."""
+        if self.implicit_dampers and verbose:
+            print(f"warpimpulse: {self.damper_note()}", file=sys.stderr)
         nl = model.limit_count
         self.limit_impulse = wp.zeros(nl, dtype=wp.float64, device=d)  # accumulated over the step, push only
         (self.limit_value, self.limit_rate, self.limit_error, self.limit_velocity_impulse, self.limit_rhs,
@@ -376,10 +381,11 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._views = None if cuda else (
             status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
         )  # fmt: skip
-        # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
-        self._fused_stages = (1.0,) if rows else self.scheme.stages
+        # A step with rows or implicit dampers is taken at order 2, as the parallel schedule takes it.
+        reason = ROWS_FALLBACK if rows else DAMPERS_FALLBACK if self.implicit_dampers else ""
+        self._fused_stages = (1.0,) if reason else self.scheme.stages
         fell_back = len(self._fused_stages) < len(self.scheme.stages)
-        self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
+        self._fused_order = (2, reason) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
         rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
@@ -450,6 +456,15 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 if self.verbose:
                     print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
         return stats[0] if len(stats) == 1 else combined(stats)
+
+    def damper_note(self) -> str:
+        """The line that names the dampers taken implicitly (`implicit_dampers`), empty where none is."""
+        if not self.implicit_dampers:
+            return ""
+        names = ", ".join(self.implicit_dampers[:6]) + (f" and {len(self.implicit_dampers) - 6} more"
+                                                         if len(self.implicit_dampers) > 6 else "")  # fmt: skip
+        return (f"{len(self.implicit_dampers)} damper(s) stiff at dt = {self.dt:.3g} s taken implicitly "
+                f"(first order in the damping): {names}")  # fmt: skip
 
     def fallback_note(self, reason: str) -> str:
         """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""

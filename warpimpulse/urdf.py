@@ -20,8 +20,9 @@ The mapping (URDF spec: wiki.ros.org/urdf/XML):
   frame;
 - <limit lower upper> -> a joint limit; effort and velocity bound actuators, which a URDF does not declare (its
   <transmission>s are not read): one line says they are not applied;
-- <dynamics damping> -> a joint damper (`add_joint_spring` with stiffness 0); friction (dry friction in the
-  joint, not modelled) -> a warning naming the joints;
+- <dynamics damping> -> a joint damper (`add_joint_spring` with stiffness 0; where it is stiff for the step,
+  the simulator takes it implicitly, `Simulator.implicit_dampers`); friction (dry friction in the joint, not
+  modelled) -> a warning naming the joints;
 - <mimic> -> refused naming the joint (the coupling is not modelled), or with `ignore_unsupported` the joint
   stays independent, with a warning;
 - the root link is fixed to the world by default (merged into it: the world's bodies do not move), free
@@ -54,7 +55,7 @@ import numpy as np
 from .builder import WORLD, SceneBuilder, SceneError
 from .meshes import MeshError, read_mesh
 from .shapes import Shape, collision_pieces, parallel_axis
-from .transforms import quat_from_matrix, quat_to_matrix
+from .transforms import quat_from_matrix
 
 __all__ = ["UrdfError", "example_robots", "load_urdf"]
 
@@ -62,7 +63,6 @@ MOVING = ("revolute", "continuous", "prismatic", "planar")
 JOINT_KINDS = (*MOVING, "fixed", "floating")
 PRIMITIVES = ("box", "sphere", "cylinder", "capsule")
 _CENTRED = 1e-9  # m: a collision primitive this close to the centre of mass is taken as centred on it
-STIFF_STEP = 1e-3  # s: a joint damper stable only below this step is said at load (1 ms: a common robot step)
 
 
 class UrdfError(SceneError):
@@ -558,7 +558,7 @@ def _build(
     body_of = {name: body_of[group[name]] if kept[group[name]] else None for name in order}  # None: dropped
 
     # Joints between the kept bodies.
-    frictions, actuator_limits, damped_other, stable = [], [], [], []
+    frictions, actuator_limits, damped_other = [], [], []
     composed = []
     for j in joints:
         if j.kind in ("fixed", "floating") or group[j.child] != j.child or not kept[j.child]:
@@ -597,8 +597,6 @@ def _build(
                 damped_other.append(j.name)
             else:
                 builder.add_joint_spring(k, 0.0, j.damping)
-                if j.kind != "prismatic":
-                    stable.append((_stable_step(builder, parent, child, axis, j.damping), j.name))
         if j.friction > 0.0:
             frictions.append(j.name)
         if j.effort is not None or j.velocity is not None:
@@ -608,11 +606,6 @@ def _build(
         report.note(f"joints {_names(frictions)}: <dynamics friction> (dry friction in the joint) is not modelled")
     if composed:
         report.note(f"hinges through one point with massless links between them composed: {'; '.join(composed)}")
-    stiff = sorted(x for x in stable if x[0] < STIFF_STEP)
-    if stiff:
-        report.note(f"joints {_names([n for _, n in stiff])}: <dynamics damping> is stiff for the bodies it turns: "
-                    f"the explicit damper holds only at steps below 2 I / damping = {stiff[0][0]:.2g} s (joint "
-                    f"{stiff[0][1]!r}; I about the axis of the lighter body)")  # fmt: skip
     if damped_other:
         report.note(f"joints {_names(damped_other)}: <dynamics damping> of a planar joint is not modelled")
     if actuator_limits:
@@ -632,18 +625,6 @@ def _hinge_bridge(g: str, above: _Joint, below: list[str], parent_joint: dict, p
         return False
     gap = np.linalg.norm(pose[g][:3, 3] - pose[below[0]][:3, 3])
     return bool(gap <= _CENTRED * max(1.0, float(np.linalg.norm(pose[g][:3, 3]))))
-
-
-def _stable_step(builder: SceneBuilder, parent: int | None, child: int, axis: np.ndarray, damping: float) -> float:
-    """2 I / damping (s): the step below which a joint damper stays stable in the explicit prediction
-    (`SceneBuilder.add_motor`), I the smaller inertia about the axis of the joint's two bodies, each alone."""
-    moments = []
-    for b in (parent, child):
-        if b is not None:
-            body = builder.bodies[b]
-            r = quat_to_matrix(body.orientation)
-            moments.append(float(axis @ (r @ body.inertia @ r.T) @ axis))
-    return 2.0 * min(moments) / damping
 
 
 def _weld_pieces(builder: SceneBuilder, welds: list, self_collisions: bool) -> None:
