@@ -192,6 +192,15 @@ def test_stiff_joint_damper_is_implicit_and_follows_the_ode(damping, tolerance):
         assert abs(math.atan2(x[0], -x[1]) - reference.sol(0.2)[0]) < 2e-6
 
 
+def test_at_order_4_a_stiff_damper_stays_in_rk4_and_is_said():
+    """Order 4 asked: the stiff damper is not taken implicitly (first order, it would hold every step at order
+    2); it stays in RK4, the steps halve where they need it, each is taken at order 4, and the note says so."""
+    sim = wi.Simulator(light_bob_on_damped_hinge(5.0), dt=1e-3, order=4)
+    assert sim.implicit_dampers == () and "kept in RK4 to keep order 4" in sim.damper_note()
+    stats = sim.step(20)
+    assert stats.converged and stats.order == 4 and not stats.fallback
+
+
 def test_stiff_slider_damper_reaches_the_terminal_velocity():
     """A 10 g slider falling along its vertical axis against a damper of 50 N s/m (time constant m / c = 0.2 ms,
     a fifth of the step): implicit, it settles at the terminal velocity m g / c and follows
@@ -360,10 +369,15 @@ def test_a_limit_of_no_range_locks_the_joint_against_either_side(pull):
     assert np.abs(angles).max() <= 1e-6
 
 
-def test_a_limit_of_a_full_turn_is_said_to_never_bind():
+def test_a_limit_of_a_full_turn_is_said_to_never_bind_and_takes_no_row():
+    """UR5's joints are limited to +-2 pi: such a limit never binds, so the model skips it (a row would cost a
+    solve a step and keep an order-4 step at order 2); the builder keeps it for the files it writes."""
     b, _, joint = rod_on_hinge()
     with pytest.warns(UserWarning, match=r"'hinge': limit \[-3.2, 3.2\] rad spans a full turn or more"):
         b.add_joint_limit(joint, -3.2, 3.2)
+    assert len(b.limits) == 1
+    sim = wi.Simulator(b.finalize(), dt=0.01, order=4)
+    assert sim.model.limit_count == 0 and sim.step().order == 4
 
 
 @pytest.mark.parametrize("solver", ["cholesky", "cg"])

@@ -298,11 +298,10 @@ class Mechanisms:
             raise SceneError(f"{what} [{lower}, {upper}] excludes the built pose (coordinate 0)")
         if any(limit.joint == j for limit in self.limits):
             raise SceneError(f"{what}: the joint already has a limit")
-        if COORDINATES[self.joints[j].kind] == 0 and upper - lower >= 2.0 * math.pi:
-            # The angle is measured within the turn about the range's middle (kernels/limits.py, limit_error):
-            # a range of a turn or more holds all of it, so the limit never binds.
+        if self._never_binds(Limit(j, lower, upper)):
             warnings.warn(f"{what} [{lower:.6g}, {upper:.6g}] rad spans a full turn or more: an angle is measured "
-                          "within one turn, so it never binds", stacklevel=2)  # fmt: skip
+                          "within one turn, so it never binds, and takes no row (kept for files written)",
+                          stacklevel=2)  # fmt: skip
         self.limits.append(Limit(j, lower, upper))
         return len(self.limits) - 1
 
@@ -369,9 +368,16 @@ class Mechanisms:
             )
         return int(joint)
 
+    def _never_binds(self, limit: Limit) -> bool:
+        """A revolute limit of a turn or more: the angle is measured within the turn about the range's middle
+        (kernels/limits.py, limit_error), which such a range holds all of."""
+        return COORDINATES[self.joints[limit.joint].kind] == 0 and limit.upper - limit.lower >= 2.0 * math.pi
+
     def _mechanism_arrays(self) -> dict:
-        """The springs, drives, limits and distances as `Model` arguments."""
-        springs, drives, limits = self.springs, self.drives, self.limits
+        """The springs, drives, limits and distances as `Model` arguments; a limit that never binds takes no row
+        (a row would cost a solve a step and keep the step at order 2, `steps.ROWS_FALLBACK`)."""
+        springs, drives = self.springs, self.drives
+        limits = [x for x in self.limits if not self._never_binds(x)]
         return dict(
             spring_name=[s.name for s in springs],
             spring_body0=np.array([s.body0 for s in springs], dtype=np.int64),

@@ -15,7 +15,7 @@ import warp as wp
 
 from .kernels import loop as loop_kernels
 from .launch import run
-from .steps import DAMPERS_FALLBACK, ROWS_FALLBACK, SimulationError, StepStats, combined
+from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined
 
 VELOCITY_ALTERNATIONS = 10
 """Rounds of (joint velocity correction, contact velocity sweeps) at t0+h before the last joint correction: the
@@ -95,8 +95,6 @@ class ParallelSteps:
             stages, self._fallback = (1.0,), ""
         elif len(stages) > 1 and self.model.limit_count:
             stages, fallback = (1.0,), ROWS_FALLBACK
-        elif len(stages) > 1 and self.implicit_dampers:
-            stages, fallback = (1.0,), DAMPERS_FALLBACK
         elif len(stages) > 1 and self._contacts_ahead(stages):
             stages, fallback = (1.0,), "contacts"
         depth = self._spin_depth(max(abs(g) for g in stages))

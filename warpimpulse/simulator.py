@@ -38,7 +38,7 @@ from .parallel import ParallelSteps
 from .readout import Readout
 from .recording import Recording
 from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
-from .steps import DAMPERS_FALLBACK, ROWS_FALLBACK, SimulationError, StepStats, combined
+from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined
 from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch
@@ -260,10 +260,11 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             self.wrench_torque = wp.zeros(2 * model.element_count, dtype=wp.vec3d, device=d)
         self.drive_target = wp.array(model.host.drive_target, dtype=wp.float64, device=d)
         self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
-        self._dampers = dampers.pick(model, dt)  # the drives' damping stiff for dt: implicit (`dampers.py`)
+        # The drives' damping stiff for dt: implicit (`dampers.py`), unless order 4 or 6 is asked
+        self._dampers = dampers.pick(model, dt, keep_order=self.order > 2)
         self.implicit_dampers: tuple[str, ...] = self._dampers.names
         """The drives (by name) whose damping the prediction takes implicitly: stiff for dt (`dampers.py`)."""
-        if self.implicit_dampers and verbose:
+        if (self.implicit_dampers or self._dampers.kept) and verbose:
             print(f"warpimpulse: {self.damper_note()}", file=sys.stderr)
         nl = model.limit_count
         self.limit_impulse = wp.zeros(nl, dtype=wp.float64, device=d)  # accumulated over the step, push only
@@ -381,8 +382,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._views = None if cuda else (
             status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
         )  # fmt: skip
-        # A step with rows or implicit dampers is taken at order 2, as the parallel schedule takes it.
-        reason = ROWS_FALLBACK if rows else DAMPERS_FALLBACK if self.implicit_dampers else ""
+        # A step with rows is taken at order 2, as the parallel schedule takes it.
+        reason = ROWS_FALLBACK if rows else ""
         self._fused_stages = (1.0,) if reason else self.scheme.stages
         fell_back = len(self._fused_stages) < len(self.scheme.stages)
         self._fused_order = (2, reason) if fell_back else (self.order, "")  # the StepStats' order, fallback
@@ -458,13 +459,17 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         return stats[0] if len(stats) == 1 else combined(stats)
 
     def damper_note(self) -> str:
-        """The line that names the dampers taken implicitly (`implicit_dampers`), empty where none is."""
-        if not self.implicit_dampers:
+        """The line that names the dampers stiff for dt: taken implicitly (`implicit_dampers`), or at order 4 or
+        6 kept in RK4; empty where none is."""
+        stiff = self.implicit_dampers or self._dampers.kept
+        if not stiff:
             return ""
-        names = ", ".join(self.implicit_dampers[:6]) + (f" and {len(self.implicit_dampers) - 6} more"
-                                                         if len(self.implicit_dampers) > 6 else "")  # fmt: skip
-        return (f"{len(self.implicit_dampers)} damper(s) stiff at dt = {self.dt:.3g} s taken implicitly "
-                f"(first order in the damping): {names}")  # fmt: skip
+        names = ", ".join(stiff[:6]) + (f" and {len(stiff) - 6} more" if len(stiff) > 6 else "")
+        if self.implicit_dampers:
+            return (f"{len(stiff)} damper(s) stiff at dt = {self.dt:.3g} s taken implicitly (first order in the "
+                    f"damping): {names}")  # fmt: skip
+        return (f"{len(stiff)} damper(s) stiff at dt = {self.dt:.3g} s kept in RK4 to keep order {self.order} (steps "
+                f"halve where they need it; order 2 takes them implicitly, faster): {names}")  # fmt: skip
 
     def fallback_note(self, reason: str) -> str:
         """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""

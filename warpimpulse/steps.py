@@ -58,10 +58,6 @@ ROWS_FALLBACK = "joint limits, stiff motors or distance rows (impacts and satura
 """Why a scene with such rows takes its steps at order 2 whatever order was asked: a composed step would run
 them backwards in its negative substeps (`StepStats.fallback`)."""
 
-DAMPERS_FALLBACK = "implicit joint dampers (first order, not reversible)"
-"""Why a scene whose dampers are stiff for the step (`Simulator.implicit_dampers`) takes its steps at order 2:
-an implicit damper is first order, and a composed step's negative substeps would run it backwards."""
-
 
 def combined(parts: list[StepStats]) -> StepStats:
     """The stats of one step taken as consecutive substeps."""
