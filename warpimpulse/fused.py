@@ -67,11 +67,13 @@ class FusedSteps:
         """The fused kernel's launch for steps of h: on a CPU one packed launch (its arguments packed once, a call
         then costs ~0.3 us against a graph replay's ~1.7), its step size set in place; on a GPU a graph captured
         once per h."""
-        if self._views is not None and self._fused_by_h:
-            packed = next(iter(self._fused_by_h.values()))
-            if h not in self._fused_by_h:
-                packed.set("h", h)
-                self._fused_by_h = {h: packed}
+        launch = self._fused_by_h.get(h)
+        if launch is not None:
+            return launch
+        if self._views is not None and self._fused_by_h:  # the one packed launch, for another h
+            (packed,) = self._fused_by_h.values()
+            packed.set("h", h)
+            self._fused_by_h = {h: packed}
             return packed
         if h not in self._fused_by_h:
             p = self.pred
