@@ -688,6 +688,27 @@ def damper_rates(
 
 
 @wp.func
+def nudge(
+    b: int,
+    dv: vec3d,
+    dw: vec3d,
+    delta: f64,
+    half: f64,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Body b's predicted velocities changed by (dv, dw) times delta, its pose moved by them times `half` (a
+    constant force over the step moves it by half its velocity change times h); the world (b < 0) stays."""
+    if b >= 0:
+        body_v[b] = body_v[b] + dv * delta
+        body_w[b] = body_w[b] + dw * delta
+        body_x[b] = body_x[b] + dv * half
+        body_q[b] = turned(body_q[b], dw * half)
+
+
+@wp.func
 def implicit_damper(
     d: int,
     h: f64,
@@ -744,16 +765,8 @@ def implicit_damper(
     chk = damper_gain[d] * h * k
     delta = chk * (goal - rate) / (f64(1.0) + chk)
     half = f64(0.5) * h * delta
-    if b1 >= 0:
-        body_v[b1] = body_v[b1] + dv1 * delta
-        body_w[b1] = body_w[b1] + dw1 * delta
-        body_x[b1] = body_x[b1] + dv1 * half
-        body_q[b1] = turned(body_q[b1], dw1 * half)
-    if b0 >= 0:
-        body_v[b0] = body_v[b0] + dv0 * delta
-        body_w[b0] = body_w[b0] + dw0 * delta
-        body_x[b0] = body_x[b0] + dv0 * half
-        body_q[b0] = turned(body_q[b0], dw0 * half)
+    nudge(b1, dv1, dw1, delta, half, body_x, body_q, body_v, body_w)
+    nudge(b0, dv0, dw0, delta, half, body_x, body_q, body_v, body_w)
 
 
 @wp.func

@@ -333,8 +333,9 @@ def _simulate(args) -> int:
         builder = stage.builder if stage else loaded
         name = source.stem
     else:
-        if _given_urdf_flags(args):
-            raise SceneError(f"{', '.join(_given_urdf_flags(args))}: for a URDF input")
+        flags = _given_urdf_flags(args)
+        if flags:
+            raise SceneError(f"{', '.join(flags)}: for a URDF input")
         name = args.scene or "tree127"
         builder = SCENES[name]()
     scene = stage or builder

@@ -75,25 +75,24 @@ class FusedSteps:
             packed.set("h", h)
             self._fused_by_h = {h: packed}
             return packed
-        if h not in self._fused_by_h:
-            p = self.pred
-            direct = self.linear is not None
-            kernel = self._fused.cholesky_steps if direct else self._fused.iterative_steps
-            sources = (self.model, self.frames, self.control, self)
-            if direct:
-                sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
-            launch = record(
-                kernel, 1, self.model.device, sources, data_out=self.state,
-                h=h, stages=self._stages, reach=max(abs(g) for g in self._fused_stages), batch_in=self._batch,
-                defer=int(self.defer_velocities),
-                max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
-                pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
-                q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
-                limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
-                stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
-                carry_past=self._carry_past,
-            )  # fmt: skip
-            self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
+        p = self.pred
+        direct = self.linear is not None
+        kernel = self._fused.cholesky_steps if direct else self._fused.iterative_steps
+        sources = (self.model, self.frames, self.control, self)
+        if direct:
+            sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
+        launch = record(
+            kernel, 1, self.model.device, sources, data_out=self.state,
+            h=h, stages=self._stages, reach=max(abs(g) for g in self._fused_stages), batch_in=self._batch,
+            defer=int(self.defer_velocities),
+            max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
+            pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
+            q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
+            limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
+            stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
+            carry_past=self._carry_past,
+        )  # fmt: skip
+        self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
         return self._fused_by_h[h]
 
     def _steps_alike(self, limit: int) -> int:

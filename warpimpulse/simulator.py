@@ -382,11 +382,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._views = None if cuda else (
             status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
         )  # fmt: skip
-        # A step with rows is taken at order 2, as the parallel schedule takes it.
-        reason = ROWS_FALLBACK if rows else ""
-        self._fused_stages = (1.0,) if reason else self.scheme.stages
+        # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
+        self._fused_stages = (1.0,) if rows else self.scheme.stages
         fell_back = len(self._fused_stages) < len(self.scheme.stages)
-        self._fused_order = (2, reason) if fell_back else (self.order, "")  # the StepStats' order, fallback
+        self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
         rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
