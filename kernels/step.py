@@ -64,6 +64,11 @@ STATUS_LINEAR_ITERATIONS = wp.constant(5)
 STATUS_SPIN = wp.constant(6)  # rad/s: the largest |w| of the step's last prediction (of t0 when not taken)
 STATUS_FAILED_VELOCITY = wp.constant(7)  # the largest velocity error over the tolerance among the stages (VELOCITY)
 STATUS_WIDTH = wp.constant(8)
+# `factor_state` columns (`cholesky_steps`): the accepted stages since K was factored, and the factorizations the
+# kernel made (a count for tests and benchmarks).
+FACTOR_AGE = wp.constant(0)
+FACTOR_COUNT = wp.constant(1)
+FACTOR_WIDTH = wp.constant(2)
 # Status codes.
 OK = wp.constant(0)
 SPLIT = wp.constant(1)
@@ -669,6 +674,80 @@ def max_or_nan(a: f64, b: f64) -> f64:
 
 
 @wp.func
+def stale_rate(factor_state: wp.array(dtype=int), refactor_every: int, err: f64, last: f64, rate: f64) -> bool:
+    """Whether a joint solve with an older factor of K left more than `rate` times the error before it: the
+    quasi-Newton iteration has slowed (or diverges), and K is to be factored at the stage's start, where the
+    frames still are (the loop then goes on from the impulses so far)."""
+    return refactor_every > 1 and factor_state[FACTOR_AGE] > 0 and not (err <= rate * last)
+
+
+@wp.func
+def older_factor(factor_state: wp.array(dtype=int), refactor_every: int, corrected: bool) -> bool:
+    """At a stage's accepted state: whether the factor in use serves on (an age below `refactor_every`, and no
+    velocity correction here); its age goes up a stage, or to 0 where K is to be factored here."""
+    age = factor_state[FACTOR_AGE] + 1
+    if age >= refactor_every or corrected:
+        age = 0
+    factor_state[FACTOR_AGE] = age
+    return age > 0
+
+
+@wp.func
+def assemble_and_factor(
+    augmented: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    update_start: wp.array(dtype=int),
+    update_target: wp.array(dtype=int),
+    update_a: wp.array(dtype=int),
+    update_b: wp.array(dtype=int),
+    update_sign: wp.array(dtype=f64),
+    col_sign: wp.array(dtype=f64),
+    col_loop: wp.array(dtype=int),
+    slot_shape: wp.array(dtype=wp.vec2i),
+    slot_row: wp.array(dtype=int),
+    slot_sides: wp.array(dtype=wp.vec4i),
+    slot_code: wp.array(dtype=int),
+    slot_ref: wp.array(dtype=int),
+    pivot_tolerance: f64,
+    loop_tolerance: f64,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=sym33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+    values: wp.array(dtype=mat33d),
+    singular: wp.array(dtype=int),
+):
+    """K = J M^-1 J^T (or the augmented matrix, `augmented_slot`) at the current frames, factored in place a
+    column at a time (`assemble_column`, `factor_column`: `CholeskySolver.prepare`'s kernels)."""
+    s = wp.int32(0)
+    while s < slot_code.shape[0]:
+        augmented_slot(
+            s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+            values,
+        )  # fmt: skip
+        s += 1
+    singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
+    j = wp.int32(0)
+    columns = col_start.shape[0] - 1
+    while j < columns:
+        if slot_row.shape[0] > 0:
+            assemble_column(
+                j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass, slot_row,
+                slot_sides, inv_inertia_world, jac_lin, jac_ang, jac_skew, values,
+            )  # fmt: skip
+        factor_column(
+            j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign, col_loop,
+            slot_shape, pivot_tolerance, loop_tolerance, values, singular,
+        )  # fmt: skip
+        j += 1
+
+
+@wp.func
 def cholesky_solve(
     augmented: int,
     offset: int,
@@ -972,6 +1051,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         carry: wp.array2d(dtype=vec3d),
         carry_next: wp.array2d(dtype=vec3d),
         carry_past: wp.array2d(dtype=vec3d),
+        # K factored at every `refactor_every`-th accepted stage's state (1: at each), and at a stage's start where
+        # a joint solve with the older factor left more than stale_factor_rate of the error before it; its record
+        refactor_every: int,
+        stale_factor_rate: f64,
+        factor_state: wp.array(dtype=int),
         # Data out: the state, advanced in place, and a status row a step
         body_x_out: wp.array(dtype=vec3d),
         body_q_out: wp.array(dtype=quatd),
@@ -1058,6 +1142,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         break
                     if tries >= max_iterations or diverging(err, best, tries):
                         break
+                    last = err
                     if tries == 0 and carrying != 0:
                         carry_into_all(constraint_count, carry[row], rhs)
                     cholesky_solve(
@@ -1122,6 +1207,15 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                                 state_w,
                             ),
                         )  # fmt: skip
+                    if stale_rate(factor_state, refactor_every, err, last, stale_factor_rate):
+                        assemble_and_factor(
+                            augmented, perm, col_start, update_start, update_target, update_a, update_b, update_sign,
+                            col_sign, col_loop, slot_shape, slot_row, slot_sides, slot_code, slot_ref,
+                            pivot_tolerance, loop_tolerance, constraint_kind, constraint_body0, constraint_body1,
+                            body_inv_mass, inv_inertia_world, jac_lin, jac_ang, jac_skew, values, singular,
+                        )  # fmt: skip
+                        factor_state[FACTOR_COUNT] = factor_state[FACTOR_COUNT] + 1
+                        factor_state[FACTOR_AGE] = 0
                     tries += 1
                 iterations += tries
                 new_spin = spin
@@ -1156,27 +1250,23 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0,
                     constraint_axis1, state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
-                s = wp.int32(0)
-                while s < slot_code.shape[0]:
-                    augmented_slot(
-                        s, constraint_kind, body_inv_mass, slot_code, slot_ref, inv_inertia_world, jac_lin, jac_ang,
-                        jac_skew, values,
+                # The velocity correction where the state is handed out (`defer` == 0: every stage's): a deferred
+                # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`;
+                # never with rows, whose velocity pass reads them).
+                corrected = defer == 0 or (k == batch_in[0] - 1 and batch_in[1] != 0 and stage == stage_count - 1)
+                # K factored here, unless an older factor serves on (`refactor_every`): never where the velocities are
+                # corrected, whose one solve is exact with K of this state (the paper's section 4.2).
+                refactor = wp.bool(True)
+                if refactor_every > 1:
+                    refactor = not older_factor(factor_state, refactor_every, corrected)
+                if refactor:
+                    assemble_and_factor(
+                        augmented, perm, col_start, update_start, update_target, update_a, update_b, update_sign,
+                        col_sign, col_loop, slot_shape, slot_row, slot_sides, slot_code, slot_ref, pivot_tolerance,
+                        loop_tolerance, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                        inv_inertia_world, jac_lin, jac_ang, jac_skew, values, singular,
                     )  # fmt: skip
-                    s += 1
-                singular[1] = 0  # the redundant loop rows of this factorization (`CholeskySolver.check`)
-                j = wp.int32(0)
-                columns = col_start.shape[0] - 1
-                while j < columns:
-                    if slot_row.shape[0] > 0:
-                        assemble_column(
-                            j, perm, col_start, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                            slot_row, slot_sides, inv_inertia_world, jac_lin, jac_ang, jac_skew, values,
-                        )  # fmt: skip
-                    factor_column(
-                        j, augmented, col_start, update_start, update_target, update_a, update_b, update_sign, col_sign,
-                        col_loop, slot_shape, pivot_tolerance, loop_tolerance, values, singular,
-                    )  # fmt: skip
-                    j += 1
+                    factor_state[FACTOR_COUNT] = factor_state[FACTOR_COUNT] + 1
                 if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
                     row_couplings_all(
                         constraint_count, limit_rows, body_inv_mass, constraint_kind, constraint_body0,
@@ -1192,10 +1282,6 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                         l += 1
                     row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
-                # The velocity correction where the state is handed out (`defer` == 0: every stage's): a deferred
-                # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`;
-                # never with rows, whose velocity pass reads them).
-                corrected = defer == 0 or (k == batch_in[0] - 1 and batch_in[1] != 0 and stage == stage_count - 1)
                 verr = f64(wp.nan)  # not measured
                 if corrected:
                     verr = velocity_errors_all(

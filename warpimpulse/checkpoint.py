@@ -45,6 +45,8 @@ class Checkpoints:
             carries = self._carries()
             data.update(carry_h=np.array(list(carries)), carry=np.stack([c.numpy() for c, *_ in carries.values()]),
                         carry_past=np.stack([[p.numpy() for p in past] for _, *past in carries.values()]))  # fmt: skip
+        if self.reuse_factor:  # the factor in use may be of an earlier state (`reuse_factor`): kept as it is
+            data.update(factor=self.linear.values.numpy(), factor_state=self._factor_state.numpy())
         write_atomically(path, lambda tmp: np.savez(tmp, **data), ".npz")
 
     def load_checkpoint(self, path) -> None:
@@ -80,6 +82,9 @@ class Checkpoints:
                         p.assign(past)
         self._active_forces = None
         self._update_frames()
+        if self.reuse_factor and "factor" in data:  # the factor the run went on with, not one of this state
+            self.linear.values.assign(data["factor"])
+            self._factor_state.assign(data["factor_state"])
         self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
 
     def _read_checkpoint(self, path: Path) -> dict[str, np.ndarray]:

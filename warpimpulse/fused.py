@@ -90,7 +90,8 @@ class FusedSteps:
             q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
             limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
             stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
-            carry_past=self._carry_past,
+            carry_past=self._carry_past, refactor_every=self._refactor_every,
+            stale_factor_rate=self._stale_factor_rate, factor_state=self._factor_state,
         )  # fmt: skip
         self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
         return self._fused_by_h[h]

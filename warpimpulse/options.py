@@ -45,6 +45,21 @@ class StepOptions:
             `max_velocity_error` is NaN. None: on with the cholesky solver in scenes without force elements
             (velocity-dependent), rows, contacts, batched worlds or the split formulation (True there is a
             ValueError).
+        reuse_factor: factor K = J M^-1 J^T only when the factor in use has gone stale, not at every accepted
+            (sub)step (the fused schedule; `kernels/step.py`). The joint correction then solves with K of an
+            earlier state: a quasi-Newton iteration whose error is measured on the real prediction and whose
+            impulses act through the current Jacobians, so the tolerance holds the same and only the solve count
+            changes. The kernel decides on the device: K is factored at a stage's start when a solve with the older
+            factor left more than `types.STALE_FACTOR_RATE` of the error before it, at every
+            `types.REFACTOR_EVERY`-th accepted stage, and wherever the velocities are corrected (the state handed
+            out, or every step without `defer_velocities`), whose one solve is exact only with K of that state:
+            so one `step()` a call factors as before. Measured (benchmarks/reuse_factor.py, results in
+            docs/history.md): it pays at small stages (order 4 at h = 1/480: 0.67-0.81 of the time on an arm,
+            chains, a humanoid and the paper's tree) and costs at h = 1/120 on serial scenes (1.2-1.5x: a
+            stale factor of a whipping chain takes twice the solves), so None leaves it off. True is a ValueError
+            where it is not taken: the parallel schedule (and threads' split schedule), the split formulation,
+            rows (limits, stiff motors, distance constraints: their system S is formed with K^-1) and loops (the
+            factorization decides their redundant rows).
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set of
             kinds, cached on disk); False shares one module for all kinds.
         max_rotation: a step in which some body would turn further than this (rad) is taken as 2, 4, ... equal
@@ -60,6 +75,7 @@ class StepOptions:
     newton: bool | None = None
     carry: bool | None = None
     defer_velocities: bool | None = None
+    reuse_factor: bool | None = None
     specialize: bool = True
     max_rotation: float | None = 0.5
     max_substep_depth: int = 7

@@ -17,6 +17,7 @@ from .kernels import inertia as inertia_kernels
 from .kernels import iterative as iterative_kernels
 from .kernels import limits as limit_kernels
 from .kernels import rigid as rigid_kernels
+from .kernels import step as step_kernels
 from .kernels import worlds as world_kernels
 from .launch import Launches, capture, record
 from .model import State
@@ -220,3 +221,9 @@ class Recording:
         wp.capture_launch(self._frames_graph)
         if self.linear is not None:
             self.linear.check()
+        if self.reuse_factor:  # a new factor: the fused kernel's record starts again (`kernels/step.py` FACTOR_*)
+            self._forget_factor()
+
+    def _forget_factor(self) -> None:
+        """The fused kernel's factor record after a factorization of the host's: of the current state."""
+        self._factor_state[step_kernels.FACTOR_AGE : step_kernels.FACTOR_AGE + 1].zero_()

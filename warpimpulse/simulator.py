@@ -39,7 +39,7 @@ from .readout import Readout
 from .recording import Recording
 from .solver import CGSolver, CholeskySolver, Frames, SingularSystemError, loop_tolerance_for
 from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined
-from .types import FORMULATIONS, NEWTON_BODIES, SCHEDULES, SOLVERS
+from .types import FORMULATIONS, NEWTON_BODIES, REFACTOR_EVERY, SCHEDULES, SOLVERS, STALE_FACTOR_RATE
 from .verbosity import verbose as show_warp_messages
 from .worlds import Batch
 
@@ -113,6 +113,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self.options = options = resolve_options(options, legacy, type(self).__name__)
         schedule, formulation, scheme = options.schedule, options.formulation, options.scheme
         newton, carry, defer_velocities = options.newton, options.carry, options.defer_velocities
+        reuse_factor = options.reuse_factor
         specialize, max_rotation, max_substep_depth = (
             options.specialize,
             options.max_rotation,
@@ -326,6 +327,11 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 contact_margin, contact_solver, broad_phase, contact_sweeps, self if self._direct else None,
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
+        self.reuse_factor = self._pick_reuse_factor(reuse_factor)
+        # The fused kernel's record of its factor (`kernels/step.py` FACTOR_*): its age, the factorizations
+        self._factor_state = wp.zeros(step_kernels.FACTOR_WIDTH, dtype=wp.int32, device=d)
+        self._refactor_every = REFACTOR_EVERY if self.reuse_factor else 1
+        self._stale_factor_rate = STALE_FACTOR_RATE
         self._update_frames()
         if self.redundant_rows:
             self._check_loops()
@@ -339,6 +345,33 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         """Whether the Cholesky solver factors the tree's and the loop joints' systems apart (formulation "split",
         section 4.6), which iterate their velocity correction side by side."""
         return getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split"
+
+    _factor_reuse_gap = ""  # why a subclass's fused step cannot keep K's factor (`SplitSimulator`)
+
+    def _pick_reuse_factor(self, wanted: bool | None) -> bool:
+        """Whether the fused kernel keeps K's factor while it serves (`StepOptions.reuse_factor`)."""
+        if wanted not in (None, True, False):
+            raise ValueError(f"reuse_factor must be True, False or None (on where it pays), got {wanted!r}")
+        m = self.model
+        reasons = (
+            (self.schedule != "fused" or self.linear is None or self.solver_name != "cholesky",
+             "no fused Cholesky step (the parallel schedule factors at every step)"),
+            (bool(self._factor_reuse_gap), self._factor_reuse_gap),
+            (self._split_systems, "the split formulation"),
+            (m.limit_count > 0, "joint limits, stiff motors or distance rows (their system S is formed with K^-1)"),
+            (bool(m.topology.loop_joints), "loops (the factorization decides their redundant rows)"),
+        )  # fmt: skip
+        why = ", ".join(why for needed, why in reasons if needed)
+        if wanted and why:
+            raise ValueError(f"reuse_factor needs the fused Cholesky step without rows or loops; this simulator has "
+                             f"{why}")  # fmt: skip
+        return bool(wanted and not why)  # None: off, measured not to pay at common steps (`StepOptions`)
+
+    @property
+    def factorizations(self) -> int:
+        """K's factorizations by the fused kernel since construction (`reuse_factor` skips some; the host's own,
+        after `set_state`, `reset` or a step the parallel schedule took, are not counted)."""
+        return int(self._factor_state.numpy()[step_kernels.FACTOR_COUNT])
 
     def _velocities_needed(self) -> str:
         """Why a step's velocities must be corrected before the next step (`defer_velocities`), or ""."""

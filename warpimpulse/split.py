@@ -196,6 +196,8 @@ class SplitSimulator(Simulator):
     """A Simulator whose fused step runs one tree on `threads` threads (see the module docstring); where the
     tree does not cut, or the fused schedule does not run, one thread, with `split_note` saying why."""
 
+    _factor_reuse_gap = "the split schedule of threads (its parts factor at every step)"
+
     def __init__(self, model: Model, dt: float, threads: int = 2, **settings) -> None:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")

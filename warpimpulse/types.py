@@ -120,3 +120,10 @@ BodyRef = int | str | None
 Names = str | Sequence[str] | None
 """Names of rows added at once: None ("body<index>", "joint<index>"), a format template filled with each row's
 index ("b{}"), or one name per row."""
+
+REFACTOR_EVERY = 8
+"""With `StepOptions.reuse_factor`, the most accepted (sub)steps one factor of K serves (`kernels/step.py`)."""
+
+STALE_FACTOR_RATE = 0.25
+"""With `StepOptions.reuse_factor`: a joint solve with an older factor of K that leaves more than this fraction
+of the error before it has K factored at the stage's start (`kernels/step.py` `stale_rate`)."""

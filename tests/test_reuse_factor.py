@@ -1,0 +1,86 @@
+"""K's factor kept across steps (`StepOptions.reuse_factor`, kernels/step.py).
+
+The joint correction with a factor of K from an earlier state is a quasi-Newton iteration: its error is measured on
+the real prediction, its impulses act through the current Jacobians, so it stops at the same tolerance and only
+its solve count changes. These tests hold it to that against factoring at every step: the same motion within a
+few tolerances on a chain and a robot arm, the joints within the tolerance, and factorizations really skipped
+(counted by the kernel); one `step()` a call, whose velocity correction needs K of the state it hands out, the
+same bit for bit; a checkpoint continuing bit for bit (the factor in use is kept); and where it is refused.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import warpimpulse as wi
+from warpimpulse import scenes
+
+ROOT = Path(__file__).resolve().parent.parent
+TOLERANCE = 1e-6
+SCENES = {
+    "chain20": lambda: scenes.chain(20),
+    "arm7": lambda: wi.load_mjcf(ROOT / "benchmarks/models/arm7.xml"),
+}
+
+
+def _sim(make, reuse: bool, order: int = 4, dt: float = 1 / 480) -> wi.Simulator:
+    return wi.Simulator(make().finalize("cpu"), dt, tolerance=TOLERANCE, order=order,
+                        options=wi.StepOptions(reuse_factor=reuse))  # fmt: skip
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_reused_factor_matches_and_skips_factorizations(scene):
+    """Order 4 at h = 1/480 (five stages a step; benchmarks/reuse_factor.py: 0.4-1.8 factorizations a step
+    instead of 5): the centres within 20 tolerances of factoring every stage after 120 steps (measured ~1e-7 m),
+    every step's joints within the tolerance."""
+    runs = {}
+    for reuse in (False, True):
+        sim = _sim(SCENES[scene], reuse)
+        assert sim.reuse_factor is reuse
+        before = sim.factorizations
+        stats = sim.step(120)
+        assert stats.converged and stats.max_joint_error <= TOLERANCE
+        runs[reuse] = sim.factorizations - before, sim.state.body_x.numpy()
+    always, reused = runs[False][0], runs[True][0]
+    assert always == 120 * 5  # a factorization a stage
+    assert reused < 0.5 * always
+    assert np.abs(runs[True][1] - runs[False][1]).max() < 20 * TOLERANCE
+
+
+def test_one_step_a_call_factors_every_step():
+    """A handed-out state's velocity correction solves once with K of that state: at order 2, one `step()` a call
+    factors at every step and moves bit for bit as without reuse."""
+    states, counts = [], []
+    for reuse in (False, True):
+        sim = _sim(SCENES["chain20"], reuse, order=2, dt=1 / 120)
+        before = sim.factorizations
+        for _ in range(30):
+            assert sim.step().converged
+        counts.append(sim.factorizations - before)
+        states.append(sim.state.body_x.numpy())
+    assert counts == [30, 30]
+    np.testing.assert_array_equal(states[0], states[1])
+
+
+def test_checkpoint_keeps_the_factor(tmp_path):
+    """A checkpoint holds the factor in use (of an earlier state) and its age: loading it continues bit for bit."""
+    sim = _sim(SCENES["chain20"], True)
+    sim.step(7)
+    path = tmp_path / "c.npz"
+    sim.save_checkpoint(path)
+    sim.step(9)
+    expected = sim.state.body_x.numpy()
+    sim.load_checkpoint(path)
+    sim.step(9)
+    np.testing.assert_array_equal(sim.state.body_x.numpy(), expected)
+
+
+def test_refused_where_not_taken():
+    """The parallel schedule factors at every step: reuse_factor=True there is one line saying so."""
+    model = scenes.chain(3).finalize("cpu")
+    with pytest.raises(ValueError, match="reuse_factor needs .*parallel schedule"):
+        wi.Simulator(model, 1 / 60, options=wi.StepOptions(schedule="parallel", reuse_factor=True))
+    assert not wi.Simulator(model, 1 / 60).reuse_factor  # None: off (measured not to pay at common steps)
