@@ -64,11 +64,16 @@ STATUS_LINEAR_ITERATIONS = wp.constant(5)
 STATUS_SPIN = wp.constant(6)  # rad/s: the largest |w| of the step's last prediction (of t0 when not taken)
 STATUS_FAILED_VELOCITY = wp.constant(7)  # the largest velocity error over the tolerance among the stages (VELOCITY)
 STATUS_WIDTH = wp.constant(8)
-# `factor_state` columns (`cholesky_steps`): the accepted stages since K was factored, and the factorizations the
-# kernel made (a count for tests and benchmarks).
+# `factor_state` columns (`cholesky_steps`, `older_factor`): the accepted stages since K was factored; the
+# factorizations the kernel made (a count for tests and benchmarks); the stages still to factor at whatever
+# happens (a hold after an older factor cost solves) and the next hold's length; then, a stage index each, the
+# solves that stage took when it last started with K of its own start (-1: not yet).
 FACTOR_AGE = wp.constant(0)
 FACTOR_COUNT = wp.constant(1)
-FACTOR_WIDTH = wp.constant(2)
+FACTOR_HOLD = wp.constant(2)
+FACTOR_BACKOFF = wp.constant(3)
+FACTOR_FRESH_SOLVES = wp.constant(4)
+FACTOR_HOLD_MAX = wp.constant(64)
 # Status codes.
 OK = wp.constant(0)
 SPLIT = wp.constant(1)
@@ -682,13 +687,43 @@ def stale_rate(factor_state: wp.array(dtype=int), refactor_every: int, err: f64,
 
 
 @wp.func
-def older_factor(factor_state: wp.array(dtype=int), refactor_every: int, corrected: bool) -> bool:
-    """At a stage's accepted state: whether the factor in use serves on (an age below `refactor_every`, and no
-    velocity correction here); its age goes up a stage, or to 0 where K is to be factored here."""
+def older_factor(
+    factor_state: wp.array(dtype=int),
+    refactor_every: int,
+    corrected: bool,
+    stage: int,
+    tries: int,
+    fresh: bool,
+    rescued: bool,
+) -> bool:
+    """At a stage's accepted state: whether the factor in use serves on, the record updated (`factor_state`).
+
+    A stage whose correction began with K of its own start (`fresh`) sets the solves its index takes. One that
+    began with an older factor and took more, or had K factored midway (`rescued`, `stale_rate`), shows that the
+    older factor costs more solves than it saves factorizations here (assembly and factor ~265 ns a body on a
+    hinge chain, a solve with its prediction ~175; on the paper's tree 112 and 121): K is then factored at every
+    stage for a hold that doubles at each such stage (1, 3, 7, ... FACTOR_HOLD_MAX stages) and halves at each
+    stage the older factor served without a solve more, so that where it never pays (large steps of a whipping
+    chain) it is tried once in FACTOR_HOLD_MAX stages. Besides, K is factored at every `refactor_every`-th stage
+    and where the velocities are `corrected` (its one solve is exact only with K of this state)."""
+    fresh_solves = factor_state[FACTOR_FRESH_SOLVES + stage]
+    backoff = factor_state[FACTOR_BACKOFF]
+    hold = factor_state[FACTOR_HOLD]
+    if fresh and not rescued:
+        factor_state[FACTOR_FRESH_SOLVES + stage] = tries
+    elif rescued or (fresh_solves >= 0 and tries > fresh_solves):
+        backoff = wp.min(2 * backoff + 1, FACTOR_HOLD_MAX)
+        hold = backoff
+    else:
+        backoff = backoff // 2
     age = factor_state[FACTOR_AGE] + 1
-    if age >= refactor_every or corrected:
+    if age >= refactor_every or corrected or hold > 0:
         age = 0
+    if hold > 0:
+        hold -= 1
     factor_state[FACTOR_AGE] = age
+    factor_state[FACTOR_HOLD] = hold
+    factor_state[FACTOR_BACKOFF] = backoff
     return age > 0
 
 
@@ -1133,6 +1168,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         ),
                     )  # fmt: skip
                 tries = wp.int32(0)
+                fresh = refactor_every <= 1 or factor_state[FACTOR_AGE] == 0  # K of this stage's start
+                rescued = wp.bool(False)  # K factored midway (`stale_rate`)
                 best = err
                 ok = wp.bool(False)
                 while wp.isfinite(err):
@@ -1216,6 +1253,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                         factor_state[FACTOR_COUNT] = factor_state[FACTOR_COUNT] + 1
                         factor_state[FACTOR_AGE] = 0
+                        rescued = True
                     tries += 1
                 iterations += tries
                 new_spin = spin
@@ -1258,7 +1296,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 # corrected, whose one solve is exact with K of this state (the paper's section 4.2).
                 refactor = wp.bool(True)
                 if refactor_every > 1:
-                    refactor = not older_factor(factor_state, refactor_every, corrected)
+                    refactor = not older_factor(factor_state, refactor_every, corrected, stage, tries, fresh, rescued)
                 if refactor:
                     assemble_and_factor(
                         augmented, perm, col_start, update_start, update_target, update_a, update_b, update_sign,

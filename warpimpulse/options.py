@@ -45,21 +45,21 @@ class StepOptions:
             `max_velocity_error` is NaN. None: on with the cholesky solver in scenes without force elements
             (velocity-dependent), rows, contacts, batched worlds or the split formulation (True there is a
             ValueError).
-        reuse_factor: factor K = J M^-1 J^T only when the factor in use has gone stale, not at every accepted
+        reuse_factor: factor K = J M^-1 J^T only where the factor in use no longer serves, not at every accepted
             (sub)step (the fused schedule; `kernels/step.py`). The joint correction then solves with K of an
             earlier state: a quasi-Newton iteration whose error is measured on the real prediction and whose
             impulses act through the current Jacobians, so the tolerance holds the same and only the solve count
-            changes. The kernel decides on the device: K is factored at a stage's start when a solve with the older
-            factor left more than `types.STALE_FACTOR_RATE` of the error before it, at every
-            `types.REFACTOR_EVERY`-th accepted stage, and wherever the velocities are corrected (the state handed
-            out, or every step without `defer_velocities`), whose one solve is exact only with K of that state:
-            so one `step()` a call factors as before. Measured (benchmarks/reuse_factor.py, results in
-            docs/history.md): it pays at small stages (order 4 at h = 1/480: 0.67-0.81 of the time on an arm,
-            chains, a humanoid and the paper's tree) and costs at h = 1/120 on serial scenes (1.2-1.5x: a
-            stale factor of a whipping chain takes twice the solves), so None leaves it off. True is a ValueError
-            where it is not taken: the parallel schedule (and threads' split schedule), the split formulation,
-            rows (limits, stiff motors, distance constraints: their system S is formed with K^-1) and loops (the
-            factorization decides their redundant rows).
+            changes. The kernel decides on the device (`older_factor`): K is factored where the velocities are
+            corrected (the state handed out, or every step without `defer_velocities`: its one solve is exact only
+            with K of that state, so one `step()` a call at order 2 factors as before), at every
+            `types.REFACTOR_EVERY`-th stage, at a stage's start when a solve with the older factor left more than
+            `types.STALE_FACTOR_RATE` of the error, and for a doubling hold of stages after an older factor cost a
+            solve more than K of the stage's start did. Measured (benchmarks/reuse_factor.py, docs/history.md):
+            0.70-0.74 of the time at order 4, h = 1/480 on chains and the paper's tree, 0.87 on the tree at order 4,
+            h = 1/120; at h = 1/120 on serial scenes it falls back to factoring every stage (within a few percent).
+            None: on wherever it is taken. True is a ValueError where it is not: the parallel schedule (and
+            threads' split schedule), the split formulation, rows (limits, stiff motors, distance constraints:
+            their system S is formed with K^-1) and loops (the factorization decides their redundant rows).
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set of
             kinds, cached on disk); False shares one module for all kinds.
         max_rotation: a step in which some body would turn further than this (rad) is taken as 2, 4, ... equal

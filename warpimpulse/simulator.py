@@ -328,8 +328,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self.reuse_factor = self._pick_reuse_factor(reuse_factor)
-        # The fused kernel's record of its factor (`kernels/step.py` FACTOR_*): its age, the factorizations
-        self._factor_state = wp.zeros(step_kernels.FACTOR_WIDTH, dtype=wp.int32, device=d)
+        # The fused kernel's record of its factor (`kernels/step.py` FACTOR_*): its age, the factorizations, the
+        # hold and its next length, each stage's solves with K of its start
+        stages = len(getattr(self, "_fused_stages", ()))
+        self._factor_state = wp.array([0, 0, 0, 0] + [-1] * stages, dtype=wp.int32, device=d)
         self._refactor_every = REFACTOR_EVERY if self.reuse_factor else 1
         self._stale_factor_rate = STALE_FACTOR_RATE
         self._update_frames()
@@ -365,7 +367,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         if wanted and why:
             raise ValueError(f"reuse_factor needs the fused Cholesky step without rows or loops; this simulator has "
                              f"{why}")  # fmt: skip
-        return bool(wanted and not why)  # None: off, measured not to pay at common steps (`StepOptions`)
+        return bool(wanted is not False and not why)
 
     @property
     def factorizations(self) -> int:
