@@ -184,7 +184,9 @@ CASES = {
 
 def _run(case: str, schedule: str, batched: bool):
     make, dt, steps, options = CASES[case]
-    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold({**options, "schedule": schedule}))
+    # The same maths in both: the fused step's kept factor of K (`reuse_factor`, fused only) off.
+    switches = {**options, "schedule": schedule, "reuse_factor": False}
+    sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(switches))
     stats = sim.simulate(steps * dt) if batched else [sim.step() for _ in range(steps)]
     state = [getattr(sim.state, f"body_{n}").numpy().copy() for n in "xqvw"] + [sim.drive_integral.numpy().copy()]
     state += [sim.limit_impulse.numpy().copy(), sim.limit_velocity_impulse.numpy().copy()]
@@ -464,7 +466,8 @@ def test_order_and_fall_back_under_the_fused_schedule(order, monkeypatch):
     assert composed.schedule == "fused" and counts == {"launches": 1, "parallel_steps": 0}
     assert stats.order == order and stats.converged
     fused, parallel = (
-        wi.Simulator(model, 1 / 60, order=order, options=wi.StepOptions(schedule=s)) for s in ("fused", "parallel")
+        wi.Simulator(model, 1 / 60, order=order, options=wi.StepOptions(schedule=s, reuse_factor=False))
+        for s in ("fused", "parallel")
     )
     results = []
     for sim in (fused, parallel):

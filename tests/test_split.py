@@ -13,6 +13,8 @@ from warpimpulse.split import SEPARATOR, CutError, SplitSimulator, cut
 pytestmark = pytest.mark.fused  # the split runs the fused step's stages
 
 DT = 1.0 / 60.0
+# The split step factors K at every step; a Simulator's fused step keeps it where it serves (`reuse_factor`).
+FACTOR_EVERY_STEP = wi.StepOptions(reuse_factor=False)
 
 
 def state_of(sim) -> list[np.ndarray]:
@@ -44,7 +46,7 @@ def test_split_step_n_sums_up_as_the_fused_step():
     """step(n) takes its stats from the launch's summary row, which the fused kernel writes and the split step
     writes on the host: the same figures, and the same state."""
     model = wi.scenes.binary_tree(63).finalize()
-    one, split = Simulator(model, DT), SplitSimulator(model, DT, threads=2)
+    one, split = Simulator(model, DT, options=FACTOR_EVERY_STEP), SplitSimulator(model, DT, threads=2)
     a, b = one.step(30), split.step(30)
     assert a == b and b.substeps == 30 and b.joint_iterations >= 30
     for x, y in zip(state_of(one), state_of(split)):
@@ -99,7 +101,7 @@ def test_a_chain_runs_on_one_thread_and_says_why():
     model = wi.scenes.chain(40).finalize()
     sim = SplitSimulator(model, DT, threads=2)
     assert sim.threads == 1 and "does not split" in sim.split_note
-    one = Simulator(model, DT)
+    one = Simulator(model, DT, options=FACTOR_EVERY_STEP)
     sim.step(5)
     one.step(5)
     assert np.array_equal(sim.positions(), one.positions())

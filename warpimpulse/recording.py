@@ -225,5 +225,9 @@ class Recording:
             self._forget_factor()
 
     def _forget_factor(self) -> None:
-        """The fused kernel's factor record after a factorization of the host's: of the current state."""
-        self._factor_state[step_kernels.FACTOR_AGE : step_kernels.FACTOR_AGE + 1].zero_()
+        """The fused kernel's factor record after a factorization of the host's, as a new simulator's (its count
+        aside): of the current state, no hold, no stage's solves known (`kernels/step.py` `older_factor`)."""
+        state = self._factor_state.numpy().copy()
+        state[step_kernels.FACTOR_AGE] = state[step_kernels.FACTOR_HOLD] = state[step_kernels.FACTOR_BACKOFF] = 0
+        state[step_kernels.FACTOR_FRESH_SOLVES :] = -1
+        self._factor_state.assign(state)
