@@ -65,15 +65,18 @@ STATUS_SPIN = wp.constant(6)  # rad/s: the largest |w| of the step's last predic
 STATUS_FAILED_VELOCITY = wp.constant(7)  # the largest velocity error over the tolerance among the stages (VELOCITY)
 STATUS_WIDTH = wp.constant(8)
 # `factor_state` columns (`cholesky_steps`, `older_factor`): the accepted stages since K was factored; the
-# factorizations the kernel made (a count for tests and benchmarks); the stages still to factor at whatever
-# happens (a hold after an older factor cost solves) and the next hold's length; then, a stage index each, the
-# solves that stage took when it last started with K of its own start (-1: not yet).
+# factorizations the kernel made (a count for tests and benchmarks); the stages still to factor at whatever happens (a
+# hold after an older factor cost solves) and the next hold's length; the stages the factor in use served without a
+# solve more (-1: the last stage's factor was of its start); then, a stage index each, the solves that stage took when
+# it last started with K of its own start (-1: not yet).
 FACTOR_AGE = wp.constant(0)
 FACTOR_COUNT = wp.constant(1)
 FACTOR_HOLD = wp.constant(2)
 FACTOR_BACKOFF = wp.constant(3)
-FACTOR_FRESH_SOLVES = wp.constant(4)
+FACTOR_SERVED = wp.constant(4)
+FACTOR_FRESH_SOLVES = wp.constant(5)
 FACTOR_HOLD_MAX = wp.constant(64)
+FACTOR_PAID = wp.constant(2)  # stages an older factor serves without a solve more to have paid (`older_factor`)
 # Status codes.
 OK = wp.constant(0)
 SPLIT = wp.constant(1)
@@ -698,25 +701,40 @@ def older_factor(
 ) -> bool:
     """At a stage's accepted state: whether the factor in use serves on, the record updated (`factor_state`).
 
-    A stage whose correction began with K of its own start (`fresh`) sets the solves its index takes. One that
-    began with an older factor and took more, or had K factored midway (`rescued`, `stale_rate`), shows that the
-    older factor costs more solves than it saves factorizations here (assembly and factor ~265 ns a body on a
-    hinge chain, a solve with its prediction ~175; on the paper's tree 112 and 121): K is then factored at every
-    stage for a hold that doubles at each such stage (1, 3, 7, ... FACTOR_HOLD_MAX stages) and halves at each
-    stage the older factor served without a solve more, so that where it never pays (large steps of a whipping
-    chain) it is tried once in FACTOR_HOLD_MAX stages. Besides, K is factored at every `refactor_every`-th stage
-    and where the velocities are `corrected` (its one solve is exact only with K of this state)."""
+    A stage whose correction began with K of its own start (`fresh`), as did the stage before it, sets the solves its
+    index takes (the first fresh stage after older factors does not: the carried right-hand side, `carry`, which took up
+    the older factor's error, still leaves it a solve more); until its index has that count, K is factored at every
+    stage. One that began with an older factor and took no more has the factor serve on; one that took more, or had K
+    factored midway (`rescued`, `stale_rate`), has K factored here. Where the older factor had served fewer than
+    FACTOR_PAID stages before, it saved fewer factorizations than the solve it cost (assembly and factor ~265 ns a body
+    on a hinge chain, a solve with its prediction ~175; on the paper's tree 112 and 121): K is then factored at every
+    stage for a hold that doubles at each such failure (1, 3, 7, ... FACTOR_HOLD_MAX stages), so that where an older
+    factor never pays (large steps of a whipping chain) it is tried once in FACTOR_HOLD_MAX stages; a factor that paid,
+    or served `refactor_every` stages, ends the holds. Besides, K is factored at every `refactor_every`-th stage and
+    where the velocities are `corrected` (its one solve is exact only with K of this state)."""
     fresh_solves = factor_state[FACTOR_FRESH_SOLVES + stage]
     backoff = factor_state[FACTOR_BACKOFF]
     hold = factor_state[FACTOR_HOLD]
+    served = factor_state[FACTOR_SERVED]  # -1: this stage's factor is of its start (`fresh`)
     if fresh and not rescued:
-        factor_state[FACTOR_FRESH_SOLVES + stage] = tries
+        if served < 0:  # the stage before was fresh too
+            factor_state[FACTOR_FRESH_SOLVES + stage] = tries
+            fresh_solves = tries
+        served = -1
+        if fresh_solves < 0:
+            hold = wp.max(hold, 1)
     elif rescued or (fresh_solves >= 0 and tries > fresh_solves):
-        backoff = wp.min(2 * backoff + 1, FACTOR_HOLD_MAX)
-        hold = backoff
+        if served >= FACTOR_PAID:
+            backoff = 0
+        else:
+            backoff = wp.min(2 * backoff + 1, FACTOR_HOLD_MAX)
+        hold = wp.max(backoff, 1)  # this stage's factorization at least
+        served = 0
     else:
-        backoff = backoff // 2
+        served = wp.max(served, 0) + 1
     age = factor_state[FACTOR_AGE] + 1
+    if age >= refactor_every:
+        backoff = 0
     if age >= refactor_every or corrected or hold > 0:
         age = 0
     if hold > 0:
@@ -724,6 +742,7 @@ def older_factor(
     factor_state[FACTOR_AGE] = age
     factor_state[FACTOR_HOLD] = hold
     factor_state[FACTOR_BACKOFF] = backoff
+    factor_state[FACTOR_SERVED] = served
     return age > 0
 
 

@@ -276,6 +276,23 @@ def test_correction_flags_are_taken_and_recorded(option, flag, taken, tmp_path, 
     assert code == 2 and any(f"{option} needs" in line and "'cg'" in line for line in lines), lines
 
 
+@pytest.mark.parametrize(("flag", "order", "taken"), [("auto", 2, False), ("auto", 4, True), ("on", 2, True),
+                                                    ("off", 4, False)])  # fmt: skip
+def test_reuse_factor_flag_is_taken_and_recorded(flag, order, taken, tmp_path, capsys):
+    """`--reuse-factor` sets `StepOptions(reuse_factor=...)` (auto: at order 4 and 6) and the file records what ran
+    (customLayerData warpimpulse:reuse_factor); asked for where it cannot run, one line and exit 2."""
+    from pxr import Sdf
+
+    out = tmp_path / "x.usda"
+    args = ["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out), "--order", str(order)]
+    code, _ = run([*args, "--reuse-factor", flag], capsys)
+    assert code == 0
+    assert Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:reuse_factor"] is taken
+    if flag == "on":
+        code, lines = run([*args, "--reuse-factor", "on", "--solver", "cg"], capsys)
+        assert code == 2 and any("reuse_factor needs" in line and "'cg'" in line for line in lines), lines
+
+
 @pytest.mark.parametrize(("flag", "taken"), [("auto", False), ("on", True), ("off", False)])
 def test_newton_flag_is_taken_and_recorded(flag, taken, tmp_path, capsys):
     """`--newton` sets `Simulator(newton=...)` (auto: off for a chain of a few bodies) and the file records what

@@ -91,6 +91,13 @@ def _add_simulate(sub) -> None:
         help="correct the velocities only where a frame is written, the next step's joint correction reaching the "
         "same (auto: on with cholesky and no force elements, rows or contacts)",
     )
+    p.add_argument(
+        "--reuse-factor",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="keep K's factor across steps while it serves, factoring again where it costs solves (auto: at order 4 "
+        "and 6, with the fused cholesky step without limits, motors' rows, distance rows or loops)",
+    )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
     p.add_argument("--max-rotation", type=_positive(float), default=0.5,
@@ -369,6 +376,7 @@ def _simulate(args) -> int:
             newton=AUTO_ON_OFF[args.newton],
             carry=AUTO_ON_OFF[args.carry],
             defer_velocities=AUTO_ON_OFF[args.defer_velocities],
+            reuse_factor=AUTO_ON_OFF[args.reuse_factor],
         ),
     )
     if sim.accuracy is not None:

@@ -46,19 +46,20 @@ class StepOptions:
             (velocity-dependent), rows, contacts, batched worlds or the split formulation (True there is a
             ValueError).
         reuse_factor: factor K = J M^-1 J^T only where the factor in use no longer serves, not at every accepted
-            (sub)step (the fused schedule; `kernels/step.py`). The joint correction then solves with K of an
-            earlier state: a quasi-Newton iteration whose error is measured on the real prediction and whose
-            impulses act through the current Jacobians, so the tolerance holds the same and only the solve count
-            changes. The kernel decides on the device (`older_factor`): K is factored where the velocities are
-            corrected (the state handed out, or every step without `defer_velocities`: its one solve is exact only
-            with K of that state, so one `step()` a call at order 2 factors as before), at every
+            (sub)step (the fused schedule; `kernels/step.py`). The joint correction then solves with K of an earlier
+            state: a quasi-Newton iteration whose error is measured on the real prediction and whose impulses act
+            through the current Jacobians, so the tolerance holds the same and only the solve count changes. The kernel
+            decides on the device (`older_factor`): K is factored where the velocities are corrected (the state handed
+            out, or every step without `defer_velocities`: its one solve is exact only with K of that state), at every
             `types.REFACTOR_EVERY`-th stage, at a stage's start when a solve with the older factor left more than
-            `types.STALE_FACTOR_RATE` of the error, and for a doubling hold of stages after an older factor cost a
-            solve more than K of the stage's start did. Measured (benchmarks/reuse_factor.py, docs/history.md):
-            0.70-0.74 of the time at order 4, h = 1/480 on chains and the paper's tree, 0.87 on the tree at order 4,
-            h = 1/120; at h = 1/120 on serial scenes it falls back to factoring every stage (within a few percent).
-            None: on wherever it is taken. True is a ValueError where it is not: the parallel schedule (and
-            threads' split schedule), the split formulation, rows (limits, stiff motors, distance constraints:
+            `types.STALE_FACTOR_RATE` of the error, and where a stage took more solves with the older factor than with K
+            of its own start (for a doubling hold of stages where the factor had not paid). Measured
+            (benchmarks/reuse_factor.py, docs/history.md), `step(240)` at tolerance 1e-6: at order 4 and h = 1/480, 0.70
+            of the time on chains of 20 and 50 and the paper's tree, 0.89-0.90 on the arm and the humanoid; at order 4
+            and h = 1/120 0.88 on the tree, 0.96-1.02 on serial scenes; at order 2 0.74 on the tree at h = 1/480, but
+            1.00-1.05 at h = 1/120 on serial scenes. None: on at order 4 and 6 (whose stages go back and forth about the
+            step), off at order 2. True is a ValueError where it is not taken: the parallel schedule, threads' split
+            step (threads > 1), another solver, the split formulation, rows (limits, stiff motors, distance constraints:
             their system S is formed with K^-1) and loops (the factorization decides their redundant rows).
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set of
             kinds, cached on disk); False shares one module for all kinds.

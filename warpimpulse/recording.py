@@ -228,6 +228,8 @@ class Recording:
         """The fused kernel's factor record after a factorization of the host's, as a new simulator's (its count
         aside): of the current state, no hold, no stage's solves known (`kernels/step.py` `older_factor`)."""
         state = self._factor_state.numpy().copy()
-        state[step_kernels.FACTOR_AGE] = state[step_kernels.FACTOR_HOLD] = state[step_kernels.FACTOR_BACKOFF] = 0
+        for column in (step_kernels.FACTOR_AGE, step_kernels.FACTOR_HOLD, step_kernels.FACTOR_BACKOFF,
+                       step_kernels.FACTOR_SERVED):  # fmt: skip
+            state[column] = 0
         state[step_kernels.FACTOR_FRESH_SOLVES :] = -1
         self._factor_state.assign(state)

@@ -331,7 +331,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         # The fused kernel's record of its factor (`kernels/step.py` FACTOR_*): its age, the factorizations, the
         # hold and its next length, each stage's solves with K of its start
         stages = len(getattr(self, "_fused_stages", ()))
-        self._factor_state = wp.array([0, 0, 0, 0] + [-1] * stages, dtype=wp.int32, device=d)
+        self._factor_state = wp.array([0] * step_kernels.FACTOR_FRESH_SOLVES + [-1] * stages, dtype=wp.int32, device=d)
         self._refactor_every = REFACTOR_EVERY if self.reuse_factor else 1
         self._stale_factor_rate = STALE_FACTOR_RATE
         self._update_frames()
@@ -348,17 +348,15 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         section 4.6), which iterate their velocity correction side by side."""
         return getattr(getattr(self.linear, "pattern", None), "formulation", "") == "split"
 
-    _factor_reuse_gap = ""  # why a subclass's fused step cannot keep K's factor (`SplitSimulator`)
-
     def _pick_reuse_factor(self, wanted: bool | None) -> bool:
-        """Whether the fused kernel keeps K's factor while it serves (`StepOptions.reuse_factor`)."""
+        """Whether the fused kernel keeps K's factor while it serves (`StepOptions.reuse_factor`; None: at order 4
+        and 6)."""
         if wanted not in (None, True, False):
             raise ValueError(f"reuse_factor must be True, False or None (on where it pays), got {wanted!r}")
         m = self.model
         reasons = (
-            (self.schedule != "fused" or self.linear is None or self.solver_name != "cholesky",
-             "no fused Cholesky step (the parallel schedule factors at every step)"),
-            (bool(self._factor_reuse_gap), self._factor_reuse_gap),
+            (self.solver_name != "cholesky" or self.linear is None, f"the {self.solver_name!r} solver"),
+            (self.schedule != "fused", "the parallel schedule (it factors at every step)"),
             (self._split_systems, "the split formulation"),
             (m.limit_count > 0, "joint limits, stiff motors or distance rows (their system S is formed with K^-1)"),
             (bool(m.topology.loop_joints), "loops (the factorization decides their redundant rows)"),
@@ -367,7 +365,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         if wanted and why:
             raise ValueError(f"reuse_factor needs the fused Cholesky step without rows or loops; this simulator has "
                              f"{why}")  # fmt: skip
-        return bool(wanted is not False and not why)
+        # None: at order 4 and 6, whose stages go back and forth about the step and so move the arms of K less
+        # than a step of order 2 does (benchmarks/reuse_factor.py: at order 2 and h = 1/120, 0-5 % dearer).
+        return bool((wanted or (wanted is None and self.order > 2)) and not why)
 
     @property
     def factorizations(self) -> int:

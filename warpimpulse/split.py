@@ -196,14 +196,14 @@ class SplitSimulator(Simulator):
     """A Simulator whose fused step runs one tree on `threads` threads (see the module docstring); where the
     tree does not cut, or the fused schedule does not run, one thread, with `split_note` saying why."""
 
-    _factor_reuse_gap = "the split schedule of threads (its parts factor at every step)"
-
     def __init__(self, model: Model, dt: float, threads: int = 2, **settings) -> None:
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
         options = take_options(settings, "SplitSimulator")
         if threads > 1 and options.newton is None:  # the parts' steps have no Newton step: by default none
             options = options.replace(newton=False)
+        if threads > 1 and options.reuse_factor is None:  # nor a kept factor (`reuse_factor`): by default none
+            options = options.replace(reuse_factor=False)
         super().__init__(model, dt, options=options, **settings)
         self.threads, self.split_note = 1, ""
         if threads == 1:
@@ -223,6 +223,8 @@ class SplitSimulator(Simulator):
         except CutError as exc:
             self.split_note = str(exc)
             return
+        if self.reuse_factor:
+            raise ValueError("reuse_factor needs one thread: the split step factors K at every step (threads=1)")
         self.threads = threads
         self.cut = parts
         self._record_split(parts)
