@@ -1191,13 +1191,28 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 rescued = wp.bool(False)  # K factored midway (`stale_rate`)
                 best = err
                 ok = wp.bool(False)
+                restart = wp.int32(0)  # the solves before K was factored here for a failing older factor
                 while wp.isfinite(err):
                     best = wp.min(best, err)
                     if err <= tolerance:
                         ok = True
                         break
-                    if tries >= max_iterations or diverging(err, best, tries):
-                        break
+                    if tries - restart >= max_iterations or diverging(err, best, tries - restart):
+                        if refactor_every <= 1 or factor_state[FACTOR_AGE] == 0:
+                            break
+                        # The older factor's failure, not the stage's: K of the stage's start and the iteration
+                        # limit again, so that a stage fails (and is halved) only as it would without `refactor_every`.
+                        assemble_and_factor(
+                            augmented, perm, col_start, update_start, update_target, update_a, update_b, update_sign,
+                            col_sign, col_loop, slot_shape, slot_row, slot_sides, slot_code, slot_ref,
+                            pivot_tolerance, loop_tolerance, constraint_kind, constraint_body0, constraint_body1,
+                            body_inv_mass, inv_inertia_world, jac_lin, jac_ang, jac_skew, values, singular,
+                        )  # fmt: skip
+                        factor_state[FACTOR_COUNT] = factor_state[FACTOR_COUNT] + 1
+                        factor_state[FACTOR_AGE] = 0
+                        rescued = True
+                        restart = tries
+                        best = err
                     last = err
                     if tries == 0 and carrying != 0:
                         carry_into_all(constraint_count, carry[row], rhs)
