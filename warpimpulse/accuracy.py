@@ -254,7 +254,7 @@ class Controller:
         """(simulator array, its copy) of everything a check undoes: the state, the drives' integrals and the
         carried right-hand sides; on a CPU as numpy views, copied without a launch (~0.2 us against ~10 us)."""
         sim = self.sim
-        pairs = [(getattr(sim.state, f), getattr(self._start, f)) for f in ("body_x", "body_q", "body_v", "body_w")]
+        pairs = [(getattr(sim._state, f), getattr(self._start, f)) for f in ("body_x", "body_q", "body_v", "body_w")]
         pairs += [(sim.drive_integral, self._integral), (sim._carry, self._carry), (sim._carry_past, self._carry_past)]
         if sim.model.device.is_cpu:
             return [(a.numpy(), b.numpy()) for a, b in pairs]
@@ -264,13 +264,13 @@ class Controller:
         sim = self.sim
         for live, kept in self._copies:
             _copy(kept, live)
-        self._saved = (sim.time, sim.step_count, sim._spin, sim._fallback)
+        self._saved = (sim.time, sim.step_count, sim._spin, sim._fallback, sim._handout)
 
     def _restore(self) -> None:
         sim = self.sim
         for live, kept in self._copies:
             _copy(live, kept)
-        sim.time, sim.step_count, sim._spin, sim._fallback = self._saved
+        sim.time, sim.step_count, sim._spin, sim._fallback, sim._handout = self._saved
         sim._update_frames()
 
 
