@@ -7,20 +7,21 @@ What is chosen, and how:
   cheapest, order 4 below `ORDER4_BELOW`. A scene with joint limits, stiff motors or distance rows, whose steps
   fall back to order 2 anyway (`simulator.ROWS_FALLBACK`), is controlled at order 2, as `Plan.note` says;
   contacts and batched worlds are refused.
-- the joint tolerance: `TOLERANCE_SHARE` of E. Every step may leave up to the tolerance in each joint, and the
-  step-doubling estimate below cannot see a local error below it.
-- the step size, from an error estimate (`Controller`): the local error of the steps is measured by step
-  doubling (one step of 2h from a state, undone, against the two steps of h the trajectory takes from it, in the
-  same interval or across the next: for a method of order p they differ by C h^(p+1) (2^(p+1) - 2), which gives
-  the error constant C), and h is set so that the local error per unit time, C h^p, is `SAFETY` E / horizon:
-  the local errors then add up to about E over the horizon. A check costs one step of 2h and comes every
-  `CHECK_EVERY` steps: about a tenth of the work.
+- the joint tolerance: `TOLERANCE_SHARE` of E (at most `TOLERANCE_CAP`). Every step may leave up to the
+  tolerance in each joint; the trajectory error hardly moves while it is a fiftieth of that error.
+- the step size, from an estimate of the trajectory error itself (`Controller`): a shadow Simulator runs the
+  same model alongside at twice the step. For a method of order p, the trajectory errors of runs at h and 2h are
+  G h^p and G (2h)^p, so their gap is (2^p - 1) times the trajectory's own error (Richardson's estimate, on the
+  whole trajectory): it includes what the motion did with the errors of all earlier steps, which a local
+  estimate does not see (a chaotic arm amplified its local errors 5-17x). Every block of intervals the gap is
+  read, the error projected to the horizon's end, and the step of the next block sized so that it is `SAFETY`
+  E there. The shadow costs its steps, half the trajectory's.
 
 `Simulator.dt` is the interval that `step()` advances (a frame of the USD recorder, a control tick): each is
 taken as a whole number of equal steps, so frames land exactly on their times; the step size is at most dt.
 
-What it cannot do: the estimate is local. Errors that the motion amplifies (a chaotic double pendulum) grow
-faster than the sum of local errors, and errors that it damps grow slower; the benchmark
+What it cannot do: take back an error already made. Where the motion suddenly amplifies the error (a chain's
+whip, a tumbling arm), the estimate sees it a block late, and errors made earlier stay; the benchmark
 (benchmarks/accuracy.py) measures how near E the trajectory error of real scenes ends.
 """
 
@@ -143,6 +144,7 @@ class Controller:
         self._done = 0  # intervals of the present block taken
         self._mean = 0.0  # s^(p+1): the sum of h^p times the time it was taken, since the start
         self._split = 1.0  # the most substeps a step of the present block was split into (a fast spin)
+        self._spins = (0.0, 0.0)  # rad/s: the fastest turn of a body in the last block, and in the present one
         self._start = self._last = (0.0, 0.0)  # (s, m): the start, and the last block's end with the largest estimate
 
     @property
@@ -186,6 +188,7 @@ class Controller:
         stats = parts[0] if len(parts) == 1 else combined(parts)
         if stats.substeps > k:  # split for a fast spin: the next block's steps are no larger than these
             self._split = max(self._split, stats.substeps / k)
+        self._spins = (self._spins[0], max(self._spins[1], float(sim._spin)))
         sim.time = end
         sim._clock = (end, sim.step_count)  # the clock counts on from the frame time
         self._done += 1
@@ -239,8 +242,10 @@ class Controller:
         errors just add up, more where the motion amplifies them, in [1, `GROWTH_POWER`]), and G is that
         projection over the mean h^p of the steps so far; the next block's step is the h whose G h^p is
         `SAFETY` accuracy. Sized from the mean of all steps, not the last, a step never shrinks without end
-        for an error that smaller steps now cannot take back. It grows by at most GROWTH a block and shrinks by
-        at most SHRINK."""
+        for an error that smaller steps now cannot take back. Where the fastest body turned faster in this block
+        than in the last by a factor r, the next is taken to speed up as much again, and its step is r^((p+1)/p)
+        smaller (a step's error grows as (spin h)^(p+1)): the error of a chain's whip is made within a block. It
+        grows by at most GROWTH a block and shrinks by at most SHRINK."""
         p = self.order
         self.estimate = self._gap() / (2.0**p - 1.0)
         h = self.step_size
@@ -256,6 +261,9 @@ class Controller:
         projected = g * (end / t) ** power
         mean = (self._mean / t) ** (1.0 / p)  # s: the mean step, as its h^p
         wanted = mean * (SAFETY * self.plan.accuracy / projected) ** (1.0 / p) if projected > 0.0 else math.inf
+        spin, self._spins = self._spins, (self._spins[1], 0.0)
+        if 0.0 < spin[0] < spin[1]:  # the motion sped up over the block: as much again in the next
+            wanted *= (spin[0] / spin[1]) ** ((p + 1.0) / p)
         factor = min(GROWTH, max(1.0 / SHRINK, wanted / h))
         split, self._split = self._split, 1.0
         self.steps = _whole(self.steps * (max(split, 1.0 / factor) if split > 1.0 else 1.0 / factor))
