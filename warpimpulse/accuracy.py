@@ -46,7 +46,7 @@ in benchmarks/accuracy.py's grid of (order, h, tolerance)."""
 TOLERANCE_SHARE = 0.02
 """The joint tolerance as a share of the accuracy (m or rad per m asked), clamped to [1e-12, TOLERANCE_CAP]: a
 tolerance a fiftieth of the trajectory error moves that error by under 2% (docs/history.md, "Tolerance at large
-steps"), and looser ones cost iterations less than they save nothing."""
+steps"), and at loose accuracies the iterations it saves are most of a step's cost."""
 TOLERANCE_CAP = 1e-4
 SAFETY = 0.5
 """The trajectory error aimed at the horizon's end, as a share of the accuracy."""
