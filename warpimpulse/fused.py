@@ -23,6 +23,7 @@ _STATUS_FIGURES = operator.itemgetter(
     step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
     step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
 )  # fmt: skip
+_CODE, _SPIN = step_kernels.STATUS_CODE, step_kernels.STATUS_SPIN  # read by each `step()`: a global each
 
 
 class FusedSteps:
@@ -82,7 +83,7 @@ class FusedSteps:
         if direct:
             sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
         launch = record(
-            kernel, 1, self.model.device, sources, data_out=self.state,
+            kernel, 1, self.model.device, sources, data_out=self._state,
             h=h, stages=self._stages, reach=max(abs(g) for g in self._fused_stages), batch_in=self._batch,
             defer=int(self.defer_velocities),
             max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
@@ -118,17 +119,19 @@ class FusedSteps:
         done = 0
         columns = step_kernels
         order, fallback = self._fused_order
+        lazy = self._lazy_hand_out
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status, summary = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
+            status, summary = self._run_fused(batch, not lazy and done + batch == n)  # the batch's one read-back
+            self._handout = lazy
             first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
                 out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                out.append(self._handed_back(status[first], done + 1 == n))
+                out.append(self._handed_back(status[first], not lazy and done + 1 == n))
                 done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
@@ -138,16 +141,22 @@ class FusedSteps:
 
     def _fused_step(self) -> StepStats:
         """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
-        loop's bookkeeping (one launch of one step, whose state is handed out)."""
-        self._update_forces()
-        status, summary = self._run_fused(1, True)
-        if summary[step_kernels.STATUS_CODE]:  # the step went OK
-            order, fallback = self._fused_order
-            stats = self._status_stats(summary, 1, order, fallback)
+        loop's bookkeeping (one launch of one step, whose velocity correction `state` takes if it is read)."""
+        if self._forces_timed or self._active_forces is None:
+            self._update_forces()
+        lazy = self._lazy_hand_out
+        status, summary = self._run_fused(1, not lazy)
+        self._handout = lazy
+        if summary[_CODE]:  # the step went OK
+            joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(summary)
+            stats = StepStats(int(joint), int(velocity), joint_error, velocity_error, True, int(linear), 1,
+                              *self._fused_order)  # fmt: skip
             self._advance_clock(1)
-            self._spin = summary[step_kernels.STATUS_SPIN]
-        else:
-            stats = self._handed_back(status[0], True)
+            self._spin = summary[_SPIN]
+            if self._loop_rows_counted:  # a lost pivot stops the step (SINGULAR): only loop rows to count
+                self.linear.check()
+            return stats
+        stats = self._handed_back(status[0], not lazy)
         if self.linear is not None:
             self.linear.check()  # and the redundant loop rows of the last factorization
         return stats
@@ -196,7 +205,7 @@ class FusedSteps:
         """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
         the summary row's values (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the
         last step's state is handed out, so its velocities are corrected (`defer_velocities`)."""
-        launch = self._fused_launch(self.dt)
+        launch = self._fused_by_h.get(self.dt) or self._fused_launch(self.dt)
         if self._views is None:
             self._batch.assign(np.array([batch, int(hand_out)], dtype=np.int32))
             self._spin_in.fill_(self._spin)
@@ -204,6 +213,6 @@ class FusedSteps:
             status = self._status.numpy()
             return status, status[-1].tolist()
         status, summary, batch_view, spin_view = self._views
-        batch_view[0], batch_view[1], spin_view[0] = batch, int(hand_out), self._spin
+        batch_view[0], batch_view[1], spin_view[0] = batch, hand_out, self._spin
         launch.launch()
         return status, summary.tolist()

@@ -37,23 +37,25 @@ class StepOptions:
             `kernels/carry.py`); later iterations solve for the residual they measure, so the tolerance holds the
             same. None: on with the cholesky solver without contacts (True elsewhere is a ValueError).
             Checkpoints keep it; `reset` and `set_state` forget it.
-        defer_velocities: correct the velocities (the paper's section 4.2) only where the state is handed out: at
-            the end of each `step(n)` call. The velocity correction's impulse acts through the Jacobians of the
-            next step's t0, as the joint correction's do, so the next joint correction reaches the same state
-            ("not absolutely necessary ... because the joint impulse of the next simulation step will solve the
-            problem as well"). A deferred step's StepStats counts no velocity iteration and its
-            `max_velocity_error` is NaN. None: on with the cholesky solver in scenes without force elements
-            (velocity-dependent), rows, contacts, batched worlds or the split formulation (True there is a
-            ValueError).
+        defer_velocities: correct the velocities (the paper's section 4.2) only where they are handed out: when
+            they are first read (`Simulator.state`, `linear_velocities`, ...; positions and orientations need
+            none; a checkpoint keeps them due). The velocity
+            correction's impulse acts through the Jacobians of the next step's t0, as the joint correction's do,
+            so the next joint correction reaches the same state ("not absolutely necessary ... because the joint
+            impulse of the next simulation step will solve the problem as well"); steps taken one `step()` a
+            call then reach the state of one `step(n)` bit for bit. A deferred step's StepStats counts no
+            velocity iteration and its `max_velocity_error` is NaN. None: on with the cholesky solver in scenes
+            without force elements (velocity-dependent), rows, contacts, batched worlds or the split formulation
+            (True there is a ValueError).
         reuse_factor: factor K = J M^-1 J^T only where the factor in use no longer serves, not at every accepted
             (sub)step (the fused schedule; `kernels/step.py`). The joint correction then solves with K of an earlier
             state: a quasi-Newton iteration whose error is measured on the real prediction and whose impulses act
             through the current Jacobians, so the tolerance holds the same and only the solve count changes. The kernel
-            decides on the device (`older_factor`): K is factored where the velocities are corrected (the state handed
-            out, or every step without `defer_velocities`: its one solve is exact only with K of that state), at every
-            `types.REFACTOR_EVERY`-th stage, at a stage's start when a solve with the older factor left more than
-            `types.STALE_FACTOR_RATE` of the error, and where a stage took more solves with the older factor than with K
-            of its own start (for a doubling hold of stages where the factor had not paid). Measured
+            decides on the device (`older_factor`): K is factored where the velocities are corrected (where they are
+            read, `Simulator.state`, or every step without `defer_velocities`: their one solve is exact only with K of
+            that state), at every `types.REFACTOR_EVERY`-th stage, at a stage's start when a solve with the older factor
+            left more than `types.STALE_FACTOR_RATE` of the error, and where a stage took more solves with the older
+            factor than with K of its own start (for a doubling hold of stages where the factor had not paid). Measured
             (benchmarks/reuse_factor.py, docs/history.md), `step(240)` at tolerance 1e-6: at order 4 and h = 1/480, 0.70
             of the time on chains of 20 and 50 and the paper's tree, 0.89-0.90 on the arm and the humanoid; at order 4
             and h = 1/120 0.88 on the tree, 0.96-1.02 on serial scenes; at order 2 0.74 on the tree at h = 1/480, but
