@@ -40,7 +40,7 @@ def _first_iteration_errors(make, dt: float, before: int) -> tuple[float, float]
         wp.copy(sim.state.body_v, start[0])  # the impulses of the first try undone: the frames are t0's
         wp.copy(sim.state.body_w, start[1])
         if plain:
-            sim._carry_arrays(sim.dt)[0].zero_()
+            sim._carry_arrays((sim.dt, 0))[0].zero_()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # one iteration stops short of the tolerance
             iterations, error, *_ = sim._correct_joints(final=True)

@@ -216,8 +216,8 @@ def test_joints_hold_after_every_substep(order):
     seen = []
     base_step = sim._base_step
 
-    def checked(h, final):
-        out = base_step(h, final)
+    def checked(h, final, stage=0):
+        out = base_step(h, final, stage)
         x, q, v, w = sim_state(sim)
         velocity, slack = constraint_velocity_errors(builder, x, q, v, w, with_slack=True)
         seen.append(h)

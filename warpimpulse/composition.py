@@ -37,6 +37,19 @@ class Scheme:
         return max(abs(g) for g in self.stages)
 
 
+def stage_keys(stages: tuple[float, ...]) -> tuple[tuple[float, int], ...]:
+    """Each stage as (its fraction of the step, how many stages of that fraction come before it): the key of its
+    carried right-hand side (kernels/carry.py). Suzuki's p, p, 1 - 4p, p, p gives (p, 0), (p, 1), (1 - 4p, 0),
+    (p, 2), (p, 3): stages of one size keep a c each, every one measured a whole step apart at the same point of
+    the step, as the extrapolation assumes; shared, the four were one history sampled at the last stage only."""
+    seen: dict[float, int] = {}
+    keys = []
+    for g in stages:
+        keys.append((g, seen.get(g, 0)))
+        seen[g] = seen.get(g, 0) + 1
+    return tuple(keys)
+
+
 def _mirror(*half: float) -> tuple[float, ...]:
     """A symmetric scheme from its first half; the middle coefficient makes the sum 1."""
     return (*half, 1.0 - 2.0 * sum(half), *half[::-1])

@@ -219,10 +219,12 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self.response_w = wp.zeros_like(self.response_v)
         self.newton_rhs = wp.zeros(nc if self.newton else 0, dtype=wp.vec3d, device=d)
         # The first iteration's carried right-hand side (`carry`, kernels/carry.py): a row of c (and of the value
-        # measured in the step, taken when it is kept) for each step size of a stage at dt, the others' on demand.
+        # measured in the step, taken when it is kept) for each stage at dt (`composition.stage_keys`: stages of
+        # one size keep one each), the other step sizes' on demand. Keys are (step size, stage of that size).
         self.carry = bool(carried if carry is None else carry)
-        self._fractions = tuple(dict.fromkeys((*self.scheme.stages, 1.0)))  # 1.0: a composed step's order-2 fallback
-        self._carry_rows = {g * dt: r for r, g in enumerate(self._fractions)}
+        # (1.0, 0): a composed step's order-2 fallback
+        self._fractions = tuple(dict.fromkeys((*composition.stage_keys(self.scheme.stages), (1.0, 0))))
+        self._carry_rows = {(g * dt, k): r for r, (g, k) in enumerate(self._fractions)}
         rows = len(self._fractions) if self.carry else 0
         self._carry = wp.zeros((rows, nc), dtype=wp.vec3d, device=d)
         self._carry_next = wp.zeros_like(self._carry)
@@ -231,7 +233,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._carry_past = wp.full(
             (carry_kernels.PAST * rows, nc), wp.vec3d(math.nan, math.nan, math.nan), dtype=wp.vec3d, device=d
         )
-        self._carry_other: dict[float, tuple[wp.array, ...]] = {}  # halved and split step sizes
+        self._carry_other: dict[tuple[float, int], tuple[wp.array, ...]] = {}  # halved and split step sizes
         self.linear = None
         if nc == 0:  # free bodies only: nothing to solve
             pass
@@ -297,7 +299,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                              f"joint correction; this simulator has {why}")  # fmt: skip
         self.defer_velocities = bool(defer_velocities is not False and not why)
         self._launches_by_h: dict[float, tuple] = {}
-        self._loops_by_h: dict[float, tuple] = {}  # the parallel schedule's device-decided loops (`_device_loops`)
+        self._loops_by_h: dict[
+            tuple[float, int], tuple
+        ] = {}  # the parallel schedule's device-decided loops (`_device_loops`)
         self._v0 = wp.zeros_like(self.state.body_v)
         self._w0 = wp.zeros_like(self.state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
@@ -387,7 +391,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         fell_back = len(self._fused_stages) < len(self.scheme.stages)
         self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
-        rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
+        rows = [self._carry_rows[(g * self.dt, k)] for g, k in composition.stage_keys(self._fused_stages)]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
         self._fused_by_h: dict[float, wp.Graph | Packed] = {}
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
@@ -407,8 +411,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         """Take steps of h from the current time on (the accuracy controller's hook, `accuracy.py`). The carried
         right-hand sides stay: those of the last step size start the first iteration nearer than nothing, and the
         iterations after it hold the tolerance whatever it started from (`carry`)."""
-        if h not in self._carry_rows:
-            self._carry_rows = {g * h: r for r, g in enumerate(self._fractions)}
+        if (h, 0) not in self._carry_rows:
+            self._carry_rows = {(g * h, k): r for r, (g, k) in enumerate(self._fractions)}
         self.dt = h
         self._clock = (self.time, self.step_count)
         self._alike = (0, 0)
