@@ -344,8 +344,10 @@ class SplitSimulator(Simulator):
                     ok = False
             row[s.STATUS_JOINT_ITERATIONS] = iterations
             row[s.STATUS_JOINT_ERROR] = err
-            if not ok:
+            if not ok:  # the failed attempt's work, as the fused kernel writes it (one stage, no velocity pass)
                 wp.capture_launch(self._restore)
+                row[s.STATUS_VELOCITY_ITERATIONS] = 0
+                row[s.STATUS_LINEAR_ITERATIONS] = iterations
                 row[s.STATUS_CODE] = s.RETRY
                 return status
             spin = new_spin
