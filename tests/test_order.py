@@ -63,6 +63,7 @@ def test_default_tolerance_rule():
     model = scenes.double_pendulum().finalize()
     assert warpimpulse.Simulator(model, 1 / 60).tolerance == 1e-6
     assert warpimpulse.Simulator(model, 1 / 60, order=4).tolerance == pytest.approx(10 * (1 / 60) ** 5)
+    assert warpimpulse.Simulator(model, 1 / 30, order=6).tolerance == pytest.approx(200 * (1 / 30) ** 7)
     assert warpimpulse.Simulator(model, 1 / 120, order=6).tolerance == composition.TOLERANCE_FLOOR
     assert warpimpulse.Simulator(model, 1 / 5, order=4).tolerance == composition.TOLERANCE_CAP
     assert warpimpulse.Simulator(model, 1 / 60, order=4, tolerance=1e-5).tolerance == 1e-5

@@ -92,7 +92,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
-            1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
+            1e-6 at order 2, 10 dt^5 at 4 and 200 dt^7 at 6 in [1e-12, 1e-6]) so that it does not cap the order.
         contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
             found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
