@@ -454,7 +454,8 @@ def write_tables(results: dict) -> None:
         "1.83e-3 m against 3.75e-2 (1.27 substeps a step, 84 against 68 us a step), 1/15 6.8e-3 against 0.28; "
         "the humanoid at 1/30 4.7e-3 against 2.1e-2; the paper's tree pushed 100x harder at 1/30 2.8e-2 "
         "against 1.73 m, cheaper too (44 against 125 joint iterations a step). A split step's substeps run in "
-        "fused launches of their size (docs/architecture.md), where the parallel schedule cost about 13x. `Simulator.fall_back(reason)` takes the next step at order 2 (for non-reversible events: "
+        "fused launches of their size (docs/architecture.md), where the parallel schedule cost about 13x. "
+        "`Simulator.fall_back(reason)` takes the next step at order 2 (for non-reversible events: "
         "contacts, impacts, friction) and StepStats.order / StepStats.fallback record it.",
         "",
         "The joint tolerance: each base step leaves up to the tolerance as error, which the composition does not "
