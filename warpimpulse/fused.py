@@ -12,7 +12,6 @@ import operator
 import numpy as np
 import warp as wp
 
-from .kernels import carry as carry_kernels
 from .kernels import limits as limit_kernels
 from .kernels import step as step_kernels
 from .launch import Packed, record
@@ -107,23 +106,15 @@ class FusedSteps:
         """The packed launch (CPU) of the substeps of a step the spin splits into 2**depth: steps of
         dt / 2**depth without a split of their own (reach 0: the parallel schedule sizes a split once, at the
         step's start, and halves a substep only where it turned too far), halvable unless depth is the deepest.
-        Their carried right-hand sides are rows of arrays of their own, which the parallel schedule's steps of
-        that size take too (`_carry_other`), so both schedules take a split step alike."""
+        Their carried right-hand sides are `_substep_carries(h)`, which the parallel schedule's steps of that
+        size take too, so both schedules take a split step alike."""
         h = self.dt / 2**depth
         launch = self._substep_by_h.get(h)
+        if launch is None and depth == 0:  # whole steps (no deeper split allowed): the steps' own c
+            main = (self._carry, self._carry_next, self._carry_past)
+            launch = self._substep_by_h[h] = Packed(self._record_fused(h, 0.0, True, main))
         if launch is None:
-            keys = [(g * h, k) for g, k in self._fractions]
-            arrays = tuple(wp.empty_like(a) for a in (self._carry, self._carry_next, self._carry_past))
-            arrays[0].zero_()
-            arrays[1].zero_()
-            arrays[2].fill_(wp.vec3d(np.nan, np.nan, np.nan))
-            carry, carry_next, carry_past = arrays
-            past = carry_kernels.PAST
-            for r, key in enumerate(keys if self.carry else ()):
-                rows = (carry[r], carry_next[r], *(carry_past[past * r + k] for k in range(past)))
-                for mine, theirs in zip(rows, self._carry_other.get(key, ())):  # what steps of the size kept
-                    wp.copy(mine, theirs)
-                self._carry_other[key] = rows
+            arrays = self._substep_carries(h)
             launch = Packed(self._record_fused(h, 0.0, depth >= self.max_substep_depth, arrays))
             self._substep_by_h[h] = launch
         return launch

@@ -141,18 +141,46 @@ class Recording:
 
     def _carry_arrays(self, key: tuple[float, int]) -> tuple[wp.array, ...]:
         """(c, the c measured in the step, the values measured in the last kept steps, the newest first) for
-        `key`, (step size, stage of that size) (`carry`): a stage's rows at dt, which the fused kernel shares,
-        or arrays of their own for a halved or split step size."""
+        `key`, (step size, stage of that size) (`carry`): a stage's rows at dt, which the fused kernel shares;
+        for a stage of a split or halved step, the rows of its substep size (`_substep_carries`); else arrays
+        of their own (a step size set by the accuracy controller, say)."""
         if key in self._carry_rows:
             r = self._carry_rows[key]
             past = (self._carry_past[carry_kernels.PAST * r + k] for k in range(carry_kernels.PAST))
             return self._carry[r], self._carry_next[r], *past
+        for depth in range(1, self.max_substep_depth + 1):  # a stage of a split or halved step: its size's rows
+            if key in self._carry_other:
+                break
+            h = self.dt / 2**depth
+            if key in {(g * h, k) for g, k in self._fractions}:
+                self._substep_carries(h)
         if key not in self._carry_other:
             c = wp.zeros(self.model.constraint_count, dtype=wp.vec3d, device=self.model.device)
             unknown = wp.vec3d(math.nan, math.nan, math.nan)
             past = (wp.full_like(c, unknown) for _ in range(carry_kernels.PAST))
             self._carry_other[key] = (c, wp.zeros_like(c), *past)
         return self._carry_other[key]
+
+    def _substep_carries(self, h: float) -> tuple[wp.array, wp.array, wp.array]:
+        """The carried right-hand sides of the substeps of size h of split or halved steps (c, the measured c,
+        the past; a row a stage as at dt): the fused kernel's substep launches take the arrays
+        (`FusedSteps._substep_launch`), the parallel schedule's steps their rows (`_carry_other`), so both
+        take the same c."""
+        arrays = self._substep_carry.get(h)
+        if arrays is None:
+            arrays = tuple(wp.empty_like(a) for a in (self._carry, self._carry_next, self._carry_past))
+            arrays[0].zero_()
+            arrays[1].zero_()
+            arrays[2].fill_(wp.vec3d(math.nan, math.nan, math.nan))
+            carry, carry_next, carry_past = self._substep_carry[h] = arrays
+            past = carry_kernels.PAST
+            for r, (g, k) in enumerate(self._fractions if self.carry else ()):
+                self._carry_other[(g * h, k)] = (
+                    carry[r],
+                    carry_next[r],
+                    *(carry_past[past * r + i] for i in range(past)),
+                )
+        return arrays
 
     def _keep_carry(self, key: tuple[float, int]) -> None:
         """A kept step of `key` (step size, stage) whose first solve ran: the value it measured joins the past

@@ -234,6 +234,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             (carry_kernels.PAST * rows, nc), wp.vec3d(math.nan, math.nan, math.nan), dtype=wp.vec3d, device=d
         )
         self._carry_other: dict[tuple[float, int], tuple[wp.array, ...]] = {}  # halved and split step sizes
+        self._substep_carry: dict[float, tuple[wp.array, ...]] = {}  # their rows, by substep size (`_substep_carries`)
         self.linear = None
         if nc == 0:  # free bodies only: nothing to solve
             pass
