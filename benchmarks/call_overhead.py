@@ -8,10 +8,12 @@ MuJoCo: its first state copied back and one untimed step), the kinds of block in
 time of this process (`time.process_time`), the garbage collector held off during a block. The overhead of a
 call is the median of one-a-call minus the median of many-a-call; the spread is the quartiles of each; on a
 shared machine the least block of each kind is the least disturbed, so the overhead of the least blocks is given
-too. Ours at one a call also corrects the velocities of every step it hands out, which `step(n)` does once
-(`Simulator.defer_velocities`): the kernel's part is timed apart (`kernel_one_us`: the fused launch of one
-handed-out step called directly, without the Python of `step()`; `kernel_one_deferred_us`: the same step, its
-velocity correction deferred).
+too. Where the velocity correction is deferred (`Simulator.defer_velocities`), a step leaves it to the next step
+or to the first read of the velocities (`Simulator.state`), so `ours_one` hands nothing out; `ours_one_read`
+reads `sim.state` after every `step()`, which corrects the velocities each call, as a controller that reads them
+each tick would (MuJoCo's velocities are there after `mj_step` without a call). The kernel's part is timed apart
+(`kernel_one_us`: the fused launch of one step whose velocities are corrected, called directly, without the
+Python of `step()`; `kernel_one_deferred_us`: the same step, its velocity correction deferred).
 
     python benchmarks/call_overhead.py [--rounds 15] [--json benchmarks/results/call_overhead.json]
 """
@@ -116,12 +118,18 @@ def scene_point(name: str, rounds: int) -> dict:
         for _ in range(STEPS):
             sim.step()
 
+    def ours_one_read() -> None:
+        for _ in range(STEPS):
+            sim.step()
+            sim.state  # noqa: B018 (the read hands the state out)
+
     def mujoco_one() -> None:
         for _ in range(STEPS):
             mujoco.mj_step(m, d)
 
     blocks = {
         "ours_one": (ours_one, ours_start),
+        "ours_one_read": (ours_one_read, ours_start),
         "ours_many": (lambda: sim.step(STEPS), ours_start),
         "mujoco_one": (mujoco_one, mujoco_start),
         "mujoco_many": (lambda: mujoco.mj_step(m, d, nstep=STEPS), mujoco_start),
@@ -142,6 +150,7 @@ def scene_point(name: str, rounds: int) -> dict:
         point[f"{key}_quartiles_us"] = [q1, q3]
         point[f"{key}_least_us"] = min(values)  # the least disturbed block, on a shared machine
     point["ours_overhead_us"] = point["ours_one_us"] - point["ours_many_us"]
+    point["ours_read_overhead_us"] = point["ours_one_read_us"] - point["ours_many_us"]
     point["mujoco_overhead_us"] = point["mujoco_one_us"] - point["mujoco_many_us"]
     point["ours_overhead_least_us"] = point["ours_one_least_us"] - point["ours_many_least_us"]
     point["mujoco_overhead_least_us"] = point["mujoco_one_least_us"] - point["mujoco_many_least_us"]
@@ -158,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.scenes:
         p = result["scenes"][name] = scene_point(name, args.rounds)
         print(f"{name}: ours one {p['ours_one_us']:.2f} many {p['ours_many_us']:.2f} over "
-              f"{p['ours_overhead_us']:.2f} us | MuJoCo one {p['mujoco_one_us']:.2f} many {p['mujoco_many_us']:.2f} "
+              f"{p['ours_overhead_us']:.2f} us (reading the state too {p['ours_read_overhead_us']:.2f}) | "
+              f"MuJoCo one {p['mujoco_one_us']:.2f} many {p['mujoco_many_us']:.2f} "
               f"over {p['mujoco_overhead_us']:.2f} us | least blocks: ours over {p['ours_overhead_least_us']:.2f}, "
               f"MuJoCo over {p['mujoco_overhead_least_us']:.2f}"
               + (f" | kernel one {p['kernel_one_us']:.2f}, deferred {p['kernel_one_deferred_us']:.2f}"

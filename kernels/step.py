@@ -8,7 +8,8 @@ of `iterative.py`) run in serial loops, and the whole step (predict, joint error
 apply at t0, predict again, ...; accept; frames, assemble and factor at t0+h; velocity correction; the NaN/spin
 summary) is decided on the device, for up to `batch_in[0]` steps a launch; with `defer` the velocity correction
 is taken only in the last step of a launch that hands its state out (`batch_in[1]`; `Simulator.defer_velocities`),
-the other steps' velocities going on to the next joint correction. A step is the base steps of a
+the other steps' velocities going on to the next joint correction, and a launch of no step (`batch_in[0]` = 0)
+takes the velocity correction a deferred step left (`Simulator.state`). A step is the base steps of a
 composition in turn (`composition.py`: stages g_i h, some negative; one stage of h at order 2). Force elements
 (`ForceElements`) make the prediction the coupled RK4 of all bodies; rows of the correction loop (`Rows`: joint
 limits, stiff motors, distance constraints) are corrected after the joints in each iteration and after the
@@ -718,6 +719,56 @@ def cholesky_solve(
             jj += 1
 
 
+@wp.func
+def velocity_solve(
+    body_count: int,
+    constraint_count: int,
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    body_inv_mass: wp.array(dtype=f64),
+    body_rows_start: wp.array(dtype=int),
+    body_rows: wp.array(dtype=int),
+    augmented: int,
+    offset: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    col_row: wp.array(dtype=int),
+    col_sign: wp.array(dtype=f64),
+    row_start: wp.array(dtype=int),
+    row_slot: wp.array(dtype=int),
+    row_col: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    work: wp.array(dtype=vec3d),
+    aug_rhs: wp.array(dtype=vec3d),
+    aug_x: wp.array(dtype=vec3d),
+    inv_inertia_world: wp.array(dtype=sym33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+    errors: wp.array(dtype=f64),
+    rhs: wp.array(dtype=vec3d),
+    impulse: wp.array(dtype=vec3d),
+    state_v: wp.array(dtype=vec3d),
+    state_w: wp.array(dtype=vec3d),
+) -> f64:
+    """One solve of the velocity correction (the paper's section 4.2): the impulses that cancel the velocity
+    errors `velocity_errors_all` left in `rhs`, with the factor of the state's K, applied through its Jacobians;
+    returns the largest velocity error after them (m/s or rad/s)."""
+    cholesky_solve(
+        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot, row_col,
+        values, work, aug_rhs, aug_x, rhs, impulse,
+    )  # fmt: skip
+    apply_all(
+        body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
+        jac_skew, impulse, state_v, state_w,
+    )  # fmt: skip
+    return velocity_errors_all(
+        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew, state_v,
+        state_w, errors, rhs,
+    )  # fmt: skip
+
+
 @functools.cache
 def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> SimpleNamespace:
     """The fused step kernels for a set of constraint kinds (`constraints.specialized(kinds)`'s stage funcs):
@@ -983,7 +1034,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         every stage (`defer` 0) or in the last stage of the last step only, when batch_in[1] says that step's state
         is handed out (`defer` 1; a deferred step's status row has no velocity iteration and a NaN velocity
         error), with the direct solver
-        (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule). A
+        (`Simulator` with the Cholesky solver: step by step the same operations as its parallel schedule);
+        batch_in[0] = 0 takes no step, only the velocity correction a deferred step left (`Simulator.state`). A
         step is the base steps of stages[i] h in turn (a composition, `composition.py`; some run backwards);
         reach is the largest |stages[i]|, which sizes the spin split."""
         # The state and the prediction trade arrays on acceptance (`settle`); made by a call, as a plain
@@ -994,6 +1046,27 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         spin = spin_in[0]
         stage_count = stages.shape[0]
         begin_summary(status_out)
+        if batch_in[0] == 0:  # no step: the velocity correction the last (deferred) step left, in status row 0
+            verr = velocity_errors_all(
+                constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang, jac_skew,
+                state_v, state_w, errors, rhs,
+            )  # fmt: skip
+            solves = wp.int32(0)
+            if not (verr <= velocity_tolerance):
+                verr = velocity_solve(
+                    body_count, constraint_count, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                    body_rows_start, body_rows, augmented, offset, perm, col_start, col_row, col_sign, row_start,
+                    row_slot, row_col, values, work, aug_rhs, aug_x, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+                    errors, rhs, impulse, state_v, state_w,
+                )  # fmt: skip
+                solves = 1
+            left = wp.int32(OK)
+            failed = f64(0.0)
+            if not (verr <= velocity_tolerance):
+                left = VELOCITY
+                failed = verr
+            finish(status_out, 0, left, 0, solves, solves, f64(0.0), verr, failed, spin)
+            return
         k = wp.int32(0)
         while k < batch_in[0]:
             status_out[k, STATUS_SPIN] = spin
@@ -1226,17 +1299,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         jac_skew, state_v, state_w, errors, rhs,
                     )  # fmt: skip
                 if corrected and not (verr <= velocity_tolerance):
-                    cholesky_solve(
-                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
-                    )  # fmt: skip
-                    apply_all(
-                        body_count, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world,
-                        jac_lin, jac_ang, jac_skew, impulse, state_v, state_w,
-                    )  # fmt: skip
-                    verr = velocity_errors_all(
-                        constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,
-                        jac_skew, state_v, state_w, errors, rhs,
+                    verr = velocity_solve(
+                        body_count, constraint_count, constraint_kind, constraint_body0, constraint_body1,
+                        body_inv_mass, body_rows_start, body_rows, augmented, offset, perm, col_start, col_row,
+                        col_sign, row_start, row_slot, row_col, values, work, aug_rhs, aug_x, inv_inertia_world,
+                        jac_lin, jac_ang, jac_skew, errors, rhs, impulse, state_v, state_w,
                     )  # fmt: skip
                     velocity_iterations += 1
                 if singular[0] != 0:  # the host raises: no further stage

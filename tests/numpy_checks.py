@@ -142,6 +142,13 @@ def momenta(builder, x, q, v, w, about=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.
     return linear, angular
 
 
+def velocity_within(stats, tolerance: float) -> bool:
+    """The step's velocity correction left at most `tolerance`, or was left to the next read of the velocities
+    or the next step (NaN, `Simulator.defer_velocities`: the read takes it and reports it under the iteration
+    policy, and the caller's own check of the velocities read covers it)."""
+    return math.isnan(stats.max_velocity_error) or stats.max_velocity_error <= tolerance
+
+
 def sim_state(sim):
     return sim.positions(), sim.orientations(), sim.linear_velocities(), sim.angular_velocities()
 

@@ -34,11 +34,12 @@ def _first_iteration_errors(make, dt: float, before: int) -> tuple[float, float]
     sim.max_iterations, sim.on_max_iterations = 1, "warn"
     sim._loops_by_h.clear()  # the device loop, captured again with the limit of one iteration
     sim._use_step_size(sim.dt)
-    start = [wp.clone(a) for a in (sim.state.body_v, sim.state.body_w)]
+    state = sim._state  # as the steps left it, its velocity correction deferred (`Simulator.state`)
+    start = [wp.clone(a) for a in (state.body_v, state.body_w)]
     errors = []
     for plain in (False, True):
-        wp.copy(sim.state.body_v, start[0])  # the impulses of the first try undone: the frames are t0's
-        wp.copy(sim.state.body_w, start[1])
+        wp.copy(state.body_v, start[0])  # the impulses of the first try undone: the frames are t0's
+        wp.copy(state.body_w, start[1])
         if plain:
             sim._carry_arrays((sim.dt, 0))[0].zero_()
         with warnings.catch_warnings():
@@ -63,12 +64,13 @@ def test_the_carry_leaves_a_fraction_of_the_first_iterations_error():
     [
         (lambda: scenes.chain(10), 1 / 60, 0.97),
         (scenes.double_pendulum, 1 / 120, 0.7),
-        (lambda: scenes.chain(50), 1 / 60, 0.95),
+        (lambda: scenes.chain(50), 1 / 60, 0.99),
     ],
 )
 def test_the_carry_saves_iterations_and_ends_where_the_plain_one_does(make, dt, most):
-    """Fewer joint iterations over a second of swinging (measured: chain10 3.88 -> 3.62 a step from 1.1 s, the
-    double pendulum 2.14 -> 1.28, chain50 2.52 -> 2.25), every step held to the tolerance, and the motion the
+    """Fewer joint iterations over a second of swinging (measured from 1.1 s, the velocity correction deferred as
+    by default: chain10 4.12 -> 3.83 a step, the double pendulum 2.23 -> 1.23, chain50 2.58 -> 2.53; with it
+    taken every step 3.88 -> 3.70, 2.14 -> 1.17, 2.52 -> 2.30), every step held to the tolerance, and the motion the
     plain iteration's to within what the tolerance lets a second of chaos drift. The double pendulum's bound
     is the extrapolation's (kernels/carry.py): the last step's c alone took 1.56 a step there, 0.73 of plain."""
     runs = off_and_on(make, dt, int(round(1.0 / dt)), "carry", before=int(round(1.1 / dt)))

@@ -293,6 +293,8 @@ def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
         return step_parallel(*args)
 
     monkeypatch.setattr(sim, "_fused_launch", lambda h: Counted(launch_for(h), counts, "launches"))
+    launch_for(sim.dt)  # recorded now, and then counted where `step` finds it (`Simulator._fused_by_h`)
+    sim._fused_by_h = {h: Counted(launch, counts, "launches") for h, launch in sim._fused_by_h.items()}
     monkeypatch.setattr(sim, "_step_parallel", parallel)
     return counts
 

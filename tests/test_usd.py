@@ -565,7 +565,8 @@ def test_record_from_python(tmp_path):
     assert anim.time_codes.tolist() == list(range(16))
     for f in range(16):
         if f:
-            twin.step(4)  # a frame a call, as the recorder steps (its velocities corrected at the frame)
+            twin.step(4)  # a frame a call, as the recorder steps
+            twin.energy()  # which the recorder reads each frame, correcting the velocities (`Simulator.state`)
         np.testing.assert_allclose(anim.positions[f], twin.positions(), rtol=0, atol=1e-12)
         dots = np.abs(np.einsum("ij,ij->i", anim.orientations[f], twin.orientations()))  # q and -q: one rotation
         np.testing.assert_allclose(dots, 1.0, rtol=0, atol=1e-12)

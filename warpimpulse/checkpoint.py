@@ -33,8 +33,11 @@ class Checkpoints:
         The file also holds the scene's fingerprint (`diagnose.fingerprint`), so that a checkpoint is never
         loaded into another scene of the same body count. Written as the output files are
         (`files.write_atomically`): a failed write raises WriteError and leaves the previous checkpoint."""
-        data = {name: getattr(self.state, f"body_{name}").numpy() for name in STATE}
+        # The state as the steps left it: a velocity correction still due (`Simulator.state`) is saved as due, so
+        # that neither saving nor resuming changes the trajectory.
+        data = {name: getattr(self._state, f"body_{name}").numpy() for name in STATE}
         data.update(time=self.time, step_count=self.step_count, user_force=self._user_force,
+                    handout_due=bool(self._handout),
                     user_torque=self._user_torque, dt=self.dt, bodies=self.model.body_count,
                     stages=np.array(self.scheme.stages), fallback=self._fallback,
                     drive_target=self.drive_target.numpy(), drive_integral=self.drive_integral.numpy())  # fmt: skip
@@ -55,7 +58,9 @@ class Checkpoints:
         path = Path(path)
         data = self._read_checkpoint(path)
         for name in STATE:
-            getattr(self.state, f"body_{name}").assign(data[name])
+            getattr(self._state, f"body_{name}").assign(data[name])
+        due = bool(data.get("handout_due", False))  # older files hold handed-out states
+        self._handout = int(due and self._lazy_hand_out)
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
         self._clock = (0.0, 0) if self.accuracy is None else (self.time, self.step_count)
         if self.accuracy is not None:
@@ -83,7 +88,9 @@ class Checkpoints:
                         p.assign(past)
         self._active_forces = None
         self._update_frames()
-        self._check_finite(self.state, self.step_count)  # and the spin that sets the next step's substeps
+        if due and not self._lazy_hand_out:  # a state saved with its velocity correction due, resumed here
+            self._correct_velocities()
+        self._check_finite(self._state, self.step_count)  # and the spin that sets the next step's substeps
 
     def _read_checkpoint(self, path: Path) -> dict[str, np.ndarray]:
         """Every array of the checkpoint at `path`, checked against this simulator."""

@@ -22,12 +22,13 @@ class Failures:
 
     def _may_iterate(
         self, iterations: int, error: float, what: str, best: float, final: bool, stopped: bool = False,
-        sweeps: int = 0,
+        sweeps: int = 0, counted: bool = False,
     ) -> bool:  # fmt: skip
         """Whether the correction may take another iteration. On its limit, or when it diverges (the error
         grew 1000-fold over the best this step): False, and on the `final` try raise or warn naming the
         worst joints. `stopped`: a correction that is not an iteration to a limit stopped over its tolerance
-        (the velocity correction's solve), said as such, with its `sweeps` where it took some."""
+        (the velocity correction's solve), said as such, with its `sweeps` where it took some. `counted`: the
+        step is already on the clock (a velocity correction taken when the state is read, `Simulator.state`)."""
         diverges = diverging(error, best, iterations)
         if iterations < self.max_iterations and not diverges:
             return True
@@ -53,7 +54,8 @@ class Failures:
         elif diverges:
             failure = (f"diverged after {iterations} iterations (error grew from {best:.3g} to {error:.3g}, with the "
                        f"step halved {self.max_substep_depth} times already; {hint})")  # fmt: skip
-        msg = f"step {self.step_count + 1} (t = {self.time + self.dt:.6g} s): the {what} correction {failure}"
+        step, time = (self.step_count, self.time) if counted else (self.step_count + 1, self.time + self.dt)
+        msg = f"step {step} (t = {time:.6g} s): the {what} correction {failure}"
         if worst:
             msg += f"; worst joints: {worst}"
         runaway = self._runaway_note()  # the cause, where a load no joint can hold is one
@@ -70,7 +72,7 @@ class Failures:
         correction could never converge. J comes from the velocity-error kernel at unit velocities, and at poses
         moved along the allowed motions; the built state and its factor are restored. Scenes of more than
         `diagnose.LOOP_CHECK_DOFS` dynamic degrees of freedom are not checked (a dense SVD)."""
-        m, st = self.model, self.state
+        m, st = self.model, self._state
         dynamic = np.flatnonzero(~m.host.body_static)
         if not 0 < 6 * len(dynamic) <= diagnose.LOOP_CHECK_DOFS:
             return
@@ -102,7 +104,7 @@ class Failures:
         try:
             note = diagnose.degenerate_loop(m, times, moved, 6 * len(dynamic))
         finally:
-            self.state.copy_from(m.state())
+            self._state.copy_from(m.state())
             self._update_frames()
         if note:
             raise SingularSystemError(note)

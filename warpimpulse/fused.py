@@ -23,6 +23,7 @@ _STATUS_FIGURES = operator.itemgetter(
     step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
     step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
 )  # fmt: skip
+_CODE, _SPIN = step_kernels.STATUS_CODE, step_kernels.STATUS_SPIN  # read by each `step()`: a global each
 
 
 class FusedSteps:
@@ -93,7 +94,7 @@ class FusedSteps:
             sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
         carry, carry_next, carry_past = carries
         return record(
-            kernel, 1, self.model.device, sources, data_out=self.state,
+            kernel, 1, self.model.device, sources, data_out=self._state,
             h=h, stages=self._stages, reach=reach, batch_in=self._batch, defer=int(self.defer_velocities),
             max_rotation=self.max_rotation or 0.0, final=int(final), spin_in=self._spin_in,
             pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
@@ -215,22 +216,24 @@ class FusedSteps:
 
     def _fused_steps(self, n: int, combine: bool, out: list[StepStats]) -> int:
         """n steps by the fused schedule, as few launches as the forces allow, their stats appended to `out`
-        (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is taken by the parallel
-        schedule, which splits, halves or reports it. Returns the count of steps taken."""
+        (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is split, halved or
+        reported (`_handed_back`). Returns the count of steps taken."""
         done = 0
         columns = step_kernels
         order, fallback = self._fused_order
+        lazy = self._lazy_hand_out
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status, summary = self._run_fused(batch, done + batch == n)  # the one read-back of the batch
+            status, summary = self._run_fused(batch, not lazy and done + batch == n)  # the batch's one read-back
+            self._handout = lazy
             first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
                 out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                out.append(self._handed_back(status[first], done + 1 == n))
+                out.append(self._handed_back(status[first], not lazy and done + 1 == n))
                 done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
@@ -240,24 +243,30 @@ class FusedSteps:
 
     def _fused_step(self) -> StepStats:
         """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
-        loop's bookkeeping (one launch of one step, whose state is handed out)."""
-        self._update_forces()
-        status, summary = self._run_fused(1, True)
-        if summary[step_kernels.STATUS_CODE]:  # the step went OK
-            order, fallback = self._fused_order
-            stats = self._status_stats(summary, 1, order, fallback)
+        loop's bookkeeping (one launch of one step, whose velocity correction `state` takes if it is read)."""
+        if self._forces_timed or self._active_forces is None:
+            self._update_forces()
+        lazy = self._lazy_hand_out
+        status, summary = self._run_fused(1, not lazy)
+        self._handout = lazy
+        if summary[_CODE]:  # the step went OK
+            joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(summary)
+            stats = StepStats(int(joint), int(velocity), joint_error, velocity_error, True, int(linear), 1,
+                              *self._fused_order)  # fmt: skip
             self._advance_clock(1)
-            self._spin = summary[step_kernels.STATUS_SPIN]
-        else:
-            stats = self._handed_back(status[0], True)
+            self._spin = summary[_SPIN]
+            if self._loop_rows_counted:  # a lost pivot stops the step (SINGULAR): only loop rows to count
+                self.linear.check()
+            return stats
+        stats = self._handed_back(status[0], not lazy)
         if self.linear is not None:
             self.linear.check()  # and the redundant loop rows of the last factorization
         return stats
 
     def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
-        """The step whose status `row` stopped a fused launch: taken again by the parallel schedule where nothing
-        of it was kept (SPLIT, RETRY), else (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is
-        handed out (`defer_velocities`)."""
+        """The step whose status `row` stopped a fused launch: taken again where nothing of it was kept (SPLIT,
+        RETRY; split or halved in fused launches on a CPU, `_split_step`, else by the parallel schedule), else
+        (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is handed out (`defer_velocities`)."""
         columns = step_kernels
         code = int(row[columns.STATUS_CODE])
         self._spin = float(row[columns.STATUS_SPIN])
@@ -302,7 +311,7 @@ class FusedSteps:
         """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
         the summary row's values (`warpimpulse/split.py` runs them on several threads instead). `hand_out`: the
         last step's state is handed out, so its velocities are corrected (`defer_velocities`)."""
-        launch = self._fused_launch(self.dt)
+        launch = self._fused_by_h.get(self.dt) or self._fused_launch(self.dt)
         if self._views is None:
             self._batch.assign(np.array([batch, int(hand_out)], dtype=np.int32))
             self._spin_in.fill_(self._spin)
@@ -310,6 +319,6 @@ class FusedSteps:
             status = self._status.numpy()
             return status, status[-1].tolist()
         status, summary, batch_view, spin_view = self._views
-        batch_view[0], batch_view[1], spin_view[0] = batch, int(hand_out), self._spin
+        batch_view[0], batch_view[1], spin_view[0] = batch, hand_out, self._spin
         launch.launch()
         return status, summary.tolist()

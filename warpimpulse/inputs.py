@@ -156,7 +156,7 @@ class Inputs:
     def _update_forces(self) -> None:
         """The Control of this step: the user's loads plus the model's forces still active (t < until)."""
         h = self.model.host
-        if not len(h.force_until) and self._active_forces is not None:  # no model forces: ~1 us a call saved
+        if not self._forces_timed and self._active_forces is not None:  # no model forces: ~1 us a call saved
             return
         active = self.time < h.force_until
         key = tuple(active.tolist())

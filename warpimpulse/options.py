@@ -37,14 +37,16 @@ class StepOptions:
             `kernels/carry.py`); later iterations solve for the residual they measure, so the tolerance holds the
             same. None: on with the cholesky solver without contacts (True elsewhere is a ValueError).
             Checkpoints keep it; `reset` and `set_state` forget it.
-        defer_velocities: correct the velocities (the paper's section 4.2) only where the state is handed out: at
-            the end of each `step(n)` call. The velocity correction's impulse acts through the Jacobians of the
-            next step's t0, as the joint correction's do, so the next joint correction reaches the same state
-            ("not absolutely necessary ... because the joint impulse of the next simulation step will solve the
-            problem as well"). A deferred step's StepStats counts no velocity iteration and its
-            `max_velocity_error` is NaN. None: on with the cholesky solver in scenes without force elements
-            (velocity-dependent), rows, contacts, batched worlds or the split formulation (True there is a
-            ValueError).
+        defer_velocities: correct the velocities (the paper's section 4.2) only where they are handed out: when
+            they are first read (`Simulator.state`, `linear_velocities`, ...; positions and orientations need
+            none; a checkpoint keeps them due). The velocity
+            correction's impulse acts through the Jacobians of the next step's t0, as the joint correction's do,
+            so the next joint correction reaches the same state ("not absolutely necessary ... because the joint
+            impulse of the next simulation step will solve the problem as well"); steps taken one `step()` a
+            call then reach the state of one `step(n)` bit for bit. A deferred step's StepStats counts no
+            velocity iteration and its `max_velocity_error` is NaN. None: on with the cholesky solver in scenes
+            without force elements (velocity-dependent), rows, contacts, batched worlds or the split formulation
+            (True there is a ValueError).
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set of
             kinds, cached on disk); False shares one module for all kinds.
         max_rotation: a step in which some body would turn further than this (rad) is taken as 2, 4, ... equal

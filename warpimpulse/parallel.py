@@ -142,10 +142,10 @@ class ParallelSteps:
             parts.append(part)
             if not ok:
                 if whole:  # undo this attempt's impulses: the frames of t0 still hold
-                    wp.copy(self.state.body_v, self._v0)
-                    wp.copy(self.state.body_w, self._w0)
+                    wp.copy(self._state.body_v, self._v0)
+                    wp.copy(self._state.body_w, self._w0)
                 else:  # back to the start of the composed step, its drives' integrals and its frames
-                    self.state.copy_from(self._start)
+                    self._state.copy_from(self._start)
                     wp.copy(self.drive_integral, self._integral0)
                     self._update_frames()
                 halves = combined([self._advance(0.5 * h, depth + 1, stages) for _ in range(2)])
@@ -417,6 +417,6 @@ class ParallelSteps:
         if not math.isfinite(err):
             if what == "joint":
                 self._check_finite(self.pred, self.step_count + 1)
-            self._check_finite(self.state, self.step_count)
+            self._check_finite(self._state, self.step_count)
             raise SimulationError(f"step {self.step_count + (what == 'joint')}: {what} errors are not finite")
         return err

@@ -17,11 +17,11 @@ class Readout:
 
     def positions(self, world: int | None = None) -> np.ndarray:
         """(n, 3) centres of mass, world frame (m)."""
-        return self._per_world(self.state.body_x.numpy().copy(), world)
+        return self._per_world(self._state.body_x.numpy().copy(), world)
 
     def orientations(self, world: int | None = None) -> np.ndarray:
         """(n, 4) quaternions (x, y, z, w), body to world (USD's Gf.Quat constructors take w first)."""
-        return self._per_world(self.state.body_q.numpy().copy(), world)
+        return self._per_world(self._state.body_q.numpy().copy(), world)
 
     def linear_velocities(self, world: int | None = None) -> np.ndarray:
         """(n, 3) centre-of-mass velocities, world frame (m/s)."""
@@ -82,7 +82,7 @@ class Readout:
     def joint_errors(self, world: int | None = None) -> np.ndarray:
         """The position error of every joint at the current state (max over its constraints, m or rad); with
         batched worlds (W, joints) or one `world`'s."""
-        self.pred.copy_from(self.state)
+        self.pred.copy_from(self._state)
         self._position_errors.launch()
         errors = self.joint_errors_from(self.errors.numpy())
         m = self.model
@@ -114,11 +114,11 @@ class Readout:
         gravity at the world origin, for a spring at its rest length). Motors and dampers are not conservative
         and store none. With batched worlds (W,) or one `world`'s."""
         h, m = self.model.host, self.model
-        x = self.state.body_x.numpy()
+        x = self._state.body_x.numpy()
         gravity = np.atleast_1d(self._per_world_sum(-h.body_mass * (x @ h.gravity), None))
         springs = np.zeros(0)
         if len(h.spring_params):
-            q = self.state.body_q.numpy()
+            q = self._state.body_q.numpy()
             ends = []
             for body, anchor in ((h.spring_body0, h.spring_anchor0), (h.spring_body1, h.spring_anchor1)):
                 world_end = body < 0  # an anchor on the world is a world point

@@ -36,7 +36,7 @@ class Recording:
         return capture(self.model.device, *work)
 
     def _record_launches(self) -> None:
-        s, (nb, nc) = self.state, self._counts
+        s, (nb, nc) = self._state, self._counts
         self._rows = self._row_arrays()  # one struct for both schedules' row launches
         self._inertia = self._record(inertia_kernels.world_inverse_inertia, nb, s)
         self._frames = self._record(self.kernels.frames, nc, s)
@@ -54,7 +54,7 @@ class Recording:
         frames = [self._inertia, self._frames, *prepare, *self._limit_system_launches()]
         self._frames_graph = self._capture(*frames)
         # Accept the prediction (already checked for NaN/Inf) as the new state and factor K there, in one replay.
-        self._accept_work = (lambda: self.state.copy_from(self.pred), *frames)
+        self._accept_work = (lambda: self._state.copy_from(self.pred), *frames)
         self._accept_graph = self._capture(*self._accept_work)
         self._save_velocities = self._capture(
             lambda: wp.copy(self._v0, s.body_v), lambda: wp.copy(self._w0, s.body_w), self.limit_impulse.zero_
@@ -70,7 +70,7 @@ class Recording:
         """The rows' system S (limits and stiff motors) with the joints holding, at the current state and factor
         (`kernels/limits.py`): one solve with the factor per row; with CG (no factor to reuse) the free bodies'
         mobility."""
-        s, nl, nc = self.state, self.model.limit_count, self.model.constraint_count
+        s, nl, nc = self._state, self.model.limit_count, self.model.constraint_count
         if nl == 0:
             return []
         coupled = isinstance(self.linear, CholeskySolver)
@@ -88,7 +88,7 @@ class Recording:
         at the c of the `stage`-th stage of size h in a composed step (`composition.stage_keys`)."""
         key = (h, stage if self.carry else 0)
         if key not in self._launches_by_h:
-            s, p, (nb, nc) = self.state, self.pred, self._counts
+            s, p, (nb, nc) = self._state, self.pred, self._counts
             if self._forced:
                 predict = self._coupled_prediction(h)
             else:
@@ -211,7 +211,7 @@ class Recording:
     def _coupled_prediction(self, h: float) -> Launches:
         """RK4 over all bodies at once, the springs and drives evaluated at every stage, then the implicit dampers
         on the prediction (`kernels/forces.py`)."""
-        m, s, p, stage = self.model, self.state, self.pred, self._stage
+        m, s, p, stage = self.model, self._state, self.pred, self._stage
         start = dict(start_x=s.body_x, start_q=s.body_q, start_v=s.body_v, start_w=s.body_w)
         launches = []
         for k in range(4):

@@ -31,7 +31,7 @@ from .kernels import constraints as constraint_kernels
 from .kernels import loop as loop_kernels
 from .kernels import step as step_kernels
 from .launch import Packed
-from .model import Model
+from .model import Model, State
 from .options import StepOptions
 from .options import resolve as resolve_options
 from .parallel import ParallelSteps
@@ -195,12 +195,14 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self.step_count = 0
         self._clock = (0.0, 0)  # (time, step count) the clock counts steps of dt from (`_set_step_size`)
 
-        self.state = model.state()
+        self._state = model.state()  # read as `state`, which hands it out
+        self._handout = 0  # 1 where the last step left its velocity correction to be taken (`state`)
         self.pred = model.state()
         self.control = model.control()
         self._user_force = np.zeros((model.body_count, 3))
         self._user_torque = np.zeros((model.body_count, 3))
         self._active_forces: tuple | None = None
+        self._forces_timed = bool(len(model.host.force_until))  # model forces with an `until`: checked each step
         self.frames = Frames(model)
         self.kernels = constraint_kernels.specialized(
             frozenset(model.kinds) if specialize else constraint_kernels.ALL_KINDS
@@ -300,11 +302,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                              f"joint correction; this simulator has {why}")  # fmt: skip
         self.defer_velocities = bool(defer_velocities is not False and not why)
         self._launches_by_h: dict[float, tuple] = {}
-        self._loops_by_h: dict[
-            tuple[float, int], tuple
-        ] = {}  # the parallel schedule's device-decided loops (`_device_loops`)
-        self._v0 = wp.zeros_like(self.state.body_v)
-        self._w0 = wp.zeros_like(self.state.body_w)
+        self._loops_by_h: dict[tuple[float, int], tuple] = {}  # the parallel schedule's loops (`_device_loops`)
+        self._v0 = wp.zeros_like(self._state.body_v)
+        self._w0 = wp.zeros_like(self._state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
         # The joint-correction loop's record and its go-on flag, decided on the device (`kernels/loop.py`).
         self.loop_state = wp.zeros((1, loop_kernels.LOOP_WIDTH), dtype=wp.float64, device=d)
@@ -320,23 +320,57 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._start = model.state()  # the state at the start of a composed step, restored if a stage fails
         self._integral0 = wp.zeros_like(self.drive_integral)  # the drives' integrals there (stages integrate them)
         self._save_start = self._capture(
-            lambda: self._start.copy_from(self.state), lambda: wp.copy(self._integral0, self.drive_integral)
+            lambda: self._start.copy_from(self._state), lambda: wp.copy(self._integral0, self.drive_integral)
         )
         self._fallback = ""  # why the next step must be taken at order 2 (`fall_back`)
         self.contact_stage = None
         self._penetration, self._contact_sweeps = 0.0, 0  # of the (sub)step's position phase
         if model.colliders is not None:
             self.contact_stage = ContactStage(
-                model, self.frames, self.control, self.state, self.pred, self.tolerance, self.velocity_tolerance,
+                model, self.frames, self.control, self._state, self.pred, self.tolerance, self.velocity_tolerance,
                 contact_margin, contact_solver, broad_phase, contact_sweeps, self if self._direct else None,
             )  # fmt: skip
         self.schedule, self.schedule_note = self._pick_schedule(schedule, specialize)
         self._update_frames()
         if self.redundant_rows:
             self._check_loops()
-        self._check_finite(self.state, 0)
+        self._check_finite(self._state, 0)
+        self._ticks = self.schedule == "fused" and plan is None  # `step()` is one fused launch (`_fused_step`)
+        self._loop_rows_counted = self.linear is not None and "loops" in self.features  # `redundant_rows`
+        self._lazy_hand_out = int(self.defer_velocities)
+        """Whether the steps leave the velocity correction of the state they hand out to `state`."""
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
         """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
+
+    @property
+    def state(self) -> State:
+        """The bodies' state at `time` (positions, orientations, velocities; world frame), handed out: read it
+        again after each step. With `defer_velocities` a step leaves its velocity correction (the paper's section
+        4.2) to the next step's joint correction, which reaches the same velocities, or to this property, which
+        takes it first (`_hand_out`: one solve with the factor the step left). A loop of `step()` then costs what
+        `step(n)` costs a step and takes its steps bit for bit, and a recorder that reads positions only
+        (`positions`, `orientations`) never waits for velocities it does not read. A read of the velocities
+        between steps thus moves the next step's start by the correction, within the tolerance, as handing the
+        state out at every call did. A velocity correction that leaves more than the tolerance is reported here,
+        under the iteration-limit policy, as the step would have reported it."""
+        if self._handout:
+            self._hand_out()
+        return self._state
+
+    def _hand_out(self) -> None:
+        """The velocity correction the last step left (`state`), with the factor of the state's K: on the fused
+        schedule one launch of its kernel that takes no step, on the parallel one its velocity pass. One that
+        leaves more than the tolerance is reported as the step's would have been."""
+        self._handout = 0
+        if self.schedule == "fused":
+            row = self._run_fused(0, True)[0][0]
+            error = float(row[step_kernels.STATUS_FAILED_VELOCITY])
+            failed = row[step_kernels.STATUS_CODE] == step_kernels.VELOCITY
+        else:
+            error = self._correct_velocities()[1]
+            failed = not error <= self.velocity_tolerance
+        if failed:
+            self._velocity_failed(error, counted=True)
 
     # ---------------------------------------------------------------- options the scene decides
     @property
@@ -419,13 +453,15 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._clock = (self.time, self.step_count)
         self._alike = (0, 0)
 
-    def _velocity_failed(self, error: float, sweeps: int = 0) -> None:
+    def _velocity_failed(self, error: float, sweeps: int = 0, counted: bool = False) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
         message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit; the
-        iterative solver's `sweeps` are said)."""
+        iterative solver's `sweeps` are said). `counted`: its step is on the clock already (`_may_iterate`)."""
         if not math.isfinite(error):
             self._max_error("velocity")
-        self._may_iterate(self.max_iterations, error, "velocity", error, True, stopped=True, sweeps=sweeps)
+        self._may_iterate(
+            self.max_iterations, error, "velocity", error, True, stopped=True, sweeps=sweeps, counted=counted
+        )
 
     # ---------------------------------------------------------------- the step
     def step(self, n: int = 1) -> StepStats:
@@ -435,33 +471,44 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         (sub)step is a whole composed step: the spin split and the halving apply to it, never to one of its
         stages.
 
-        The fused schedule takes the n steps in one launch where nothing needs the host between them. The
-        velocities are corrected at the last step, the others' left to the next step's joint correction
-        (`defer_velocities`). For n > 1 the stats are combined: iterations and substeps summed, the largest
-        joint error, the last velocity error.
+        The fused schedule takes the n steps in one launch where nothing needs the host between them. With
+        `defer_velocities` a step's velocity correction is left to the next step's joint correction, or to the
+        first read of the velocities (`state`). For n > 1 the stats are combined: iterations and substeps summed,
+        the largest joint error, the last velocity error.
 
         Batched worlds (`SceneBuilder.replicate`) step together, each converging on its own; a world whose
         step fails stops alone (`stopped`, by index) and the others go on (`worlds.py`); `world_stats` holds
         each world's figures of the step, and the StepStats returned the largest over the worlds."""
-        if self.accuracy is not None:  # n intervals of dt, in steps the controller sizes
-            return self.accuracy.step(n)
-        lean = n.__class__ is int and n == 1 and self.schedule == "fused" and not self._fallback  # a control tick
-        if not lean and not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
-            raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        lean = n.__class__ is int and n == 1 and self._ticks and not self._fallback  # a control tick
+        if not lean:
+            if self.accuracy is not None:  # n intervals of dt, in steps the controller sizes
+                return self.accuracy.step(n)
+            if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
+                raise ValueError(f"n must be an integer >= 1, got {n!r}")
         start = self.time
         try:
-            stats = [self._fused_step()] if lean else self._steps(n, combine=n > 1)
+            if lean:
+                stats = self._fused_step()
+                if stats.fallback:
+                    self._note_fallbacks([stats], start)
+                return stats
+            steps = self._steps(n, combine=n > 1)
         except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
             note = self._runaway_note()
             if not note or not err.where:
                 raise
             raise SingularSystemError(f"the system matrix is singular at {err.where}: {note}", err.where) from None
+        self._note_fallbacks(steps, start)
+        return steps[0] if len(steps) == 1 else combined(steps)
+
+    def _note_fallbacks(self, stats: list[StepStats], start: float) -> None:
+        """Record (and under `verbose` print) the first time, `start` (s), each reason to fall back to order 2
+        was met (`fallbacks`)."""
         for s in stats:
             if s.fallback and s.fallback not in self.fallbacks:
                 self.fallbacks[s.fallback] = start
                 if self.verbose:
                     print(f"warpimpulse: {self.fallback_note(s.fallback)}", file=sys.stderr)
-        return stats[0] if len(stats) == 1 else combined(stats)
 
     def damper_note(self) -> str:
         """The line that names the dampers stiff for dt: taken implicitly (`implicit_dampers`), or at order 4 or
@@ -486,13 +533,17 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         (`combined`'s figures, substeps the steps' count), for a caller that combines them anyway."""
         if self.batch is not None:
             return [self.batch.step() for _ in range(n)]
+        lazy = self._lazy_hand_out
         if self.schedule != "fused":
-            return [self._step_parallel(i == n - 1) for i in range(n)]
+            out = [self._step_parallel(not lazy and i == n - 1) for i in range(n)]
+            self._handout = lazy
+            return out
         out: list[StepStats] = []
         done = 0
         while done < n:
             if self._fallback:  # a step that records why it was not composed: the parallel schedule's bookkeeping
-                out.append(self._step_parallel(done + 1 == n))
+                out.append(self._step_parallel(not lazy and done + 1 == n))
+                self._handout = lazy
                 done += 1
             else:
                 done += self._fused_steps(n - done, combine, out)
@@ -532,7 +583,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         """Return to the built state at t = 0, as a new Simulator of the same model: the bodies' initial poses
         and velocities, no user loads (`set_external_forces`), no warm start, the motors' built targets and
         no PID integral."""
-        self.state.copy_from(self.model.state())
+        self._state.copy_from(self.model.state())
+        self._handout = 0
         self.drive_target.assign(self.model.host.drive_target)
         self.drive_integral.zero_()
         self.time, self.step_count = 0.0, 0
@@ -549,7 +601,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         getattr(self.linear, "_warm", {}).clear()
         self._forget_carry()
         self._update_frames()
-        self._check_finite(self.state, 0)
+        self._check_finite(self._state, 0)
 
     def set_state(
         self,
@@ -587,12 +639,13 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 body = self.model.body_name[rows][int(np.argmin(norms))]
                 raise ValueError(f"orientations: the quaternion of body {body!r} is zero")
             new["body_q"] = rows, q / norms[:, None]
+        state = self.state  # handed out: the velocities not given stay as they are read
         for field, (rows, values) in new.items():
-            full = getattr(self.state, field).numpy().copy()
+            full = getattr(state, field).numpy().copy()
             full[rows] = values
-            getattr(self.state, field).assign(full)
+            getattr(state, field).assign(full)
         self._forget_carry(world)
         if self.accuracy is not None:  # a check under way would compare with another trajectory
             self.accuracy.reset()
         self._update_frames()
-        self._check_finite(self.state, self.step_count)
+        self._check_finite(self._state, self.step_count)

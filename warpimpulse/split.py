@@ -252,7 +252,7 @@ class SplitSimulator(Simulator):
         self._launches = []
 
         def graphs(row: int, kernel, **values) -> wp.Graph:
-            launch = record(kernel, 1, d, sources, data_out=self.state, separator=int(row == 0),
+            launch = record(kernel, 1, d, sources, data_out=self._state, separator=int(row == 0),
                             part_out=self._out[row], part_singular=self._singular[row], **self._part_arrays[row],
                             **scratch, **values)  # fmt: skip
             self._launches.append(launch)
@@ -266,7 +266,7 @@ class SplitSimulator(Simulator):
         self._refactor_graphs = [graphs(r, k.refactor, accept=int(r > 0), factor=1) for r in rows]
         self._velocity_graphs = [graphs(r, k.velocity_fix) for r in rows]
         self._restore = capture(
-            d, lambda: wp.copy(self.state.body_v, self._v0), lambda: wp.copy(self.state.body_w, self._w0)
+            d, lambda: wp.copy(self._state.body_v, self._v0), lambda: wp.copy(self._state.body_w, self._w0)
         )
 
     def _parts(self, graphs: list[wp.Graph]) -> None:
@@ -287,8 +287,9 @@ class SplitSimulator(Simulator):
 
     def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
         """Up to `batch` steps of dt, each as `kernels/step.py`'s `cholesky_steps` takes it, with the status
-        rows it writes and their summary row's values."""
-        if self.threads == 1:
+        rows it writes and their summary row's values; a launch of no step (the velocity correction a deferred
+        step left, `Simulator.state`) is the one-thread kernel's, the same solve with the same factor."""
+        if self.threads == 1 or batch == 0:
             return super()._run_fused(batch, hand_out)
         status = self._threaded_steps(batch, hand_out)
         s = step_kernels

@@ -38,9 +38,9 @@ class StepStats:
     # s: with `Simulator(accuracy=...)`, the step the controller took (the smallest of combined steps); NaN with
     # fixed steps, whose size is `Simulator.dt`.
     step_size: float = math.nan
-    # m: with `Simulator(accuracy=...)`, the estimated error the step added to the body centres' positions
-    # (`accuracy.Controller`: the error constant of the last step-doubling check times the steps' h^(order+1),
-    # summed over combined steps); NaN without.
+    # m: with `Simulator(accuracy=...)`, the estimated trajectory error of the body centres at the step's end
+    # (`accuracy.Controller`: the gap to a shadow run at twice the step over 2^order - 1, read every few
+    # intervals); NaN without.
     error_estimate: float = math.nan
 
     def __eq__(self, other: object) -> bool:

@@ -201,14 +201,17 @@ def run_chunk(points: list[Point]) -> list[dict]:
     """Simulate the points of one chunk as the worlds of one batched Simulator; a row per point."""
     import warnings
 
+    from .options import StepOptions
     from .scenes import SCENES
     from .simulator import SimulationError, Simulator
     from .solver import SingularSystemError
 
     start = time.perf_counter()
     p0, count = points[0].params, len(points)
+    # The velocities corrected every step, as a batch of worlds takes them, so that a point's row does not depend
+    # on its chunk (one world alone would defer them, `StepOptions.defer_velocities`).
     sim = Simulator(SCENES[p0["scene"]]().replicate(count).finalize(), p0["dt"], tolerance=p0["tolerance"],
-                    max_iterations=p0["max_iterations"])  # fmt: skip
+                    max_iterations=p0["max_iterations"], options=StepOptions(defer_velocities=False))  # fmt: skip
     n, host = sim.model.world_body_count, sim.model.host
     per = {name: np.array([p.params[name] for p in points], dtype=np.float64) for name in PER_WORLD}
     scale = per["mass_scale"]

@@ -306,21 +306,21 @@ class _Snapshot:
     def __init__(self, sim: Simulator) -> None:
         self.state, integral = sim.model.state(), wp.clone(sim.drive_integral)
         pairs = [
-            (getattr(self.state, name), getattr(sim.state, name)) for name in ("body_x", "body_q", "body_v", "body_w")
+            (getattr(self.state, name), getattr(sim._state, name)) for name in ("body_x", "body_q", "body_v", "body_w")
         ]
         if integral.size:
             pairs.append((integral, sim.drive_integral))
         pairs += [(wp.clone(c), c) for arrays in sim._carries().values() for c in arrays]
         self._take = capture(sim.model.device, *(functools.partial(wp.copy, a, b) for a, b in pairs))
         self._back = capture(sim.model.device, *(functools.partial(wp.copy, b, a) for a, b in pairs))
-        self.clock = (sim.time, sim.step_count, sim._spin, sim._fallback)
+        self.clock = (sim.time, sim.step_count, sim._spin, sim._fallback, sim._handout)
 
     def take(self, sim: Simulator) -> None:
         wp.capture_launch(self._take)
-        self.clock = (sim.time, sim.step_count, sim._spin, sim._fallback)
+        self.clock = (sim.time, sim.step_count, sim._spin, sim._fallback, sim._handout)
 
     def restore(self, sim: Simulator) -> None:
         wp.capture_launch(self._back)
-        sim.time, sim.step_count, sim._spin, sim._fallback = self.clock
+        sim.time, sim.step_count, sim._spin, sim._fallback, sim._handout = self.clock
         sim._active_forces = None
         sim._update_frames()
