@@ -30,6 +30,7 @@ import warp as wp
 
 from warpimpulse import composition
 from warpimpulse.bench import pareto
+from warpimpulse.bench.blocks import write_block
 from warpimpulse.bench.harness import ERROR_TIME, MUJOCO_RATES, Probe, final_points, make_scene, quiet_warp, time_steps
 from warpimpulse.bench.peers.mujoco import MujocoRunner, MujocoScene, mujoco_available
 from warpimpulse.bench.runner import StepFailed
@@ -412,13 +413,8 @@ def bar_lines(results: dict) -> list[str]:
 
 def write_tables(results: dict) -> None:
     table = cheapest_table(results) + [""] + exclusion_lines(results) + [""] + bar_lines(results)
-    readme = README.read_text()
-    begin, end = "<!-- orders:begin -->", "<!-- orders:end -->"
-    if begin in readme:
-        head, rest = readme.split(begin, 1)
-        note = "<!-- generated from benchmarks/results/orders.json by `python benchmarks/orders.py --from-json` -->"
-        readme = head + begin + "\n" + note + "\n" + "\n".join(table) + "\n" + end + rest.split(end, 1)[1]
-        README.write_text(readme)
+    note = "<!-- generated from benchmarks/results/orders.json by `python benchmarks/orders.py --from-json` -->"
+    write_block(README, "orders", note + "\n" + "\n".join(table))
     meta = results["meta"]
     refs = "; ".join(f"{n}: {s['reference']}" + (f" (vs h/2: {s['residual_vs_half_step']:.2g} m)"
                      if "residual_vs_half_step" in s else "") for n, s in results["scenes"].items())  # fmt: skip

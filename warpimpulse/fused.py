@@ -214,26 +214,29 @@ class FusedSteps:
             start, count = self._alike
         return min(limit, start + count - self.step_count)
 
-    def _fused_steps(self, n: int, combine: bool, out: list[StepStats]) -> int:
+    def _fused_steps(self, n: int, combine: bool, out: list[StepStats], lazy: int) -> int:
         """n steps by the fused schedule, as few launches as the forces allow, their stats appended to `out`
         (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is split, halved or
-        reported (`_handed_back`). Returns the count of steps taken."""
+        reported (`_handed_back`). `lazy`: the last step leaves its velocity correction to `state` too
+        (`_lazy_call`). Returns the count of steps taken."""
         done = 0
         columns = step_kernels
         order, fallback = self._fused_order
-        lazy = self._lazy_hand_out
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status, summary = self._run_fused(batch, not lazy and done + batch == n)  # the batch's one read-back
-            self._handout = lazy
+            hand_out = not lazy and done + batch == n
+            status, summary = self._run_fused(batch, hand_out)  # the batch's one read-back
+            self._handout = self._lazy_hand_out and not hand_out
             first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
                 out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                out.append(self._handed_back(status[first], not lazy and done + 1 == n))
+                hand_out = not lazy and done + 1 == n
+                out.append(self._handed_back(status[first], hand_out))
+                self._handout = self._lazy_hand_out and not hand_out
                 done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
@@ -246,7 +249,7 @@ class FusedSteps:
         loop's bookkeeping (one launch of one step, whose velocity correction `state` takes if it is read)."""
         if self._forces_timed or self._active_forces is None:
             self._update_forces()
-        lazy = self._lazy_hand_out
+        lazy = self._lazy_call()
         status, summary = self._run_fused(1, not lazy)
         self._handout = lazy
         if summary[_CODE]:  # the step went OK

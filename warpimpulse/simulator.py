@@ -196,7 +196,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._clock = (0.0, 0)  # (time, step count) the clock counts steps of dt from (`_set_step_size`)
 
         self._state = model.state()  # read as `state`, which hands it out
-        self._handout = 0  # 1 where the last step left its velocity correction to be taken (`state`)
+        self._handout = 0  # true where the last step left its velocity correction to be taken (`state`)
         self.pred = model.state()
         self.control = model.control()
         self._user_force = np.zeros((model.body_count, 3))
@@ -339,6 +339,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._loop_rows_counted = self.linear is not None and "loops" in self.features  # `redundant_rows`
         self._lazy_hand_out = int(self.defer_velocities)
         """Whether the steps leave the velocity correction of the state they hand out to `state`."""
+        self._read = False  # the velocities were read since the last call (`_lazy_call`)
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
         """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
 
@@ -353,9 +354,20 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         between steps thus moves the next step's start by the correction, within the tolerance, as handing the
         state out at every call did. A velocity correction that leaves more than the tolerance is reported here,
         under the iteration-limit policy, as the step would have reported it."""
+        self._read = True
         if self._handout:
             self._hand_out()
         return self._state
+
+    def _lazy_call(self) -> int:
+        """Whether this call's steps all leave their velocity correction to `state` (with `defer_velocities`), or
+        its last step takes it itself: for a reader, who read the velocities after the last call, and whose next
+        read is then free (one launch, not two: a controller that reads the state every tick pays what handing
+        out every step cost). The state the steps reach is the same either way: the correction is the same solve
+        on the same state and factor."""
+        lazy = self._lazy_hand_out and not self._read
+        self._read = False
+        return lazy
 
     def _hand_out(self) -> None:
         """The velocity correction the last step left (`state`), with the factor of the state's K: on the fused
@@ -533,7 +545,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         (`combined`'s figures, substeps the steps' count), for a caller that combines them anyway."""
         if self.batch is not None:
             return [self.batch.step() for _ in range(n)]
-        lazy = self._lazy_hand_out
+        lazy = self._lazy_call()
         if self.schedule != "fused":
             out = [self._step_parallel(not lazy and i == n - 1) for i in range(n)]
             self._handout = lazy
@@ -546,7 +558,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 self._handout = lazy
                 done += 1
             else:
-                done += self._fused_steps(n - done, combine, out)
+                done += self._fused_steps(n - done, combine, out, lazy)
         return out
 
     def fall_back(self, reason: str) -> None:
