@@ -16,6 +16,7 @@ each tick would (MuJoCo's velocities are there after `mj_step` without a call). 
 Python of `step()`; `kernel_one_deferred_us`: the same step, its velocity correction deferred).
 
     python benchmarks/call_overhead.py [--rounds 15] [--json benchmarks/results/call_overhead.json]
+    python benchmarks/call_overhead.py --from-json   # docs/results.md's block again from the JSON
 """
 
 from __future__ import annotations
@@ -34,12 +35,14 @@ import warp as wp
 
 import warpimpulse as wi
 from warpimpulse import scenes
+from warpimpulse.bench.blocks import write_block
 from warpimpulse.bench.harness import metadata
 from warpimpulse.shapes import Shape
 from warpimpulse.transforms import quat_between
 
 ROOT = Path(__file__).resolve().parent.parent
 JSON = ROOT / "benchmarks/results/call_overhead.json"
+DOC = ROOT / "docs/results.md"  # its "call-overhead" block (`doc_block`)
 STEPS = 120  # steps a timed block: 1 s at h = 1/120
 ROUNDS = 15
 H = 1.0 / 120.0
@@ -157,12 +160,37 @@ def scene_point(name: str, rounds: int) -> dict:
     return point
 
 
+def doc_block(result: dict) -> str:
+    """The table of docs/results.md: each scene's µs a step, both engines both ways, medians and least blocks."""
+    meta = result["meta"]
+    lines = [
+        f"CPU µs a step (`python benchmarks/call_overhead.py`, {meta['date']}, {meta['machine']}; medians of "
+        f"{next(iter(result['scenes'].values()))['rounds']} rounds of {STEPS}-step blocks, the least block in "
+        'brackets). "over" is one call a step less many steps a call; ours "+ read" reads `sim.state` after '
+        "every `step()`, which takes the velocity correction a step leaves (`Simulator.state`).",
+        "",
+        "| scene | ours: `step()` a call | + read | `step(120)` | over | MuJoCo: `mj_step` a call | `nstep=120` "
+        "| over |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for name, p in result["scenes"].items():
+        cells = [f"{p[k + '_us']:.2f} ({p[k + '_least_us']:.2f})" for k in ("ours_one", "ours_many", "ours_overhead",
+                                                                             "mujoco_one", "mujoco_many",
+                                                                             "mujoco_overhead")]  # fmt: skip
+        lines.append(f"| {name} | {cells[0]} | {p['ours_one_read_us']:.2f} | " + " | ".join(cells[1:]) + " |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=ROUNDS)
     parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=list(SCENES))
     parser.add_argument("--json", default=str(JSON))
+    parser.add_argument("--from-json", action="store_true", help="only write docs/results.md's block from the JSON")
     args = parser.parse_args(argv)
+    if args.from_json:
+        write_block(DOC, "call-overhead", doc_block(json.loads(Path(args.json).read_text())))
+        return 0
     result = {"meta": metadata(sys.argv if argv is None else argv), "scenes": {}}
     for name in args.scenes:
         p = result["scenes"][name] = scene_point(name, args.rounds)
@@ -175,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
                  if "kernel_one_us" in p else ""), flush=True)  # fmt: skip
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1) + "\n")
+        if Path(args.json).resolve() == JSON:
+            write_block(DOC, "call-overhead", doc_block(result))
     return 0
 
 

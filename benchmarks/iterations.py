@@ -40,6 +40,7 @@ import numpy as np
 
 import warpimpulse as wi
 from warpimpulse import scenes
+from warpimpulse.bench.blocks import write_block
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -48,7 +49,7 @@ import scene_kinds  # noqa: E402  (a sibling script: its scenes and MuJoCo refer
 JSON = ROOT / "benchmarks/results/iterations.json"
 FIGURE = ROOT / "docs/images/iterations.png"
 DOC = ROOT / "docs/results.md"
-BEGIN, END = "<!-- iterations:begin -->", "<!-- iterations:end -->"
+BLOCK = "iterations"  # docs/results.md's block (`blocks.write_block`)
 H, TOLERANCE, WINDOW, BATCH, ROUNDS = 1 / 120, 1e-6, 2.0, 100, 7
 BUILT = {"chain20": lambda: scenes.chain(20), "arm7": scene_kinds.arm7, "tree127": lambda: scenes.binary_tree(127)}
 MJCF = ("arm7", "chain30", "tree127")
@@ -209,13 +210,7 @@ def doc_block(results: dict) -> str:
 
 
 def write_doc(results: dict) -> None:
-    text = DOC.read_text()
-    block = f"{BEGIN}\n{doc_block(results)}\n{END}"
-    if BEGIN in text:
-        text = text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) :]
-    else:
-        text = text.rstrip("\n") + "\n\n### Joint iterations on serial mechanisms\n\n" + block + "\n"
-    DOC.write_text(text)
+    write_block(DOC, BLOCK, doc_block(results))
 
 
 def main(argv: list[str] | None = None) -> int:

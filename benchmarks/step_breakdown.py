@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import re
 import resource
 import statistics
 import sys
@@ -42,6 +41,7 @@ from warpimpulse.kernels.inertia import sym33d
 
 import warpimpulse as wi
 from warpimpulse import scenes
+from warpimpulse.bench.blocks import write_block
 from warpimpulse.bench.harness import metadata
 from warpimpulse.launch import record
 
@@ -597,10 +597,7 @@ def main(argv: list[str] | None = None) -> int:
     text = table(result)
     print(text)
     if args.readme:
-        readme = Path(args.readme)
-        block = f"<!-- step-time:begin -->\n{text}\n<!-- step-time:end -->"
-        readme.write_text(re.sub(r"<!-- step-time:begin -->.*<!-- step-time:end -->", block, readme.read_text(),
-                                 flags=re.S))  # fmt: skip
+        write_block(args.readme, "step-time", text)
     return 0
 
 

@@ -43,6 +43,7 @@ import numpy as np
 import warp as wp
 
 import warpimpulse as wi
+from warpimpulse.bench.blocks import write_block
 from warpimpulse.bench.harness import quiet_warp
 from warpimpulse.simulator import Simulator
 from warpimpulse.split import SplitSimulator
@@ -318,16 +319,6 @@ def markdown(results: dict) -> str:
     return "\n".join(lines)
 
 
-def write_readme(path: Path, text: str) -> None:
-    """Replace README's worlds block (between its markers) with `text`."""
-    readme = path.read_text()
-    begin, end = "<!-- worlds:begin -->", "<!-- worlds:end -->"
-    if begin not in readme or end not in readme:
-        raise SystemExit(f"{path} has no {begin} ... {end} block")
-    head, rest = readme.split(begin, 1)
-    path.write_text(f"{head}{begin}\n{text}\n{end}{rest.split(end, 1)[1]}")
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--worlds", type=int, default=256)
@@ -346,7 +337,7 @@ def main() -> None:
     text = markdown(results)
     print(text)
     if args.readme:
-        write_readme(args.readme, text)
+        write_block(args.readme, "worlds", text)
 
 
 def measure(args) -> dict:

@@ -9,8 +9,10 @@ is this step's value of c. Nothing else changes: every later iteration solves fo
 loop stops on the measured error alone, so c only moves where the iteration starts.
 
 A step's new c is held aside (`carry_next`) and taken (`carry_commit`) only when the whole (composed) step is
-accepted, so a failed step, redone or halved, starts from the same c in every schedule. Each step size (each stage
-of a composition, each halving) keeps its own c: E scales with the step.
+accepted, so a failed step, redone or halved, starts from the same c in every schedule. Each step size (each
+halving, each spin split) keeps its own c: E scales with the step; and each stage of a composition keeps its own,
+stages of one size too (`composition.stage_keys`), so that each is measured a whole step apart at its own point of
+the step (sharing one, suzuki5's four stages of size p extrapolated the last one's values).
 
 c changes from step to step as the motion does, and a whipping chain or arm turns its links' arms by a good part
 of a radian in a few steps: the last step's c then leaves a first residual of several percent, and a step takes
@@ -29,7 +31,7 @@ wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
 f64 = wp.float64
-PAST = 3  # measured values a step size keeps besides c (a row each of `Simulator._carry_past`)
+PAST = 3  # measured values a row of c keeps besides it (a row each of `Simulator._carry_past`)
 
 
 @wp.func
@@ -138,7 +140,7 @@ def commit_carry(
     carry_next: wp.array2d(dtype=vec3d),
     carry_past: wp.array2d(dtype=vec3d),
 ):
-    """A kept step's c: every row whose bit is set in `measured` (the step sizes whose first solve ran) takes
+    """A kept step's c: every row whose bit is set in `measured` (the stages whose first solve ran) takes
     the value measured in the step into its past and extrapolates its next c (`carry_take`; row r's past is
     carry_past[3 r] to [3 r + 2], `PAST` rows); the others keep theirs."""
     r = wp.int32(0)

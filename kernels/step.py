@@ -1384,7 +1384,12 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     if wp.static(forced):
                         if stage > 0:
                             copy_values(elements.integral0, elements.drive_integral)
+                    # the failed attempt's work, which the host counts in the step that takes it again halved
                     status_out[k, STATUS_JOINT_ITERATIONS] = f64(iterations)
+                    status_out[k, STATUS_VELOCITY_ITERATIONS] = f64(velocity_iterations)
+                    status_out[k, STATUS_LINEAR_ITERATIONS] = f64(
+                        iterations + velocity_iterations + row_solves + newton_solves
+                    )
                     status_out[k, STATUS_JOINT_ERROR] = err
                     status_out[k, STATUS_CODE] = f64(RETRY)
                     settle(

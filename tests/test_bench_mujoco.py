@@ -9,6 +9,7 @@ import pytest
 
 from warpimpulse import SceneBuilder, scenes
 from warpimpulse.bench import harness, report
+from warpimpulse.bench.blocks import write_block
 from warpimpulse.bench.peers.mujoco import MujocoScene, to_mjcf
 from warpimpulse.bench.runner import advance
 from warpimpulse.transforms import quat_from_axis_angle, quat_to_matrix
@@ -197,7 +198,7 @@ def test_benchmark_harness_end_to_end(tmp_path) -> None:
     assert "| warpimpulse | auto order 4 | 1/60 |" in text
     readme = tmp_path / "README.md"
     readme.write_text(f"# title\n\nkept\n{report.README_BEGIN}\nold\n{report.README_END}\nkept too\n")
-    report.write_readme_block(readme, report.readme_block(results))
+    write_block(readme, report.README_BLOCK, report.readme_block(results))
     text = readme.read_text()
     assert text.startswith("# title\n\nkept\n") and text.endswith(f"{report.README_END}\nkept too\n")
     assert "old" not in text and "pareto_double_pendulum.png" in text and "The bar" not in text

@@ -41,7 +41,7 @@ def _first_iteration_errors(make, dt: float, before: int) -> tuple[float, float]
         wp.copy(state.body_v, start[0])  # the impulses of the first try undone: the frames are t0's
         wp.copy(state.body_w, start[1])
         if plain:
-            sim._carry_arrays(sim.dt)[0].zero_()
+            sim._carry_arrays((sim.dt, 0))[0].zero_()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # one iteration stops short of the tolerance
             iterations, error, *_ = sim._correct_joints(final=True)
@@ -181,3 +181,17 @@ def test_a_hinge_axis_rows_turn_with_its_first_body():
         np.testing.assert_allclose(p[:2] @ p[:2].T, np.eye(2), atol=1e-12)
         np.testing.assert_allclose(p[:2] @ world_axis, 0.0, atol=1e-12)
         np.testing.assert_allclose(p, rows[0] @ r.T, atol=1e-12)
+
+
+def test_each_stage_of_a_composition_keeps_its_c():
+    """suzuki5's stages p, p, 1 - 4p, p, p keep a row of c each (and the order-2 fallback one), so that each is
+    measured a whole step apart at its own point of the step (`composition.stage_keys`); the fused kernel's
+    stage_carry points each stage at its row."""
+    from warpimpulse import composition
+
+    p = composition.SCHEMES["suzuki5"].stages[0]
+    keys = composition.stage_keys(composition.SCHEMES["suzuki5"].stages)
+    assert keys == ((p, 0), (p, 1), (1 - 4 * p, 0), (p, 2), (p, 3))
+    sim = wi.Simulator(scenes.chain(4).finalize("cpu"), 1 / 60, order=4)
+    assert sim._carry.shape[0] == 6
+    assert sim._stage_carry.numpy().tolist() == [0, 1, 2, 3, 4]

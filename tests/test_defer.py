@@ -72,7 +72,8 @@ def test_handed_out_velocities_hold_and_deferred_steps_say_so(case):
     """The velocities read are corrected: the joints' relative velocities hold by the independent numpy check (a
     deferral that never corrected leaves ~1e-2 m/s here). Every step leaves its correction to the next step or to
     the read (`Simulator.state`): the steps, one a call or many, report no velocity iteration and an unmeasured
-    (NaN) velocity error, and converged, and reading the positions alone takes no correction."""
+    (NaN) velocity error, and converged, and reading the positions alone takes no correction. After a read of
+    the velocities the next call's last step takes its correction itself (`Simulator._lazy_call`), and says so."""
     make, dt, settings = SCENES[case]
     builder = make()
     sim = wi.Simulator(builder.finalize(), dt, **wi.StepOptions.fold(settings))
@@ -90,8 +91,11 @@ def test_handed_out_velocities_hold_and_deferred_steps_say_so(case):
     assert (velocity - slack).max() <= 1e-9
     assert constraint_errors(builder, x, q).max() <= 2 * sim.tolerance
     assert constraint_velocity_errors(builder, x, q, *raw).max() > 1e3 * velocity.max()  # what the read corrected
-    combined = sim.step(5)
-    assert combined.velocity_iterations == 0 and math.isnan(combined.max_velocity_error)
+    combined = sim.step(5)  # a reader: the call's last step takes the correction itself, for the next read
+    assert combined.velocity_iterations == 1 and combined.max_velocity_error <= sim.velocity_tolerance
+    assert not sim._handout
+    combined = sim.step(5)  # not read since: left to the read again
+    assert combined.velocity_iterations == 0 and math.isnan(combined.max_velocity_error) and sim._handout
 
 
 @pytest.mark.parametrize("case", ["chain10", "chain10_order4"])

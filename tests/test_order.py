@@ -63,6 +63,7 @@ def test_default_tolerance_rule():
     model = scenes.double_pendulum().finalize()
     assert warpimpulse.Simulator(model, 1 / 60).tolerance == 1e-6
     assert warpimpulse.Simulator(model, 1 / 60, order=4).tolerance == pytest.approx(10 * (1 / 60) ** 5)
+    assert warpimpulse.Simulator(model, 1 / 30, order=6).tolerance == pytest.approx(200 * (1 / 30) ** 7)
     assert warpimpulse.Simulator(model, 1 / 120, order=6).tolerance == composition.TOLERANCE_FLOOR
     assert warpimpulse.Simulator(model, 1 / 5, order=4).tolerance == composition.TOLERANCE_CAP
     assert warpimpulse.Simulator(model, 1 / 60, order=4, tolerance=1e-5).tolerance == 1e-5
@@ -216,8 +217,8 @@ def test_joints_hold_after_every_substep(order):
     seen = []
     base_step = sim._base_step
 
-    def checked(h, final):
-        out = base_step(h, final)
+    def checked(h, final, stage=0):
+        out = base_step(h, final, stage)
         x, q, v, w = sim_state(sim)
         velocity, slack = constraint_velocity_errors(builder, x, q, v, w, with_slack=True)
         seen.append(h)

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from warpimpulse.bench.blocks import markers
+
 pytest.importorskip("mujoco")
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,9 +60,10 @@ def test_the_readme_blocks_are_the_committed_json_written_up(kinds) -> None:
     import json
 
     results = json.loads((ROOT / "benchmarks/results/scene_kinds.json").read_text())
-    for path, begin, end, block in (
-        (ROOT / "docs/results.md", kinds.BEGIN, kinds.END, kinds.readme_block(results)),
-        (ROOT / "README.md", kinds.SUMMARY_BEGIN, kinds.SUMMARY_END, kinds.summary_block(results)),
+    for path, name, block in (
+        (ROOT / "docs/results.md", kinds.BLOCK, kinds.readme_block(results)),
+        (ROOT / "README.md", kinds.SUMMARY_BLOCK, kinds.summary_block(results)),
     ):
+        begin, end = markers(name)
         text = path.read_text()
         assert text[text.index(begin) + len(begin) : text.index(end)].strip() == block.strip(), path

@@ -254,7 +254,7 @@ def test_steps_with_rows_are_taken_by_the_fused_kernel(case, monkeypatch):
     sim = wi.Simulator(make().finalize(), dt, **wi.StepOptions.fold(options))
     counts = _count_launches(sim, monkeypatch)
     stats = sim.step(steps)
-    assert counts == {"launches": 1, "parallel_steps": 0} and stats.converged
+    assert counts == {"launches": 1, "parallel_steps": 0, "substep_launches": 0} and stats.converged
 
 
 def test_a_composed_step_that_fails_in_a_later_stage_is_redone_from_its_start(monkeypatch):
@@ -274,26 +274,29 @@ def test_a_composed_step_that_fails_in_a_later_stage_is_redone_from_its_start(mo
     assert any(redone) and max(s.substeps for s in stats) > 1 and all(s.order == 4 for s in stats)
 
 
+class Counted:
+    """A packed launch whose calls are counted in `counts[key]`."""
+
+    def __init__(self, launch, counts: dict, key: str):
+        self.inner, self.counts, self.key = launch, counts, key
+
+    def launch(self):
+        self.counts[self.key] += 1
+        self.inner.launch()
+
+
 def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
     """Count the fused launches (calls of the packed launch) and the steps handed to the parallel schedule."""
-    counts = {"launches": 0, "parallel_steps": 0}
+    counts = {"launches": 0, "parallel_steps": 0, "substep_launches": 0}
     launch_for, step_parallel = sim._fused_launch, sim._step_parallel
-
-    class Counted:
-        def __init__(self, launch):
-            self.inner = launch
-
-        def launch(self):
-            counts["launches"] += 1
-            self.inner.launch()
 
     def parallel(*args):
         counts["parallel_steps"] += 1
         return step_parallel(*args)
 
-    monkeypatch.setattr(sim, "_fused_launch", lambda h: Counted(launch_for(h)))
+    monkeypatch.setattr(sim, "_fused_launch", lambda h: Counted(launch_for(h), counts, "launches"))
     launch_for(sim.dt)  # recorded now, and then counted where `step` finds it (`Simulator._fused_by_h`)
-    sim._fused_by_h = {h: Counted(launch) for h, launch in sim._fused_by_h.items()}
+    sim._fused_by_h = {h: Counted(launch, counts, "launches") for h, launch in sim._fused_by_h.items()}
     monkeypatch.setattr(sim, "_step_parallel", parallel)
     return counts
 
@@ -301,17 +304,20 @@ def _count_launches(sim: wi.Simulator, monkeypatch) -> dict:
 @pytest.mark.fused
 def test_a_batch_of_steps_is_one_launch(monkeypatch):
     """tree31's start torque ends at t = 1 s: 90 steps of 1/60 are two launches (before and after), no step
-    goes to the host; a spin that needs splitting goes to the parallel schedule."""
+    goes to the host; a spin that needs splitting is handed back and its substeps are fused launches of their
+    own (`_split_step`), not the parallel schedule's."""
     sim = wi.Simulator(scenes.binary_tree(31).finalize(), 1 / 60)
     counts = _count_launches(sim, monkeypatch)
     stats = sim.step(90)
-    assert counts == {"launches": 2, "parallel_steps": 0}
+    assert counts == {"launches": 2, "parallel_steps": 0, "substep_launches": 0}
     assert sim.step_count == 90 and stats.substeps == 90 and stats.converged
 
     sim = wi.Simulator(_spinning_pendulum(100.0).finalize(), 1 / 60)
     counts = _count_launches(sim, monkeypatch)
-    sim.step(3)
-    assert counts["parallel_steps"] >= 1
+    substeps = sim._substep_launch
+    monkeypatch.setattr(sim, "_substep_launch", lambda depth: Counted(substeps(depth), counts, "substep_launches"))
+    stats = sim.step(3)
+    assert counts["parallel_steps"] == 0 and counts["substep_launches"] >= 1 and stats.substeps > 3
 
 
 @pytest.mark.parametrize("case", ["tree31_torque_ends", "spin_split", "chain50_halved", "chain10_limits_order4"])
@@ -465,7 +471,7 @@ def test_order_and_fall_back_under_the_fused_schedule(order, monkeypatch):
     composed = wi.Simulator(model, 1 / 60, order=order)
     counts = _count_launches(composed, monkeypatch)
     stats = composed.step(20)
-    assert composed.schedule == "fused" and counts == {"launches": 1, "parallel_steps": 0}
+    assert composed.schedule == "fused" and counts == {"launches": 1, "parallel_steps": 0, "substep_launches": 0}
     assert stats.order == order and stats.converged
     fused, parallel = (
         wi.Simulator(model, 1 / 60, order=order, options=wi.StepOptions(schedule=s, reuse_factor=False))

@@ -178,8 +178,8 @@ def test_threads_must_be_a_positive_integer():
 
 def test_split_hands_failed_corrections_to_the_parallel_schedule_as_the_fused_step_does():
     """One joint iteration allowed: from the third step the correction needs two, fails (the velocities of t0
-    put back) and the parallel schedule takes the step as two halves; the run is still the fused run bit for
-    bit. (Without `carry`, with which every step here takes one iteration.)"""
+    put back) and the step is taken again as two halves (`Simulator._halved`); the run is still the fused run
+    bit for bit. (Without `carry`, with which every step here takes one iteration.)"""
     model = wi.scenes.binary_tree(63).finalize()
     one, a, split, b = run_both(model, 10, 2, max_iterations=1, max_substep_depth=1, carry=False)
     assert [s.substeps for s in b] == [1, 1] + [2] * 8

@@ -44,9 +44,10 @@ class Checkpoints:
         data.update({f"scene_{key}": np.array(value) for key, value in self._fingerprint.items()})
         for key, arr in getattr(self.linear, "_warm", {}).items():
             data[f"warm_{key}"] = arr.numpy()
-        if self.carry:  # the first iterations' carried right-hand sides and their past, a row a step size
+        if self.carry:  # the first iterations' carried right-hand sides and their past, a row a (step size, stage)
             carries = self._carries()
-            data.update(carry_h=np.array(list(carries)), carry=np.stack([c.numpy() for c, *_ in carries.values()]),
+            data.update(carry_h=np.array([h for h, _ in carries]), carry_stage=np.array([k for _, k in carries]),
+                        carry=np.stack([c.numpy() for c, *_ in carries.values()]),
                         carry_past=np.stack([[p.numpy() for p in past] for _, *past in carries.values()]))  # fmt: skip
         if self.reuse_factor:  # the factor in use may be of an earlier state (`reuse_factor`): kept as it is
             data.update(factor=self.linear.values.numpy(), factor_state=self._factor_state.numpy())
@@ -79,8 +80,10 @@ class Checkpoints:
                     warm[key[5:]] = wp.array(data[key], dtype=wp.vec3d, device=self.model.device)
         self._forget_carry()
         if self.carry and "carry" in data:
-            for k, (h, c) in enumerate(zip(data["carry_h"].tolist(), data["carry"])):
-                mine = self._carries_of(h)
+            sizes = data["carry_h"].tolist()  # an older checkpoint has no stages: the first stage of each size
+            stages = data["carry_stage"].tolist() if "carry_stage" in data else [0] * len(sizes)
+            for k, (h, stage, c) in enumerate(zip(sizes, stages, data["carry"])):
+                mine = self._carries_of((h, stage))
                 mine[0].assign(c)
                 if "carry_past" in data:  # else (an older checkpoint) unknown: c is extrapolated once it is known
                     for p, past in zip(mine[1:], data["carry_past"][k]):
@@ -170,6 +173,9 @@ class Checkpoints:
                 raise refuse(f"'carry' has shape {carry.shape} or non-finite values; expected ({len(sizes)}, {nc}, 3)")
             if not (sizes.dtype.kind == "f" and np.all(np.isfinite(sizes)) and np.all(sizes != 0.0)):
                 raise refuse("'carry_h' is not a list of step sizes")
+            stages = data.get("carry_stage", np.zeros(len(sizes), dtype=np.int64))
+            if stages.dtype.kind not in "iu" or stages.shape != sizes.shape or np.any(stages < 0):
+                raise refuse(f"'carry_stage' is not a list of {len(sizes)} stage counts (integers >= 0)")
             past = data.get("carry_past")  # the values measured in the last steps, NaN where unknown
             shape = (len(sizes), carry_kernels.PAST, nc, 3)
             if past is not None and (past.dtype.kind != "f" or past.shape != shape or np.any(np.isinf(past))):

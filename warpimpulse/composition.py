@@ -37,6 +37,19 @@ class Scheme:
         return max(abs(g) for g in self.stages)
 
 
+def stage_keys(stages: tuple[float, ...]) -> tuple[tuple[float, int], ...]:
+    """Each stage as (its fraction of the step, how many stages of that fraction come before it): the key of its
+    carried right-hand side (kernels/carry.py). Suzuki's p, p, 1 - 4p, p, p gives (p, 0), (p, 1), (1 - 4p, 0),
+    (p, 2), (p, 3): stages of one size keep a c each, every one measured a whole step apart at the same point of
+    the step, as the extrapolation assumes; shared, the four were one history sampled at the last stage only."""
+    seen: dict[float, int] = {}
+    keys = []
+    for g in stages:
+        keys.append((g, seen.get(g, 0)))
+        seen[g] = seen.get(g, 0) + 1
+    return tuple(keys)
+
+
 def _mirror(*half: float) -> tuple[float, ...]:
     """A symmetric scheme from its first half; the middle coefficient makes the sum 1."""
     return (*half, 1.0 - 2.0 * sum(half), *half[::-1])
@@ -86,17 +99,26 @@ def scheme(order: int, name: str | None = None) -> Scheme:
 
 # The tolerance rule (m or rad). The joint correction stops within the tolerance, so every base step leaves
 # up to that much error, and a symmetric composition only cancels errors that are smooth in h: a tolerance
-# near the step's own error caps the order. Measured on the paper's tree (docs/time-order.md): the error stops
-# falling once the tolerance is about a tenth of it; a tolerance of 10 dt^(order+1) keeps below that on the
-# tree, the double pendulum and the 50-link chain (whose error constants are 3 to 20 m s^-4 at order 4).
-# Round-off in float64 sets the floor; 1e-6 (the paper's) the cap.
+# near the step's own error caps the order, a tighter one costs joint iterations for nothing. The rule is
+# COEFFICIENT[order] dt^(order+1), measured (benchmarks/tolerances.py, docs/tolerance.md: five MJCF scenes,
+# order 4 at h = 1/30 ... 1/240, order 6 at 1/15 ... 1/120, the trajectory error against MuJoCo RK4 at
+# 1/32000) as the loosest that keeps every scene's error within 5% of its error at tolerance 1e-12. The
+# paper's tree binds: its motion is slow, its error small, and its 127 joints add up what each leaves. At
+# order 4 it allows no looser coefficient than 10 (1/60: 1e-8 keeps 1.01 of the tight error, 1e-7 1.33;
+# 1/120: 1e-9 1.05), at order 6 it allows 200 (1/30: 9.1e-9 keeps 1.01, 1/40: 1.2e-9 1.04, 1/60: 7.1e-11
+# 1.03; 10 before: 14 to 18% more joint iterations for the same error). The serial scenes would take far
+# looser ones (arm7 at order 4: 1e-5 at 1/60 and 1/120), which a rule of h alone cannot see; a run that
+# wants them sets the tolerance (benchmarks/scene_kinds.py searches it), or asks `accuracy=`. Round-off in
+# float64 sets the floor; 1e-6 (the paper's) the cap.
 TOLERANCE_CAP = 1e-6
 TOLERANCE_FLOOR = 1e-12
+COEFFICIENT = {4: 10.0, 6: 200.0}
 
 
 def default_tolerance(dt: float, order: int) -> float:
     """The joint tolerance used when the user gives none: 1e-6 at order 2 (the paper's), else
-    10 dt^(order + 1) (dt in s, read in m or rad), clamped to [1e-12, 1e-6]."""
+    COEFFICIENT[order] dt^(order + 1) (dt in s, read in m or rad: 10 dt^5 at order 4, 200 dt^7 at 6), clamped to
+    [1e-12, 1e-6]."""
     if order == 2:
         return TOLERANCE_CAP
-    return min(TOLERANCE_CAP, max(TOLERANCE_FLOOR, 10.0 * math.pow(abs(dt), order + 1)))
+    return min(TOLERANCE_CAP, max(TOLERANCE_FLOOR, COEFFICIENT[order] * math.pow(abs(dt), order + 1)))

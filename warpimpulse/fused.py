@@ -15,7 +15,7 @@ import warp as wp
 from .kernels import limits as limit_kernels
 from .kernels import step as step_kernels
 from .launch import Packed, record
-from .steps import StepStats
+from .steps import StepStats, combined
 
 # A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
 # each column's name takes five.
@@ -76,26 +76,130 @@ class FusedSteps:
             packed.set("h", h)
             self._fused_by_h = {h: packed}
             return packed
+        reach = max(abs(g) for g in self._fused_stages)
+        launch = self._record_fused(h, reach, self.max_substep_depth == 0, (self._carry, self._carry_next,
+                                                                            self._carry_past))  # fmt: skip
+        self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
+        return self._fused_by_h[h]
+
+    def _record_fused(self, h: float, reach: float, final: bool, carries: tuple[wp.array, ...]) -> wp.Launch:
+        """The fused kernel's launch for steps of h: `reach` sizes its spin split (0: none), `final` says its steps
+        cannot be halved, `carries` are the carried right-hand sides its stages take (c, the measured c, the past;
+        a row a stage, `stage_carry`)."""
         p = self.pred
         direct = self.linear is not None
         kernel = self._fused.cholesky_steps if direct else self._fused.iterative_steps
         sources = (self.model, self.frames, self.control, self)
         if direct:
             sources = (self.linear.fused_args, *sources, self.linear.device_pattern, self.linear)
-        launch = record(
+        carry, carry_next, carry_past = carries
+        return record(
             kernel, 1, self.model.device, sources, data_out=self._state,
-            h=h, stages=self._stages, reach=max(abs(g) for g in self._fused_stages), batch_in=self._batch,
-            defer=int(self.defer_velocities),
-            max_rotation=self.max_rotation or 0.0, final=int(self.max_substep_depth == 0), spin_in=self._spin_in,
+            h=h, stages=self._stages, reach=reach, batch_in=self._batch, defer=int(self.defer_velocities),
+            max_rotation=self.max_rotation or 0.0, final=int(final), spin_in=self._spin_in,
             pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
             q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status, elements=self._elements,
             limit_rows=self._rows, newton=int(self.newton), carrying=int(self.carry),
-            stage_carry=self._stage_carry, carry=self._carry, carry_next=self._carry_next,
-            carry_past=self._carry_past, refactor_every=self._refactor_every,
-            stale_factor_rate=self._stale_factor_rate, factor_state=self._factor_state,
+            stage_carry=self._stage_carry, carry=carry, carry_next=carry_next, carry_past=carry_past,
+            refactor_every=self._refactor_every, stale_factor_rate=self._stale_factor_rate,
+            factor_state=self._factor_state,
         )  # fmt: skip
-        self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
-        return self._fused_by_h[h]
+
+    def _substep_launch(self, depth: int) -> Packed:
+        """The packed launch (CPU) of the substeps of a step the spin splits into 2**depth: steps of
+        dt / 2**depth without a split of their own (reach 0: the parallel schedule sizes a split once, at the
+        step's start, and halves a substep only where it turned too far), halvable unless depth is the deepest.
+        Their carried right-hand sides are `_substep_carries(h)`, which the parallel schedule's steps of that
+        size take too, so both schedules take a split step alike."""
+        h = self.dt / 2**depth
+        launch = self._substep_by_h.get(h)
+        if launch is None and depth == 0:  # whole steps (no deeper split allowed): the steps' own c
+            main = (self._carry, self._carry_next, self._carry_past)
+            launch = self._substep_by_h[h] = Packed(self._record_fused(h, 0.0, True, main))
+        if launch is None:
+            arrays = self._substep_carries(h)
+            launch = Packed(self._record_fused(h, 0.0, depth >= self.max_substep_depth, arrays))
+            self._substep_by_h[h] = launch
+        return launch
+
+    def _split_step(self, row: np.ndarray, hand_out: bool) -> StepStats:
+        """The step whose status `row` (SPLIT or RETRY) stopped a fused launch, the parallel schedule's way
+        (`_step_parallel`: a spin split into 2**depth substeps, the depth from the spin at the step's start; a
+        failed step undone and taken as two halves, `_advance`) but by the fused kernel on a CPU, where the
+        parallel schedule's launches cost about 13x the step (measured on a 7-hinge arm at order 4)."""
+        columns = step_kernels
+        self._update_forces()
+        order, fallback = self._fused_order
+        if int(row[columns.STATUS_CODE]) == columns.SPLIT:
+            depth = self._spin_depth(max(abs(g) for g in self._fused_stages))
+            parts = self._fused_substeps(depth, 2**depth)
+        else:
+            parts = [self._halved(row, 0)]
+        stats = combined(parts)
+        stats.order, stats.fallback = order, fallback
+        if self.defer_velocities and hand_out:
+            self._hand_out_velocities(stats)
+        self._use_step_size(self.dt)
+        self._advance_clock(1)
+        return stats
+
+    def _halved(self, row: np.ndarray, depth: int) -> StepStats:
+        """A composed substep of dt / 2**depth that the kernel handed back failed (`row`; its start restored)
+        taken as two halves, its failed attempt's work counted in them, as `_advance` does."""
+        columns = step_kernels
+        failed = [
+            int(row[c])
+            for c in (
+                columns.STATUS_JOINT_ITERATIONS,
+                columns.STATUS_VELOCITY_ITERATIONS,
+                columns.STATUS_LINEAR_ITERATIONS,
+            )
+        ]  # (the halves' launches write the rows)
+        if len(self._fused_stages) > 1:
+            self._update_frames()  # of the restored start: a later stage may have failed
+        halves = combined(self._fused_substeps(depth + 1, 2))
+        halves.joint_iterations += failed[0]
+        halves.velocity_iterations += failed[1]
+        halves.linear_iterations += failed[2]
+        return halves
+
+    def _fused_substeps(self, depth: int, count: int) -> list[StepStats]:
+        """`count` composed substeps of dt / 2**depth by the fused kernel, their velocities left to the step's
+        hand-out (`_split_step`): the stats of the runs of those that went OK, and of each one it handed back,
+        halved (`_halved`), or at the deepest taken by the parallel schedule, which reports its failure."""
+        columns = step_kernels
+        order, fallback = self._fused_order
+        launch = self._substep_launch(depth)
+        status, summary_view, batch_view, spin_view = self._views
+        parts: list[StepStats] = []
+        while count:
+            batch_view[0], batch_view[1], spin_view[0] = count, 0, self._spin
+            launch.launch()
+            summary = summary_view.tolist()
+            ok = int(summary[columns.STATUS_CODE])
+            if ok:
+                parts.append(self._status_stats(summary, ok, order, fallback))
+                self._spin = summary[columns.STATUS_SPIN]
+                count -= ok
+                if not count:
+                    break
+            row = status[ok].copy()  # the status rows are the next launch's
+            code = int(row[columns.STATUS_CODE])
+            self._spin = float(row[columns.STATUS_SPIN])
+            count -= 1
+            if code in (columns.SINGULAR, columns.VELOCITY):  # the substep was kept
+                self.linear.check()  # a lost pivot raises
+                parts.append(self._status_stats(row.tolist(), 1, order, fallback))
+                if code == columns.VELOCITY:
+                    self._velocity_failed(row[columns.STATUS_FAILED_VELOCITY])
+                    parts[-1].converged = False
+            elif depth >= self.max_substep_depth:  # its failure is reported, or warned of and gone on from
+                if len(self._fused_stages) > 1:
+                    self._update_frames()
+                parts.append(self._advance(self.dt / 2**depth, depth, self._fused_stages))
+            else:
+                parts.append(self._halved(row, depth))
+        return parts
 
     def _steps_alike(self, limit: int) -> int:
         """How many of the next steps (at most `limit`) share this step's active model forces (`_update_forces`
@@ -112,26 +216,29 @@ class FusedSteps:
             start, count = self._alike
         return min(limit, start + count - self.step_count)
 
-    def _fused_steps(self, n: int, combine: bool, out: list[StepStats]) -> int:
+    def _fused_steps(self, n: int, combine: bool, out: list[StepStats], lazy: int) -> int:
         """n steps by the fused schedule, as few launches as the forces allow, their stats appended to `out`
-        (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is taken by the parallel
-        schedule, which splits, halves or reports it. Returns the count of steps taken."""
+        (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is split, halved or
+        reported (`_handed_back`). `lazy`: the last step leaves its velocity correction to `state` too
+        (`_lazy_call`). Returns the count of steps taken."""
         done = 0
         columns = step_kernels
         order, fallback = self._fused_order
-        lazy = self._lazy_hand_out
         while done < n:
             self._update_forces()
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
-            status, summary = self._run_fused(batch, not lazy and done + batch == n)  # the batch's one read-back
-            self._handout = lazy
+            hand_out = not lazy and done + batch == n
+            status, summary = self._run_fused(batch, hand_out)  # the batch's one read-back
+            self._handout = self._lazy_hand_out and not hand_out
             first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
                 out += self._fused_stats(status, first, summary, order, fallback, combine)
             self._advance_clock(first)
             done += first
             if first < batch:
-                out.append(self._handed_back(status[first], not lazy and done + 1 == n))
+                hand_out = not lazy and done + 1 == n
+                out.append(self._handed_back(status[first], hand_out))
+                self._handout = self._lazy_hand_out and not hand_out
                 done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
@@ -144,7 +251,7 @@ class FusedSteps:
         loop's bookkeeping (one launch of one step, whose velocity correction `state` takes if it is read)."""
         if self._forces_timed or self._active_forces is None:
             self._update_forces()
-        lazy = self._lazy_hand_out
+        lazy = self._lazy_call()
         status, summary = self._run_fused(1, not lazy)
         self._handout = lazy
         if summary[_CODE]:  # the step went OK
@@ -162,12 +269,16 @@ class FusedSteps:
         return stats
 
     def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
-        """The step whose status `row` stopped a fused launch: taken again by the parallel schedule where nothing
-        of it was kept (SPLIT, RETRY), else (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is
-        handed out (`defer_velocities`)."""
+        """The step whose status `row` stopped a fused launch: taken again where nothing of it was kept (SPLIT,
+        RETRY; split or halved in fused launches on a CPU, `_split_step`, else by the parallel schedule), else
+        (SINGULAR, VELOCITY) reported from the row. `hand_out`: its state is handed out (`defer_velocities`)."""
         columns = step_kernels
         code = int(row[columns.STATUS_CODE])
         self._spin = float(row[columns.STATUS_SPIN])
+        # (The controller's steps take many sizes: no substep arrays a size for them.)
+        fused = self._views is not None and self.linear is not None and self.accuracy is None
+        if fused and (code == columns.SPLIT or (code == columns.RETRY and self.max_substep_depth > 0)):
+            return self._split_step(row, hand_out)
         if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept
             if code == columns.RETRY and len(self._fused_stages) > 1:
                 self._update_frames()  # of the restored start: a later stage may have failed

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import warp as wp
 
+from . import composition
 from .kernels import loop as loop_kernels
 from .launch import run
 from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined
@@ -34,7 +35,7 @@ class ParallelSteps:
         schedule's rare parallel steps (a fused share must find nothing to capture when threads step it)."""
         if not self._direct or self.batch is not None or self.schedule != "parallel":
             return None
-        if self._h not in self._loops_by_h:
+        if self._key not in self._loops_by_h:
             first, first_iteration, iteration = self._loop_work
             errors = ((self.errors, self.model.constraint_world), (self.limit_error, self._limit_world))
             correct = self._capture_loop(first, iteration, errors, self.tolerance, self.max_iterations,
@@ -45,8 +46,8 @@ class ParallelSteps:
                 finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance, 1)
                 fix = self._capture_loop((self._velocity_errors,), self._velocity_fix_work, errors[:1],
                                          self.velocity_tolerance, 1)  # fmt: skip
-            self._loops_by_h[self._h] = (correct, finish, fix)
-        return self._loops_by_h[self._h]
+            self._loops_by_h[self._key] = (correct, finish, fix)
+        return self._loops_by_h[self._key]
 
     def _capture_loop(self, first: tuple, iteration: tuple, errors: tuple, tolerance: float, limit: int,
                       first_iteration: tuple | None = None, **loop) -> wp.Graph:  # fmt: skip
@@ -135,8 +136,9 @@ class ParallelSteps:
         whole = len(stages) == 1
         wp.capture_launch(self._save_velocities if whole else self._save_start)
         parts = []
-        for g in stages:
-            part, ok = self._base_step(g * h, final)
+        keys = composition.stage_keys(stages)
+        for g, k in keys:
+            part, ok = self._base_step(g * h, final, k)
             parts.append(part)
             if not ok:
                 if whole:  # undo this attempt's impulses: the frames of t0 still hold
@@ -151,17 +153,19 @@ class ParallelSteps:
                 halves.velocity_iterations += sum(p.velocity_iterations for p in parts)
                 halves.linear_iterations += sum(p.linear_iterations for p in parts)
                 return halves
-        if self.carry:  # the step is kept: so are the c it measured, once a step size (stages may share one)
-            for size in dict.fromkeys(g * h for g, part in zip(stages, parts) if part.joint_iterations):
-                self._keep_carry(size)
+        if self.carry:  # the step is kept: so are the c its stages measured (`composition.stage_keys`)
+            for (g, k), part in zip(keys, parts):
+                if part.joint_iterations:
+                    self._keep_carry((g * h, k))
         stats = combined(parts)
         stats.substeps = 1
         return stats
 
-    def _base_step(self, h: float, final: bool) -> tuple[StepStats, bool]:
-        """The paper's step of h (h < 0 runs it backwards): its stats, and False when it failed and a smaller
-        step may still succeed (not `final`; the state then holds this attempt's impulses)."""
-        self._use_step_size(h)
+    def _base_step(self, h: float, final: bool, stage: int = 0) -> tuple[StepStats, bool]:
+        """The paper's step of h (h < 0 runs it backwards), the `stage`-th of its size in a composed step (whose
+        carried right-hand side it takes): its stats, and False when it failed and a smaller step may still
+        succeed (not `final`; the state then holds this attempt's impulses)."""
+        self._use_step_size(h, stage)
         if self.contact_stage is None:
             joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
         else:

@@ -84,9 +84,11 @@ class Recording:
         launches.append(self._record(limit_kernels.limit_matrix, (nl, nl), s, coupled=int(coupled)))
         return launches
 
-    def _use_step_size(self, h: float) -> None:
-        """Point the launches that depend on the step size at h (recorded once per h, then cached)."""
-        if h not in self._launches_by_h:
+    def _use_step_size(self, h: float, stage: int = 0) -> None:
+        """Point the launches that depend on the step size at h (recorded once per h, then cached); with the carry,
+        at the c of the `stage`-th stage of size h in a composed step (`composition.stage_keys`)."""
+        key = (h, stage if self.carry else 0)
+        if key not in self._launches_by_h:
             s, p, (nb, nc) = self._state, self.pred, self._counts
             if self._forced:
                 predict = self._coupled_prediction(h)
@@ -116,7 +118,7 @@ class Recording:
                 first_iteration = iteration
                 carry_in, newton, carry_out = [], [], []
                 if self.carry:  # the first solves rhs + c, then measures the next c (`carry`)
-                    c, c_next, *_ = self._carry_arrays(h)
+                    c, c_next, *_ = self._carry_arrays(key)
                     carry_in = [self._record(carry_kernels.carry_in, nc, carry=c, rhs_out=self.rhs)]
                     carry_out = [self._record(carry_kernels.carry_out, nc, carry=c, rhs_in=self.rhs,
                                               carry_next_out=c_next)]  # fmt: skip
@@ -130,43 +132,73 @@ class Recording:
                     first_iteration = (*carry_in, *self._mask, *solve, *newton, self._apply, correct_limits, predict,
                                        *measure, *carry_out)  # fmt: skip
                     iterate_first = self._capture(*first_iteration)
-            self._launches_by_h[h] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
+            self._launches_by_h[key] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
                                       iterate_first, ((predict, *measure), first_iteration, iteration), integrate,
                                       correct_limits, correct_limit_velocities)  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
          self._iterate_first, self._loop_work, self._integrate_drives, self._correct_limits,
-         self._correct_limit_velocities) = self._launches_by_h[h]  # fmt: skip
-        self._h = h
+         self._correct_limit_velocities) = self._launches_by_h[key]  # fmt: skip
+        self._h, self._key = h, key
 
-    def _carry_arrays(self, h: float) -> tuple[wp.array, ...]:
+    def _carry_arrays(self, key: tuple[float, int]) -> tuple[wp.array, ...]:
         """(c, the c measured in the step, the values measured in the last kept steps, the newest first) for
-        steps of h (`carry`): a stage's rows at dt, which the fused kernel shares, or arrays of their own for a
-        halved or split step size."""
-        if h in self._carry_rows:
-            r = self._carry_rows[h]
+        `key`, (step size, stage of that size) (`carry`): a stage's rows at dt, which the fused kernel shares;
+        for a stage of a split or halved step, the rows of its substep size (`_substep_carries`); else arrays
+        of their own (a step size set by the accuracy controller, say)."""
+        if key in self._carry_rows:
+            r = self._carry_rows[key]
             past = (self._carry_past[carry_kernels.PAST * r + k] for k in range(carry_kernels.PAST))
             return self._carry[r], self._carry_next[r], *past
-        if h not in self._carry_other:
+        for depth in range(1, self.max_substep_depth + 1):  # a stage of a split or halved step: its size's rows
+            if key in self._carry_other:
+                break
+            h = self.dt / 2**depth
+            if key in {(g * h, k) for g, k in self._fractions}:
+                self._substep_carries(h)
+        if key not in self._carry_other:
             c = wp.zeros(self.model.constraint_count, dtype=wp.vec3d, device=self.model.device)
             unknown = wp.vec3d(math.nan, math.nan, math.nan)
-            self._carry_other[h] = (c, wp.zeros_like(c), *(wp.full_like(c, unknown) for _ in range(carry_kernels.PAST)))
-        return self._carry_other[h]
+            past = (wp.full_like(c, unknown) for _ in range(carry_kernels.PAST))
+            self._carry_other[key] = (c, wp.zeros_like(c), *past)
+        return self._carry_other[key]
 
-    def _keep_carry(self, h: float) -> None:
-        """A kept step of h whose first solve ran: the value it measured joins the past and c is extrapolated
-        for the next step (`carry`, kernels/carry.py)."""
-        c, c_next, *past = self._carry_arrays(h)
+    def _substep_carries(self, h: float) -> tuple[wp.array, wp.array, wp.array]:
+        """The carried right-hand sides of the substeps of size h of split or halved steps (c, the measured c,
+        the past; a row a stage as at dt): the fused kernel's substep launches take the arrays
+        (`FusedSteps._substep_launch`), the parallel schedule's steps their rows (`_carry_other`), so both
+        take the same c."""
+        arrays = self._substep_carry.get(h)
+        if arrays is None:
+            arrays = tuple(wp.empty_like(a) for a in (self._carry, self._carry_next, self._carry_past))
+            arrays[0].zero_()
+            arrays[1].zero_()
+            arrays[2].fill_(wp.vec3d(math.nan, math.nan, math.nan))
+            carry, carry_next, carry_past = self._substep_carry[h] = arrays
+            past = carry_kernels.PAST
+            for r, (g, k) in enumerate(self._fractions if self.carry else ()):
+                self._carry_other[(g * h, k)] = (
+                    carry[r],
+                    carry_next[r],
+                    *(carry_past[past * r + i] for i in range(past)),
+                )
+        return arrays
+
+    def _keep_carry(self, key: tuple[float, int]) -> None:
+        """A kept step of `key` (step size, stage) whose first solve ran: the value it measured joins the past
+        and c is extrapolated for the next step (`carry`, kernels/carry.py)."""
+        c, c_next, *past = self._carry_arrays(key)
         wp.launch(carry_kernels.carry_keep, c.shape[0], inputs=[c_next], outputs=[c, *past],
                   device=self.model.device)  # fmt: skip
 
-    def _carries_of(self, h: float) -> tuple[wp.array, ...]:
-        """What steps of h carry to the next (`carry`): c and the values measured in the last kept steps."""
-        c, _, *past = self._carry_arrays(h)
+    def _carries_of(self, key: tuple[float, int]) -> tuple[wp.array, ...]:
+        """What steps of `key` (step size, stage) carry to the next (`carry`): c and the values measured in the
+        last kept steps."""
+        c, _, *past = self._carry_arrays(key)
         return c, *past
 
-    def _carries(self) -> dict[float, tuple[wp.array, ...]]:
-        """`_carries_of` every step size that has them (`carry`)."""
-        return {h: self._carries_of(h) for h in (*self._carry_rows, *self._carry_other)} if self.carry else {}
+    def _carries(self) -> dict[tuple[float, int], tuple[wp.array, ...]]:
+        """`_carries_of` every (step size, stage) that has them (`carry`)."""
+        return {k: self._carries_of(k) for k in (*self._carry_rows, *self._carry_other)} if self.carry else {}
 
     def _forget_carry(self, world: int | None = None) -> None:
         """No c to carry, for one world or all: its state was set from outside the step (`reset`, `set_state`)."""

@@ -92,7 +92,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         order: 2, 4 or 6 in time. 2 is the paper's step; 4 and 6 compose it symmetrically, some substeps
             running backwards (`composition.py`). Spin splits and halving on failure apply to whole composed
             steps. Without `tolerance`, the tolerance follows the order (`composition.default_tolerance`:
-            1e-6 at order 2, 10 dt^(order+1) in [1e-12, 1e-6] at 4 and 6) so that it does not cap the order.
+            1e-6 at order 2, 10 dt^5 at 4 and 200 dt^7 at 6 in [1e-12, 1e-6]) so that it does not cap the order.
         contact_solver: "pgs" or "paper" (`contacts.CONTACT_SOLVERS`): how the contacts' push-only impulses are
             found in the correction loop. Contacts hold to `tolerance` (m) like the joints.
         contact_margin: shapes closer than this (m) on the predicted state are contacts (speculative ones push
@@ -197,7 +197,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._clock = (0.0, 0)  # (time, step count) the clock counts steps of dt from (`_set_step_size`)
 
         self._state = model.state()  # read as `state`, which hands it out
-        self._handout = 0  # 1 where the last step left its velocity correction to be taken (`state`)
+        self._handout = 0  # true where the last step left its velocity correction to be taken (`state`)
         self.pred = model.state()
         self.control = model.control()
         self._user_force = np.zeros((model.body_count, 3))
@@ -222,10 +222,12 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self.response_w = wp.zeros_like(self.response_v)
         self.newton_rhs = wp.zeros(nc if self.newton else 0, dtype=wp.vec3d, device=d)
         # The first iteration's carried right-hand side (`carry`, kernels/carry.py): a row of c (and of the value
-        # measured in the step, taken when it is kept) for each step size of a stage at dt, the others' on demand.
+        # measured in the step, taken when it is kept) for each stage at dt (`composition.stage_keys`: stages of
+        # one size keep one each), the other step sizes' on demand. Keys are (step size, stage of that size).
         self.carry = bool(carried if carry is None else carry)
-        self._fractions = tuple(dict.fromkeys((*self.scheme.stages, 1.0)))  # 1.0: a composed step's order-2 fallback
-        self._carry_rows = {g * dt: r for r, g in enumerate(self._fractions)}
+        # (1.0, 0): a composed step's order-2 fallback
+        self._fractions = tuple(dict.fromkeys((*composition.stage_keys(self.scheme.stages), (1.0, 0))))
+        self._carry_rows = {(g * dt, k): r for r, (g, k) in enumerate(self._fractions)}
         rows = len(self._fractions) if self.carry else 0
         self._carry = wp.zeros((rows, nc), dtype=wp.vec3d, device=d)
         self._carry_next = wp.zeros_like(self._carry)
@@ -234,7 +236,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._carry_past = wp.full(
             (carry_kernels.PAST * rows, nc), wp.vec3d(math.nan, math.nan, math.nan), dtype=wp.vec3d, device=d
         )
-        self._carry_other: dict[float, tuple[wp.array, ...]] = {}  # halved and split step sizes
+        self._carry_other: dict[tuple[float, int], tuple[wp.array, ...]] = {}  # halved and split step sizes
+        self._substep_carry: dict[float, tuple[wp.array, ...]] = {}  # their rows, by substep size (`_substep_carries`)
         self.linear = None
         if nc == 0:  # free bodies only: nothing to solve
             pass
@@ -300,7 +303,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                              f"joint correction; this simulator has {why}")  # fmt: skip
         self.defer_velocities = bool(defer_velocities is not False and not why)
         self._launches_by_h: dict[float, tuple] = {}
-        self._loops_by_h: dict[float, tuple] = {}  # the parallel schedule's device-decided loops (`_device_loops`)
+        self._loops_by_h: dict[tuple[float, int], tuple] = {}  # the parallel schedule's loops (`_device_loops`)
         self._v0 = wp.zeros_like(self._state.body_v)
         self._w0 = wp.zeros_like(self._state.body_w)
         self.summary = wp.zeros(2, dtype=wp.float64, device=d)  # NaN/Inf bodies, largest |w|
@@ -344,6 +347,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._loop_rows_counted = self.linear is not None and "loops" in self.features  # `redundant_rows`
         self._lazy_hand_out = int(self.defer_velocities)
         """Whether the steps leave the velocity correction of the state they hand out to `state`."""
+        self._read = False  # the velocities were read since the last call (`_lazy_call`)
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
         """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
 
@@ -358,9 +362,20 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         between steps thus moves the next step's start by the correction, within the tolerance, as handing the
         state out at every call did. A velocity correction that leaves more than the tolerance is reported here,
         under the iteration-limit policy, as the step would have reported it."""
+        self._read = True
         if self._handout:
             self._hand_out()
         return self._state
+
+    def _lazy_call(self) -> int:
+        """Whether this call's steps all leave their velocity correction to `state` (with `defer_velocities`), or
+        its last step takes it itself: for a reader, who read the velocities after the last call, and whose next
+        read is then free (one launch, not two: a controller that reads the state every tick pays what handing
+        out every step cost). The state the steps reach is the same either way: the correction is the same solve
+        on the same state and factor."""
+        lazy = self._lazy_hand_out and not self._read
+        self._read = False
+        return lazy
 
     def _hand_out(self) -> None:
         """The velocity correction the last step left (`state`), with the factor of the state's K: on the fused
@@ -458,9 +473,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         fell_back = len(self._fused_stages) < len(self.scheme.stages)
         self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
-        rows = [self._carry_rows[g * self.dt] for g in self._fused_stages]
+        rows = [self._carry_rows[(g * self.dt, k)] for g, k in composition.stage_keys(self._fused_stages)]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
         self._fused_by_h: dict[float, wp.Graph | Packed] = {}
+        self._substep_by_h: dict[float, Packed] = {}  # the launches of split steps' substeps (`_split_step`)
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
 
@@ -478,8 +494,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         """Take steps of h from the current time on (the accuracy controller's hook, `accuracy.py`). The carried
         right-hand sides stay: those of the last step size start the first iteration nearer than nothing, and the
         iterations after it hold the tolerance whatever it started from (`carry`)."""
-        if h not in self._carry_rows:
-            self._carry_rows = {g * h: r for r, g in enumerate(self._fractions)}
+        if (h, 0) not in self._carry_rows:
+            self._carry_rows = {(g * h, k): r for r, (g, k) in enumerate(self._fractions)}
         self.dt = h
         self._clock = (self.time, self.step_count)
         self._alike = (0, 0)
@@ -564,7 +580,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         (`combined`'s figures, substeps the steps' count), for a caller that combines them anyway."""
         if self.batch is not None:
             return [self.batch.step() for _ in range(n)]
-        lazy = self._lazy_hand_out
+        lazy = self._lazy_call()
         if self.schedule != "fused":
             out = [self._step_parallel(not lazy and i == n - 1) for i in range(n)]
             self._handout = lazy
@@ -577,7 +593,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 self._handout = lazy
                 done += 1
             else:
-                done += self._fused_steps(n - done, combine, out)
+                done += self._fused_steps(n - done, combine, out, lazy)
         return out
 
     def fall_back(self, reason: str) -> None:

@@ -242,7 +242,7 @@ class SplitSimulator(Simulator):
         self._singular = wp.zeros((count, 2), dtype=wp.int32, device=d)
         self._out_view, self._singular_view = self._out.numpy(), self._singular.numpy()
         p = self.pred
-        c, c_next, *_ = self._carry_arrays(self.dt) if self.carry else (self.rhs, self.rhs)  # (`Simulator.carry`)
+        c, c_next, *_ = self._carry_arrays((self.dt, 0)) if self.carry else (self.rhs, self.rhs)  # (`Simulator.carry`)
         scratch = dict(pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, v0=self._v0, w0=self._w0,
                        carrying=int(self.carry), carry=c, carry_next=c_next)  # fmt: skip
         sources = (self.linear.fused_args, self.model, self.frames, self.control, self, self.linear.device_pattern,
@@ -349,8 +349,10 @@ class SplitSimulator(Simulator):
                     ok = False
             row[s.STATUS_JOINT_ITERATIONS] = iterations
             row[s.STATUS_JOINT_ERROR] = err
-            if not ok:
+            if not ok:  # the failed attempt's work, as the fused kernel writes it (one stage, no velocity pass)
                 wp.capture_launch(self._restore)
+                row[s.STATUS_VELOCITY_ITERATIONS] = 0
+                row[s.STATUS_LINEAR_ITERATIONS] = iterations
                 row[s.STATUS_CODE] = s.RETRY
                 return status
             spin = new_spin
@@ -383,7 +385,7 @@ class SplitSimulator(Simulator):
             row[s.STATUS_FAILED_VELOCITY] = _max_or_nan(0.0, verr) if code == s.VELOCITY else 0.0
             row[s.STATUS_CODE] = code
             if self.carry and iterations and code in (s.OK, s.VELOCITY):  # the step is kept: so is its c
-                self._keep_carry(self.dt)
+                self._keep_carry((self.dt, 0))
             if code != s.OK:
                 return status
         return status

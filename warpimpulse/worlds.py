@@ -230,7 +230,7 @@ class Batch:
         stats.substeps[batch] += 1
         if sim.carry:  # the worlds kept whose first solve ran keep the c it measured (`Simulator.carry`)
             if h not in self._commits:
-                c, c_next, *past = sim._carry_arrays(h)
+                c, c_next, *past = sim._carry_arrays((h, 0))
                 self._commits[h] = sim._record(carry_kernels.carry_commit, sim.model.constraint_count,
                                                world_take=self.world_take, carry_next=c_next, carry_out=c,
                                                **{f"past{k + 1}_out": p for k, p in enumerate(past)})  # fmt: skip
@@ -268,8 +268,8 @@ class Batch:
         solo._update_frames()
         solo._spin = self._spin0[world]
         nc = sim.model.world_constraint_count
-        for h, arrays in sim._carries().items():  # the world's c and past of every step size (`Simulator.carry`)
-            for mine, theirs in zip(solo._carries_of(h), arrays):
+        for key, arrays in sim._carries().items():  # the world's c and past of every step size (`Simulator.carry`)
+            for mine, theirs in zip(solo._carries_of(key), arrays):
                 wp.copy(mine, theirs, 0, world * nc, nc)
         try:
             result = solo.step()
@@ -280,8 +280,8 @@ class Batch:
             return
         for name in ("body_x", "body_q", "body_v", "body_w"):
             wp.copy(getattr(sim.state, name), getattr(solo.state, name), world * n, 0, n)
-        for h, arrays in solo._carries().items():
-            for theirs, mine in zip(sim._carries_of(h), arrays):
+        for key, arrays in solo._carries().items():
+            for theirs, mine in zip(sim._carries_of(key), arrays):
                 wp.copy(theirs, mine, world * nc, 0, nc)
         if self._drives:
             wp.copy(sim.drive_integral, solo.drive_integral, drives.start, 0, self._drives)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from . import pareto
+from .blocks import markers, write_block
 from .harness import CHECK_RATE, DRIFT_DURATION, ERROR_TIME, REFERENCE_RATE, SCALING_RATE, SCALING_TOLERANCE, log
 
 BAR_SCENE = "tree127"  # the scene of "the bar": ours against the fastest MuJoCo at matched error
@@ -375,7 +376,8 @@ def growth_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
-README_BEGIN, README_END = "<!-- results:begin -->", "<!-- results:end -->"
+README_BLOCK = "results"  # the block of docs/results.md written from run_vs_error.json (`blocks.write_block`)
+README_BEGIN, README_END = markers(README_BLOCK)
 
 
 def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
@@ -415,17 +417,6 @@ def readme_block(results: dict, plots_dir: str = "benchmarks/results") -> str:
     if scale:
         lines += scaling_markdown(scale, "###") + [f"![Scaling]({plots_dir}/scaling.png)", ""]
     return "\n".join(lines)
-
-
-def write_readme_block(path: Path, block: str) -> None:
-    """Replace the text between the results markers of `path`, and nothing else."""
-    text = path.read_text()
-    begin, end = text.find(README_BEGIN), text.find(README_END)
-    if begin < 0 or end < begin:
-        raise ValueError(f"{path} has no {README_BEGIN} ... {README_END} block to regenerate")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text[: begin + len(README_BEGIN)] + "\n" + block.strip() + "\n" + text[end:])
-    tmp.replace(path)
 
 
 def plots(results: dict, directory: Path) -> list[Path]:
@@ -556,7 +547,7 @@ def main(argv: list[str] | None = None) -> int:
     text = write(results, args.plots, args.report)
     if args.readme:
         plots_dir = os.path.relpath(args.plots or Path("benchmarks/results"), args.readme.resolve().parent)
-        write_readme_block(args.readme, readme_block(results, Path(plots_dir).as_posix()))
+        write_block(args.readme, README_BLOCK, readme_block(results, Path(plots_dir).as_posix()))
         log(f"regenerated the results block of {args.readme}")
     sys.stdout.write(text)
     return 0
