@@ -256,15 +256,20 @@ def test_substep_rules_apply_to_whole_composed_steps():
     builder.bodies[1].linear_velocity = np.cross(
         [0.0, 18.0, 0.0], builder.bodies[1].position - builder.joints[1].anchor
     )
+    # K factored at every stage in both (`reuse_factor` would keep it along different sequences of stages)
     split = warpimpulse.Simulator(
-        builder.finalize(), 1 / 20, tolerance=1e-10, order=4, options=warpimpulse.StepOptions(max_rotation=0.5)
+        builder.finalize(),
+        1 / 20,
+        tolerance=1e-10,
+        order=4,
+        options=warpimpulse.StepOptions(max_rotation=0.5, reuse_factor=False),
     )
     halves = warpimpulse.Simulator(
         builder.finalize(),
         1 / 40,
         tolerance=1e-10,
         order=4,
-        options=warpimpulse.StepOptions(max_rotation=None, reuse_factor=False),  # K at every stage, as the split
+        options=warpimpulse.StepOptions(max_rotation=None, reuse_factor=False),
     )
     stats = split.step()
     assert stats.substeps == 2 and stats.order == 4
@@ -276,7 +281,7 @@ def test_failed_composed_step_is_redone_as_two_halves():
     """A stage that runs out of iterations undoes the whole composed step, which is redone as two composed
     halves: the same bits as a simulator at dt/2."""
     builder = scenes.double_pendulum(angles=(1.0, 2.0))
-    # K at every stage, as the parallel schedule takes the halves (`reuse_factor` keeps it in the fused one)
+    # K factored at every stage in both (`reuse_factor` would keep it along different sequences of stages)
     settings = dict(tolerance=1e-12, order=4, max_iterations=5, max_rotation=None, reuse_factor=False)
     whole = warpimpulse.Simulator(builder.finalize(), 1 / 10, **warpimpulse.StepOptions.fold(settings))
     halves = warpimpulse.Simulator(builder.finalize(), 1 / 20, **warpimpulse.StepOptions.fold(settings))

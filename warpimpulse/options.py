@@ -57,12 +57,12 @@ class StepOptions:
             left more than `types.STALE_FACTOR_RATE` of the error, and where a stage took more solves with the older
             factor than with K of its own start (for a doubling hold of stages where the factor had not paid). Measured
             (benchmarks/reuse_factor.py, docs/history.md), `step(240)` at tolerance 1e-6: at order 4 and h = 1/480,
-            0.69-0.73 of the time on chains of 20 and 50 and the paper's tree, 0.89-0.92 on the arm and the humanoid; at
-            order 4 and h = 1/120 0.89 on the tree, 0.99-1.02 on serial scenes; at order 2 0.76 on the tree at h =
-            1/480, 1.00-1.04 at h = 1/120 on serial scenes. None: on at order 4 and 6 (whose stages go back and forth
-            about the step), off at order 2. True is a ValueError where it is not taken: the parallel schedule, threads'
-            split step (threads > 1), another solver, the split formulation, rows (limits, stiff motors, distance
-            constraints: their system S is formed with K^-1) and loops (the factorization decides their redundant rows).
+            0.68-0.81 of the time on chains of 20 and 50 and the paper's tree, 0.94-0.96 on the arm and the humanoid; at
+            order 2 and h = 1/480 0.71 on the tree; at h = 1/120 1.00-1.05 on serial scenes (0.95 on the tree at order
+            4). None: on at order 4 and 6 (whose stages go back and forth about the step), off at order 2. True is a
+            ValueError where it is not taken: the parallel schedule, threads' split step (threads > 1), another solver,
+            the split formulation, rows (limits, stiff motors, distance constraints: their system S is formed with K^-1)
+            and loops (the factorization decides their redundant rows).
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set of
             kinds, cached on disk); False shares one module for all kinds.
         max_rotation: a step in which some body would turn further than this (rad) is taken as 2, 4, ... equal

@@ -417,7 +417,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             raise ValueError(f"reuse_factor needs the fused Cholesky step without rows or loops; this simulator has "
                              f"{why}")  # fmt: skip
         # None: at order 4 and 6, whose stages go back and forth about the step and so move the arms of K less
-        # than a step of order 2 does (benchmarks/reuse_factor.py: at order 2 and h = 1/120, 1.00-1.04 of the time).
+        # than a step of order 2 does (benchmarks/reuse_factor.py: at order 2 and h = 1/120, 1.00-1.05 of the time).
         return bool((wanted or (wanted is None and self.order > 2)) and not why)
 
     @property
