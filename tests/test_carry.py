@@ -183,6 +183,7 @@ def test_a_hinge_axis_rows_turn_with_its_first_body():
         np.testing.assert_allclose(p, rows[0] @ r.T, atol=1e-12)
 
 
+@pytest.mark.fused
 def test_each_stage_of_a_composition_keeps_its_c():
     """suzuki5's stages p, p, 1 - 4p, p, p keep a row of c each (and the order-2 fallback one), so that each is
     measured a whole step apart at its own point of the step (`composition.stage_keys`); the fused kernel's
