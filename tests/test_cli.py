@@ -276,6 +276,7 @@ def test_correction_flags_are_taken_and_recorded(option, flag, taken, tmp_path, 
     assert code == 2 and any(f"{option} needs" in line and "'cg'" in line for line in lines), lines
 
 
+@pytest.mark.fused
 @pytest.mark.parametrize(("flag", "order", "taken"), [("auto", 2, False), ("auto", 4, True), ("on", 2, True),
                                                     ("off", 4, False)])  # fmt: skip
 def test_reuse_factor_flag_is_taken_and_recorded(flag, order, taken, tmp_path, capsys):

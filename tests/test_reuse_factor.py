@@ -21,6 +21,8 @@ from warpimpulse import scenes
 
 ROOT = Path(__file__).resolve().parent.parent
 TOLERANCE = 1e-6
+pytestmark = pytest.mark.fused  # K's factor kept across steps is the fused kernel's (`reuse_factor`)
+
 SCENES = {
     "chain20": lambda: scenes.chain(20),
     "arm7": lambda: wi.load_mjcf(ROOT / "benchmarks/models/arm7.xml"),
