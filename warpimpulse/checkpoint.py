@@ -62,7 +62,7 @@ class Checkpoints:
         for name in STATE:
             getattr(self._state, f"body_{name}").assign(data[name])
         due = bool(data.get("handout_due", False))  # older files hold handed-out states
-        self._handout = int(due and self._lazy_hand_out)
+        self._handout = due and self.defer_velocities
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
         self._clock = (0.0, 0) if self.accuracy is None else (self.time, self.step_count)
         if self.accuracy is not None:
@@ -90,7 +90,7 @@ class Checkpoints:
                         p.assign(past)
         self._active_forces = None
         self._update_frames()
-        if due and not self._lazy_hand_out:  # a state saved with its velocity correction due, resumed here
+        if due and not self.defer_velocities:  # a state saved with its velocity correction due, resumed here
             self._correct_velocities()
         if self.reuse_factor and "factor" in data:  # the factor the run went on with, not one of this state
             self.linear.values.assign(data["factor"])

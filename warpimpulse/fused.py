@@ -216,7 +216,7 @@ class FusedSteps:
             start, count = self._alike
         return min(limit, start + count - self.step_count)
 
-    def _fused_steps(self, n: int, combine: bool, out: list[StepStats], lazy: int) -> int:
+    def _fused_steps(self, n: int, combine: bool, out: list[StepStats], lazy: bool) -> int:
         """n steps by the fused schedule, as few launches as the forces allow, their stats appended to `out`
         (`_steps`' `combine`); a step it hands back (a spin split, a failed correction) is split, halved or
         reported (`_handed_back`). `lazy`: the last step leaves its velocity correction to `state` too
@@ -229,7 +229,7 @@ class FusedSteps:
             batch = self._steps_alike(min(n - done, self.FUSED_BATCH))
             hand_out = not lazy and done + batch == n
             status, summary = self._run_fused(batch, hand_out)  # the batch's one read-back
-            self._handout = self._lazy_hand_out and not hand_out
+            self._handout = self.defer_velocities and not hand_out
             first = int(summary[columns.STATUS_CODE])  # the OK steps, which the kernel stops after
             if first:
                 out += self._fused_stats(status, first, summary, order, fallback, combine)
@@ -238,7 +238,7 @@ class FusedSteps:
             if first < batch:
                 hand_out = not lazy and done + 1 == n
                 out.append(self._handed_back(status[first], hand_out))
-                self._handout = self._lazy_hand_out and not hand_out
+                self._handout = self.defer_velocities and not hand_out
                 done += 1
             elif first:
                 self._spin = summary[columns.STATUS_SPIN]
@@ -255,9 +255,7 @@ class FusedSteps:
         status, summary = self._run_fused(1, not lazy)
         self._handout = lazy
         if summary[_CODE]:  # the step went OK
-            joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(summary)
-            stats = StepStats(int(joint), int(velocity), joint_error, velocity_error, True, int(linear), 1,
-                              *self._fused_order)  # fmt: skip
+            stats = self._status_stats(summary, 1, *self._fused_order)
             self._advance_clock(1)
             self._spin = summary[_SPIN]
             if self._loop_rows_counted:  # a lost pivot stops the step (SINGULAR): only loop rows to count

@@ -197,7 +197,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._clock = (0.0, 0)  # (time, step count) the clock counts steps of dt from (`_set_step_size`)
 
         self._state = model.state()  # read as `state`, which hands it out
-        self._handout = 0  # true where the last step left its velocity correction to be taken (`state`)
+        self._handout = False  # the last step left its velocity correction to be taken (`state`)
         self.pred = model.state()
         self.control = model.control()
         self._user_force = np.zeros((model.body_count, 3))
@@ -345,8 +345,6 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._check_finite(self._state, 0)
         self._ticks = self.schedule == "fused" and plan is None  # `step()` is one fused launch (`_fused_step`)
         self._loop_rows_counted = self.linear is not None and "loops" in self.features  # `redundant_rows`
-        self._lazy_hand_out = int(self.defer_velocities)
-        """Whether the steps leave the velocity correction of the state they hand out to `state`."""
         self._read = False  # the velocities were read since the last call (`_lazy_call`)
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
         """The step-size controller where `accuracy` was given (`accuracy.Controller`: its plan, horizon, step)."""
@@ -367,13 +365,13 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             self._hand_out()
         return self._state
 
-    def _lazy_call(self) -> int:
+    def _lazy_call(self) -> bool:
         """Whether this call's steps all leave their velocity correction to `state` (with `defer_velocities`), or
         its last step takes it itself: for a reader, who read the velocities after the last call, and whose next
         read is then free (one launch, not two: a controller that reads the state every tick pays what handing
         out every step cost). The state the steps reach is the same either way: the correction is the same solve
         on the same state and factor."""
-        lazy = self._lazy_hand_out and not self._read
+        lazy = self.defer_velocities and not self._read
         self._read = False
         return lazy
 
@@ -381,7 +379,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         """The velocity correction the last step left (`state`), with the factor of the state's K: on the fused
         schedule one launch of its kernel that takes no step, on the parallel one its velocity pass. One that
         leaves more than the tolerance is reported as the step's would have been."""
-        self._handout = 0
+        self._handout = False
         if self.schedule == "fused":
             row = self._run_fused(0, True)[0][0]
             error = float(row[step_kernels.STATUS_FAILED_VELOCITY])
@@ -631,7 +629,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         and velocities, no user loads (`set_external_forces`), no warm start, the motors' built targets and
         no PID integral."""
         self._state.copy_from(self.model.state())
-        self._handout = 0
+        self._handout = False
         self.drive_target.assign(self.model.host.drive_target)
         self.drive_integral.zero_()
         self.time, self.step_count = 0.0, 0
