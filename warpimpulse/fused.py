@@ -7,8 +7,6 @@ reads one status row a step back, or one summary row of the batch."""
 
 from __future__ import annotations
 
-import operator
-
 import numpy as np
 import warp as wp
 
@@ -17,13 +15,12 @@ from .kernels import step as step_kernels
 from .launch import Packed, record
 from .steps import StepStats, combined
 
-# A status row's figures in StepStats' order (`Simulator._status_stats`): one C call where indexing the row by
-# each column's name takes five.
-_STATUS_FIGURES = operator.itemgetter(
-    step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS, step_kernels.STATUS_JOINT_ERROR,
-    step_kernels.STATUS_VELOCITY_ERROR, step_kernels.STATUS_LINEAR_ITERATIONS,
-)  # fmt: skip
-_CODE, _SPIN = step_kernels.STATUS_CODE, step_kernels.STATUS_SPIN  # read by each `step()`: a global each
+# A status row's columns, read by each `step()` (`Simulator._status_stats`): a global each.
+_JOINT, _VELOCITY = step_kernels.STATUS_JOINT_ITERATIONS, step_kernels.STATUS_VELOCITY_ITERATIONS
+_JOINT_ERROR, _VELOCITY_ERROR = step_kernels.STATUS_JOINT_ERROR, step_kernels.STATUS_VELOCITY_ERROR
+_LINEAR = step_kernels.STATUS_LINEAR_ITERATIONS
+_bare = object.__new__
+_CODE, _SPIN = step_kernels.STATUS_CODE, step_kernels.STATUS_SPIN
 
 
 class FusedSteps:
@@ -247,23 +244,35 @@ class FusedSteps:
         return done
 
     def _fused_step(self) -> StepStats:
-        """One step (`step()`, the call a controller makes each tick): `_fused_steps`' work for n = 1 without its
-        loop's bookkeeping (one launch of one step, whose velocity correction `state` takes if it is read)."""
+        """One step (`step()`, the call a controller makes each tick, on a CPU): `_fused_steps`' work for n = 1
+        without its loop's bookkeeping, `_lazy_call`, `_run_fused` and `_advance_clock` written out (their calls
+        were a third of the host's time of a tick): one launch of one step, whose velocity correction `state`
+        takes if it is read."""
         if self._forces_timed or self._active_forces is None:
             self._update_forces()
-        lazy = self._lazy_call()
-        status, summary = self._run_fused(1, not lazy)
+        lazy = self.defer_velocities and not self._read
+        self._read = False
+        status, summary_view, batch_view, spin_view = self._views
+        batch_view[0], batch_view[1], spin_view[0] = 1, not lazy, self._spin
+        (self._fused_by_h.get(self.dt) or self._fused_launch(self.dt)).launch()
+        summary = summary_view.tolist()
         self._handout = lazy
         if summary[_CODE]:  # the step went OK
             stats = self._status_stats(summary, 1, *self._fused_order)
-            self._advance_clock(1)
+            if stats.fallback:
+                self._note_fallbacks([stats], self.time)
+            self.step_count += 1
+            time, start = self._clock
+            self.time = time + (self.step_count - start) * self.dt
             self._spin = summary[_SPIN]
             if self._loop_rows_counted:  # a lost pivot stops the step (SINGULAR): only loop rows to count
                 self.linear.check()
             return stats
+        start = self.time
         stats = self._handed_back(status[0], not lazy)
         if self.linear is not None:
             self.linear.check()  # and the redundant loop rows of the last factorization
+        self._note_fallbacks([stats], start)
         return stats
 
     def _handed_back(self, row: np.ndarray, hand_out: bool) -> StepStats:
@@ -304,11 +313,18 @@ class FusedSteps:
 
     @staticmethod
     def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
-        """A StepStats of a status row (or of the summary row of `steps` steps)."""
-        joint, velocity, joint_error, velocity_error, linear = _STATUS_FIGURES(row)
-        return StepStats(
-            int(joint), int(velocity), joint_error, velocity_error, True, int(linear), steps, order, fallback
-        )
+        """A StepStats of a status row (or of the summary row of `steps` steps). Made without `__init__`: the
+        figures a row holds set on a bare instance, the fields it has no figure for left at their class defaults
+        (a dataclass keeps a field's default as a class attribute), in a third of the time of the 14-field
+        `__init__` (each `step()` makes one)."""
+        stats = _bare(StepStats)
+        stats.joint_iterations = int(row[_JOINT])
+        stats.velocity_iterations = int(row[_VELOCITY])
+        stats.max_joint_error = row[_JOINT_ERROR]
+        stats.max_velocity_error = row[_VELOCITY_ERROR]
+        stats.linear_iterations = int(row[_LINEAR])
+        stats.substeps, stats.order, stats.fallback = steps, order, fallback
+        return stats
 
     def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:
         """Up to `batch` steps of dt by the fused kernel, from the spin of the last step: their status rows and
