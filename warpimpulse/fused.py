@@ -258,12 +258,13 @@ class FusedSteps:
         summary = summary_view.tolist()
         self._handout = lazy
         if summary[_CODE]:  # the step went OK
-            stats = self._status_stats(summary, 1, *self._fused_order)
-            if stats.fallback:
+            order, fallback = self._fused_order
+            stats = self._status_stats(summary, 1, order, fallback)
+            if fallback:
                 self._note_fallbacks([stats], self.time)
-            self.step_count += 1
+            self.step_count = count = self.step_count + 1
             time, start = self._clock
-            self.time = time + (self.step_count - start) * self.dt
+            self.time = time + (count - start) * self.dt
             self._spin = summary[_SPIN]
             if self._loop_rows_counted:  # a lost pivot stops the step (SINGULAR): only loop rows to count
                 self.linear.check()
