@@ -531,10 +531,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 return self.accuracy.step(n)
             if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
                 raise ValueError(f"n must be an integer >= 1, got {n!r}")
-        start = self.time
         try:
             if lean:
                 return self._fused_step()  # its fallbacks noted there
+            start = self.time
             steps = self._steps(n, combine=n > 1)
         except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
             note = self._runaway_note()
