@@ -87,6 +87,14 @@ VELOCITY = wp.constant(4)
 
 
 @wp.struct
+class Absent:
+    """What a fused kernel takes for `ForceElements` or `Rows` where its scene has none (`fused`): a word where
+    those structs' 36 and 35 arrays would be copied in at every launch, unused."""
+
+    none: int
+
+
+@wp.struct
 class ForceElements:
     """A scene's force elements for the fused step (`fused(kinds, forced=True)`): the springs, the drives that
     are forces (`Model.drive_element`) and every drive's PID state, the wrench rows of each body, and the
@@ -916,6 +924,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     own system S, formed with the factor at each new state; the host passes one stage (the parallel schedule
     takes such steps at order 2: impacts and saturation are not reversible). The iterative baseline has none."""
     ck = specialized(kinds)
+    Elements = ForceElements if forced else Absent  # noqa: N806 (the types of two kernel arguments)
+    LimitRows = Rows if rows else Absent  # noqa: N806
     module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}{'_rows' if rows else ''}"
     wp.set_module_options({"enable_backward": False}, module)
     frame = ck.frame
@@ -1122,8 +1132,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         spin_in: wp.array(dtype=f64),
         body_force_in: wp.array(dtype=vec3d),
         body_torque_in: wp.array(dtype=vec3d),
-        elements: ForceElements,  # unused without `forced`
-        limit_rows: Rows,  # unused without `rows`
+        elements: Elements,  # `Absent` without `forced`
+        limit_rows: LimitRows,  # `Absent` without `rows`
         # Scratch: the prediction, the velocities of t0, errors, right-hand sides, impulses, the factor
         pred_x: wp.array(dtype=vec3d),
         pred_q: wp.array(dtype=quatd),

@@ -185,6 +185,48 @@ def test_joints_springs_and_dampers_follow_mujoco():
     assert worst(m, 1.0) < 1e-5
 
 
+GIMBALS = """
+<mujoco>
+  <worldbody>
+    <body name="upper" pos="0 0 2">
+      <joint name="sx" type="hinge" axis="1 0 0"/>
+      <joint name="sy" type="hinge" axis="0 1 1"/>
+      <geom type="capsule" fromto="0 0 0 0.1 0 -0.5" size="0.05"/>
+      <body name="lower" pos="0.1 0 -0.5">
+        <joint name="hx" type="hinge" axis="1 0 0"/>
+        <joint name="hz" type="hinge" axis="0 0 1"/>
+        <joint name="hy" type="hinge" axis="0 1 0"/>
+        <geom type="box" size="0.1 0.05 0.2" pos="0.05 0 -0.2"/>
+        <body name="foot" pos="0 0 -0.4">
+          <joint name="f1" type="hinge" axis="1 0 0" pos="0 0 0.05"/>
+          <joint name="f2" type="hinge" axis="0 1 0"/>
+          <geom type="sphere" size="0.08" pos="0.1 0 -0.1"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_hinges_through_one_point_are_one_universal_or_ball_joint():
+    """A body's two hinges through one point with nothing of their own are one universal joint, three one ball
+    joint (MuJoCo's body between them has no mass: the motion is the same, with no light body's 1e-6 of error),
+    and they follow MuJoCo's within 1e-5 m over 1 s; hinges through two points, or one with a limit, stay a chain
+    through a light body, and `merge_joints=False` keeps every chain."""
+    m = compiled(GIMBALS)
+    builder = wi.load_mjcf(m)
+    assert [(j.kind, j.name) for j in builder.joints] == [
+        ("universal", "sx+sy"), ("ball", "hx+hz+hy"), ("revolute", "f1"), ("revolute", "f2")
+    ]  # fmt: skip
+    assert [b.name for b in builder.bodies] == ["upper", "lower", "foot", "foot/f1"]
+    assert worst(m, 1.0) < 1e-5
+    limited = wi.load_mjcf(compiled(GIMBALS.replace('axis="0 1 1"', 'axis="0 1 1" range="-1 1"'), ("contact",)))
+    assert [j.name for j in limited.joints][:2] == ["sx", "sy"]
+    kept = wi.load_mjcf(m, merge_joints=False)
+    assert [b.name for b in kept.bodies] == ["upper", "lower", "foot", "upper/sx", "lower/hx", "lower/hz", "foot/f1"]
+
+
 def test_limits_are_the_mjcf_ranges_about_the_built_pose():
     m = compiled(CHAIN, off=("contact",))
     builder = wi.load_mjcf(m, qpos=np.r_[0.0, 0.0, 0.0, 0.01, 1, 0, 0, 0, 1, 0, 1, 1, 0, 0, 0])

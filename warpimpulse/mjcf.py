@@ -12,11 +12,14 @@ or (where no exact equivalent exists but the motion barely depends on it) mapped
   is a chain of the same joints through light bodies (mass `LIGHT` times the body's, at the joints' anchors),
   so that each joint keeps its own coordinate, limit, spring and motor; each light body is named
   "<body>/<joint>". MuJoCo evaluates a body's joints in order, each about the frame the previous ones left,
-  which is exactly a chain. limited range -> joint limit; stiffness/springref and damping -> joint spring;
-  frictionloss -> a stiff velocity motor of target 0 whose force is capped at the frictionloss (dry friction,
-  exact); armature -> on a hinge whose parent cannot turn (the world, or a body on slides from it), a massless
-  disc of that moment on the child (exact); elsewhere one warning naming the joints (MuJoCo adds it to the
-  joint-space mass matrix: no rigid body has that inertia).
+  which is exactly a chain. Where none of them carries any such element, two hinges through one point are one
+  universal joint and three or more whose axes span space one ball joint, named "<joint>+<joint>+..." (exact:
+  MuJoCo's hinges of one body have no mass between them; `merge_joints=False` keeps the chain).
+  limited range -> joint limit; stiffness/springref and damping -> joint spring; frictionloss -> a stiff
+  velocity motor of target 0 whose force is capped at the frictionloss (dry friction, exact); armature -> on a
+  hinge whose parent cannot turn (the world, or a body on slides from it), a massless disc of that moment on
+  the child (exact); elsewhere one warning naming the joints (MuJoCo adds it to the joint-space mass matrix: no
+  rigid body has that inertia).
 - actuators on a joint with gain "fixed" and bias "none" or "affine" (motor, position, velocity, and general
   ones of those forms) -> a motor (effort, velocity or position mode) and an `Actuator` that maps the control
   as `ctrl` does: force = gain ctrl + b0 + b1 length + b2 velocity, length = gear q, torque = gear force.
@@ -52,6 +55,10 @@ LIGHT = 1e-6
 inertia is the same fraction of that body's mean principal moment. The motion differs from MuJoCo's by about
 this fraction."""
 
+MERGE_SPREAD = 1e-3
+"""The least singular value of a body's unit hinge axes (2 or 3 of them) for the set to be one universal or ball
+joint (`_Loader._merged`): nearly parallel axes are a chain, as built."""
+
 INSTALL = "MJCF needs MuJoCo's compiler: pip install 'warpimpulse[mjcf]' (or pip install mujoco)"
 
 
@@ -80,15 +87,19 @@ def compile_mjcf(source):
         raise SceneError(f"{what}: {' '.join(str(exc).split())}") from None
 
 
-def load_mjcf(source, ignore_unsupported: bool = False, qpos=None, qvel=None) -> SceneBuilder:
+def load_mjcf(
+    source, ignore_unsupported: bool = False, qpos=None, qvel=None, merge_joints: bool = True
+) -> SceneBuilder:
     """The MuJoCo model `source` (a path, an XML string, or a compiled `mujoco.MjModel`) as a SceneBuilder,
     built at `qpos` (default: the model's qpos0) with the joint velocities `qvel` (default 0); see the module
     docstring for what maps to what. An element with no equivalent is a `SceneError` naming it, or with
-    `ignore_unsupported` a warning and the element left out."""
+    `ignore_unsupported` a warning and the element left out. `merge_joints`: a body's hinges through one point
+    that carry nothing of their own are one universal or ball joint (exact, and cheaper); False keeps each hinge
+    a joint of its own (a chain through light bodies), to read or drive each angle later."""
     model = compile_mjcf(source)
     with warnings.catch_warnings(record=True) as caught:  # said at the caller's line, each once
         warnings.simplefilter("always")
-        builder = _Loader(model, ignore_unsupported, qpos, qvel).builder
+        builder = _Loader(model, ignore_unsupported, qpos, qvel, merge_joints).builder
     for w in caught:
         warnings.warn(w.message, w.category, stacklevel=2)
     return builder
@@ -97,9 +108,9 @@ def load_mjcf(source, ignore_unsupported: bool = False, qpos=None, qvel=None) ->
 class _Loader:
     """One pass over a compiled model: bodies, joints, actuators, equalities, geoms, in that order."""
 
-    def __init__(self, m, ignore_unsupported: bool, qpos, qvel) -> None:
+    def __init__(self, m, ignore_unsupported: bool, qpos, qvel, merge: bool = True) -> None:
         self.mj = mujoco = _mujoco()
-        self.m, self.ignore = m, ignore_unsupported
+        self.m, self.ignore, self.merge = m, ignore_unsupported, merge
         flags = m.opt.disableflags
         self.off = {k: bool(flags & int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{k.upper()}")))
                     for k in ("contact", "gravity", "limit", "spring", "damper", "frictionloss", "actuation",
@@ -270,6 +281,17 @@ class _Loader:
                 continue  # a free body (MuJoCo allows a free joint only alone, in a body of the world)
             child, up = int(self.group[body]), int(m.body_parentid[body])
             parent = int(self.group[up])
+            merged = self._merged(first, count) if self.merge else None
+            if merged is not None:  # one joint of ours is all of them, exactly: no light bodies
+                names = "+".join(self.name("joint", j) for j in range(first, first + count))
+                anchor, axes = d.xanchor[first], d.xaxis[first : first + count]
+                jparent = None if parent < 0 else parent
+                if merged == "universal":
+                    ours[first : first + count] = b.add_joint_universal(jparent, child, anchor, axes[0], axes[1],
+                                                                        name=names)  # fmt: skip
+                else:
+                    ours[first : first + count] = b.add_joint_ball(jparent, child, anchor, name=names)
+                continue
             mass, moments = b.bodies[child].mass, np.linalg.eigvalsh(b.bodies[child].inertia)
             # The velocity of the frame the joints so far leave, at `origin`: the parent's, then each joint's.
             origin = d.xanchor[first]
@@ -310,6 +332,34 @@ class _Loader:
                           "inertia reflected on the joint's rate alone; no rigid body has it unless the joint's "
                           "parent cannot turn; docs/mjcf.md)", stacklevel=2)  # fmt: skip
         return ours
+
+    def _merged(self, first: int, count: int) -> str | None:
+        """The joint of ours that a body's `count` joints from `first` are exactly, where none of them needs a
+        coordinate of its own: two hinges through one point are a universal joint (the first axis turns with the
+        parent, the second with the body, at the angle they were built at), three or more whose axes span space a
+        ball joint (MuJoCo's body between them has no mass: the same motion, away from the gimbal lock where its
+        hinges lose a freedom the ball keeps). None (a chain through light bodies) for any other set, or where a
+        joint has a limit, spring, damper, dry friction, armature or actuator (each acts on its own coordinate).
+        The light bodies cost: on the dm_control humanoid 9 of its 22 bodies and 54 of its 105 joint rows."""
+        m, d, mj = self.m, self.d, self.mj
+        joints = range(first, first + count)
+        if count < 2 or any(int(m.jnt_type[j]) != mj.mjtJoint.mjJNT_HINGE for j in joints):
+            return None
+        anchors = d.xanchor[first : first + count]
+        if np.abs(anchors - anchors[0]).max() > 1e-9 * max(1.0, float(np.abs(anchors[0]).max())):
+            return None
+        actuated = set(m.actuator_trnid[:, 0][m.actuator_trntype == mj.mjtTrn.mjTRN_JOINT].tolist())
+        for j in joints:
+            dof = int(m.jnt_dofadr[j])
+            if ((m.jnt_limited[j] and not self.off["limit"]) or (m.jnt_stiffness[j] > 0.0 and not self.off["spring"])
+                    or (m.dof_damping[dof] > 0.0 and not self.off["damper"]) or m.dof_armature[dof] > 0.0
+                    or (m.dof_frictionloss[dof] > 0.0 and not self.off["frictionloss"])
+                    or (j in actuated and not self.off["actuation"])):  # fmt: skip
+                return None
+        spread = np.linalg.svd(d.xaxis[first : first + count], compute_uv=False)  # unit axes
+        if count == 2:
+            return "universal" if spread[1] > MERGE_SPREAD else None
+        return "ball" if spread[2] > MERGE_SPREAD else None
 
     def _armature(self, jnt: int, link: int | None, axis: np.ndarray, name: str) -> None:
         """MuJoCo's armature a of a joint: kinetic energy a (dq/dt)^2 / 2 on its rate alone. On a hinge whose parent

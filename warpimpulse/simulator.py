@@ -343,7 +343,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         if self.redundant_rows:
             self._check_loops()
         self._check_finite(self._state, 0)
-        self._ticks = self.schedule == "fused" and plan is None  # `step()` is one fused launch (`_fused_step`)
+        # `step()` is one packed fused launch (`_fused_step`; a GPU's graph replays go through `_steps`)
+        self._ticks = self.schedule == "fused" and plan is None and self._views is not None
         self._loop_rows_counted = self.linear is not None and "loops" in self.features  # `redundant_rows`
         self._read = False  # the velocities were read since the last call (`_lazy_call`)
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
@@ -530,13 +531,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                 return self.accuracy.step(n)
             if not (isinstance(n, int) and not isinstance(n, bool) and n >= 1):
                 raise ValueError(f"n must be an integer >= 1, got {n!r}")
-        start = self.time
         try:
             if lean:
-                stats = self._fused_step()
-                if stats.fallback:
-                    self._note_fallbacks([stats], start)
-                return stats
+                return self._fused_step()  # its fallbacks noted there
+            start = self.time
             steps = self._steps(n, combine=n > 1)
         except SingularSystemError as err:  # a runaway load loses pivots too: name it rather than a joint
             note = self._runaway_note()
