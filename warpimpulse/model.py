@@ -42,12 +42,11 @@ def principal_axes(inertia: np.ndarray, dynamic: np.ndarray) -> tuple[np.ndarray
     n = len(inertia)
     moments, axes = np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
     off = inertia[:, [0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]]
-    for b in np.flatnonzero(dynamic & np.any(off != 0.0, axis=1)):
-        j, r = np.linalg.eigh(inertia[b])
-        if np.all(j > 0.0):
-            if np.linalg.det(r) < 0.0:
-                r[:, 2] = -r[:, 2]
-            moments[b], axes[b] = j, quat_from_matrix(r)
+    turned = np.flatnonzero(dynamic & np.any(off != 0.0, axis=1))
+    j, r = np.linalg.eigh(inertia[turned]) if len(turned) else (np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    r[:, :, 2] *= np.sign(np.linalg.det(r))[:, None]  # a rotation, not a reflection
+    for k in np.flatnonzero(np.all(j > 0.0, axis=1)):
+        moments[turned[k]], axes[turned[k]] = j[k], quat_from_matrix(r[k])
     return moments, axes
 
 
