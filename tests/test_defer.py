@@ -171,3 +171,21 @@ def test_a_velocity_correction_over_its_tolerance_says_what_it_left(schedule, de
         sim.step(3)
         sim.linear_velocities()
     assert "iterations" not in str(err.value)
+
+
+@pytest.mark.parametrize("worlds", [1, 2])
+@pytest.mark.parametrize("schedule", ["fused", "parallel"])
+def test_round_off_over_the_tolerance_takes_one_solve_more(schedule, worlds):
+    """One solve is exact but for round-off; where that leaves more than the velocity tolerance, one solve more
+    takes it up (`VELOCITY_SOLVES`, iterative refinement) before the step is reported: two velocity iterations
+    under a tolerance below round-off, on both schedules and in batched worlds."""
+    sim = wi.Simulator(
+        scenes.chain(5).replicate(worlds).finalize(),
+        1 / 60,
+        velocity_tolerance=1e-30,
+        on_max_iterations="warn",
+        options=wi.StepOptions(schedule=schedule, defer_velocities=False),
+    )
+    with pytest.warns(RuntimeWarning, match="the velocity correction left"):
+        stats = sim.step()
+    assert stats.velocity_iterations == wi.kernels.step.VELOCITY_SOLVES == 2

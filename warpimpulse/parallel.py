@@ -15,6 +15,7 @@ import warp as wp
 
 from . import composition
 from .kernels import loop as loop_kernels
+from .kernels import step as step_kernels
 from .launch import run
 from .steps import ROWS_FALLBACK, SimulationError, StepStats, combined
 
@@ -43,9 +44,10 @@ class ParallelSteps:
             finish = fix = None
             if not self.model.limit_count and not self._split_systems:
                 first = (*self._accept_work, self._integrate_drives, self._velocity_errors)
-                finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance, 1)
+                finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance,
+                                            step_kernels.VELOCITY_SOLVES)  # fmt: skip
                 fix = self._capture_loop((self._velocity_errors,), self._velocity_fix_work, errors[:1],
-                                         self.velocity_tolerance, 1)  # fmt: skip
+                                         self.velocity_tolerance, step_kernels.VELOCITY_SOLVES)  # fmt: skip
             self._loops_by_h[self._key] = (correct, finish, fix)
         return self._loops_by_h[self._key]
 
@@ -217,8 +219,10 @@ class ParallelSteps:
             self._correct_limit_velocities.launch()
             self._velocity_errors.launch()
         vel_err = self._max_error("velocity")
-        # One exact solve, except with the split systems (section 4.6), which iterate side by side.
-        while vel_err > self.velocity_tolerance and vel_it < (self.max_iterations if self._split_systems else 1):
+        # One exact solve (and one on its round-off, `VELOCITY_SOLVES`), except with the split systems (section 4.6),
+        # which iterate side by side.
+        limit = self.max_iterations if self._split_systems else step_kernels.VELOCITY_SOLVES
+        while vel_err > self.velocity_tolerance and vel_it < limit:
             solves += self._fix_velocities()
             vel_it += 1
             vel_err = self._max_error("velocity")

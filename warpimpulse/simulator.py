@@ -501,8 +501,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
 
     def _velocity_failed(self, error: float, sweeps: int = 0, counted: bool = False) -> None:
         """A velocity correction that left more than the tolerance, under the iteration-limit policy (the
-        message says what it left: it is one solve, or the contacts' few rounds, not an iteration limit; the
-        iterative solver's `sweeps` are said). `counted`: its step is on the clock already (`_may_iterate`)."""
+        message says what it left: it is one solve and one on its round-off, or the contacts' few rounds, not an
+        iteration limit; the iterative solver's `sweeps` are said). `counted`: its step is on the clock already
+        (`_may_iterate`)."""
         if not math.isfinite(error):
             self._max_error("velocity")
         self._may_iterate(

@@ -29,6 +29,7 @@ import warp as wp
 
 from .kernels import carry as carry_kernels
 from .kernels import loop as loop_kernels
+from .kernels import step as step_kernels
 from .model import State
 from .solver import SingularSystemError
 from .steps import SimulationError, StepStats
@@ -215,12 +216,16 @@ class Batch:
         sim.linear.check()
         sim._velocity_errors.launch()
         verr = self.world_max()
-        fix = batch & ~(verr <= sim.velocity_tolerance)
-        if fix.any():
-            sim.world_active.assign(fix.astype(np.int32))
+        fix = np.zeros(len(batch), dtype=np.int64)  # the solves of each world's velocity correction
+        for _ in range(step_kernels.VELOCITY_SOLVES):  # one exact solve, one more on its round-off
+            short = batch & ~(verr <= sim.velocity_tolerance)
+            if not short.any():
+                break
+            sim.world_active.assign(short.astype(np.int32))
             wp.capture_launch(sim._velocity_fix)
             verr = self.world_max()
-        batch &= verr <= sim.velocity_tolerance  # one exact solve stopped short: alone, where it is reported
+            fix += short
+        batch &= verr <= sim.velocity_tolerance  # a correction stopped short: alone, where it is reported
         stats.joint_iterations[batch] += iterations[batch]
         stats.velocity_iterations[batch] += fix[batch]
         stats.max_joint_error[batch] = np.maximum(stats.max_joint_error[batch], err[batch])
