@@ -399,6 +399,39 @@ def predict_turned(
 
 
 @wp.func
+def predict_of(
+    b: int,
+    x: vec3d,
+    q: quatd,
+    v: vec3d,
+    w: vec3d,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
+    force: vec3d,
+    torque: vec3d,
+    gravity: vec3d,
+    h: f64,
+):
+    """Body b's state after a step of h from (x, q, v, w): `predict_turned` for a TURNED body without torque, else
+    `predict_body` (every prediction of a body, alone, in a group or in a sweep, takes this one)."""
+    x1 = vec3d()
+    q1 = quatd()
+    v1 = vec3d()
+    w1 = vec3d()
+    if body_principal[b] == TURNED and torque[0] == f64(0.0) and torque[1] == f64(0.0) and torque[2] == f64(0.0):
+        x1, q1, v1, w1 = predict_turned(x, q, v, w, body_inv_mass[b], body_axes[b], body_euler[b], force, gravity, h)
+    else:
+        x1, q1, v1, w1 = predict_body(
+            x, q, v, w, body_inv_mass[b], body_inertia[b], body_inv_inertia[b], force, torque, gravity, h
+        )
+    return x1, q1, v1, w1
+
+
+@wp.func
 def predict_index(
     b: int,
     body_inv_mass: wp.array(dtype=f64),
@@ -420,24 +453,11 @@ def predict_index(
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """Body b's free motion over h from the state in, written to the state out (`predict_body`, or
-    `predict_turned` for a TURNED body without torque)."""
-    x = vec3d()
-    q = quatd()
-    v = vec3d()
-    w = vec3d()
-    t = body_torque_in[b]
-    if body_principal[b] == TURNED and t[0] == f64(0.0) and t[1] == f64(0.0) and t[2] == f64(0.0):
-        x, q, v, w = predict_turned(
-            body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b], body_inv_mass[b], body_axes[b], body_euler[b],
-            body_force_in[b], gravity, h,
-        )  # fmt: skip
-    else:
-        x, q, v, w = predict_body(
-            body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b],
-            body_inv_mass[b], body_inertia[b], body_inv_inertia[b],
-            body_force_in[b], body_torque_in[b], gravity, h,
-        )  # fmt: skip
+    """Body b's free motion over h from the state in, written to the state out (`predict_of`)."""
+    x, q, v, w = predict_of(
+        b, body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b], body_inv_mass, body_inertia, body_inv_inertia,
+        body_principal, body_euler, body_axes, body_force_in[b], body_torque_in[b], gravity, h,
+    )  # fmt: skip
     body_x_out[b] = x
     body_q_out[b] = q
     body_v_out[b] = v

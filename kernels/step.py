@@ -1621,9 +1621,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         err = sweep_positions_once(
                             constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                             constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                            constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                            tolerance, state_x, state_q, body_force_in, body_torque_in, inv_inertia_world, proj,
-                            jac_lin, jac_ang, jac_skew, state_v, state_w,
+                            constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
+                            body_euler, body_axes, gravity, hs, tolerance, state_x, state_q, body_force_in,
+                            body_torque_in, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew, state_v, state_w,
                         )  # fmt: skip
                         if not wp.isfinite(err):
                             break
