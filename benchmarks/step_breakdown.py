@@ -79,16 +79,16 @@ def _stage_kernels(ns):
     @wp.kernel(module=module)
     def predict(repeats: int, body_count: int, body_inv_mass: wp.array(dtype=f64), body_inertia: wp.array(dtype=mat33d),
                 body_inv_inertia: wp.array(dtype=mat33d), body_principal: wp.array(dtype=int),
-                body_euler: wp.array(dtype=vec3d), gravity: vec3d, h: f64, body_x_out: wp.array(dtype=vec3d),
-                body_q_out: wp.array(dtype=quatd), body_v_out: wp.array(dtype=vec3d), body_w_out: wp.array(dtype=vec3d),
-                body_force_in: wp.array(dtype=vec3d), body_torque_in: wp.array(dtype=vec3d),
-                pred_x: wp.array(dtype=vec3d), pred_q: wp.array(dtype=quatd), pred_v: wp.array(dtype=vec3d),
-                pred_w: wp.array(dtype=vec3d)):  # fmt: skip
+                body_euler: wp.array(dtype=vec3d), body_axes: wp.array(dtype=quatd), gravity: vec3d, h: f64,
+                body_x_out: wp.array(dtype=vec3d), body_q_out: wp.array(dtype=quatd), body_v_out: wp.array(dtype=vec3d),
+                body_w_out: wp.array(dtype=vec3d), body_force_in: wp.array(dtype=vec3d),
+                body_torque_in: wp.array(dtype=vec3d), pred_x: wp.array(dtype=vec3d), pred_q: wp.array(dtype=quatd),
+                pred_v: wp.array(dtype=vec3d), pred_w: wp.array(dtype=vec3d)):  # fmt: skip
         for _ in range(repeats):
             step_kernels.predict_all(
-                body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, gravity, h,
-                body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v,
-                pred_w,
+                body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
+                body_axes, gravity, h, body_x_out, body_q_out, body_v_out, body_w_out,
+                body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
             )  # fmt: skip
 
     @wp.kernel(module=module)

@@ -12,6 +12,8 @@ by round-off (docs/architecture.md, "Cheaper stages").
 
 import warp as wp
 
+from .rigid import DIAGONAL
+
 wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
@@ -51,14 +53,14 @@ def world_inverse_inertia_of(
 ):
     """J~^-1 = R J^-1 R^T of body b at its current orientation, as its upper triangle; zero for static bodies.
 
-    A body built on its principal axes (`body_principal`, `rigid.principal_terms`) reads its inverse inertia's
+    A body built on its principal axes (`body_principal` DIAGONAL, `rigid.principal_terms`) reads its inverse inertia's
     diagonal d (24 bytes, `body_inv_principal`) where the matrix takes 72, and forms R diag(d) = R with its
     columns scaled by d (9 products where the matrix product takes 27 multiply-adds): the same bits, since the
     matrix product's terms with the zeros of diag(d) add nothing exactly. Either way only the upper triangle of
     (R J^-1) R^T is formed (18 multiply-adds, in the order of Warp's matrix product)."""
     r = wp.quat_to_matrix(body_q_in[b])
     rt = wp.transpose(r)
-    if body_principal[b] != 0:
+    if body_principal[b] == DIAGONAL:
         d = body_inv_principal[b]
         inv_inertia_world_out[b] = symmetric_upper(wp.cw_mul(r, wp.matrix_from_rows(d, d, d)) * rt)
     else:

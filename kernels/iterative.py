@@ -12,7 +12,7 @@ from .cholesky import cholesky3_inverse
 from .constraints import constraint_error, constraint_velocity, pose_q, pose_x, projected_error, side_body
 from .impulses import apply_to_body
 from .inertia import sym33d
-from .rigid import predict_body
+from .rigid import predict_of
 
 wp.set_module_options({"enable_backward": False})
 
@@ -72,6 +72,9 @@ def sweep_positions_once(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     h: f64,
     tolerance: f64,
@@ -96,13 +99,15 @@ def sweep_positions_once(
         x0 = pose_x(b0, body_x_in)
         q0 = pose_q(b0, body_q_in)
         if b0 >= 0:
-            x0, q0, v0, w0 = predict_body(
-                body_x_in[b0], body_q_in[b0], body_v_out[b0], body_w_out[b0], body_inv_mass[b0], body_inertia[b0],
-                body_inv_inertia[b0], body_force_in[b0], body_torque_in[b0], gravity, h,
+            x0, q0, v0, w0 = predict_of(
+                b0, body_x_in[b0], body_q_in[b0], body_v_out[b0], body_w_out[b0], body_inv_mass, body_inertia,
+                body_inv_inertia, body_principal, body_euler, body_axes, body_force_in[b0], body_torque_in[b0],
+                gravity, h,
             )  # fmt: skip
-        x1, q1, v1, w1 = predict_body(
-            body_x_in[b1], body_q_in[b1], body_v_out[b1], body_w_out[b1], body_inv_mass[b1], body_inertia[b1],
-            body_inv_inertia[b1], body_force_in[b1], body_torque_in[b1], gravity, h,
+        x1, q1, v1, w1 = predict_of(
+            b1, body_x_in[b1], body_q_in[b1], body_v_out[b1], body_w_out[b1], body_inv_mass, body_inertia,
+            body_inv_inertia, body_principal, body_euler, body_axes, body_force_in[b1], body_torque_in[b1], gravity,
+            h,
         )  # fmt: skip
         d = constraint_error(
             constraint_kind[i], x0, q0, x1, q1,
@@ -137,6 +142,9 @@ def sweep_positions(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     # Data in:
     h: f64,
@@ -159,8 +167,9 @@ def sweep_positions(
     sweep_error_out[0] = sweep_positions_once(
         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle,
-        body_inv_mass, body_inertia, body_inv_inertia, gravity, h, tolerance, body_x_in, body_q_in, body_force_in,
-        body_torque_in, inv_inertia_world_in, proj_in, jac_lin_in, jac_ang_in, jac_skew_in, body_v_out, body_w_out,
+        body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, body_axes, gravity, h, tolerance,
+        body_x_in, body_q_in, body_force_in, body_torque_in, inv_inertia_world_in, proj_in, jac_lin_in, jac_ang_in,
+        jac_skew_in, body_v_out, body_w_out,
     )  # fmt: skip
 
 

@@ -5,7 +5,9 @@ value per body (`lanes`, a quaternion as the `quat_lanes` rows x, y, z, w), so t
 the four bodies' identical operations into vector instructions (`rk4_lanes`). The rotation's maths is written
 once, generic over a scalar (`f64`) or a lane vector (`lanes`): each lane does the scalar code's operations in
 its order, so a body's prediction is the same bit for bit alone or in lanes (docs/architecture.md, "Predictions
-in lanes").
+in lanes"). A body whose inertia is not diagonal in its own frame (`TURNED`: a model's bodies whose inertial
+frames are turned, as in most MJCF files) is predicted in its principal frame by Euler's equations, in lanes too
+(`predict_turned`; docs/history.md, "Turned bodies in lanes").
 """
 
 from typing import Any
@@ -23,6 +25,12 @@ f64 = wp.float64
 lanes = wp.types.vector(length=LANES, dtype=f64)  # one scalar of LANES bodies
 quat_lanes = wp.types.matrix(shape=(4, LANES), dtype=f64)  # rows x, y, z, w; a column is one body's quaternion
 vec3_lanes = wp.types.matrix(shape=(3, LANES), dtype=f64)  # rows x, y, z; a column is one body's vector
+# `Model.body_principal`: how a body's inertia J is known. GENERAL: a full matrix (static bodies too); DIAGONAL:
+# diagonal in the body frame (a body built on its principal axes); TURNED: diagonal in its principal frame, which
+# `Model.body_axes` turns into the body frame (J = R diag(j) R^T): its rotation is predicted in that frame.
+GENERAL = wp.constant(0)
+DIAGONAL = wp.constant(1)
+TURNED = wp.constant(2)
 
 
 @wp.func
@@ -91,6 +99,31 @@ def rotate_inv(q: quat_lanes, v: vec3_lanes) -> vec3_lanes:  # noqa: F811 (an ov
 
 
 @wp.func
+def product_terms(ax: Any, ay: Any, az: Any, aw: Any, bx: Any, by: Any, bz: Any, bw: Any):
+    """The quaternion product a b (x, y, z, w); of one body (f64) or of LANES bodies (`lanes`)."""
+    return (
+        times(aw, bx) + times(ax, bw) + times(ay, bz) - times(az, by),
+        times(aw, by) - times(ax, bz) + times(ay, bw) + times(az, bx),
+        times(aw, bz) + times(ax, by) - times(ay, bx) + times(az, bw),
+        times(aw, bw) - times(ax, bx) - times(ay, by) - times(az, bz),
+    )
+
+
+@wp.func
+def turn(q: quatd, r: quatd) -> quatd:
+    """q r (`product_terms`): a TURNED body's orientation in its principal frame (r its `Model.body_axes`), or
+    back in its body frame (r their inverse)."""
+    x, y, z, w = product_terms(q[0], q[1], q[2], q[3], r[0], r[1], r[2], r[3])
+    return quatd(x, y, z, w)
+
+
+@wp.func
+def turn(q: quat_lanes, r: quat_lanes) -> quat_lanes:  # noqa: F811 (an overload)
+    x, y, z, w = product_terms(q[0], q[1], q[2], q[3], r[0], r[1], r[2], r[3])
+    return wp.matrix_from_rows(x, y, z, w)
+
+
+@wp.func
 def rotation_rate_terms(qx: Any, qy: Any, qz: Any, qw: Any, x: Any, y: Any, z: Any):
     """q (w_body, 0) = 2 dq/dt: equation 3, with the angular velocity in body space, less its factor 1/2, which
     `rk4_rotation` folds into its step fractions (scaling by 1/2 is exact: the same values, 4 products fewer). The
@@ -145,24 +178,31 @@ def principal_terms(
     # Model:
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_moments: wp.array(dtype=vec3d),
     # Data out:
     body_principal_out: wp.array(dtype=int),
     body_euler_out: wp.array(dtype=vec3d),
     body_inv_principal_out: wp.array(dtype=vec3d),
 ):
-    """Whether each body's inertia is diagonal (a body built on its principal axes), and then its
-    `euler_coefficients` (all a lane prediction reads of its inertia) and its inverse inertia's diagonal
-    (1 / (kg m^2), body frame: all the world inverse inertia reads, `inertia.world_inverse_inertia_of`);
-    `Model.set_masses` runs this."""
+    """How each body's inertia is known (`body_principal`: DIAGONAL, TURNED where the host found its principal
+    moments j, kg m^2, `body_moments`, else GENERAL), and for the first two their `euler_coefficients` (all a
+    prediction without torque reads of its inertia), and for a DIAGONAL body its inverse inertia's diagonal
+    (1 / (kg m^2): all the world inverse inertia reads, `inertia.world_inverse_inertia_of`); `Model.set_masses`
+    runs this."""
     b = wp.tid()
-    body_principal_out[b] = int(0)
+    body_principal_out[b] = GENERAL
     body_euler_out[b] = vec3d()
     body_inv_principal_out[b] = vec3d()
+    j = body_moments[b]
     if is_diagonal(body_inertia[b]):
         inv = body_inv_inertia[b]
-        body_principal_out[b] = int(1)
+        body_principal_out[b] = DIAGONAL
         body_euler_out[b] = euler_coefficients(body_inertia[b], inv)
         body_inv_principal_out[b] = vec3d(inv[0, 0], inv[1, 1], inv[2, 2])
+    elif j[0] > f64(0.0) and j[1] > f64(0.0) and j[2] > f64(0.0):
+        body_principal_out[b] = TURNED
+        inv_j = vec3d(f64(1.0) / j[0], f64(1.0) / j[1], f64(1.0) / j[2])
+        body_euler_out[b] = euler_coefficients(wp.diag(j), wp.diag(inv_j))
 
 
 @wp.func
@@ -190,6 +230,14 @@ def angular_acceleration(q: quatd, w_body: vec3d, inertia: mat33d, inv_inertia: 
     if torque[0] == f64(0.0) and torque[1] == f64(0.0) and torque[2] == f64(0.0):
         return inv_inertia * (-gyro)
     return inv_inertia * (wp.quat_rotate_inv(q, torque) - gyro)
+
+
+@wp.func
+def angular_acceleration(q: quatd, w_body: vec3d, c0: f64, c1: f64, c2: f64) -> vec3d:  # noqa: F811 (an overload)
+    """Equation 4 of one body without torque in its principal frame (`euler_terms`; c0 c1 c2 its
+    `euler_coefficients`): a TURNED body's (`predict_turned`)."""
+    ax, ay, az = euler_terms(c0, c1, c2, w_body[0], w_body[1], w_body[2])
+    return vec3d(ax, ay, az)
 
 
 @wp.func
@@ -232,9 +280,10 @@ def rk4_step(q: Any, wb: Any, p0: Any, p1: Any, p2: Any, h: f64):
 
 
 @wp.func
-def rk4_rotation(q: quatd, wb: vec3d, inertia: mat33d, inv_inertia: mat33d, torque: vec3d, h: f64):
-    """`rk4_step` of one body, q normalized."""
-    q1, w1 = rk4_step(q, wb, inertia, inv_inertia, torque, h)
+def rk4_rotation(q: quatd, wb: vec3d, p0: Any, p1: Any, p2: Any, h: f64):
+    """`rk4_step` of one body, q normalized: p0 p1 p2 its inertia, inverse inertia and world torque, or for a
+    TURNED body in its principal frame its three Euler coefficients."""
+    q1, w1 = rk4_step(q, wb, p0, p1, p2, h)
     return wp.normalize(q1), w1
 
 
@@ -249,9 +298,23 @@ def rk4_lanes(q: quat_lanes, w: vec3_lanes, c0: lanes, c1: lanes, c2: lanes, h: 
 
 
 @wp.func(inline=False)
+def rk4_turned_lanes(q: quat_lanes, r: quat_lanes, w: vec3_lanes, c0: lanes, c1: lanes, c2: lanes, h: f64):
+    """`rk4_lanes` of LANES TURNED bodies, in their principal frames (q turned by r, their `Model.body_axes`):
+    (their orientation there, not yet normalized, and w in it)."""
+    qp = turn(q, r)
+    return rk4_step(qp, rotate_inv(qp, w), c0, c1, c2, h)
+
+
+@wp.func(inline=False)
 def rotate_lanes(q: quat_lanes, v: vec3_lanes) -> vec3_lanes:
     """`rotate` of LANES bodies, out of line (`rk4_lanes`)."""
     return rotate(q, v)
+
+
+@wp.func(inline=False)
+def turn_lanes(q: quat_lanes, r: quat_lanes) -> quat_lanes:
+    """`turn` of LANES bodies, out of line (`rk4_lanes`)."""
+    return turn(q, r)
 
 
 @wp.func
@@ -293,14 +356,79 @@ def predict_body(
     if inv_mass == f64(0.0):
         return x, q, v, w
     x1, v1 = translation(x, v, inv_mass, force, gravity, h)
-    wb = rotate_inv(q, w)
+    q1, wb = rotation_steps(q, rotate_inv(q, w), w, inertia, inv_inertia, torque, h)
+    return x1, q1, v1, rotate(q1, wb)
+
+
+@wp.func
+def rotation_steps(q: quatd, wb: vec3d, w: vec3d, p0: Any, p1: Any, p2: Any, h: f64):
+    """(q, w in the frame of q) after h in `substeps` of RK4 (`rk4_rotation`, p0 p1 p2 as there), w the world
+    angular velocity at the start (rad/s)."""
     n, hs = substeps(w, h)
     q1 = q
+    w1 = wb
     k = wp.int32(0)
     while k < n:
-        q1, wb = rk4_rotation(q1, wb, inertia, inv_inertia, torque, hs)
+        q1, w1 = rk4_rotation(q1, w1, p0, p1, p2, hs)
         k += 1
-    return x1, q1, v1, rotate(q1, wb)
+    return q1, w1
+
+
+@wp.func
+def predict_turned(
+    x: vec3d,
+    q: quatd,
+    v: vec3d,
+    w: vec3d,
+    inv_mass: f64,
+    axes: quatd,
+    euler: vec3d,
+    force: vec3d,
+    gravity: vec3d,
+    h: f64,
+):
+    """`predict_body` of a TURNED body without torque: its rotation in its principal frame (q turned by `axes`,
+    its `Model.body_axes`), by Euler's equations (`euler`: `principal_terms`), and turned back. RK4 is the same
+    in any frame fixed in the body (its stages are linear in q and w), so this is the body frame's prediction to
+    round-off, in 6 products of the gyroscopic term where J^-1 (w x J w) takes 18. (Not with a torque: turned
+    into the body by an RK4 stage's q, not of unit length, it differs between frames by more than round-off.)"""
+    x1, v1 = translation(x, v, inv_mass, force, gravity, h)
+    qp = turn(q, axes)
+    q1, wb = rotation_steps(qp, rotate_inv(qp, w), w, euler[0], euler[1], euler[2], h)
+    return x1, turn(q1, wp.quat_inverse(axes)), v1, rotate(q1, wb)
+
+
+@wp.func
+def predict_of(
+    b: int,
+    x: vec3d,
+    q: quatd,
+    v: vec3d,
+    w: vec3d,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
+    force: vec3d,
+    torque: vec3d,
+    gravity: vec3d,
+    h: f64,
+):
+    """Body b's state after a step of h from (x, q, v, w): `predict_turned` for a TURNED body without torque, else
+    `predict_body` (every prediction of a body, alone, in a group or in a sweep, takes this one)."""
+    x1 = vec3d()
+    q1 = quatd()
+    v1 = vec3d()
+    w1 = vec3d()
+    if body_principal[b] == TURNED and torque[0] == f64(0.0) and torque[1] == f64(0.0) and torque[2] == f64(0.0):
+        x1, q1, v1, w1 = predict_turned(x, q, v, w, body_inv_mass[b], body_axes[b], body_euler[b], force, gravity, h)
+    else:
+        x1, q1, v1, w1 = predict_body(
+            x, q, v, w, body_inv_mass[b], body_inertia[b], body_inv_inertia[b], force, torque, gravity, h
+        )
+    return x1, q1, v1, w1
 
 
 @wp.func
@@ -309,6 +437,9 @@ def predict_index(
     body_inv_mass: wp.array(dtype=f64),
     body_inertia: wp.array(dtype=mat33d),
     body_inv_inertia: wp.array(dtype=mat33d),
+    body_principal: wp.array(dtype=int),
+    body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     h: f64,
     body_x_in: wp.array(dtype=vec3d),
@@ -322,11 +453,10 @@ def predict_index(
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """Body b's free motion over h from the state in, written to the state out (`predict_body`)."""
-    x, q, v, w = predict_body(
-        body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b],
-        body_inv_mass[b], body_inertia[b], body_inv_inertia[b],
-        body_force_in[b], body_torque_in[b], gravity, h,
+    """Body b's free motion over h from the state in, written to the state out (`predict_of`)."""
+    x, q, v, w = predict_of(
+        b, body_x_in[b], body_q_in[b], body_v_in[b], body_w_in[b], body_inv_mass, body_inertia, body_inv_inertia,
+        body_principal, body_euler, body_axes, body_force_in[b], body_torque_in[b], gravity, h,
     )  # fmt: skip
     body_x_out[b] = x
     body_q_out[b] = q
@@ -338,26 +468,62 @@ def predict_index(
 def fits_lanes(
     b: int,
     body_inv_mass: wp.array(dtype=f64),
-    body_principal: wp.array(dtype=int),
     h: f64,
     body_w_in: wp.array(dtype=vec3d),
     body_torque_in: wp.array(dtype=vec3d),
 ) -> bool:
-    """Whether body b's prediction can take a lane (`predict_lanes`): it is static, or of diagonal inertia
-    (`principal_terms`) without torque, in one RK4 step (`substeps`)."""
+    """Whether body b's prediction can take a lane (`predict_lanes`): it is static, or without torque in one RK4
+    step (`substeps`)."""
     if body_inv_mass[b] == f64(0.0):
         return True
     t = body_torque_in[b]
     n, hs = substeps(body_w_in[b], h)
     no_torque = t[0] == f64(0.0) and t[1] == f64(0.0) and t[2] == f64(0.0)
-    return no_torque and n == 1 and body_principal[b] != 0
+    return no_torque and n == 1
+
+
+@wp.func
+def lane_kind(
+    b0: int,
+    body_inv_mass: wp.array(dtype=f64),
+    body_principal: wp.array(dtype=int),
+    h: f64,
+    body_w_in: wp.array(dtype=vec3d),
+    body_torque_in: wp.array(dtype=vec3d),
+) -> int:
+    """How bodies b0 .. b0 + LANES - 1 take lanes: DIAGONAL or TURNED, the `body_principal` of every dynamic one
+    among them, or GENERAL: not at all (one does not `fits_lanes`, one is GENERAL, or DIAGONAL and TURNED bodies
+    are mixed: a lane does a body's own operations, and a DIAGONAL body's are not turned). A group of static
+    bodies takes DIAGONAL lanes."""
+    diagonal = wp.int32(0)
+    turned = wp.int32(0)
+    fits = True
+    for i in range(LANES):
+        b = b0 + i
+        if fits:
+            fits = fits_lanes(b, body_inv_mass, h, body_w_in, body_torque_in)
+        if body_inv_mass[b] != f64(0.0):
+            p = body_principal[b]
+            if p == TURNED:
+                turned += 1
+            elif p == DIAGONAL:
+                diagonal += 1
+            else:
+                fits = False
+    if not fits or (turned > 0 and diagonal > 0):
+        return GENERAL
+    if turned > 0:
+        return TURNED
+    return DIAGONAL
 
 
 @wp.func
 def predict_lanes(
     b0: int,
+    kind: int,
     body_inv_mass: wp.array(dtype=f64),
     body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     h: f64,
     body_x_in: wp.array(dtype=vec3d),
@@ -372,9 +538,11 @@ def predict_lanes(
 ):
     """`predict_index` of bodies b0 .. b0 + LANES - 1, which all `fits_lanes`, their rotations in lanes: the
     same values (a static body's lane is computed and dropped). A body's inertia comes as its Euler coefficients
-    (`principal_terms`): 24 bytes read, where the two inertia matrices are 144."""
+    (`principal_terms`): 24 bytes read, where the two inertia matrices are 144. `kind` (`lane_kind`) TURNED: the
+    rotations are predicted in the principal frames (`predict_turned`)."""
     q = quat_lanes()
     w = vec3_lanes()
+    r = quat_lanes()
     c0 = lanes()
     c1 = lanes()
     c2 = lanes()
@@ -390,12 +558,23 @@ def predict_lanes(
         c0[i] = ci[0]
         c1[i] = ci[1]
         c2[i] = ci[2]
-    q1, wb1 = rk4_lanes(q, w, c0, c1, c2, h)
+    q1 = quat_lanes()
+    wb1 = vec3_lanes()
+    if kind == TURNED:
+        for i in range(LANES):
+            ri = body_axes[b0 + i]
+            for k in range(4):
+                r[k, i] = ri[k]
+        q1, wb1 = rk4_turned_lanes(q, r, w, c0, c1, c2, h)
+    else:
+        q1, wb1 = rk4_lanes(q, w, c0, c1, c2, h)
     for i in range(LANES):
         qi = wp.normalize(quatd(q1[0, i], q1[1, i], q1[2, i], q1[3, i]))
         for k in range(4):
             q1[k, i] = qi[k]
     w1 = rotate_lanes(q1, wb1)
+    if kind == TURNED:  # back in the body frames
+        q1 = turn_lanes(q1, wp.matrix_from_rows(-r[0], -r[1], -r[2], r[3]))
     for i in range(LANES):
         b = b0 + i
         inv_mass = body_inv_mass[b]
@@ -421,6 +600,7 @@ def predict_group(
     body_inv_inertia: wp.array(dtype=mat33d),
     body_principal: wp.array(dtype=int),
     body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     h: f64,
     body_x_in: wp.array(dtype=vec3d),
@@ -434,23 +614,23 @@ def predict_group(
     body_v_out: wp.array(dtype=vec3d),
     body_w_out: wp.array(dtype=vec3d),
 ):
-    """`predict_index` of bodies b0 .. b0 + count - 1: in lanes when they are LANES that all `fits_lanes`, else
+    """`predict_index` of bodies b0 .. b0 + count - 1: in lanes when they are LANES that `lane_kind` takes, else
     one at a time."""
-    together = count == LANES
-    for i in range(LANES):
-        if together:
-            together = fits_lanes(b0 + i, body_inv_mass, body_principal, h, body_w_in, body_torque_in)
-    if together:
+    kind = GENERAL
+    if count == LANES:
+        kind = lane_kind(b0, body_inv_mass, body_principal, h, body_w_in, body_torque_in)
+    if kind != GENERAL:
         predict_lanes(
-            b0, body_inv_mass, body_euler, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in,
-            body_x_out, body_q_out, body_v_out, body_w_out,
+            b0, kind, body_inv_mass, body_euler, body_axes, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in,
+            body_force_in, body_x_out, body_q_out, body_v_out, body_w_out,
         )  # fmt: skip
     else:
         b = b0
         while b < b0 + count:
             predict_index(
-                b, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_in, body_q_in, body_v_in,
-                body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
+                b, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, body_axes, gravity, h,
+                body_x_in, body_q_in, body_v_in, body_w_in, body_force_in, body_torque_in, body_x_out, body_q_out,
+                body_v_out, body_w_out,
             )  # fmt: skip
             b += 1
 
@@ -463,6 +643,7 @@ def predict(
     body_inv_inertia: wp.array(dtype=mat33d),
     body_principal: wp.array(dtype=int),
     body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     # Data in:
     h: f64,
@@ -484,7 +665,7 @@ def predict(
     b0 = wp.tid() * group_size
     predict_group(
         b0, wp.min(group_size, body_inv_mass.shape[0] - b0), body_inv_mass, body_inertia, body_inv_inertia,
-        body_principal, body_euler, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in,
+        body_principal, body_euler, body_axes, gravity, h, body_x_in, body_q_in, body_v_in, body_w_in, body_force_in,
         body_torque_in, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
 

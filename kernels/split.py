@@ -151,6 +151,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         body_inv_mass: wp.array(dtype=f64),
         body_inertia: wp.array(dtype=mat33d),
         body_inv_inertia: wp.array(dtype=mat33d),
+        body_principal: wp.array(dtype=int),
+        body_euler: wp.array(dtype=vec3d),
+        body_axes: wp.array(dtype=quatd),
         gravity: vec3d,
         body_rows_start: wp.array(dtype=int),
         body_rows: wp.array(dtype=int),
@@ -235,8 +238,9 @@ def split_kernels(kinds: frozenset[int]) -> SimpleNamespace:
         k = wp.int32(0)
         while k < part_bodies.shape[0]:
             predict_index(
-                part_bodies[k], body_inv_mass, body_inertia, body_inv_inertia, gravity, h, body_x_out, body_q_out,
-                body_v_out, body_w_out, body_force_in, body_torque_in, pred_x, pred_q, pred_v, pred_w,
+                part_bodies[k], body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, body_axes,
+                gravity, h, body_x_out, body_q_out, body_v_out, body_w_out, body_force_in, body_torque_in, pred_x,
+                pred_q, pred_v, pred_w,
             )  # fmt: skip
             k += 1
         inv_h = f64(1.0) / h

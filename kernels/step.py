@@ -313,6 +313,7 @@ def predict_all(
     body_inv_inertia: wp.array(dtype=mat33d),
     body_principal: wp.array(dtype=int),
     body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     h: f64,
     body_x: wp.array(dtype=vec3d),
@@ -331,8 +332,8 @@ def predict_all(
     while b0 < body_count:
         predict_group(
             b0, wp.min(LANES, body_count - b0), body_inv_mass, body_inertia, body_inv_inertia, body_principal,
-            body_euler, gravity, h, body_x, body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v,
-            pred_w,
+            body_euler, body_axes, gravity, h, body_x, body_q, body_v, body_w, body_force,
+            body_torque, pred_x, pred_q, pred_v, pred_w,
         )  # fmt: skip
         b0 += LANES
 
@@ -505,6 +506,7 @@ def apply_and_predict_all(
     body_inv_inertia: wp.array(dtype=mat33d),
     body_principal: wp.array(dtype=int),
     body_euler: wp.array(dtype=vec3d),
+    body_axes: wp.array(dtype=quatd),
     gravity: vec3d,
     h: f64,
     body_rows_start: wp.array(dtype=int),
@@ -539,8 +541,8 @@ def apply_and_predict_all(
             )  # fmt: skip
             b += 1
         predict_group(
-            b0, count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, gravity, h, body_x,
-            body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
+            b0, count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler, body_axes, gravity,
+            h, body_x, body_q, body_v, body_w, body_force, body_torque, pred_x, pred_q, pred_v, pred_w,
         )  # fmt: skip
         b0 += LANES
 
@@ -1092,6 +1094,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         body_principal: wp.array(dtype=int),
         body_euler: wp.array(dtype=vec3d),
         body_inv_principal: wp.array(dtype=vec3d),
+        body_axes: wp.array(dtype=quatd),
         gravity: vec3d,
         body_rows_start: wp.array(dtype=int),
         body_rows: wp.array(dtype=int),
@@ -1274,8 +1277,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 else:
                     predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
-                        gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in, next_x,
-                        next_q, next_v, next_w,
+                        body_axes, gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in,
+                        next_x, next_q, next_v, next_w,
                     )  # fmt: skip
                 err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
@@ -1356,15 +1359,15 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         else:
                             predict_all(
                                 body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
-                                body_euler, gravity, hs, state_x, state_q, state_v, state_w, body_force_in,
+                                body_euler, body_axes, gravity, hs, state_x, state_q, state_v, state_w, body_force_in,
                                 body_torque_in, next_x, next_q, next_v, next_w,
                             )  # fmt: skip
                     else:
                         apply_and_predict_all(
                             body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
-                            body_euler, gravity, hs, body_rows_start, body_rows, inv_inertia_world, jac_lin, jac_ang,
-                            jac_skew, impulse, state_x, state_q, state_v, state_w, body_force_in, body_torque_in,
-                            next_x, next_q, next_v, next_w,
+                            body_euler, body_axes, gravity, hs, body_rows_start, body_rows,
+                            inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_x, state_q, state_v, state_w,
+                            body_force_in, body_torque_in, next_x, next_q, next_v, next_w,
                         )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
@@ -1529,6 +1532,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             body_principal: wp.array(dtype=int),
             body_euler: wp.array(dtype=vec3d),
             body_inv_principal: wp.array(dtype=vec3d),
+            body_axes: wp.array(dtype=quatd),
             gravity: vec3d,
             constraint_kind: wp.array(dtype=int),
             constraint_body0: wp.array(dtype=int),
@@ -1617,9 +1621,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         err = sweep_positions_once(
                             constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                             constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
-                            constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs,
-                            tolerance, state_x, state_q, body_force_in, body_torque_in, inv_inertia_world, proj,
-                            jac_lin, jac_ang, jac_skew, state_v, state_w,
+                            constraint_rest_angle, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
+                            body_euler, body_axes, gravity, hs, tolerance, state_x, state_q, body_force_in,
+                            body_torque_in, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew, state_v, state_w,
                         )  # fmt: skip
                         if not wp.isfinite(err):
                             break
@@ -1635,8 +1639,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     iterations += sweeps
                     predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, body_principal, body_euler,
-                        gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in, next_x,
-                        next_q, next_v, next_w,
+                        body_axes, gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in,
+                        next_x, next_q, next_v, next_w,
                     )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,

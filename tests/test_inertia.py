@@ -14,6 +14,8 @@ from reference import numpy_k
 from rigs import Rig
 from warpimpulse.kernels import inertia, rigid
 
+from warpimpulse.model import principal_axes
+
 F64, VEC3, QUAT, MAT33 = wp.float64, wp.vec3d, wp.quatd, wp.mat33d
 
 
@@ -52,8 +54,11 @@ def bodies(n: int, seed: int):
     q = rng.normal(size=(n, 4))
     q /= np.linalg.norm(q, axis=1)[:, None]
     arrays = [wp.array(inertia_, dtype=MAT33), wp.array(inv, dtype=MAT33)]
+    moments = wp.array(principal_axes(inertia_, kind != 2)[0], dtype=VEC3)
     principal, euler, inv_principal = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=VEC3), wp.zeros(n, dtype=VEC3)
-    wp.launch(rigid.principal_terms, n, inputs=arrays, outputs=[principal, euler, inv_principal], device="cpu")
+    launch = dict(inputs=[*arrays, moments], outputs=[principal, euler, inv_principal], device="cpu")
+    wp.launch(rigid.principal_terms, n, **launch)
+    assert np.all(principal.numpy()[kind == 1] == rigid.TURNED)  # by its full inverse: R J^-1 R^T
     return kind, inv, q, principal, inv_principal, arrays[1]
 
 
@@ -68,9 +73,9 @@ def world_inverse(principal, inv_principal, inv_inertia, q) -> np.ndarray:
 
 def test_packed_world_inverse_inertia_is_r_j_inverse_r_t():
     """Upper triangle, its mirror and S u against numpy at 1e-14 of the matrix's largest entry, for the three
-    kinds of body; the principal flag is set for the diagonal ones and the static ones (diagonal zeros) only."""
+    kinds of body; the DIAGONAL flag is set for the diagonal ones and the static ones (diagonal zeros) only."""
     kind, inv, q, principal, inv_principal, inv_inertia = bodies(60, 3)
-    assert np.array_equal(principal.numpy() != 0, kind != 1)
+    assert np.array_equal(principal.numpy() == rigid.DIAGONAL, kind != 1)
     packed = world_inverse(principal, inv_principal, inv_inertia, q)
     r = rotations(q)
     ref = r @ inv @ np.swapaxes(r, 1, 2)

@@ -1,8 +1,9 @@
 """The CPU predicts bodies LANES at a time (`rigid.predict_group`): each lane must give the scalar path's values
-bit for bit, whatever the mix of bodies (static, torqued, non-diagonal inertia, fast spin: those groups go one
-body at a time) and a count that is not a multiple of LANES. The fused schedule predicts in lanes too, so
-tests/test_schedules.py checks the same through whole steps; this checks the prediction alone, on bodies no scene
-has, and the rotations the lanes use against Warp's own."""
+bit for bit, whatever the mix of bodies (static, torqued, fast spin, diagonal inertias with inertias turned off
+their axes: those groups go one body at a time), bodies of diagonal or of turned inertia (`rigid.TURNED`,
+predicted in their principal frames) and a count that is not a multiple of LANES. The fused schedule predicts in
+lanes too, so tests/test_schedules.py checks the same through whole steps; this checks the prediction alone, on
+bodies no scene has, and the rotations the lanes use against Warp's own."""
 
 from __future__ import annotations
 
@@ -10,12 +11,15 @@ import numpy as np
 import warp as wp
 from warpimpulse.kernels import rigid
 
+from warpimpulse.model import principal_axes
+
 F64, VEC3, QUAT, MAT33 = wp.float64, wp.vec3d, wp.quatd, wp.mat33d
 
 
-def bodies(n: int, seed: int, mixed: bool) -> tuple[list, list]:
-    """Random bodies: diagonal inertia, no torque, one RK4 step each (all fit a lane), or with `mixed` about a
-    fifth of them static, torqued, non-diagonal or spinning fast enough for substeps."""
+def bodies(n: int, seed: int, mixed: bool, turned: bool = False) -> tuple[list, list]:
+    """Random bodies: diagonal inertia (with `turned`, every inertia turned off its axes), no torque, one RK4 step
+    each (all fit a lane), or with `mixed` about a fifth of them static, torqued, non-diagonal or spinning fast
+    enough for substeps."""
     rng = np.random.default_rng(seed)
     moments = rng.uniform(0.1, 2.0, (n, 3))
     inertia = np.zeros((n, 3, 3))
@@ -31,12 +35,17 @@ def bodies(n: int, seed: int, mixed: bool) -> tuple[list, list]:
         r = np.linalg.qr(rng.normal(size=(3, 3)))[0]
         inertia[kind == 3] = r @ inertia[kind == 3] @ r.T
         w[kind == 4] *= 40.0
+    if turned:
+        r = np.linalg.qr(rng.normal(size=(n, 3, 3)))[0]
+        inertia = r @ inertia @ r.transpose(0, 2, 1)
     inv_inertia = np.linalg.inv(inertia)
     model = [wp.array(inv_mass, dtype=F64), wp.array(inertia, dtype=MAT33), wp.array(inv_inertia, dtype=MAT33)]
     principal, euler = wp.zeros(n, dtype=wp.int32), wp.zeros(n, dtype=VEC3)  # as `Model.set_masses` makes them
     inv_principal = wp.zeros(n, dtype=VEC3)
-    wp.launch(rigid.principal_terms, n, inputs=model[1:], outputs=[principal, euler, inv_principal], device="cpu")
-    model += [principal, euler]
+    moments, axes = principal_axes(inertia, inv_mass > 0.0)
+    inputs = [*model[1:], wp.array(moments, dtype=VEC3)]
+    wp.launch(rigid.principal_terms, n, inputs=inputs, outputs=[principal, euler, inv_principal], device="cpu")
+    model += [principal, euler, wp.array(axes, dtype=QUAT)]
     state = [
         wp.array(rng.normal(size=(n, 3)), dtype=VEC3),
         wp.array(q, dtype=QUAT),
@@ -59,14 +68,31 @@ def predicted(model: list, state: list, group_size: int, h: float) -> list[np.nd
 
 
 def test_lanes_predict_the_scalar_values_bit_for_bit():
-    for n, mixed, seed in ((1, False, 0), (10, False, 1), (64, False, 2), (1001, True, 3)):
-        model, state = bodies(n, seed, mixed)
+    cases = ((1, False, False, 0), (10, False, False, 1), (64, False, False, 2), (1001, True, False, 3))
+    cases += ((10, False, True, 4), (1001, True, True, 5))
+    for n, mixed, turned, seed in cases:
+        model, state = bodies(n, seed, mixed, turned)
+        if turned:
+            assert np.all(model[3].numpy()[model[0].numpy() > 0.0] == rigid.TURNED)
         for h in (1.0 / 60.0, -1.0 / 240.0):
             alone = predicted(model, state, 1, h)
             together = predicted(model, state, rigid.LANES, h)
             for name, a, b in zip(("x", "q", "v", "w"), alone, together):
                 assert np.array_equal(a, b), f"{n} bodies, h = {h}: {name} in lanes differs from alone"
             assert np.all(np.isfinite(together[1]))
+
+
+def test_turned_bodies_predict_the_body_frame_motion():
+    """A TURNED body without torque is predicted in its principal frame (`rigid.predict_turned`): RK4 is the same
+    in any frame fixed in the body, so the prediction is the body frame's (the GENERAL path, J^-1 (w x J w)) to
+    round-off, fast-spinning bodies (substeps) included; a torqued one takes the GENERAL path itself."""
+    model, state = bodies(1001, 7, True, True)
+    general = [*model[:3], wp.zeros_like(model[3]), *model[4:]]  # every body by its full inertia matrices
+    for h in (1.0 / 60.0, -1.0 / 240.0):
+        turned, plain = predicted(model, state, rigid.LANES, h), predicted(general, state, 1, h)
+        for name, a, b in zip(("x", "q", "v", "w"), turned, plain):
+            scale = max(1.0, float(np.abs(b).max()))
+            assert np.abs(a - b).max() < 1e-12 * scale, f"h = {h}: {name} of the principal frame differs"
 
 
 @wp.kernel

@@ -18,6 +18,7 @@ from . import checks
 from .kernels import rigid as rigid_kernels
 from .shapes import Colliders
 from .topology import Graph, Topology, analyze
+from .transforms import quat_from_matrix
 from .types import COORDINATES, DISTANCE_COORDINATE, ConstraintKind
 
 
@@ -31,6 +32,22 @@ def _static(values: np.ndarray, dtype, device) -> wp.array:
     if device.is_cpu and values.flags.c_contiguous and values.dtype == np.float64:
         return wp.array(values, dtype=dtype, device=device, copy=False)
     return _array(values, dtype, device)
+
+
+def principal_axes(inertia: np.ndarray, dynamic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(principal moments j (n, 3) kg m^2, principal frames r (n, 4) quaternions x y z w) of the dynamic bodies
+    whose inertia J (n, 3, 3, body frame) is not diagonal: J = R(r) diag(j) R(r)^T, R(r) a rotation (its columns
+    the principal axes in the body frame). Zero moments and the identity elsewhere (or where a moment is not
+    positive): `rigid.principal_terms` then leaves the body DIAGONAL or GENERAL."""
+    n = len(inertia)
+    moments, axes = np.zeros((n, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
+    off = inertia[:, [0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]]
+    turned = np.flatnonzero(dynamic & np.any(off != 0.0, axis=1))
+    j, r = np.linalg.eigh(inertia[turned]) if len(turned) else (np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    r[:, :, 2] *= np.sign(np.linalg.det(r))[:, None]  # a rotation, not a reflection
+    for k in np.flatnonzero(np.all(j > 0.0, axis=1)):
+        moments[turned[k]], axes[turned[k]] = j[k], quat_from_matrix(r[k])
+    return moments, axes
 
 
 @dataclass
@@ -222,9 +239,10 @@ class Model:
         self.body_inv_mass = wp.zeros(self.body_count, dtype=wp.float64, device=d)
         self.body_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
         self.body_inv_inertia = wp.zeros(self.body_count, dtype=wp.mat33d, device=d)
-        self.body_principal = wp.zeros(self.body_count, dtype=wp.int32, device=d)  # 1: inertia diagonal
+        self.body_principal = wp.zeros(self.body_count, dtype=wp.int32, device=d)  # `rigid.DIAGONAL`, `TURNED`, ...
         self.body_euler = wp.zeros(self.body_count, dtype=wp.vec3d, device=d)  # its Euler coefficients (dimensionless)
         self.body_inv_principal = wp.zeros(self.body_count, dtype=wp.vec3d, device=d)  # its inverse's diagonal
+        self.body_axes = wp.zeros(self.body_count, dtype=wp.quatd, device=d)  # a TURNED body's principal frame
         self.set_masses(h.body_mass, h.body_inertia)
         self.body_rows_start = _array(self.topology.body_rows_start, wp.int32, d)
         self.body_rows = _array(self.topology.body_rows, wp.int32, d)
@@ -375,8 +393,11 @@ class Model:
         self.body_inv_mass.assign(np.where(dynamic, 1.0 / np.where(dynamic, h.body_mass, 1.0), 0.0))
         self.body_inertia.assign(h.body_inertia)
         self.body_inv_inertia.assign(inv_inertia)
+        moments, axes = principal_axes(h.body_inertia, dynamic)
+        self.body_axes.assign(axes)
         wp.launch(
-            rigid_kernels.principal_terms, self.body_count, inputs=[self.body_inertia, self.body_inv_inertia],
+            rigid_kernels.principal_terms, self.body_count,
+            inputs=[self.body_inertia, self.body_inv_inertia, wp.array(moments, dtype=wp.vec3d, device=self.device)],
             outputs=[self.body_principal, self.body_euler, self.body_inv_principal], device=self.body_inertia.device,
         )  # fmt: skip
 
