@@ -290,6 +290,7 @@ def reciprocal(a: vec3d, b: vec3d, c: vec3d, count: int) -> vec3d:
 def chain_direction(
     r: int,
     a: vec3d,
+    point: vec3d,
     chain: wp.vec3i,
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
@@ -300,9 +301,10 @@ def chain_direction(
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
 ):
-    """(direction, point) of a drive's wrench on coordinate row r of axis a: `reciprocal` to the world axes of
-    the chain's other coordinates of its kind (rows chain[0], chain[1], -1 for none), and the world anchor of
-    row chain[2] (where a force along a chain with hinges does no work on them: their common anchor)."""
+    """(direction, point) of a drive's wrench on coordinate row r of axis a and point B `point`: `reciprocal` to
+    the world axes of the chain's other coordinates of its kind (rows chain[0], chain[1], -1 for none), and the
+    world anchor of row chain[2] (where a force along a chain with hinges does no work on them: their common
+    anchor; row r's own point where chain[2] is r, a drive on no chain)."""
     b = vec3d()
     c = vec3d()
     count = int(0)
@@ -318,11 +320,13 @@ def chain_direction(
             coordinate_axis0, body_x, body_q,
         )  # fmt: skip
         count = 2
-    a2, point = coordinate_row_axis(
-        chain[2], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, body_x, body_q,
-    )  # fmt: skip
-    return reciprocal(a, b, c, count), point
+    anchor = point
+    if chain[2] != r:
+        a2, anchor = coordinate_row_axis(
+            chain[2], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, body_x, body_q,
+        )  # fmt: skip
+    return reciprocal(a, b, c, count), anchor
 
 
 @wp.func
@@ -375,7 +379,7 @@ def drive_wrench(
         )  # fmt: skip
     out = drive_output(kind, mode, value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i])
     a, pb = chain_direction(
-        r, a, drive_chain[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        r, a, pb, drive_chain[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
         coordinate_anchor1, coordinate_axis0, body_x, body_q,
     )  # fmt: skip
     ends = drive_ends[i]
