@@ -38,19 +38,11 @@ def pose_v(b: int, vs: wp.array(dtype=vec3d)) -> vec3d:
 
 
 @wp.func
-def joint_coordinate(
-    coordinate: int,
-    x0: vec3d, q0: quatd, v0: vec3d, w0: vec3d,
-    x1: vec3d, q1: quatd, v1: vec3d, w1: vec3d,
-    anchor0: vec3d, anchor1: vec3d, axis0: vec3d, rest_rotation: quatd,
-):  # fmt: skip
-    """(value, rate, world axis, world point B) of a joint coordinate.
-
-    Angle (rad): the rotation of q0^-1 q1 rest^-1 about axis0, in (-pi, pi]; rate = (w1 - w0) . axis.
-    Offset (m): (B - A) . axis with A on body0 and B on body1; rate = (u_B - u_B0) . axis, the velocity of B
-    on body1 against the point of body0 at B, which makes (force x rate) the power of the pair.
-    Distance (m): |B - A|, an offset along the unit axis (B - A) / |B - A| (body0's axis0 while A and B meet).
-    A push along that axis acts on body0 with the same moment at B as at A, B - A being parallel to it."""
+def coordinate_axis(
+    coordinate: int, x0: vec3d, q0: quatd, x1: vec3d, q1: quatd, anchor0: vec3d, anchor1: vec3d, axis0: vec3d
+):
+    """(world axis, world point B) of a joint coordinate (`joint_coordinate`): all that a force along it (or a
+    torque about it) needs, without its value's arc tangent."""
     a = wp.quat_rotate(q0, axis0)
     b = x1 + wp.quat_rotate(q1, anchor1)
     if coordinate == DISTANCE_COORDINATE:
@@ -58,6 +50,23 @@ def joint_coordinate(
         length = wp.length(gap)
         if length > f64(1.0e-12):
             a = gap / length
+    return a, b
+
+
+@wp.func
+def coordinate_value(
+    coordinate: int,
+    x0: vec3d, q0: quatd, v0: vec3d, w0: vec3d,
+    x1: vec3d, q1: quatd, v1: vec3d, w1: vec3d,
+    anchor0: vec3d, axis0: vec3d, rest_rotation: quatd, a: vec3d, b: vec3d,
+):  # fmt: skip
+    """(value, rate) of a joint coordinate of world axis a and world point B b (`coordinate_axis`).
+
+    Angle (rad): the rotation of q0^-1 q1 rest^-1 about axis0, in (-pi, pi]; rate = (w1 - w0) . axis.
+    Offset (m): (B - A) . axis with A on body0 and B on body1; rate = (u_B - u_B0) . axis, the velocity of B
+    on body1 against the point of body0 at B, which makes (force x rate) the power of the pair.
+    Distance (m): |B - A|, an offset along the unit axis (B - A) / |B - A| (body0's axis0 while A and B meet).
+    A push along that axis acts on body0 with the same moment at B as at A, B - A being parallel to it."""
     if coordinate == ANGLE_COORDINATE:
         d = wp.quat_inverse(q0) * q1 * wp.quat_inverse(rest_rotation)
         s = wp.dot(vec3d(d[0], d[1], d[2]), axis0)
@@ -65,11 +74,24 @@ def joint_coordinate(
         if c < f64(0.0):
             s = -s
             c = -c
-        return f64(2.0) * wp.atan2(s, c), wp.dot(w1 - w0, a), a, b
+        return f64(2.0) * wp.atan2(s, c), wp.dot(w1 - w0, a)
     p = x0 + wp.quat_rotate(q0, anchor0)
     u1 = v1 + wp.cross(w1, b - x1)
     u0 = v0 + wp.cross(w0, b - x0)
-    return wp.dot(b - p, a), wp.dot(u1 - u0, a), a, b
+    return wp.dot(b - p, a), wp.dot(u1 - u0, a)
+
+
+@wp.func
+def joint_coordinate(
+    coordinate: int,
+    x0: vec3d, q0: quatd, v0: vec3d, w0: vec3d,
+    x1: vec3d, q1: quatd, v1: vec3d, w1: vec3d,
+    anchor0: vec3d, anchor1: vec3d, axis0: vec3d, rest_rotation: quatd,
+):  # fmt: skip
+    """(value, rate, world axis, world point B) of a joint coordinate (`coordinate_axis`, `coordinate_value`)."""
+    a, b = coordinate_axis(coordinate, x0, q0, x1, q1, anchor0, anchor1, axis0)
+    value, rate = coordinate_value(coordinate, x0, q0, v0, w0, x1, q1, v1, w1, anchor0, axis0, rest_rotation, a, b)
+    return value, rate, a, b
 
 
 @wp.func
@@ -94,6 +116,55 @@ def coordinate_row(
         coordinate_kind[r], pose_x(b0, body_x), pose_q(b0, body_q), pose_v(b0, body_v), pose_v(b0, body_w),
         pose_x(b1, body_x), pose_q(b1, body_q), pose_v(b1, body_v), pose_v(b1, body_w),
         coordinate_anchor0[r], coordinate_anchor1[r], coordinate_axis0[r], coordinate_rest_rotation[r],
+    )  # fmt: skip
+
+
+@wp.func
+def coordinate_row_axis(
+    r: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+):
+    """`coordinate_axis` of coordinate row r at the given poses: (world axis, world point B), the same bits as
+    `coordinate_row`'s."""
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    return coordinate_axis(
+        coordinate_kind[r], pose_x(b0, body_x), pose_q(b0, body_q), pose_x(b1, body_x), pose_q(b1, body_q),
+        coordinate_anchor0[r], coordinate_anchor1[r], coordinate_axis0[r],
+    )  # fmt: skip
+
+
+@wp.func
+def coordinate_row_value(
+    r: int,
+    a: vec3d,
+    b: vec3d,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """`coordinate_value` of coordinate row r at the given state, its axis a and point b
+    (`coordinate_row_axis`): (value, rate), the same bits as `coordinate_row`'s."""
+    b0 = coordinate_body0[r]
+    b1 = coordinate_body1[r]
+    return coordinate_value(
+        coordinate_kind[r], pose_x(b0, body_x), pose_q(b0, body_q), pose_v(b0, body_v), pose_v(b0, body_w),
+        pose_x(b1, body_x), pose_q(b1, body_q), pose_v(b1, body_v), pose_v(b1, body_w),
+        coordinate_anchor0[r], coordinate_axis0[r], coordinate_rest_rotation[r], a, b,
     )  # fmt: skip
 
 
@@ -219,6 +290,7 @@ def reciprocal(a: vec3d, b: vec3d, c: vec3d, count: int) -> vec3d:
 def chain_direction(
     r: int,
     a: vec3d,
+    point: vec3d,
     chain: wp.vec3i,
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
@@ -226,35 +298,35 @@ def chain_direction(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
 ):
-    """(direction, point) of a drive's wrench on coordinate row r of axis a: `reciprocal` to the world axes of
-    the chain's other coordinates of its kind (rows chain[0], chain[1], -1 for none), and the world anchor of
-    row chain[2] (where a force along a chain with hinges does no work on them: their common anchor)."""
+    """(direction, point) of a drive's wrench on coordinate row r of axis a and point B `point`: `reciprocal` to
+    the world axes of the chain's other coordinates of its kind (rows chain[0], chain[1], -1 for none), and the
+    world anchor of row chain[2] (where a force along a chain with hinges does no work on them: their common
+    anchor; row r's own point where chain[2] is r, a drive on no chain)."""
     b = vec3d()
     c = vec3d()
     count = int(0)
     if chain[0] >= 0:
-        v0, r0, b, p0 = coordinate_row(
+        b, p0 = coordinate_row_axis(
             chain[0], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+            coordinate_axis0, body_x, body_q,
         )  # fmt: skip
         count = 1
     if chain[1] >= 0:
-        v1, r1, c, p1 = coordinate_row(
+        c, p1 = coordinate_row_axis(
             chain[1], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+            coordinate_axis0, body_x, body_q,
         )  # fmt: skip
         count = 2
-    v2, r2, a2, point = coordinate_row(
-        chain[2], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
-    )  # fmt: skip
-    return reciprocal(a, b, c, count), point
+    anchor = point
+    if chain[2] != r:
+        a2, anchor = coordinate_row_axis(
+            chain[2], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, body_x, body_q,
+        )  # fmt: skip
+    return reciprocal(a, b, c, count), anchor
 
 
 @wp.func
@@ -292,17 +364,23 @@ def drive_wrench(
     take no force (an explicit force on a body of almost no inertia would make the prediction unstable)."""
     i = drive_element[e]
     r = drive_coordinate[i]
-    value, rate, a, pb = coordinate_row(
+    a, pb = coordinate_row_axis(
         r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        coordinate_axis0, body_x, body_q,
     )  # fmt: skip
     kind = coordinate_kind[r]
-    out = drive_output(
-        kind, drive_mode[i], value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i]
-    )
+    mode = drive_mode[i]
+    value = f64(0.0)
+    rate = f64(0.0)
+    if mode != EFFORT_MODE:  # an effort is its target: it needs the coordinate's axis, not its value or rate
+        value, rate = coordinate_row_value(
+            r, a, pb, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_axis0,
+            coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        )  # fmt: skip
+    out = drive_output(kind, mode, value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i])
     a, pb = chain_direction(
-        r, a, drive_chain[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-        coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        r, a, pb, drive_chain[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, body_x, body_q,
     )  # fmt: skip
     ends = drive_ends[i]
     row = 2 * (row_offset + e)
@@ -660,14 +738,11 @@ def damper_rates(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     # Data in:
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
-    body_v_in: wp.array(dtype=vec3d),
-    body_w_in: wp.array(dtype=vec3d),
     # Data out:
     damper_k_out: wp.array(dtype=f64),
 ):
@@ -676,9 +751,9 @@ def damper_rates(
     prediction; for the host to pick the dampers that go implicit (`dampers.pick`)."""
     i = wp.tid()
     r = drive_coordinate[i]
-    value, rate, a, point = coordinate_row(
+    a, point = coordinate_row_axis(
         r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x_in, body_q_in, body_v_in, body_w_in,
+        coordinate_axis0, body_x_in, body_q_in,
     )  # fmt: skip
     m0, j0, x0 = body_mobility(coordinate_body0[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
     m1, j1, x1 = body_mobility(coordinate_body1[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
@@ -724,7 +799,6 @@ def implicit_damper(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     body_x: wp.array(dtype=vec3d),
@@ -743,9 +817,9 @@ def implicit_damper(
     damper either way."""
     i = damper_drive[d]
     r = drive_coordinate[i]
-    value, rate, a, point = coordinate_row(
+    a, point = coordinate_row_axis(
         r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        coordinate_axis0, body_x, body_q,
     )  # fmt: skip
     b0 = coordinate_body0[r]
     b1 = coordinate_body1[r]
@@ -784,7 +858,6 @@ def implicit_dampers_all(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     body_x: wp.array(dtype=vec3d),
@@ -800,7 +873,7 @@ def implicit_dampers_all(
         implicit_damper(
             d, h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind,
             coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
-            coordinate_rest_rotation, body_inv_mass, body_inv_inertia, body_x, body_q, body_v, body_w,
+            body_inv_mass, body_inv_inertia, body_x, body_q, body_v, body_w,
         )  # fmt: skip
         d += 1
 
@@ -819,7 +892,6 @@ def implicit_dampers(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     # Data in: control
@@ -833,6 +905,6 @@ def implicit_dampers(
     """Every implicit damper on the prediction, on one thread (`implicit_dampers_all`)."""
     implicit_dampers_all(
         h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind, coordinate_body0,
-        coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation,
+        coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
         body_inv_mass, body_inv_inertia, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip

@@ -448,7 +448,7 @@ def coupled_predict_all(
     implicit_dampers_all(
         h, el.damper_drive, el.damper_gain, el.drive_coordinate, el.drive_mode, el.drive_target, el.coordinate_kind,
         el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0, el.coordinate_anchor1, el.coordinate_axis0,
-        el.coordinate_rest_rotation, body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
+        body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
     )  # fmt: skip
 
 
