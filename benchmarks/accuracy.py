@@ -23,6 +23,7 @@ import argparse
 import gc
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -320,7 +321,8 @@ def table(results: dict) -> str:
         f"frames of {DURATION:g} s; cost: wall time of the steps of that run, the median of {ROUNDS} runs taken in "
         f"turns with the grid's likely cheapest configurations at E (its {CANDIDATES} fastest in the grid's own "
         "timing and the one of fewest solves; the cheapest is the least of their medians), after a first untimed "
-        f"run of each (launches recorded), on {meta['machine']} (a shared 2-core machine: load 2-5 during the run). "
+        f"run of each (launches recorded), on {meta['machine']} (2 cores, load average "
+        f"{meta.get('load', math.nan):.1f} at the end of the run). "
         f"✗: outside E/{ERROR_WITHIN:g} .. {ERROR_WITHIN:g} E, or over {COST_WITHIN:g}x the cheapest. Solves / "
         "fewest: the linear solves of the run (its shadow run's included) against the fewest of a grid configuration "
         "that reaches E, a count that no machine load moves. "
@@ -366,6 +368,7 @@ def main() -> None:
         acc = accuracy_rows(model, ref, grid)
         results["scenes"][name] = {"bodies": len(builder.bodies), "reference": info, "grid": grid,
                                    "accuracy": acc, "judged": judge(acc, grid)}  # fmt: skip
+        results["meta"]["load"] = os.getloadavg()[0]  # the machine's, over the last minute of the run
         if not args.quick:
             RESULTS.write_text(json.dumps(results, indent=1))
     if not args.quick:
