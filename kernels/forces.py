@@ -41,8 +41,8 @@ def pose_v(b: int, vs: wp.array(dtype=vec3d)) -> vec3d:
 def coordinate_axis(
     coordinate: int, x0: vec3d, q0: quatd, x1: vec3d, q1: quatd, anchor0: vec3d, anchor1: vec3d, axis0: vec3d
 ):
-    """(world axis, world point B) of a joint coordinate (`joint_coordinate`): all that a force along it (or a
-    torque about it) needs, without its value's arc tangent."""
+    """(world axis, world point B) of a joint coordinate: all that a force along it (or a torque about it) needs,
+    without its value's arc tangent."""
     a = wp.quat_rotate(q0, axis0)
     b = x1 + wp.quat_rotate(q1, anchor1)
     if coordinate == DISTANCE_COORDINATE:
@@ -82,44 +82,6 @@ def coordinate_value(
 
 
 @wp.func
-def joint_coordinate(
-    coordinate: int,
-    x0: vec3d, q0: quatd, v0: vec3d, w0: vec3d,
-    x1: vec3d, q1: quatd, v1: vec3d, w1: vec3d,
-    anchor0: vec3d, anchor1: vec3d, axis0: vec3d, rest_rotation: quatd,
-):  # fmt: skip
-    """(value, rate, world axis, world point B) of a joint coordinate (`coordinate_axis`, `coordinate_value`)."""
-    a, b = coordinate_axis(coordinate, x0, q0, x1, q1, anchor0, anchor1, axis0)
-    value, rate = coordinate_value(coordinate, x0, q0, v0, w0, x1, q1, v1, w1, anchor0, axis0, rest_rotation, a, b)
-    return value, rate, a, b
-
-
-@wp.func
-def coordinate_row(
-    r: int,
-    coordinate_kind: wp.array(dtype=int),
-    coordinate_body0: wp.array(dtype=int),
-    coordinate_body1: wp.array(dtype=int),
-    coordinate_anchor0: wp.array(dtype=vec3d),
-    coordinate_anchor1: wp.array(dtype=vec3d),
-    coordinate_axis0: wp.array(dtype=vec3d),
-    coordinate_rest_rotation: wp.array(dtype=quatd),
-    body_x: wp.array(dtype=vec3d),
-    body_q: wp.array(dtype=quatd),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-):
-    """`joint_coordinate` of coordinate row r at the given state."""
-    b0 = coordinate_body0[r]
-    b1 = coordinate_body1[r]
-    return joint_coordinate(
-        coordinate_kind[r], pose_x(b0, body_x), pose_q(b0, body_q), pose_v(b0, body_v), pose_v(b0, body_w),
-        pose_x(b1, body_x), pose_q(b1, body_q), pose_v(b1, body_v), pose_v(b1, body_w),
-        coordinate_anchor0[r], coordinate_anchor1[r], coordinate_axis0[r], coordinate_rest_rotation[r],
-    )  # fmt: skip
-
-
-@wp.func
 def coordinate_row_axis(
     r: int,
     coordinate_kind: wp.array(dtype=int),
@@ -131,8 +93,7 @@ def coordinate_row_axis(
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
 ):
-    """`coordinate_axis` of coordinate row r at the given poses: (world axis, world point B), the same bits as
-    `coordinate_row`'s."""
+    """`coordinate_axis` of coordinate row r at the given poses: (world axis, world point B)."""
     b0 = coordinate_body0[r]
     b1 = coordinate_body1[r]
     return coordinate_axis(
@@ -158,7 +119,7 @@ def coordinate_row_value(
     body_w: wp.array(dtype=vec3d),
 ):
     """`coordinate_value` of coordinate row r at the given state, its axis a and point b
-    (`coordinate_row_axis`): (value, rate), the same bits as `coordinate_row`'s."""
+    (`coordinate_row_axis`): (value, rate)."""
     b0 = coordinate_body0[r]
     b1 = coordinate_body1[r]
     return coordinate_value(
@@ -166,6 +127,34 @@ def coordinate_row_value(
         pose_x(b1, body_x), pose_q(b1, body_q), pose_v(b1, body_v), pose_v(b1, body_w),
         coordinate_anchor0[r], coordinate_axis0[r], coordinate_rest_rotation[r], a, b,
     )  # fmt: skip
+
+
+@wp.func
+def coordinate_row(
+    r: int,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """(value, rate, world axis, world point B) of coordinate row r at the given state: `coordinate_row_axis`,
+    then `coordinate_row_value` with them."""
+    a, b = coordinate_row_axis(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, body_x, body_q,
+    )  # fmt: skip
+    value, rate = coordinate_row_value(
+        r, a, b, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_axis0,
+        coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+    )  # fmt: skip
+    return value, rate, a, b
 
 
 @wp.func
