@@ -276,11 +276,9 @@ def reciprocal(a: vec3d, b: vec3d, c: vec3d, count: int) -> vec3d:
 
 
 @wp.func
-def chain_direction(
-    r: int,
-    a: vec3d,
-    point: vec3d,
-    chain: wp.vec3i,
+def coordinate_geometry(
+    i: int,
+    drive_rows: wp.array(dtype=int),
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
     coordinate_body1: wp.array(dtype=int),
@@ -289,32 +287,71 @@ def chain_direction(
     coordinate_axis0: wp.array(dtype=vec3d),
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
+    coordinate_world_axis: wp.array(dtype=vec3d),
+    coordinate_world_point: wp.array(dtype=vec3d),
+):
+    """`coordinate_row_axis` of the i-th coordinate row the force drives read (`Model.drive_rows`) at the given
+    poses, kept at the row for the stage's drives (`drive_wrench`): a row is read by every drive on it and on its
+    chain, several times a stage where each drive formed it anew (the dm_control humanoid: 21 rows, ~116 forms)."""
+    r = drive_rows[i]
+    a, b = coordinate_row_axis(
+        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, body_x, body_q,
+    )  # fmt: skip
+    coordinate_world_axis[r] = a
+    coordinate_world_point[r] = b
+
+
+@wp.kernel
+def coordinate_geometries(
+    # Model:
+    drive_rows: wp.array(dtype=int),
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    # Data in: the stage state
+    body_x_in: wp.array(dtype=vec3d),
+    body_q_in: wp.array(dtype=quatd),
+    # Data out: at the rows of drive_rows
+    coordinate_world_axis: wp.array(dtype=vec3d),
+    coordinate_world_point: wp.array(dtype=vec3d),
+):
+    """Every coordinate row's world axis and point that the force drives read (`coordinate_geometry`)."""
+    coordinate_geometry(
+        wp.tid(), drive_rows, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, body_x_in, body_q_in, coordinate_world_axis, coordinate_world_point,
+    )  # fmt: skip
+
+
+@wp.func
+def chain_direction(
+    r: int,
+    a: vec3d,
+    point: vec3d,
+    chain: wp.vec3i,
+    coordinate_world_axis: wp.array(dtype=vec3d),
+    coordinate_world_point: wp.array(dtype=vec3d),
 ):
     """(direction, point) of a drive's wrench on coordinate row r of axis a and point B `point`: `reciprocal` to
     the world axes of the chain's other coordinates of its kind (rows chain[0], chain[1], -1 for none), and the
     world anchor of row chain[2] (where a force along a chain with hinges does no work on them: their common
-    anchor; row r's own point where chain[2] is r, a drive on no chain)."""
+    anchor; row r's own point where chain[2] is r, a drive on no chain); the rows' axes and points at the stage
+    state (`coordinate_geometry`)."""
     b = vec3d()
     c = vec3d()
     count = int(0)
     if chain[0] >= 0:
-        b, p0 = coordinate_row_axis(
-            chain[0], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, body_x, body_q,
-        )  # fmt: skip
+        b = coordinate_world_axis[chain[0]]
         count = 1
     if chain[1] >= 0:
-        c, p1 = coordinate_row_axis(
-            chain[1], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, body_x, body_q,
-        )  # fmt: skip
+        c = coordinate_world_axis[chain[1]]
         count = 2
     anchor = point
     if chain[2] != r:
-        a2, anchor = coordinate_row_axis(
-            chain[2], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-            coordinate_axis0, body_x, body_q,
-        )  # fmt: skip
+        anchor = coordinate_world_point[chain[2]]
     return reciprocal(a, b, c, count), anchor
 
 
@@ -342,21 +379,22 @@ def drive_wrench(
     body_q: wp.array(dtype=quatd),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
+    coordinate_world_axis: wp.array(dtype=vec3d),
+    coordinate_world_point: wp.array(dtype=vec3d),
     wrench_force: wp.array(dtype=vec3d),
     wrench_torque: wp.array(dtype=vec3d),
 ):
-    """Drive element e's wrenches (rows 2 (row_offset + e) + side) at the given state, with the integral of the
-    step's start: the torque tau about the axis (+tau on body1, -tau on body0), or the force f along the axis at
-    B (+f on body1, -f on body0 at the same point, so no net couple). A drive on a joint of a chain of joints
-    through light bodies (`SceneBuilder.chain_joints`) acts on the chain's two ends (drive_ends) along the
-    `chain_direction` instead: the same work on its coordinate, none on the others', so that the light bodies
-    take no force (an explicit force on a body of almost no inertia would make the prediction unstable)."""
+    """Drive element e's wrenches (rows 2 (row_offset + e) + side) at the given state, its coordinate rows' world
+    axes and points at it (`coordinate_geometry`), with the integral of the step's start: the torque tau about the
+    axis (+tau on body1, -tau on body0), or the force f along the axis at B (+f on body1, -f on body0 at the same
+    point, so no net couple). A drive on a joint of a chain of joints through light bodies
+    (`SceneBuilder.chain_joints`) acts on the chain's two ends (drive_ends) along the `chain_direction` instead:
+    the same work on its coordinate, none on the others', so that the light bodies take no force (an explicit
+    force on a body of almost no inertia would make the prediction unstable)."""
     i = drive_element[e]
     r = drive_coordinate[i]
-    a, pb = coordinate_row_axis(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, body_x, body_q,
-    )  # fmt: skip
+    a = coordinate_world_axis[r]
+    pb = coordinate_world_point[r]
     kind = coordinate_kind[r]
     mode = drive_mode[i]
     value = f64(0.0)
@@ -367,10 +405,7 @@ def drive_wrench(
             coordinate_rest_rotation, body_x, body_q, body_v, body_w,
         )  # fmt: skip
     out = drive_output(kind, mode, value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i])
-    a, pb = chain_direction(
-        r, a, pb, drive_chain[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
-        coordinate_anchor1, coordinate_axis0, body_x, body_q,
-    )  # fmt: skip
+    a, pb = chain_direction(r, a, pb, drive_chain[i], coordinate_world_axis, coordinate_world_point)
     ends = drive_ends[i]
     row = 2 * (row_offset + e)
     if kind == ANGLE_COORDINATE:
@@ -404,23 +439,25 @@ def drive_wrenches(
     drive_mode: wp.array(dtype=int),
     drive_gains: wp.array(dtype=vec3d),
     drive_max_force: wp.array(dtype=f64),
-    # Data in: control, the integral at the step's start, the stage state
+    # Data in: control, the integral at the step's start, the stage state and its coordinate rows' axes and points
     drive_target: wp.array(dtype=f64),
     drive_integral: wp.array(dtype=f64),
     body_x_in: wp.array(dtype=vec3d),
     body_q_in: wp.array(dtype=quatd),
     body_v_in: wp.array(dtype=vec3d),
     body_w_in: wp.array(dtype=vec3d),
+    coordinate_world_axis: wp.array(dtype=vec3d),
+    coordinate_world_point: wp.array(dtype=vec3d),
     # Data out: rows 2 (row_offset + e) + side
     wrench_force_out: wp.array(dtype=vec3d),
     wrench_torque_out: wp.array(dtype=vec3d),
 ):
-    """Every drive element's wrenches (`drive_wrench`)."""
+    """Every drive element's wrenches (`drive_wrench`), after `coordinate_geometries` at the same state."""
     drive_wrench(
         wp.tid(), row_offset, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
         coordinate_anchor1, coordinate_axis0, coordinate_rest_rotation, drive_element, drive_coordinate, drive_chain,
         drive_ends, drive_mode, drive_gains, drive_max_force, drive_target, drive_integral, body_x_in, body_q_in,
-        body_v_in, body_w_in, wrench_force_out, wrench_torque_out,
+        body_v_in, body_w_in, coordinate_world_axis, coordinate_world_point, wrench_force_out, wrench_torque_out,
     )  # fmt: skip
 
 

@@ -40,7 +40,14 @@ from .assemble import assemble_column, augmented_slot
 from .carry import carry_into_all, carry_measure_all, commit_carry
 from .cholesky import backward_column, factor_column, forward_row
 from .constraints import specialized, velocity_error
-from .forces import drive_wrench, implicit_dampers_all, integrate_drive, rk4_stage_body, spring_wrench
+from .forces import (
+    coordinate_geometry,
+    drive_wrench,
+    implicit_dampers_all,
+    integrate_drive,
+    rk4_stage_body,
+    spring_wrench,
+)
 from .impulses import apply_body, impulse_response
 from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
@@ -122,6 +129,7 @@ class ForceElements:
     drive_coordinate: wp.array(dtype=int)
     drive_chain: wp.array(dtype=wp.vec3i)
     drive_ends: wp.array(dtype=wp.vec2i)
+    drive_rows: wp.array(dtype=int)  # the coordinate rows the force drives read (`Model.drive_rows`)
     drive_mode: wp.array(dtype=int)
     drive_gains: wp.array(dtype=vec3d)
     drive_max_force: wp.array(dtype=f64)
@@ -132,6 +140,8 @@ class ForceElements:
     body_wrench_rows: wp.array(dtype=int)
     wrench_force: wp.array(dtype=vec3d)
     wrench_torque: wp.array(dtype=vec3d)
+    coordinate_world_axis: wp.array(dtype=vec3d)  # at the stage state, by coordinate row (`coordinate_geometry`)
+    coordinate_world_point: wp.array(dtype=vec3d)
     stage_x: wp.array(dtype=vec3d)
     stage_q: wp.array(dtype=quatd)
     stage_v: wp.array(dtype=vec3d)
@@ -347,7 +357,15 @@ def element_wrenches(
     body_w: wp.array(dtype=vec3d),
 ):
     """Every force element's wrench rows at the given state: the springs, then the drives (`spring_wrench`,
-    `drive_wrench`)."""
+    `drive_wrench`) with their coordinate rows' axes and points at it (`coordinate_geometry`)."""
+    e = wp.int32(0)
+    while e < el.drive_rows.shape[0]:
+        coordinate_geometry(
+            e, el.drive_rows, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
+            el.coordinate_anchor1, el.coordinate_axis0, body_x, body_q, el.coordinate_world_axis,
+            el.coordinate_world_point,
+        )  # fmt: skip
+        e += 1
     springs = el.spring_body0.shape[0]
     e = wp.int32(0)
     while e < springs:
@@ -362,7 +380,8 @@ def element_wrenches(
             e, springs, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
             el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, el.drive_element,
             el.drive_coordinate, el.drive_chain, el.drive_ends, el.drive_mode, el.drive_gains, el.drive_max_force,
-            el.drive_target, el.drive_integral, body_x, body_q, body_v, body_w, el.wrench_force, el.wrench_torque,
+            el.drive_target, el.drive_integral, body_x, body_q, body_v, body_w, el.coordinate_world_axis,
+            el.coordinate_world_point, el.wrench_force, el.wrench_torque,
         )  # fmt: skip
         e += 1
 

@@ -40,6 +40,10 @@ class FusedSteps:
         elements.damper_drive, elements.damper_gain = self._dampers.drive, self._dampers.gain
         elements.integral0 = self._integral0
         elements.wrench_force, elements.wrench_torque = self.wrench_force, self.wrench_torque
+        elements.coordinate_world_axis, elements.coordinate_world_point = (
+            self.coordinate_world_axis,
+            self.coordinate_world_point,
+        )
         elements.stage_x, elements.stage_q = self._stage.body_x, self._stage.body_q
         elements.stage_v, elements.stage_w = self._stage.body_v, self._stage.body_w
         elements.rk4_sum_x, elements.rk4_sum_q = self.rk4_sum_x, self.rk4_sum_q

@@ -363,6 +363,8 @@ class Model:
         rows_of = np.append(row_of, -1)  # joint -1 -> row -1
         self.drive_chain = _array(rows_of[h.drive_chain].astype(np.int32), wp.vec3i, d)
         self.drive_ends = _array(h.drive_ends.astype(np.int32), wp.vec2i, d)
+        read = np.concatenate([row_of[h.drive_joint[forced]], rows_of[h.drive_chain[forced]].reshape(-1)])
+        self.drive_rows = _array(np.unique(read[read >= 0]), wp.int32, d)  # the rows the force drives read
         self.drive_mode = _array(mode, wp.int32, d)
         self.drive_gains = _array(gains, wp.vec3d, d)
         self.drive_max_force = _array(np.asarray(drive_max_force, np.float64), wp.float64, d)

@@ -218,6 +218,7 @@ class Recording:
         for k in range(4):
             at = s if k == 0 else stage
             launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
+            launches.append(self._record(force_kernels.coordinate_geometries, m.drive_rows.shape[0], at))
             launches.append(
                 self._record(
                     force_kernels.drive_wrenches,

@@ -264,6 +264,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             )
             self.wrench_force = wp.zeros(2 * model.element_count, dtype=wp.vec3d, device=d)
             self.wrench_torque = wp.zeros(2 * model.element_count, dtype=wp.vec3d, device=d)
+            # the force drives' coordinate rows' world axes and points at a stage state (`forces.coordinate_geometry`)
+            self.coordinate_world_axis = wp.zeros(model.coordinate_count, dtype=wp.vec3d, device=d)
+            self.coordinate_world_point = wp.zeros(model.coordinate_count, dtype=wp.vec3d, device=d)
         self.drive_target = wp.array(model.host.drive_target, dtype=wp.float64, device=d)
         self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
         # The drives' damping stiff for dt: implicit (`dampers.py`), unless order 4 or 6 is asked
