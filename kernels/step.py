@@ -445,25 +445,21 @@ def coupled_predict_all(
     """RK4 over all bodies at once, the force elements evaluated at every stage state, then the implicit
     dampers on the prediction: the launches of `Simulator._coupled_prediction` in the same order (stage 0 from
     the state, the next stage states in el.stage_*, the last into the prediction)."""
-    element_wrenches(el, body_x, body_q, body_v, body_w)
-    rk4_stage_all(
-        0, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q, body_v, body_w,
-        body_x, body_q, body_v, body_w, body_force, body_torque, el.stage_x, el.stage_q, el.stage_v, el.stage_w,
-    )  # fmt: skip
-    for stage in range(1, 4):
-        element_wrenches(el, el.stage_x, el.stage_q, el.stage_v, el.stage_w)
-        if stage < 3:
-            rk4_stage_all(
-                stage, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q,
-                body_v, body_w, el.stage_x, el.stage_q, el.stage_v, el.stage_w, body_force, body_torque, el.stage_x,
-                el.stage_q, el.stage_v, el.stage_w,
-            )  # fmt: skip
-        else:
-            rk4_stage_all(
-                stage, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q,
-                body_v, body_w, el.stage_x, el.stage_q, el.stage_v, el.stage_w, body_force, body_torque, pred_x,
-                pred_q, pred_v, pred_w,
-            )  # fmt: skip
+    stage = wp.int32(0)
+    while stage < 4:  # a loop, not unrolled: one copy of the elements' and the stages' code
+        first = stage == 0
+        last = stage == 3
+        in_x = wp.where(first, body_x, el.stage_x)
+        in_q = wp.where(first, body_q, el.stage_q)
+        in_v = wp.where(first, body_v, el.stage_v)
+        in_w = wp.where(first, body_w, el.stage_w)
+        element_wrenches(el, in_x, in_q, in_v, in_w)
+        rk4_stage_all(
+            stage, body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, h, el, body_x, body_q, body_v,
+            body_w, in_x, in_q, in_v, in_w, body_force, body_torque, wp.where(last, pred_x, el.stage_x),
+            wp.where(last, pred_q, el.stage_q), wp.where(last, pred_v, el.stage_v), wp.where(last, pred_w, el.stage_w),
+        )  # fmt: skip
+        stage += 1
     implicit_dampers_all(
         h, el.damper_drive, el.damper_gain, el.drive_coordinate, el.drive_mode, el.drive_target, el.coordinate_kind,
         el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0, el.coordinate_anchor1, el.coordinate_axis0,

@@ -110,6 +110,30 @@ def _sprung_limited_chain() -> wi.SceneBuilder:
     return b
 
 
+def _gimbal_drives() -> wi.SceneBuilder:
+    """A pendulum's arm on two hinges and a slider through two light bodies (`chain_joints`, MJCF's joints in one
+    body), the first hinge read by two drives: a position servo and an effort motor on it, a velocity servo on
+    the second, a spring on the slider (a force at the hinges' anchor). The drives read their chain's other rows'
+    axes and points, formed once a stage for them all (`forces.coordinate_geometry`)."""
+    b = wi.SceneBuilder()
+    anchor = np.array([0.0, 0.0, 1.0])
+    base = b.add_body(2.0, (0.02, 0.03, 0.04), anchor + (0.0, 0.0, 0.1), name="base")
+    b.add_joint_revolute(None, base, anchor + (0.0, 0.0, 0.1), (0.0, 0.0, 1.0))
+    parent = base
+    for i, axis in enumerate(np.eye(3)):
+        light = i < 2
+        body = b.add_body(1e-6 if light else 1.0, (1e-8,) * 3 if light else (0.01, 0.05, 0.05),
+                          anchor if light else anchor + (0.4, 0.0, -0.2), name=f"link{i}")  # fmt: skip
+        b.add_joint("revolute" if light else "prismatic", parent, body, anchor, axis)
+        parent = body
+    b.chain_joints([1, 2, 3])
+    b.add_motor(1, "position", target=0.3, kp=20.0, ki=2.0, kd=1.0)
+    b.add_motor(1, "effort", target=0.5)
+    b.add_motor(2, "velocity", target=0.2, kp=5.0, max_force=4.0)
+    b.add_joint_spring(3, 10.0, damping=0.5, rest=0.1)
+    return b
+
+
 MIXED = ["ball", "prismatic", "universal", "fixed", "cylindrical", "planar", "revolute"]
 # (scene, dt, steps, Simulator options): every solver the fused schedule has, both formulations, every
 # constraint kind, model forces that end within the run, fast spins (split steps), failing steps (halved).
@@ -149,6 +173,7 @@ CASES = {
     "chain10_springs": (_sprung_chain, 1 / 60, 60, {}),
     "chain10_springs_order4": (_sprung_chain, 1 / 60, 30, {"order": 4}),
     "servo_chain": (_servo_chain, 1 / 60, 60, {}),
+    "gimbal_drives": (_gimbal_drives, 1 / 120, 60, {}),
     "servo_chain_order4": (_servo_chain, 1 / 60, 40, {"order": 4}),
     "servo_chain_body_matrix_order6": (_servo_chain, 1 / 60, 20, {"order": 6, "formulation": "body"}),
     "servo_chain50_yoshida3_halved": (
