@@ -279,6 +279,7 @@ def reciprocal(a: vec3d, b: vec3d, c: vec3d, count: int) -> vec3d:
 def coordinate_geometry(
     i: int,
     drive_rows: wp.array(dtype=int),
+    drive_row_point: wp.array(dtype=int),
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
     coordinate_body1: wp.array(dtype=int),
@@ -292,20 +293,26 @@ def coordinate_geometry(
 ):
     """`coordinate_row_axis` of the i-th coordinate row the force drives read (`Model.drive_rows`) at the given
     poses, kept at the row for the stage's drives (`drive_wrench`): a row is read by every drive on it and on its
-    chain, several times a stage where each drive formed it anew (the dm_control humanoid: 21 rows, ~116 forms)."""
+    chain, several times a stage where each drive formed it anew (the dm_control humanoid: 21 rows, ~116 forms).
+    The point only where a drive reads it (`drive_row_point`, every row but a hinge's that is no force's anchor):
+    a torque needs the axis alone."""
     r = drive_rows[i]
-    a, b = coordinate_row_axis(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, body_x, body_q,
-    )  # fmt: skip
-    coordinate_world_axis[r] = a
-    coordinate_world_point[r] = b
+    if drive_row_point[i] != 0:
+        a, b = coordinate_row_axis(
+            r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, body_x, body_q,
+        )  # fmt: skip
+        coordinate_world_axis[r] = a
+        coordinate_world_point[r] = b
+    else:  # an angle's axis, as `coordinate_axis` forms it
+        coordinate_world_axis[r] = wp.quat_rotate(pose_q(coordinate_body0[r], body_q), coordinate_axis0[r])
 
 
 @wp.kernel
 def coordinate_geometries(
     # Model:
     drive_rows: wp.array(dtype=int),
+    drive_row_point: wp.array(dtype=int),
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
     coordinate_body1: wp.array(dtype=int),
@@ -321,7 +328,7 @@ def coordinate_geometries(
 ):
     """Every coordinate row's world axis and point that the force drives read (`coordinate_geometry`)."""
     coordinate_geometry(
-        wp.tid(), drive_rows, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        wp.tid(), drive_rows, drive_row_point, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
         coordinate_anchor1, coordinate_axis0, body_x_in, body_q_in, coordinate_world_axis, coordinate_world_point,
     )  # fmt: skip
 

@@ -130,6 +130,7 @@ class ForceElements:
     drive_chain: wp.array(dtype=wp.vec3i)
     drive_ends: wp.array(dtype=wp.vec2i)
     drive_rows: wp.array(dtype=int)  # the coordinate rows the force drives read (`Model.drive_rows`)
+    drive_row_point: wp.array(dtype=int)  # whether a drive reads the row's point (`Model.drive_row_point`)
     drive_mode: wp.array(dtype=int)
     drive_gains: wp.array(dtype=vec3d)
     drive_max_force: wp.array(dtype=f64)
@@ -361,9 +362,9 @@ def element_wrenches(
     e = wp.int32(0)
     while e < el.drive_rows.shape[0]:
         coordinate_geometry(
-            e, el.drive_rows, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
-            el.coordinate_anchor1, el.coordinate_axis0, body_x, body_q, el.coordinate_world_axis,
-            el.coordinate_world_point,
+            e, el.drive_rows, el.drive_row_point, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1,
+            el.coordinate_anchor0, el.coordinate_anchor1, el.coordinate_axis0, body_x, body_q,
+            el.coordinate_world_axis, el.coordinate_world_point,
         )  # fmt: skip
         e += 1
     springs = el.spring_body0.shape[0]

@@ -318,7 +318,8 @@ class Model:
         kind = coordinate[coordinate_joint]
         axis_constraint = first + (kind == COORDINATES["revolute"])
         self.coordinate_count = len(self.coordinate_joint) + nd
-        self.coordinate_kind = _array(np.concatenate([kind, np.full(nd, DISTANCE_COORDINATE)]), wp.int32, d)
+        kinds = np.concatenate([kind, np.full(nd, DISTANCE_COORDINATE)])  # every coordinate row's
+        self.coordinate_kind = _array(kinds, wp.int32, d)
         body0 = np.concatenate([h.joint_parent[self.coordinate_joint], distance_body[:, 0]])
         body1 = np.concatenate([h.joint_child[self.coordinate_joint], distance_body[:, 1]])
         self.coordinate_body0 = _array(body0, wp.int32, d)
@@ -363,8 +364,15 @@ class Model:
         rows_of = np.append(row_of, -1)  # joint -1 -> row -1
         self.drive_chain = _array(rows_of[h.drive_chain].astype(np.int32), wp.vec3i, d)
         self.drive_ends = _array(h.drive_ends.astype(np.int32), wp.vec2i, d)
-        read = np.concatenate([row_of[h.drive_joint[forced]], rows_of[h.drive_chain[forced]].reshape(-1)])
-        self.drive_rows = _array(np.unique(read[read >= 0]), wp.int32, d)  # the rows the force drives read
+        # The coordinate rows the force drives read (`forces.coordinate_geometry`), and whether a drive reads the
+        # row's point: every row but a hinge's that no force (a drive on a slider or distance) acts at.
+        own, chain = row_of[h.drive_joint[forced]], rows_of[h.drive_chain[forced]]
+        read = np.unique(np.concatenate([own, chain.reshape(-1)]))
+        read = read[read >= 0]
+        forces = kinds[own] != COORDINATES["revolute"]
+        pointed = np.union1d(own[forces], chain[forces, 2])
+        self.drive_rows = _array(read, wp.int32, d)
+        self.drive_row_point = _array((kinds[read] != COORDINATES["revolute"]) | np.isin(read, pointed), wp.int32, d)
         self.drive_mode = _array(mode, wp.int32, d)
         self.drive_gains = _array(gains, wp.vec3d, d)
         self.drive_max_force = _array(np.asarray(drive_max_force, np.float64), wp.float64, d)
