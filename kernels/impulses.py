@@ -12,6 +12,7 @@ wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
 mat33d = wp.mat33d
+quatd = wp.quatd
 f64 = wp.float64
 
 
@@ -104,14 +105,32 @@ def apply_impulses(
     )  # fmt: skip
 
 
+@wp.func
+def step_turn(dw: vec3d, h: f64, inertia: mat33d, q: quatd, w: vec3d, inv_inertia_world: sym33d) -> vec3d:
+    """The turn over a step of h, per unit of h (rad/s, world frame), that a velocity change dw at t0 gives a body
+    of body-frame inertia `inertia` at orientation q turning at w (t0), to first order in the turn:
+    dw + h/2 (w x dw + J~^-1 (L x dw - w x J~ dw)), L = J~ w, J~ = R J R^T. The perturbed orientation's rate is
+    dw(t) + w x dtheta, and dw(t) = J~(t)^-1 J~ dw moves with the body while the impulse's angular momentum stays
+    put in the world: h dw exactly only for a body at rest (docs/history.md, "Fewer joint iterations: the
+    turn's answer"). A static body (inverse inertia zero, dw zero) gets zero."""
+    lw = wp.quat_rotate(q, inertia * wp.quat_rotate_inv(q, w))  # J~ w
+    ldw = wp.quat_rotate(q, inertia * wp.quat_rotate_inv(q, dw))  # J~ dw
+    gyro = wp.cross(lw, dw) - wp.cross(w, ldw)
+    return dw + (wp.cross(w, dw) + symmetric_times(inv_inertia_world, gyro)) * (f64(0.5) * h)
+
+
 @wp.kernel
 def impulse_responses(
     # Model:
     constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
+    body_inertia: wp.array(dtype=mat33d),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    # Data in:
+    # Data in: the step, the state at t0 (its velocities with the impulses applied so far)
+    h: f64,
+    body_q_in: wp.array(dtype=quatd),
+    body_w_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
@@ -120,9 +139,11 @@ def impulse_responses(
     # Data out:
     response_v_out: wp.array(dtype=vec3d),
     response_w_out: wp.array(dtype=vec3d),
+    response_turn_out: wp.array(dtype=vec3d),
 ):
-    """Every body's velocity change from the impulses (`impulse_response`), the bodies left as they are: the
-    first iteration's Newton step (`constraints.arm_correction`) reads it."""
+    """Every body's velocity change from the impulses (`impulse_response`) and the turn it gives over the step
+    (`step_turn`), the bodies left as they are: the first iteration's Newton step (`constraints.arm_correction`)
+    reads them."""
     b = wp.tid()
     dv, dw = impulse_response(
         b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in, jac_ang_in,
@@ -130,6 +151,7 @@ def impulse_responses(
     )  # fmt: skip
     response_v_out[b] = dv
     response_w_out[b] = dw
+    response_turn_out[b] = step_turn(dw, h, body_inertia[b], body_q_in[b], body_w_in[b], inv_inertia_world_in[b])
 
 
 @wp.func
