@@ -111,8 +111,8 @@ def step_turn(dw: vec3d, h: f64, inertia: mat33d, q: quatd, w: vec3d, inv_inerti
     of body-frame inertia `inertia` at orientation q turning at w (t0), to first order in the turn:
     dw + h/2 (w x dw + J~^-1 (L x dw - w x J~ dw)), L = J~ w, J~ = R J R^T. The perturbed orientation's rate is
     dw(t) + w x dtheta, and dw(t) = J~(t)^-1 J~ dw moves with the body while the impulse's angular momentum stays
-    put in the world: h dw exactly only for a body at rest (docs/history.md, "Fewer joint iterations: the
-    turn's answer"). A static body (inverse inertia zero, dw zero) gets zero."""
+    put in the world: h dw exactly only for a body at rest (docs/history.md, "The turn's answer"). A static body
+    (inverse inertia zero, dw zero) gets zero."""
     lw = wp.quat_rotate(q, inertia * wp.quat_rotate_inv(q, w))  # J~ w
     ldw = wp.quat_rotate(q, inertia * wp.quat_rotate_inv(q, dw))  # J~ dw
     gyro = wp.cross(lw, dw) - wp.cross(w, ldw)
