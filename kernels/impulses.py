@@ -6,7 +6,7 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 import warp as wp
 
 from .constraints import POINT, angular_transpose_times, is_translational
-from .inertia import sym33d, symmetric_times
+from .inertia import sym33d, symmetric_matrix, symmetric_times
 
 wp.set_module_options({"enable_backward": False})
 
@@ -106,17 +106,19 @@ def apply_impulses(
 
 
 @wp.func
-def step_turn(dw: vec3d, h: f64, inertia: mat33d, q: quatd, w: vec3d, inv_inertia_world: sym33d) -> vec3d:
+def step_turn(dw: vec3d, h: f64, w: vec3d, inv_inertia_world: sym33d) -> vec3d:
     """The turn over a step of h, per unit of h (rad/s, world frame), that a velocity change dw at t0 gives a body
-    of body-frame inertia `inertia` at orientation q turning at w (t0), to first order in the turn:
-    dw + h/2 (w x dw + J~^-1 (L x dw - w x J~ dw)), L = J~ w, J~ = R J R^T. The perturbed orientation's rate is
+    turning at w (t0) with world inverse inertia J~^-1, to first order in the turn:
+    dw + h/2 (w x dw + J~^-1 (L x dw - w x J~ dw)), L = J~ w. The perturbed orientation's rate is
     dw(t) + w x dtheta, and dw(t) = J~(t)^-1 J~ dw moves with the body while the impulse's angular momentum stays
-    put in the world: h dw exactly only for a body at rest (docs/history.md, "The turn's answer"). A static body
-    (inverse inertia zero, dw zero) gets zero."""
-    lw = wp.quat_rotate(q, inertia * wp.quat_rotate_inv(q, w))  # J~ w
-    ldw = wp.quat_rotate(q, inertia * wp.quat_rotate_inv(q, dw))  # J~ dw
-    gyro = wp.cross(lw, dw) - wp.cross(w, ldw)
-    return dw + (wp.cross(w, dw) + symmetric_times(inv_inertia_world, gyro)) * (f64(0.5) * h)
+    put in the world: h dw exactly only for a body at rest (docs/history.md, "The turn's answer"). J~ is J~^-1
+    inverted here (no inertia read); a static body (J~^-1 zero, so dw zero) gets zero."""
+    if dw[0] == f64(0.0) and dw[1] == f64(0.0) and dw[2] == f64(0.0):
+        return dw
+    inverse = symmetric_matrix(inv_inertia_world)
+    inertia = wp.inverse(inverse)
+    gyro = wp.cross(inertia * w, dw) - wp.cross(w, inertia * dw)
+    return dw + (wp.cross(w, dw) + inverse * gyro) * (f64(0.5) * h)
 
 
 @wp.kernel
@@ -124,12 +126,10 @@ def impulse_responses(
     # Model:
     constraint_kind: wp.array(dtype=int),
     body_inv_mass: wp.array(dtype=f64),
-    body_inertia: wp.array(dtype=mat33d),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    # Data in: the step, the state at t0 (its velocities with the impulses applied so far)
+    # Data in: the step, the state's angular velocities (with the impulses applied so far)
     h: f64,
-    body_q_in: wp.array(dtype=quatd),
     body_w_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
@@ -151,7 +151,7 @@ def impulse_responses(
     )  # fmt: skip
     response_v_out[b] = dv
     response_w_out[b] = dw
-    response_turn_out[b] = step_turn(dw, h, body_inertia[b], body_q_in[b], body_w_in[b], inv_inertia_world_in[b])
+    response_turn_out[b] = step_turn(dw, h, body_w_in[b], inv_inertia_world_in[b])
 
 
 @wp.func

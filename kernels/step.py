@@ -1028,7 +1028,6 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         constraint_axis1: wp.array(dtype=vec3d),
         constraint_rest_rotation: wp.array(dtype=quatd),
         constraint_rest_angle: wp.array(dtype=f64),
-        body_inertia: wp.array(dtype=mat33d),
         h: f64,
         proj: wp.array(dtype=mat33d),
         inv_inertia_world: wp.array(dtype=sym33d),
@@ -1036,7 +1035,6 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         jac_ang: wp.array(dtype=mat33d),
         jac_skew: wp.array(dtype=vec3d),
         impulse: wp.array(dtype=vec3d),
-        state_q: wp.array(dtype=quatd),
         state_w: wp.array(dtype=vec3d),
         pred_x: wp.array(dtype=vec3d),
         pred_q: wp.array(dtype=quatd),
@@ -1056,7 +1054,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             )  # fmt: skip
             response_v[b] = dv
             response_w[b] = dw
-            response_turn[b] = step_turn(dw, h, body_inertia[b], state_q[b], state_w[b], inv_inertia_world[b])
+            response_turn[b] = step_turn(dw, h, state_w[b], inv_inertia_world[b])
             b += 1
         i = wp.int32(0)
         while i < constraint_count:
@@ -1337,9 +1335,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         newton_rhs_all(
                             body_count, constraint_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
                             constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
-                            constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle,
-                            body_inertia, hs, proj, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_q,
-                            state_w, next_x, next_q, rhs, response_v, response_w, response_turn, newton_rhs,
+                            constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, hs,
+                            proj, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_w, next_x, next_q,
+                            rhs, response_v, response_w, response_turn, newton_rhs,
                         )  # fmt: skip
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
