@@ -52,10 +52,6 @@ SAFETY = 1.0
 """The trajectory error aimed at the horizon's end, as a share of the accuracy."""
 NOISE_MARGIN = 2.0
 """The pilot's step-doubling gap is taken as at least this many joint tolerances (what each step may leave)."""
-CALIBRATION = 0.5
-"""The share of the horizon over which the shadow runs alongside; after it the step is held where the shadow left
-it, smaller only where bodies turn faster than they did while it ran (the shadow costs its steps, half the
-trajectory's, while it runs)."""
 BLOCKS = 20
 """The comparisons with the shadow over the horizon (at most: a block is at least two intervals)."""
 GROWTH = 2.0
@@ -202,8 +198,6 @@ class Controller:
         self._split = 1.0  # the most substeps a step of the present block was split into (a fast spin)
         self._spins = (0.0, 0.0)  # rad/s: the fastest turn of a body in the last block, and in the present one
         self._start = self._last = (0.0, 0.0)  # (s, m): the start, and the last block's end with the largest estimate
-        self._fastest = 0.0  # rad/s: the fastest turn of a body while the shadow ran
-        self._held = None  # after the calibration: (steps an interval, rad/s: the fastest turn seen, m/s^(m+p), m)
 
     @property
     def step_size(self) -> float:
@@ -250,9 +244,7 @@ class Controller:
         sim.time = end
         sim._clock = (end, sim.step_count)  # the clock counts on from the frame time
         self._done += 1
-        if self._done >= self._block() and self._held is not None:
-            self._hold(end)
-        elif self._done >= self._block():
+        if self._done >= self._block():
             try:
                 shadow = self._shadow_steps(2.0 * h, k * self._done // 2, end)
             except SimulationError:  # steps of 2h fail where those of h hold: no estimate, smaller steps, again
@@ -325,25 +317,6 @@ class Controller:
         factor = min(GROWTH, max(1.0 / SHRINK, wanted / h))
         split, self._split = self._split, 1.0
         self.steps = _whole(self.steps * (max(split, 1.0 / factor) if split > 1.0 else 1.0 / factor))
-        self._fastest = max(self._fastest, spin[1])
-        if t >= CALIBRATION * self.horizon and t1 > t0:  # the error's growth known: hold the step from here on
-            self._held = (self.steps, self._fastest, projected / (end**power * (self._mean / t)), power)
-
-    def _hold(self, now: float) -> None:
-        """After the calibration, at a block's end: the step the shadow left, smaller by (r)^((p+1)/p) where the
-        fastest body turned r times faster in the block than any did while the shadow ran (a step's error grows as
-        (spin h)^(p+1)), or as small as a split step. The error estimate is the calibration's law, K t^m times the
-        mean h^p of the steps so far."""
-        p, h = self.order, self.step_size
-        steps, fastest, constant, power = self._held
-        t = now - self._start[0]
-        self._mean += h**p * self._done * self.interval
-        self.estimate = constant * t**power * (self._mean / t)
-        spin, self._spins = self._spins[1], (self._spins[1], 0.0)
-        wanted = steps * max(1.0, spin / fastest) ** ((p + 1.0) / p) if fastest > 0.0 else steps
-        split, self._split = self._split, 1.0
-        self.steps = _whole(max(wanted, self.steps * split if split > 1.0 else 0.0))
-        self._done = 0
 
     def _pilot(self) -> None:
         """The first step size, from the start state: the local error of one step of the interval against two of
