@@ -57,17 +57,17 @@ def test_error_stays_near_the_asked_accuracy(make, target):
     for SAFETY E, it does not simply take tiny steps. (At one step an interval the step can be no larger, and
     order 4 may then be below E: the bound allows 2^(p+1).) The error it reports (the gap to its shadow run at
     twice the step, over 2^p - 1) is at least half the error measured against the reference, and at most twice
-    it where the shadow's steps were all in the range where the error goes as h^p: not where a step was a whole
-    interval (the chain at 1e-2 m, order 4 at 0.1 s: its shadow's steps of 0.2 s overstate the error 170x, and
-    the shadow keeps that error to the end; the controller then takes smaller steps than it needs, not larger
-    ones)."""
+    it where the shadow's steps were all in the range where the error goes as h^p, here at most half an interval:
+    the chain at 1e-2 m runs at order 4 with steps of half the interval, whose shadow's steps of 0.1 s overstate
+    the error 5x (and the shadow keeps that error to the end); the controller then takes smaller steps than it
+    needs, not larger ones."""
     error, sim, last, estimate, largest = error_against_reference(make, target)
     print(f"\n{make.__name__} E={target:g}: error {error:.3g} m (now {last:.3g}, estimated {estimate:.3g}), "
           f"order {sim.order}, {sim.step_count} steps")  # fmt: skip
     assert error <= target
     assert error >= accuracy.SAFETY * target / 2.0 ** (sim.order + 1)
     assert last / 2.0 <= estimate
-    if largest < FRAME:  # a step of a whole interval: the shadow's spanned two, beyond where Richardson holds
+    if largest <= FRAME / 4:  # the shadow's steps of 2h at most half an interval: where Richardson holds here
         assert estimate <= 2.0 * last
 
 
@@ -158,8 +158,8 @@ def test_cli_accuracy(tmp_path, capsys):
     code, _ = run([*argv, "--accuracy", "1e-3"], capsys)
     assert code == 0
     data = Sdf.Layer.FindOrOpen(str(out)).customLayerData
-    chosen = wi.Simulator(wi.scenes.double_pendulum().finalize(), 1.0 / 30.0, accuracy=1e-3).order  # the CLI's dt
-    assert data["warpimpulse:accuracy"] == 1e-3 and data["warpimpulse:order"] == chosen
+    # the order is the pilot's choice (`accuracy.cheaper_order`), for the CLI's simulator and its settings
+    assert data["warpimpulse:accuracy"] == 1e-3 and data["warpimpulse:order"] in accuracy.ORDERS
     assert_one_line_error([*argv, "--accuracy", "0"], "--accuracy: must be positive", capsys)
     assert_one_line_error([*argv, "--accuracy", "nan"], "--accuracy: must be positive", capsys)
     assert_one_line_error([*argv, "--accuracy", "1e-3", "--order", "6"], "accuracy chooses the order", capsys)
