@@ -7,6 +7,8 @@ reads one status row a step back, or one summary row of the batch."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import warp as wp
 
@@ -79,10 +81,25 @@ class FusedSteps:
         self._fused_by_h[h] = self._capture(launch) if self._views is None else Packed(launch)
         return self._fused_by_h[h]
 
-    def _record_fused(self, h: float, reach: float, final: bool, carries: tuple[wp.array, ...]) -> wp.Launch:
+    def _tick_launches(self) -> tuple[Callable[[], object], Callable[[], object]]:
+        """`step()`'s packed launches of one step of dt (CPU), kept until dt changes: [0] hands its state out, [1]
+        leaves its velocity correction to `state` (`defer_velocities`). Each reads batch words of its own that
+        nothing writes, so that a tick writes only its starting spin."""
+        reach = max(abs(g) for g in self._fused_stages)
+        carries = (self._carry, self._carry_next, self._carry_past)
+        final = self.max_substep_depth == 0
+        launches = tuple(
+            Packed(self._record_fused(self.dt, reach, final, carries, words)).launch for words in self._tick_words
+        )
+        self._tick = (self.dt, launches)
+        return launches
+
+    def _record_fused(
+        self, h: float, reach: float, final: bool, carries: tuple[wp.array, ...], batch: wp.array | None = None
+    ) -> wp.Launch:
         """The fused kernel's launch for steps of h: `reach` sizes its spin split (0: none), `final` says its steps
         cannot be halved, `carries` are the carried right-hand sides its stages take (c, the measured c, the past;
-        a row a stage, `stage_carry`)."""
+        a row a stage, `stage_carry`), `batch` its batch words (the host's `_batch` unless given)."""
         p = self.pred
         direct = self.linear is not None
         kernel = self._fused.cholesky_steps if direct else self._fused.iterative_steps
@@ -92,8 +109,9 @@ class FusedSteps:
         carry, carry_next, carry_past = carries
         return record(
             kernel, 1, self.model.device, sources, data_out=self._state,
-            h=h, stages=self._stages, reach=reach, batch_in=self._batch, defer=int(self.defer_velocities),
-            max_rotation=self.max_rotation or 0.0, final=int(final), spin_in=self._spin_in,
+            h=h, stages=self._stages, reach=reach, batch_in=self._batch if batch is None else batch,
+            defer=int(self.defer_velocities), max_rotation=self.max_rotation or 0.0, final=int(final),
+            spin_in=self._spin_in,
             pred_x=p.body_x, pred_q=p.body_q, pred_v=p.body_v, pred_w=p.body_w, x0=self._start.body_x,
             q0=self._start.body_q, v0=self._v0, w0=self._w0, status_out=self._status,
             elements=self._elements, limit_rows=self._rows if self.model.limit_count else step_kernels.Absent(),
@@ -253,10 +271,13 @@ class FusedSteps:
             self._update_forces()
         lazy = self.defer_velocities and not self._read
         self._read = False
-        status, summary_view, batch_view, spin_view = self._views
-        batch_view[0], batch_view[1], spin_view[0] = 1, not lazy, self._spin
-        (self._fused_by_h.get(self.dt) or self._fused_launch(self.dt)).launch()
-        summary = summary_view.tolist()
+        dt, launches = self._tick
+        if dt != self.dt:
+            launches = self._tick_launches()
+        views = self._views
+        views[3][0] = self._spin
+        launches[lazy]()
+        summary = views[1].tolist()
         self._handout = lazy
         if summary[_CODE]:  # the step went OK
             order, fallback = self._fused_order
@@ -271,7 +292,7 @@ class FusedSteps:
                 self.linear.check()
             return stats
         start = self.time
-        stats = self._handed_back(status[0], not lazy)
+        stats = self._handed_back(views[0][0], not lazy)
         if self.linear is not None:
             self.linear.check()  # and the redundant loop rows of the last factorization
         self._note_fallbacks([stats], start)
@@ -316,16 +337,21 @@ class FusedSteps:
     @staticmethod
     def _status_stats(row: list[float], steps: int, order: int, fallback: str) -> StepStats:
         """A StepStats of a status row (or of the summary row of `steps` steps). Made without `__init__`: the
-        figures a row holds set on a bare instance, the fields it has no figure for left at their class defaults
-        (a dataclass keeps a field's default as a class attribute), in half the time of the 14-field `__init__`
-        (each `step()` makes one)."""
+        figures a row holds set on a bare instance, the fields it has no figure for or whose figure is the default
+        left at their class defaults (a dataclass keeps a field's default as a class attribute), in half the time
+        of the 14-field `__init__` (each `step()` makes one)."""
         stats = _bare(StepStats)
         stats.joint_iterations = int(row[_JOINT])
         stats.velocity_iterations = int(row[_VELOCITY])
         stats.max_joint_error = row[_JOINT_ERROR]
         stats.max_velocity_error = row[_VELOCITY_ERROR]
         stats.linear_iterations = int(row[_LINEAR])
-        stats.substeps, stats.order, stats.fallback = steps, order, fallback
+        if steps != 1:
+            stats.substeps = steps
+        if order != 2:
+            stats.order = order
+        if fallback:
+            stats.fallback = fallback
         return stats
 
     def _run_fused(self, batch: int, hand_out: bool) -> tuple[np.ndarray, list[float]]:

@@ -475,6 +475,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         rows = [self._carry_rows[(g * self.dt, k)] for g, k in composition.stage_keys(self._fused_stages)]
         self._stage_carry = wp.array(rows, dtype=wp.int32, device=self.model.device)
         self._fused_by_h: dict[float, wp.Graph | Packed] = {}
+        # `step()`'s launches (`_tick_launches`): their batch words, one step handed out or not, and (dt, launches)
+        self._tick_words = tuple(wp.array([1, out], dtype=wp.int32, device=self.model.device) for out in (1, 0))
+        self._tick = (None, ())
         self._substep_by_h: dict[float, Packed] = {}  # the launches of split steps' substeps (`_split_step`)
         self._alike = (0, 0)  # (step, count): the steps from `step` on that share its forces
         return "fused", ""
