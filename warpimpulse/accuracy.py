@@ -198,7 +198,6 @@ class Controller:
                                 (self.shadow._carry_past, sim._carry_past)], cpu)  # fmt: skip
         """(shadow's array, trajectory's) of what `_sync` copies."""
         self._centres = _views([(sim._state.body_x, self.shadow._state.body_x)], cpu)[0]
-        self._lean = sim.schedule == "fused" and sim._views is not None  # one step a call without `_steps`' loop
         self.reset()
 
     def reset(self) -> None:
@@ -249,11 +248,8 @@ class Controller:
         end = (round(sim.time / self.interval) + 1) * self.interval  # frames land on f * dt exactly
         if sim.dt != h:
             sim._set_step_size(h)
-        if k == 1 and self._lean and not sim._fallback:  # the call a fixed step() makes (`_fused_step`)
-            stats = sim._fused_step()
-        else:
-            parts = sim._steps(k, combine=True)
-            stats = parts[0] if len(parts) == 1 else combined(parts)
+        parts = sim._steps(k, combine=True)
+        stats = parts[0] if len(parts) == 1 else combined(parts)
         if stats.substeps > k:  # split for a fast spin: the next block's steps are no larger than these
             self._split = max(self._split, stats.substeps / k)
         self._spins = (self._spins[0], max(self._spins[1], float(sim._spin)))
