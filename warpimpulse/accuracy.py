@@ -135,7 +135,7 @@ def cheaper_order(model: Model, accuracy: float, dt: float, tolerance: float, pr
     far below the accuracy asked (a tree of 127 bodies at 1e-3 m: 0.02 of it, where order 2 at dt / 4 costs a
     third as much), and which order is cheaper at a given accuracy differs between scenes. Both pilots see the
     same motion, so what the motion later does to the errors moves both alike. The pilot runs once, as the
-    simulator is built (two Simulators of the model and their steps: 50-80 ms on a CPU, against ~12 ms to build
+    simulator is built (two Simulators of the model and their steps: 50-150 ms on a CPU, against ~12 ms to build
     one), from the model's start state."""
     half = max(1, round(PROBE / (2.0 * dt)))  # intervals in half the window
     window, h = 2 * half * dt, 0.5 * dt
