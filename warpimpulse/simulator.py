@@ -122,7 +122,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         broad_phase, contact_sweeps = options.broad_phase, options.contact_sweeps
         plan = None
         if accuracy is not None:
-            plan = accuracy_control.plan(model, accuracy, dt, tolerance, order)
+            plan = accuracy_control.plan(model, accuracy, dt, tolerance, order, type(self))
             dt, order, tolerance = plan.dt, plan.order, plan.tolerance
         elif dt is None:
             raise ValueError("dt (the step, s) is required unless accuracy (m) is given")
