@@ -403,13 +403,13 @@ ALL_KINDS = frozenset((POINT, LINE, PLANE, ROTATION, AXIS, ANGLE))
 
 
 @wp.func
-def shifted_pose(b: int, x: vec3d, q: quatd, response_v: wp.array(dtype=vec3d), response_w: wp.array(dtype=vec3d),
+def shifted_pose(b: int, x: vec3d, q: quatd, response_v: wp.array(dtype=vec3d), response_turn: wp.array(dtype=vec3d),
                  h: f64):  # fmt: skip
     """Body b's predicted pose moved as a velocity change du at t0 moves it, to first order: by h dv, and turned
-    by h dw (world frame) at the step's end. The world (b < 0) stays."""
+    by h times its turn (`impulses.step_turn`, world frame) at the step's end. The world (b < 0) stays."""
     if b < 0:
         return x, q
-    dw = response_w[b] * (f64(0.5) * h)
+    dw = response_turn[b] * (f64(0.5) * h)
     return x + response_v[b] * h, wp.normalize(q + quatd(dw[0], dw[1], dw[2], f64(0.0)) * q)
 
 
@@ -435,6 +435,7 @@ def arm_correction(
     jac_skew: wp.array(dtype=vec3d),
     response_v: wp.array(dtype=vec3d),
     response_w: wp.array(dtype=vec3d),
+    response_turn: wp.array(dtype=vec3d),
 ) -> vec3d:
     """E_i du: how much more constraint i's projected predicted error moves, per unit of h, under the bodies'
     velocity changes du at t0 (`impulses.impulse_response`) than K models (J_i(t0) du; m/s, rad/s).
@@ -445,9 +446,12 @@ def arm_correction(
     step (docs/architecture.md, "Fewer joint iterations"). A point constraint's E du is that arm change in
     closed form, (s(t0+h) - s(t0)) x dw on each side (`point_arms`); the other kinds' is the change of
     P d / h (`projected_error`, P of t0 as in the right-hand side) between the prediction and the prediction
-    moved by du (`shifted_pose`), less J(t0) du. A ROTATION's error is linear in the turn: E = 0."""
-    if kind == ROTATION:
-        return vec3d()
+    moved by du (`shifted_pose`), less J(t0) du.
+
+    Each body turns by h times its `impulses.step_turn` of dw, not by h dw: the turned body's rate picks up
+    w x dtheta, and an oblong body's dw changes as its inertia turns. Without it, E models the arms alone and
+    leaves an axis's error as it was (a rotational row has no arm): K + E then models the error's answer no
+    better than K on a 7-hinge arm at h = 1/30 (docs/history.md, "The turn's answer")."""
     b0 = constraint_body0[i]
     b1 = constraint_body1[i]
     x0 = pose_x(b0, pred_x)
@@ -458,17 +462,17 @@ def arm_correction(
         s0, s1 = point_arms(x0, x1, q1, anchor1[i])
         e = vec3d()
         if b0 >= 0:
-            e += wp.cross(s0 - jac_skew[2 * i], response_w[b0])
+            e += wp.cross(s0, response_turn[b0]) - wp.cross(jac_skew[2 * i], response_w[b0])
         if b1 >= 0:
-            e += wp.cross(s1 - jac_skew[2 * i + 1], response_w[b1])
+            e += wp.cross(s1, response_turn[b1]) - wp.cross(jac_skew[2 * i + 1], response_w[b1])
         return e
     # d again, not from rhs: a batched world that is done has its rhs zeroed (`worlds.mask_worlds`), and its
     # E du must be zero too (du = 0 there), not P d / h.
     d = constraint_error(
         kind, x0, q0, x1, q1, anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i]
     )
-    y0, r0 = shifted_pose(b0, x0, q0, response_v, response_w, h)
-    y1, r1 = shifted_pose(b1, x1, q1, response_v, response_w, h)
+    y0, r0 = shifted_pose(b0, x0, q0, response_v, response_turn, h)
+    y1, r1 = shifted_pose(b1, x1, q1, response_v, response_turn, h)
     moved = constraint_error(
         kind, y0, r0, y1, r1, anchor0[i], anchor1[i], axis0[i], axis1[i], rest_rotation[i], rest_angle[i]
     )
@@ -573,6 +577,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         jac_skew_in: wp.array(dtype=vec3d),
         response_v_in: wp.array(dtype=vec3d),
         response_w_in: wp.array(dtype=vec3d),
+        response_turn_in: wp.array(dtype=vec3d),
     ) -> vec3d:
         """`arm_correction` of constraint i, for its kind as a compile-time constant."""
         kind = constraint_kind[i]
@@ -583,7 +588,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
                     wp.static(ks[k]), i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
                     constraint_rest_angle, h, proj_in, pred_x, pred_q, jac_lin_in, jac_ang_in, jac_skew_in,
-                    response_v_in, response_w_in,
+                    response_v_in, response_w_in, response_turn_in,
                 )  # fmt: skip
         return e
 
@@ -682,6 +687,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         jac_skew_in: wp.array(dtype=vec3d),
         response_v_in: wp.array(dtype=vec3d),
         response_w_in: wp.array(dtype=vec3d),
+        response_turn_in: wp.array(dtype=vec3d),
         rhs_in: wp.array(dtype=vec3d),
         # Data out:
         newton_rhs_out: wp.array(dtype=vec3d),
@@ -691,7 +697,7 @@ def specialized(kinds: frozenset[int]) -> SimpleNamespace:
         newton_rhs_out[i] = rhs_in[i] - arm_correction_of(
             i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
             constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, h, proj_in,
-            body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in, response_v_in, response_w_in,
+            body_x_in, body_q_in, jac_lin_in, jac_ang_in, jac_skew_in, response_v_in, response_w_in, response_turn_in,
         )  # fmt: skip
 
     return SimpleNamespace(

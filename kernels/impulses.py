@@ -6,12 +6,13 @@ Gathered per body over its constraints, so no atomics and the same sum order on 
 import warp as wp
 
 from .constraints import POINT, angular_transpose_times, is_translational
-from .inertia import sym33d, symmetric_times
+from .inertia import sym33d, symmetric_matrix, symmetric_times
 
 wp.set_module_options({"enable_backward": False})
 
 vec3d = wp.vec3d
 mat33d = wp.mat33d
+quatd = wp.quatd
 f64 = wp.float64
 
 
@@ -104,6 +105,22 @@ def apply_impulses(
     )  # fmt: skip
 
 
+@wp.func
+def step_turn(dw: vec3d, h: f64, w: vec3d, inv_inertia_world: sym33d) -> vec3d:
+    """The turn over a step of h, per unit of h (rad/s, world frame), that a velocity change dw at t0 gives a body
+    turning at w (t0) with world inverse inertia J~^-1, to first order in the turn:
+    dw + h/2 (w x dw + J~^-1 (L x dw - w x J~ dw)), L = J~ w. The perturbed orientation's rate is
+    dw(t) + w x dtheta, and dw(t) = J~(t)^-1 J~ dw moves with the body while the impulse's angular momentum stays
+    put in the world: h dw exactly only for a body at rest (docs/history.md, "The turn's answer"). J~ is J~^-1
+    inverted here (no inertia read); a static body (J~^-1 zero, so dw zero) gets zero."""
+    if dw[0] == f64(0.0) and dw[1] == f64(0.0) and dw[2] == f64(0.0):
+        return dw
+    inverse = symmetric_matrix(inv_inertia_world)
+    inertia = wp.inverse(inverse)
+    gyro = wp.cross(inertia * w, dw) - wp.cross(w, inertia * dw)
+    return dw + (wp.cross(w, dw) + inverse * gyro) * (f64(0.5) * h)
+
+
 @wp.kernel
 def impulse_responses(
     # Model:
@@ -111,7 +128,9 @@ def impulse_responses(
     body_inv_mass: wp.array(dtype=f64),
     body_rows_start: wp.array(dtype=int),
     body_rows: wp.array(dtype=int),
-    # Data in:
+    # Data in: the step, the state's angular velocities (with the impulses applied so far)
+    h: f64,
+    body_w_in: wp.array(dtype=vec3d),
     inv_inertia_world_in: wp.array(dtype=sym33d),
     jac_lin_in: wp.array(dtype=mat33d),
     jac_ang_in: wp.array(dtype=mat33d),
@@ -120,9 +139,11 @@ def impulse_responses(
     # Data out:
     response_v_out: wp.array(dtype=vec3d),
     response_w_out: wp.array(dtype=vec3d),
+    response_turn_out: wp.array(dtype=vec3d),
 ):
-    """Every body's velocity change from the impulses (`impulse_response`), the bodies left as they are: the
-    first iteration's Newton step (`constraints.arm_correction`) reads it."""
+    """Every body's velocity change from the impulses (`impulse_response`) and the turn it gives over the step
+    (`step_turn`), the bodies left as they are: the first iteration's Newton step (`constraints.arm_correction`)
+    reads them."""
     b = wp.tid()
     dv, dw = impulse_response(
         b, constraint_kind, body_inv_mass, body_rows_start, body_rows, inv_inertia_world_in, jac_lin_in, jac_ang_in,
@@ -130,6 +151,7 @@ def impulse_responses(
     )  # fmt: skip
     response_v_out[b] = dv
     response_w_out[b] = dw
+    response_turn_out[b] = step_turn(dw, h, body_w_in[b], inv_inertia_world_in[b])
 
 
 @wp.func

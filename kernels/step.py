@@ -48,7 +48,7 @@ from .forces import (
     rk4_stage_body,
     spring_wrench,
 )
-from .impulses import apply_body, impulse_response
+from .impulses import apply_body, impulse_response, step_turn
 from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
 from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
@@ -1053,11 +1053,13 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         jac_ang: wp.array(dtype=mat33d),
         jac_skew: wp.array(dtype=vec3d),
         impulse: wp.array(dtype=vec3d),
+        state_w: wp.array(dtype=vec3d),
         pred_x: wp.array(dtype=vec3d),
         pred_q: wp.array(dtype=quatd),
         rhs: wp.array(dtype=vec3d),
         response_v: wp.array(dtype=vec3d),
         response_w: wp.array(dtype=vec3d),
+        response_turn: wp.array(dtype=vec3d),
         newton_rhs: wp.array(dtype=vec3d),
     ):
         """The Newton step's right-hand side rhs - E lambda of the impulses just solved (`impulse_response`,
@@ -1070,13 +1072,14 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
             )  # fmt: skip
             response_v[b] = dv
             response_w[b] = dw
+            response_turn[b] = step_turn(dw, h, state_w[b], inv_inertia_world[b])
             b += 1
         i = wp.int32(0)
         while i < constraint_count:
             newton_rhs[i] = rhs[i] - arm_correction(
                 i, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                 constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, h, proj, pred_x,
-                pred_q, jac_lin, jac_ang, jac_skew, response_v, response_w,
+                pred_q, jac_lin, jac_ang, jac_skew, response_v, response_w, response_turn,
             )  # fmt: skip
             i += 1
 
@@ -1192,6 +1195,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         newton: int,
         response_v: wp.array(dtype=vec3d),
         response_w: wp.array(dtype=vec3d),
+        response_turn: wp.array(dtype=vec3d),
         newton_rhs: wp.array(dtype=vec3d),
         # The first iteration's carried right-hand side (`carrying` != 0, kernels/carry.py): a row of c for each
         # stage's step size (stage_carry[stage]), and the rows measured this step, taken when it is accepted
@@ -1350,8 +1354,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                             body_count, constraint_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
                             constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1,
                             constraint_axis0, constraint_axis1, constraint_rest_rotation, constraint_rest_angle, hs,
-                            proj, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, next_x, next_q, rhs,
-                            response_v, response_w, newton_rhs,
+                            proj, inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_w, next_x, next_q,
+                            rhs, response_v, response_w, response_turn, newton_rhs,
                         )  # fmt: skip
                         cholesky_solve(
                             augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,

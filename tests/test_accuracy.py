@@ -32,41 +32,48 @@ def chain():
                       [(0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 3.0)])  # fmt: skip
 
 
-def error_against_reference(make, target: float) -> tuple[float, wi.Simulator, float, float]:
+def error_against_reference(make, target: float) -> tuple[float, wi.Simulator, float, float, float]:
     """The largest centre-of-mass distance from the reference at the frames of DURATION s, with accuracy `target`
     over that horizon; the simulator; the error and the estimate reported (`StepStats.error_estimate`) at the
-    end."""
+    end; the largest step taken (s)."""
     builder, ref = make()
     frames = int(round(DURATION / FRAME))
     com, _, _ = ref.solve(np.arange(frames + 1) * FRAME)
     sim = wi.Simulator(builder.finalize(), FRAME, accuracy=target)
     sim.accuracy.horizon = DURATION
-    error = last = 0.0
+    error = last = largest = 0.0
     for f in range(1, frames + 1):
         stats = sim.step()
+        largest = max(largest, stats.step_size)
         last = float(np.linalg.norm(sim.positions() - com[f], axis=1).max())
         error = max(error, last)
-    return error, sim, last, stats.error_estimate
+    return error, sim, last, stats.error_estimate, largest
 
 
 @pytest.mark.parametrize("make", [pendulum, chain])
 @pytest.mark.parametrize("target", [1e-2, 1e-4])
 def test_error_stays_near_the_asked_accuracy(make, target):
     """The measured error is within the asked accuracy, and not wastefully below it: the controller sizes the step
-    for SAFETY E, it does not simply take tiny steps. (At one or two steps an interval, the next larger whole
-    fraction of the interval is twice the step, 2^p the error: the bound allows that and a factor 2 more.) The
-    error it reports (the gap to its shadow run at twice
-    the step, over 2^p - 1) is within 2x of the error measured against the reference."""
-    error, sim, last, estimate = error_against_reference(make, target)
+    for SAFETY E, it does not simply take tiny steps. (At one step an interval the step can be no larger, and
+    order 4 may then be below E: the bound allows 2^(p+1).) The error it reports (the gap to its shadow run at
+    twice the step, over 2^p - 1) is at least half the error measured against the reference, and at most twice
+    it where the shadow's steps were all in the range where the error goes as h^p, here at most half an interval:
+    the chain at 1e-2 m runs at order 4 with steps of half the interval, whose shadow's steps of 0.1 s overstate
+    the error 5x (and the shadow keeps that error to the end); the controller then takes smaller steps than it
+    needs, not larger ones."""
+    error, sim, last, estimate, largest = error_against_reference(make, target)
     print(f"\n{make.__name__} E={target:g}: error {error:.3g} m (now {last:.3g}, estimated {estimate:.3g}), "
           f"order {sim.order}, {sim.step_count} steps")  # fmt: skip
     assert error <= target
     assert error >= accuracy.SAFETY * target / 2.0 ** (sim.order + 1)
-    assert last / 2.0 <= estimate <= 2.0 * last
+    assert last / 2.0 <= estimate
+    if largest <= FRAME / 4:  # the shadow's steps of 2h at most half an interval: where Richardson holds here
+        assert estimate <= 2.0 * last
 
 
 def test_order_and_tolerance_follow_the_accuracy():
-    """Order 2 at loose accuracies, 4 below `ORDER4_BELOW`; the joint tolerance a share of E (at most its cap)."""
+    """Order 2 at loose accuracies, 4 at tight ones (on this pendulum; `cheaper_order` compares their work); the joint
+    tolerance a share of E (at most its cap)."""
     model = pendulum()[0].finalize()
     loose, tight = wi.Simulator(model, accuracy=1e-2), wi.Simulator(model, accuracy=1e-5)
     assert (loose.order, tight.order) == (2, 4)
@@ -151,7 +158,8 @@ def test_cli_accuracy(tmp_path, capsys):
     code, _ = run([*argv, "--accuracy", "1e-3"], capsys)
     assert code == 0
     data = Sdf.Layer.FindOrOpen(str(out)).customLayerData
-    assert data["warpimpulse:accuracy"] == 1e-3 and data["warpimpulse:order"] == 4
+    # the order is the pilot's choice (`accuracy.cheaper_order`), for the CLI's simulator and its settings
+    assert data["warpimpulse:accuracy"] == 1e-3 and data["warpimpulse:order"] in accuracy.ORDERS
     assert_one_line_error([*argv, "--accuracy", "0"], "--accuracy: must be positive", capsys)
     assert_one_line_error([*argv, "--accuracy", "nan"], "--accuracy: must be positive", capsys)
     assert_one_line_error([*argv, "--accuracy", "1e-3", "--order", "6"], "accuracy chooses the order", capsys)

@@ -3,10 +3,13 @@ that the body centres stay within about E metres of the exact trajectory over a 
 than the cheapest fixed configuration that would (docs/accuracy.md has the measurements).
 
 What is chosen, and how:
-- the order, from E alone (`plan`): order 2 (the paper's step) at loose accuracies, where its large steps are
-  cheapest, order 4 below `ORDER4_BELOW`. A scene with joint limits, stiff motors or distance rows, whose steps
-  fall back to order 2 anyway (`simulator.ROWS_FALLBACK`), is controlled at order 2, as `Plan.note` says;
-  contacts and batched worlds are refused.
+- the order, from a pilot of each (`cheaper_order`, as the simulator is built): each order runs the first
+  `PROBE` s of the motion at two step sizes, which gives its trajectory error constant, hence the steps it needs
+  for E and their work (stage predictions and linear solves); the cheaper is taken. Which order that is depends
+  on the scene, not on E alone: order 4 at the largest step may be far below E where order 2 reaches it for less.
+  A scene with joint limits, stiff motors or distance rows, whose steps fall back to order 2 anyway
+  (`simulator.ROWS_FALLBACK`), is controlled at order 2, as `Plan.note` says; contacts and batched worlds are
+  refused.
 - the joint tolerance: `TOLERANCE_SHARE` of E (at most `TOLERANCE_CAP`). Every step may leave up to the
   tolerance in each joint; the trajectory error hardly moves while it is a fiftieth of that error.
 - the step size, from an estimate of the trajectory error itself (`Controller`): a shadow Simulator runs the
@@ -15,7 +18,8 @@ What is chosen, and how:
   whole trajectory): it includes what the motion did with the errors of all earlier steps, which a local
   estimate does not see (a chaotic arm amplified its local errors 5-17x). Every block of intervals the gap is
   read, the error projected to the horizon's end, and the step of the next block sized so that it is `SAFETY`
-  E there. The shadow costs its steps, half the trajectory's.
+  E there; the blocks mix the whole step counts below and above the wanted one (`Controller._aim`). The shadow
+  costs its steps, half the trajectory's.
 
 `Simulator.dt` is the interval that `step()` advances (a frame of the USD recorder, a control tick): each is
 taken as a whole number of equal steps, so frames land exactly on their times; the step size is at most dt.
@@ -40,16 +44,19 @@ from .steps import SimulationError, StepStats, combined
 if TYPE_CHECKING:
     from .model import Model
 
-ORDER4_BELOW = 3e-3
-"""m: accuracies below this are reached at order 4 (the composed step), from it up at order 2: where order 2 wins
-in benchmarks/accuracy.py's grid of (order, h, tolerance)."""
+ORDERS = (2, 4)
+"""The orders `cheaper_order` tries: order 6 is never the cheapest between 1e-2 and 1e-5 m in benchmarks/accuracy.py's
+grid of (order, h, tolerance)."""
 TOLERANCE_SHARE = 0.02
 """The joint tolerance as a share of the accuracy (m or rad per m asked), clamped to [1e-12, TOLERANCE_CAP]: a
 tolerance a fiftieth of the trajectory error moves that error by under 2% (docs/history.md, "Tolerance at large
 steps"), and at loose accuracies the iterations it saves are most of a step's cost."""
 TOLERANCE_CAP = 1e-4
 SAFETY = 0.5
-"""The trajectory error aimed at the horizon's end, as a share of the accuracy."""
+"""The trajectory error aimed at the horizon's end, as a share of the accuracy. Below E, not at it: where the
+motion amplifies errors late (a chaotic arm, a chain's whip) the projection from the error so far falls short,
+and the step counts mixed between blocks (`Controller._aim`) no longer leave the error far below the aim (aimed
+at E, the arm ended at 7-25 E and chain20 at 1e-4 m at 12 E; at E/2 the chain at 0.7-2.5 E)."""
 NOISE_MARGIN = 2.0
 """The pilot's step-doubling gap is taken as at least this many joint tolerances (what each step may leave)."""
 BLOCKS = 20
@@ -67,6 +74,12 @@ MAX_STEPS = 1 << 16
 """The most steps an interval is cut into: an estimate this small is noise, not a step size."""
 DEFAULT_INTERVAL = 1.0 / 30.0
 """s: `Simulator.dt` where `accuracy` is given without it."""
+PROBE = 0.2
+"""s: the motion over which `cheaper_order` compares the orders (at least two intervals)."""
+PROBE_POWER = 2.0
+"""The steepest growth of the error with time, t^m, that `cheaper_order` projects its pilot with: from rest the
+error grows faster at first than it goes on to (t^3 over the first 0.2 s on the arm and the chain, where order 2
+is the cheaper at 1e-2 m)."""
 DEFAULT_HORIZON = 1.0
 """s: the horizon over which E is meant when none is set (`Controller.horizon`; the CLI sets its --duration)."""
 ROWS_NOTE = (
@@ -86,9 +99,10 @@ class Plan:
     note: str  # what the plan had to give up, or ""
 
 
-def plan(model: Model, accuracy, dt: float | None, tolerance: float | None, order: int) -> Plan:
+def plan(model: Model, accuracy, dt: float | None, tolerance: float | None, order: int, probe) -> Plan:
     """The order, tolerance and interval for `accuracy` (m) on `model`; a ValueError names what cannot be
-    controlled (contacts, batched worlds, an order given with it)."""
+    controlled (contacts, batched worlds, an order given with it). `probe(model, dt, tolerance=, order=)` builds
+    a Simulator of the model (the caller's class) for `cheaper_order`."""
     what = "accuracy"
     accuracy = checks.positive(accuracy, what, " (m: the body centres' largest position error over the horizon)")
     if model.colliders is not None:
@@ -103,9 +117,55 @@ def plan(model: Model, accuracy, dt: float | None, tolerance: float | None, orde
     dt = DEFAULT_INTERVAL if dt is None else checks.positive(dt, "dt", " (seconds)")
     if tolerance is None:
         tolerance = min(TOLERANCE_CAP, max(composition.TOLERANCE_FLOOR, TOLERANCE_SHARE * accuracy))
-    rows = model.limit_count > 0
-    chosen = 2 if rows or accuracy >= ORDER4_BELOW else 4
-    return Plan(accuracy, dt, chosen, tolerance, ROWS_NOTE if rows and accuracy < ORDER4_BELOW else "")
+    if model.limit_count > 0:
+        return Plan(accuracy, dt, 2, tolerance, ROWS_NOTE)
+    return Plan(accuracy, dt, cheaper_order(model, accuracy, dt, tolerance, probe), tolerance, "")
+
+
+def cheaper_order(model: Model, accuracy: float, dt: float, tolerance: float, probe) -> int:
+    """The order (of `ORDERS`) that reaches `accuracy` (m) over `DEFAULT_HORIZON` in the least work, from a pilot
+    of each over the first `PROBE` s of the motion. The gap between its run in steps of dt / 2 and in steps of
+    dt / 4 is (1 - 2^-p) G (dt / 2)^p, G its trajectory error constant (steps of dt are beyond where the error
+    goes as h^p at order 4 on the humanoid); G is taken to grow as t^m to the horizon's end (m from the gaps at
+    half the window and at its end, as the controller's), which gives the whole steps of the interval the order
+    needs (`START` times more, as the controller's first step). Each step costs its stages' predictions and
+    linear solves, counted alike (the finer run's counts).
+
+    The work of the two orders is what decides, not the accuracy alone: order 4 at the largest step, dt, may be
+    far below the accuracy asked (a tree of 127 bodies at 1e-3 m: 0.02 of it, where order 2 at dt / 4 costs a
+    third as much), and which order is cheaper at a given accuracy differs between scenes. Both pilots see the
+    same motion, so what the motion later does to the errors moves both alike. The pilot runs once, as the
+    simulator is built (two Simulators of the model and their steps: 50-150 ms on a CPU, against ~12 ms to build
+    one), from the model's start state."""
+    half = max(1, round(PROBE / (2.0 * dt)))  # intervals in half the window
+    window, h = 2 * half * dt, 0.5 * dt
+    work = {}
+    for p in ORDERS:
+        sim = probe(model, h, tolerance=tolerance, order=p)
+        coarse = []
+        for _ in range(2):  # the positions at half the window and at its end
+            sim.step(2 * half)
+            coarse.append(sim.positions())
+        sim.reset()
+        sim._set_step_size(0.5 * h)
+        gaps, solves = [], 0
+        for c in coarse:
+            solves += combined(sim._steps(4 * half)).linear_iterations
+            gaps.append(float(np.linalg.norm(c - sim.positions(), axis=1).max(initial=0.0)))
+        power = min(PROBE_POWER, _growth(gaps[0], gaps[1], 2.0))
+        constant = gaps[1] / ((1.0 - 2.0**-p) * h**p) * (DEFAULT_HORIZON / window) ** power  # m/s^p at the end
+        steps = max(1.0, START * dt * (constant / (SAFETY * accuracy)) ** (1.0 / p))  # blocks mix (`_aim`)
+        work[p] = steps * (len(sim.scheme.stages) + solves / (8 * half))
+    return min(ORDERS, key=lambda p: (work[p], -p))
+
+
+def _pilot_steps(gap: float, p: int, h: float, tolerance: float, accuracy: float, horizon: float) -> float:
+    """Steps an interval h is cut into at order p, from the gap (m) between one step of h and two of h / 2:
+    the local error constant C of C h^(p+1) a step, summed over the horizon to `SAFETY` accuracy, `START` times
+    more steps. The gap is taken as at least `NOISE_MARGIN` tolerances (what each step may leave)."""
+    constant = max(gap, NOISE_MARGIN * tolerance) / ((0.5 * h) ** (p + 1) * (2.0 ** (p + 1) - 2.0))
+    wanted = SAFETY * accuracy / horizon
+    return START * h * (constant / wanted) ** (1.0 / p)
 
 
 class Controller:
@@ -145,6 +205,7 @@ class Controller:
         self.steps = 0  # per interval; 0: not yet chosen (`_pilot` at the next interval)
         self.estimate = 0.0  # m: the trajectory error estimated at the last block's end
         self._done = 0  # intervals of the present block taken
+        self._debt = 0.0  # s^(p+1): what the blocks' h^p took above the aim (<= 0: below), times their time
         self._mean = 0.0  # s^(p+1): the sum of h^p times the time it was taken, since the start
         self._split = 1.0  # the most substeps a step of the present block was split into (a fast spin)
         self._spins = (0.0, 0.0)  # rad/s: the fastest turn of a body in the last block, and in the present one
@@ -199,7 +260,7 @@ class Controller:
             try:
                 shadow = self._shadow_steps(2.0 * h, k * self._done // 2, end)
             except SimulationError:  # steps of 2h fail where those of h hold: no estimate, smaller steps, again
-                self.steps = _whole(k * SHRINK)
+                self._aim(k * SHRINK)
                 self._sync()
                 self._done = 0
             else:
@@ -258,9 +319,7 @@ class Controller:
         g = max(self.estimate, g1)
         self._last = (now, g)
         end = max(self.horizon, t + self._block() * self.interval)
-        power = 1.0
-        if g1 > 0.0 and t1 > t0:
-            power = min(GROWTH_POWER, max(1.0, math.log(g / g1) / math.log(t / (t1 - t0))))
+        power = _growth(g1, g, t / (t1 - t0)) if t1 > t0 else 1.0
         projected = g * (end / t) ** power
         mean = (self._mean / t) ** (1.0 / p)  # s: the mean step, as its h^p
         wanted = mean * (SAFETY * self.plan.accuracy / projected) ** (1.0 / p) if projected > 0.0 else math.inf
@@ -269,7 +328,23 @@ class Controller:
             wanted *= (spin[0] / spin[1]) ** ((p + 1.0) / p)
         factor = min(GROWTH, max(1.0 / SHRINK, wanted / h))
         split, self._split = self._split, 1.0
-        self.steps = _whole(self.steps * (max(split, 1.0 / factor) if split > 1.0 else 1.0 / factor))
+        self._aim(self.steps * (max(split, 1.0 / factor) if split > 1.0 else 1.0 / factor))
+
+    def _aim(self, steps: float) -> None:
+        """The next block's steps an interval for `steps` wanted (a real number, at least 1): whole, so that frames
+        land on their times, but blocks alternate between the whole numbers below and above it so that the mean
+        h^p of the steps, which the trajectory error grows with, is the wanted step's (error diffusion: `_debt`
+        carries what the blocks so far took above the aim, never more than nothing, and at most one block's
+        credit below it). Rounding up alone leaves the error up to 2^p below the aim at one or two steps an
+        interval (order 4 at dt against dt / 2: 16x, the tree of 127 bodies at 0.02 E)."""
+        wanted = min(float(MAX_STEPS), max(1.0, steps))
+        p, span = self.order, self._block() * self.interval
+        aim = (self.interval / wanted) ** p
+        k = max(1, math.floor(wanted))
+        if k < wanted and self._debt + ((self.interval / k) ** p - aim) * span > 0.0:
+            k += 1
+        self._debt = max(-aim * span, self._debt + ((self.interval / k) ** p - aim) * span)
+        self.steps = k
 
     def _pilot(self) -> None:
         """The first step size, from the start state: the local error of one step of the interval against two of
@@ -281,11 +356,8 @@ class Controller:
         coarse = self._host_centres()[1].copy()
         self._sync()
         self._shadow_steps(0.5 * h, 2, sim.time + h)
-        p = self.order
         gap = float(np.linalg.norm(coarse - self._host_centres()[1], axis=1).max(initial=0.0))
-        constant = max(gap, NOISE_MARGIN * sim.tolerance) / ((0.5 * h) ** (p + 1) * (2.0 ** (p + 1) - 2.0))
-        wanted = SAFETY * self.plan.accuracy / self.horizon
-        self.steps = _whole(START * h * (constant / wanted) ** (1.0 / p))
+        self._aim(_pilot_steps(gap, self.order, h, sim.tolerance, self.plan.accuracy, self.horizon))
         self._sync()
         self._start = self._last = (sim.time, 0.0)
         self._done = 0
@@ -302,9 +374,12 @@ class Controller:
         shadow._clock = (sim.time, sim.step_count)
 
 
-def _whole(steps: float) -> int:
-    """Steps an interval is cut into: `steps` rounded up, in [1, MAX_STEPS]."""
-    return min(MAX_STEPS, max(1, math.ceil(steps * (1.0 - 1e-9))))
+def _growth(before: float, after: float, ratio: float) -> float:
+    """The power m of an error that grew from `before` to `after` (m) as time grew `ratio` times (t^m), in
+    [1, `GROWTH_POWER`]: 1 where errors just add up, more where the motion amplifies them."""
+    if before <= 0.0 or after <= before:
+        return 1.0
+    return min(GROWTH_POWER, max(1.0, math.log(after / before) / math.log(ratio)))
 
 
 def _views(pairs: list[tuple], cpu: bool) -> list[tuple]:

@@ -27,9 +27,10 @@ class StepOptions:
             of one matrix on the four-bar, docs/mechanisms.md).
         scheme: the composition of `order` 4 or 6 by name (`composition.SCHEMES`); None takes the measured best.
         newton: the first joint iteration of each step takes a Newton step: its impulses solved again with the
-            right-hand side less E lambda, E the change of the Jacobian over the step (`constraints.arm_correction`),
-            so that the error falls quadratically. It costs a solve and two passes and saves about one iteration
-            where a step takes two: it pays where a prediction costs more than a solve. None: on scenes of
+            right-hand side less E lambda, E the change of the Jacobian and of the bodies' turn over the step
+            (`constraints.arm_correction`), so that the error falls quadratically. It costs a solve and two passes
+            and saves about one iteration where a step takes two: it pays where a prediction costs more than a
+            solve. None: on scenes of
             `types.NEWTON_BODIES` bodies or more without loops (whose redundant rows it leaves inconsistent), with
             the cholesky solver; threads never take it.
         carry: the first joint iteration adds to its right-hand side what the first iteration of the last step of

@@ -124,7 +124,7 @@ class Recording:
                                               carry_next_out=c_next)]  # fmt: skip
                 if self.newton:  # the first solves again with rhs - E lambda (`newton`)
                     newton = [
-                        self._record(impulse_kernels.impulse_responses, nb, s),
+                        self._record(impulse_kernels.impulse_responses, nb, s, h=h),
                         self._record(self.kernels.arm_corrections, nc, p, h=h),
                         *self.linear.solve_launches(self.newton_rhs, self.impulse),
                     ]

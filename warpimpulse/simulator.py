@@ -122,7 +122,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         broad_phase, contact_sweeps = options.broad_phase, options.contact_sweeps
         plan = None
         if accuracy is not None:
-            plan = accuracy_control.plan(model, accuracy, dt, tolerance, order)
+            plan = accuracy_control.plan(model, accuracy, dt, tolerance, order, type(self))
             dt, order, tolerance = plan.dt, plan.order, plan.tolerance
         elif dt is None:
             raise ValueError("dt (the step, s) is required unless accuracy (m) is given")
@@ -217,9 +217,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         loops = bool(model.topology.loop_joints)  # their redundant rows take E's approximation worse (docs)
         wanted = newton if newton is not None else model.body_count >= NEWTON_BODIES and not loops
         self.newton = bool(wanted and self.solver_name == "cholesky" and nc > 0)
-        # The Newton step's scratch: the bodies' velocity changes from its impulses, its right-hand side.
+        # The Newton step's scratch: the bodies' velocity changes from its impulses and their turns, its rhs.
         self.response_v = wp.zeros(model.body_count if self.newton else 0, dtype=wp.vec3d, device=d)
         self.response_w = wp.zeros_like(self.response_v)
+        self.response_turn = wp.zeros_like(self.response_v)
         self.newton_rhs = wp.zeros(nc if self.newton else 0, dtype=wp.vec3d, device=d)
         # The first iteration's carried right-hand side (`carry`, kernels/carry.py): a row of c (and of the value
         # measured in the step, taken when it is kept) for each stage at dt (`composition.stage_keys`: stages of
