@@ -115,7 +115,10 @@ def cholesky_inverse(a: mat33d, rows: int, tiny: f64, fallback: f64):
     """`cholesky3_inverse` of a pivot block whose unknown has `rows` rows (`CholeskySolver._slot_shape`). Below 3
     its padded rows and columns are 0 but for a unit diagonal (`assemble.pad_unused_rows`), so only the leading
     minors are formed and the padded pivots are 1: the same operations as `cholesky3_inverse` for the leading
-    part, so the same bits (its padded pivot there is M_3 / M_2 = 1 to round-off, read only against zeros)."""
+    part, so the same bits (its padded pivot there is M_3 / M_2 = 1 to round-off, read only against zeros).
+    Only the leading pivots are held to `tiny`: a padded pivot is 1 by construction, not the scene's, and a block
+    of a body of 4e-16 kg (gymnasium's pusher: a light body on its goal of 4e-10 kg) is ~1e15 across, where
+    1 fell below the tolerance relative to it and the system was called singular."""
     if rows == 3:
         return cholesky3_inverse(a, tiny, fallback)
     z = f64(0.0)
@@ -125,13 +128,13 @@ def cholesky_inverse(a: mat33d, rows: int, tiny: f64, fallback: f64):
     if rows == 2:
         m2 = a[0, 0] * a[1, 1] - a[1, 0] * a[1, 0]
         q2 = one / m2
-        if m1 > tiny and m2 * q1 > tiny and one > tiny:
+        if m1 > tiny and m2 * q1 > tiny:
             r0 = wp.sqrt(q1)
             r1 = wp.sqrt(m1 * q2)
             l10 = a[1, 0] * r0
             b = -l10 * r0 * r1
             return mat33d(r0, z, z, b, r1, z, z, z, one), int(0)
-    elif m1 > tiny and one > tiny:
+    elif m1 > tiny:
         return mat33d(wp.sqrt(q1), z, z, z, one, z, z, z, one), int(0)
     return cholesky3_inverse_in_turn(a, tiny, fallback)
 

@@ -198,6 +198,15 @@ def copy_values(source: wp.array(dtype=f64), target: wp.array(dtype=f64)):
 
 
 @wp.func
+def negate_all(count: int, values: wp.array(dtype=vec3d)):
+    """values[i] = -values[i] for the first `count`: the impulses that take back the ones just applied."""
+    i = wp.int32(0)
+    while i < count:
+        values[i] = -values[i]
+        i += 1
+
+
+@wp.func
 def zero_values(target: wp.array(dtype=f64)):
     i = wp.int32(0)
     while i < target.shape[0]:
@@ -719,7 +728,8 @@ def max_or_nan(a: f64, b: f64) -> f64:
 def stale_rate(factor_state: wp.array(dtype=int), refactor_every: int, err: f64, last: f64, rate: f64) -> bool:
     """Whether a joint solve with an older factor of K left more than `rate` times the error before it: the
     quasi-Newton iteration has slowed (or diverges), and K is to be factored at the stage's start, where the
-    frames still are (the loop then goes on from the impulses so far)."""
+    frames still are (the loop then goes on from the impulses so far, or, where that solve made the error grow,
+    from before it: `negate_all`)."""
     return refactor_every > 1 and factor_state[FACTOR_AGE] > 0 and not (err <= rate * last)
 
 
@@ -1321,6 +1331,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 best = err
                 ok = wp.bool(False)
                 restart = wp.int32(0)  # the solves before K was factored here for a failing older factor
+                undo = wp.bool(False)  # the next pass takes back the older factor's impulses (`stale_rate`)
                 while wp.isfinite(err):
                     best = wp.min(best, err)
                     if err <= tolerance:
@@ -1345,10 +1356,13 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     last = err
                     if tries == 0 and carrying != 0:
                         carry_into_all(constraint_count, carry[row], rhs)
-                    cholesky_solve(
-                        augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                        row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
-                    )  # fmt: skip
+                    if undo:  # no solve: the impulses just applied, negated, go back the way they came
+                        negate_all(constraint_count, impulse)
+                    else:
+                        cholesky_solve(
+                            augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
+                            row_slot, row_col, values, work, aug_rhs, aug_x, rhs, impulse,
+                        )  # fmt: skip
                     if tries == 0 and newton != 0:  # solve again with rhs - E lambda: K + E is the error's answer
                         newton_rhs_all(
                             body_count, constraint_count, constraint_kind, body_inv_mass, body_rows_start, body_rows,
@@ -1407,7 +1421,17 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                                 state_w,
                             ),
                         )  # fmt: skip
-                    if stale_rate(factor_state, refactor_every, err, last, stale_factor_rate):
+                    if undo:  # the pass took back a solve: not one itself
+                        undo = wp.bool(False)
+                        tries -= 1
+                    elif stale_rate(factor_state, refactor_every, err, last, stale_factor_rate):
+                        # Where the older factor's solve made the error grow, the next pass takes it back, so that
+                        # K of the stage's start begins where a fresh stage would; and what the first solve left is
+                        # no carried right-hand side (`carry_measure_all`): it holds the older factor's miss. On a
+                        # scene with very light bodies (the dm_control humanoid's gimbals, 1e-6 of the body they
+                        # carry) such a solve took an error of 1e-5 m to 0.1-1 m, and its carry the next step's.
+                        undo = not (err <= last)
+                        measured = measured & ~(1 << row)
                         assemble_and_factor(
                             augmented, perm, col_start, update_start, update_target, update_a, update_b, update_sign,
                             col_sign, col_loop, slot_shape, slot_row, slot_sides, slot_code, slot_ref,

@@ -9,6 +9,8 @@ import pytest
 import warp as wp
 from warpimpulse.kernels.cholesky import cholesky3_inverse
 
+import warpimpulse as wi
+
 
 @wp.kernel
 def _pivots(blocks: wp.array(dtype=wp.mat33d), tiny: wp.array(dtype=wp.float64), fallback: wp.float64,
@@ -86,3 +88,24 @@ def test_bad_pivots_are_counted_and_replaced(which, expected):
         ref, ref_bad = _in_turn(a, t, fallback)
         assert count == ref_bad == expected
         assert np.abs(li - ref).max() <= 1e-9 * np.abs(ref).max(), (a, li, ref)
+
+
+@pytest.mark.parametrize("order", [2, 4])
+def test_padded_pivots_are_not_the_scenes(order):
+    """A body of 4e-16 kg on two slides from the world through a body of 4e-10 kg (the light body `load_mjcf`
+    puts on gymnasium's pusher goal, whose slides it chains): a slide's two linear rows, padded to a 3x3 block
+    with a unit pivot, form a block ~1e15 across, where the padded 1 fell below the tolerance relative to it and
+    the simulator refused to build ("the system matrix is singular"). The padded pivot is no pivot of the scene:
+    the simulator builds, and the bodies move as their slides let them: both along x at their common rate, the
+    goal falling along y."""
+    builder = wi.SceneBuilder(gravity=(0.0, -9.81, 0.0))
+    light = builder.add_body(4e-16, (6e-19, 6e-19, 6e-19), (0.0, 0.0, 0.0), linear_velocity=(0.3, 0.0, 0.0))
+    goal = builder.add_body(4e-10, (6e-13, 6e-13, 1e-12), (0.0, 0.0, 0.0), linear_velocity=(0.3, 0.0, 0.0))
+    builder.add_joint_prismatic(None, light, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    builder.add_joint_prismatic(light, goal, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    sim = wi.Simulator(builder.finalize("cpu"), 0.01, tolerance=1e-9, order=order)
+    stats = sim.step(50)
+    assert stats.converged and stats.max_joint_error <= 1e-9
+    x = sim.positions()
+    assert x[1] == pytest.approx([0.15, -0.5 * 9.81 * 0.5**2, 0.0], abs=1e-9)  # slides along x, falls along y
+    assert x[0][1] == pytest.approx(0.0, abs=1e-12)  # the light body keeps to its slide (x only)
