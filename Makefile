@@ -46,9 +46,11 @@ soak: $(STAMP)
 
 # Every URDF of example-robot-data (the [robots] extra) loaded, or refused with one line naming the element, and
 # run 10 s at h = 1 ms under gravity, contacts off, two robots at a time: benchmarks/results/robots.{json,md}.
+# Then every MJCF of gymnasium and dm_control's suite at orders 2 and 4: benchmarks/results/mjcf_robots.{json,md}.
 robots: $(STAMP)
 	$(PY) -m pip install -q -e ".[robots]"
 	$(PY) benchmarks/robots.py --processes 2
+	$(PY) benchmarks/mjcf_robots.py > /dev/null
 
 # The paper's tables, run time against error and scaling (apart, so each can be re-run alone), then the
 # plots, RESULTS.md and docs/results.md's results block from the three JSON files; scene_kinds.py also writes

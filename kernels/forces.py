@@ -761,10 +761,55 @@ def joint_response(
     return k, mu_l * k, mu_a * k, dv0, dw0, dv1, dw1
 
 
+@wp.func
+def damper_frame(
+    r: int,
+    chain: wp.vec3i,
+    ends: wp.vec2i,
+    coordinate_kind: wp.array(dtype=int),
+    coordinate_body0: wp.array(dtype=int),
+    coordinate_body1: wp.array(dtype=int),
+    coordinate_anchor0: wp.array(dtype=vec3d),
+    coordinate_anchor1: wp.array(dtype=vec3d),
+    coordinate_axis0: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+):
+    """(direction, point, body0, body1) on which a damper on coordinate row r acts at the given poses: the row's
+    world axis and point and its two bodies; on a chain of joints through light bodies (`SceneBuilder.chain_joints`;
+    `chain` and `ends` are the drive's `drive_chain` and `drive_ends`), as the drive's wrench does (`drive_wrench`),
+    the direction `reciprocal` to the chain's other axes of its kind, the chain's anchor and the chain's two ends,
+    so that the damper's impulse, like its force, leaves the light bodies out and does no work on the chain's
+    other coordinates (the rate along that direction is the coordinate's own rate)."""
+    axes = mat33d()  # rows: the row's own axis, then the chain's others (zero where none)
+    point = vec3d()
+    count = int(0)
+    k = int(0)
+    while k < 4:
+        row = r
+        if k > 0:
+            row = chain[k - 1]
+        if row >= 0:
+            a, b = coordinate_row_axis(
+                row, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+                coordinate_axis0, body_x, body_q,
+            )  # fmt: skip
+            if k < 3:
+                axes[k] = a
+            if k == 0 or (k == 3 and row != r):
+                point = b  # the chain's anchor where it has one other than the row's own
+            if k == 1 or k == 2:
+                count = k
+        k += 1
+    return reciprocal(axes[0], axes[1], axes[2], count), point, ends[0], ends[1]
+
+
 @wp.kernel
 def damper_rates(
     # Model:
     drive_coordinate: wp.array(dtype=int),
+    drive_chain: wp.array(dtype=wp.vec3i),
+    drive_ends: wp.array(dtype=wp.vec2i),
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
     coordinate_body1: wp.array(dtype=int),
@@ -780,16 +825,17 @@ def damper_rates(
     damper_k_out: wp.array(dtype=f64),
 ):
     """Every drive's k at the given state: its coordinate rate's change for a unit impulse on the two bodies
-    predicted alone (1/(kg m^2) or 1/kg), which makes a damper of gain c a decay of rate c k in the explicit
-    prediction; for the host to pick the dampers that go implicit (`dampers.pick`)."""
+    its force acts on (`damper_frame`), predicted alone (1/(kg m^2) or 1/kg), which makes a damper of gain c a
+    decay of rate c k in the explicit prediction; for the host to pick the dampers that go implicit
+    (`dampers.pick`)."""
     i = wp.tid()
     r = drive_coordinate[i]
-    a, point = coordinate_row_axis(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, body_x_in, body_q_in,
+    a, point, b0, b1 = damper_frame(
+        r, drive_chain[i], drive_ends[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, body_x_in, body_q_in,
     )  # fmt: skip
-    m0, j0, x0 = body_mobility(coordinate_body0[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
-    m1, j1, x1 = body_mobility(coordinate_body1[r], point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
+    m0, j0, x0 = body_mobility(b0, point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
+    m1, j1, x1 = body_mobility(b1, point, body_x_in, body_q_in, body_inv_mass, body_inv_inertia)
     if coordinate_kind[r] == ANGLE_COORDINATE:
         damper_k_out[i] = wp.dot(a, (j0 + j1) * a)
     else:  # a force along a at the point: 1/m, and the turn of the arm r x a
@@ -824,6 +870,8 @@ def implicit_damper(
     damper_drive: wp.array(dtype=int),
     damper_gain: wp.array(dtype=f64),
     drive_coordinate: wp.array(dtype=int),
+    drive_chain: wp.array(dtype=wp.vec3i),
+    drive_ends: wp.array(dtype=wp.vec2i),
     drive_mode: wp.array(dtype=int),
     drive_target: wp.array(dtype=f64),
     coordinate_kind: wp.array(dtype=int),
@@ -847,15 +895,15 @@ def implicit_damper(
     dissipative at any c h k. The constant force moves the poses by half the velocity change times h. Exact
     implicit Euler of the damper where nothing else holds the joint's bodies (a pendulum); on a chain the other
     joints add inertia, so it damps somewhat less than implicit Euler of the whole system; first order in the
-    damper either way."""
+    damper either way. A damper on a chain of joints through light bodies acts on the chain's ends along the
+    direction its wrench takes (`damper_frame`), as if they were one joint of that coordinate: the chain's other
+    coordinates are held through its impulse, which the joint correction then lets go."""
     i = damper_drive[d]
     r = drive_coordinate[i]
-    a, point = coordinate_row_axis(
-        r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
-        coordinate_axis0, body_x, body_q,
+    a, point, b0, b1 = damper_frame(
+        r, drive_chain[i], drive_ends[i], coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0,
+        coordinate_anchor1, coordinate_axis0, body_x, body_q,
     )  # fmt: skip
-    b0 = coordinate_body0[r]
-    b1 = coordinate_body1[r]
     k, rate_l, rate_a, dv0, dw0, dv1, dw1 = joint_response(
         coordinate_kind[r] == ANGLE_COORDINATE, a, point, b0, b1, body_x, body_q, body_inv_mass, body_inv_inertia
     )
@@ -883,6 +931,8 @@ def implicit_dampers_all(
     damper_drive: wp.array(dtype=int),
     damper_gain: wp.array(dtype=f64),
     drive_coordinate: wp.array(dtype=int),
+    drive_chain: wp.array(dtype=wp.vec3i),
+    drive_ends: wp.array(dtype=wp.vec2i),
     drive_mode: wp.array(dtype=int),
     drive_target: wp.array(dtype=f64),
     coordinate_kind: wp.array(dtype=int),
@@ -904,7 +954,8 @@ def implicit_dampers_all(
     d = wp.int32(0)
     while d < damper_drive.shape[0]:
         implicit_damper(
-            d, h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind,
+            d, h, damper_drive, damper_gain, drive_coordinate, drive_chain, drive_ends, drive_mode, drive_target,
+            coordinate_kind,
             coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
             body_inv_mass, body_inv_inertia, body_x, body_q, body_v, body_w,
         )  # fmt: skip
@@ -918,6 +969,8 @@ def implicit_dampers(
     damper_drive: wp.array(dtype=int),
     damper_gain: wp.array(dtype=f64),
     drive_coordinate: wp.array(dtype=int),
+    drive_chain: wp.array(dtype=wp.vec3i),
+    drive_ends: wp.array(dtype=wp.vec2i),
     drive_mode: wp.array(dtype=int),
     coordinate_kind: wp.array(dtype=int),
     coordinate_body0: wp.array(dtype=int),
@@ -937,7 +990,8 @@ def implicit_dampers(
 ):
     """Every implicit damper on the prediction, on one thread (`implicit_dampers_all`)."""
     implicit_dampers_all(
-        h, damper_drive, damper_gain, drive_coordinate, drive_mode, drive_target, coordinate_kind, coordinate_body0,
+        h, damper_drive, damper_gain, drive_coordinate, drive_chain, drive_ends, drive_mode, drive_target,
+        coordinate_kind, coordinate_body0,
         coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
         body_inv_mass, body_inv_inertia, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip

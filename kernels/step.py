@@ -473,9 +473,9 @@ def coupled_predict_all(
         )  # fmt: skip
         stage += 1
     implicit_dampers_all(
-        h, el.damper_drive, el.damper_gain, el.drive_coordinate, el.drive_mode, el.drive_target, el.coordinate_kind,
-        el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0, el.coordinate_anchor1, el.coordinate_axis0,
-        body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
+        h, el.damper_drive, el.damper_gain, el.drive_coordinate, el.drive_chain, el.drive_ends, el.drive_mode,
+        el.drive_target, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
+        el.coordinate_anchor1, el.coordinate_axis0, body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
     )  # fmt: skip
 
 

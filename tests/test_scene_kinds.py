@@ -1,12 +1,11 @@
 """benchmarks/scene_kinds.py's models: each MJCF file is what its builder writes, loads in both engines as the
 same bodies, and both engines move it alike over a few small steps. Nothing here times anything."""
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scripts import benchmark
 
 from warpimpulse.bench.blocks import markers
 
@@ -17,12 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 @pytest.fixture(scope="module")
 def kinds():
-    spec = importlib.util.spec_from_file_location("scene_kinds", ROOT / "benchmarks/scene_kinds.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["scene_kinds"] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    yield module
-    del sys.modules["scene_kinds"]
+    yield from benchmark("scene_kinds")
 
 
 def test_the_model_files_are_what_their_builders_write(kinds, tmp_path, monkeypatch) -> None:
