@@ -991,7 +991,6 @@ def implicit_dampers(
     """Every implicit damper on the prediction, on one thread (`implicit_dampers_all`)."""
     implicit_dampers_all(
         h, damper_drive, damper_gain, drive_coordinate, drive_chain, drive_ends, drive_mode, drive_target,
-        coordinate_kind, coordinate_body0,
-        coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
+        coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
         body_inv_mass, body_inv_inertia, body_x_out, body_q_out, body_v_out, body_w_out,
     )  # fmt: skip
