@@ -9,6 +9,11 @@
    matrix; "auto" should pick K for the tree and the body matrix for the star.
 3. Corrections within tolerance: how often a tree127 step skips its joint correction (the first prediction
    holds) or its velocity solve, and what one skipped solve costs (its captured graph replayed).
+4. Dormant force elements: gymnasium's ant and dm_control's reacher (benchmarks/scene_kinds.py's models: their
+   effort motors at control 0) stepped with the motors dormant, each body predicted alone and the velocity
+   correction deferred (`Simulator._follow_elements`), against the same simulator with one control at 1e-12,
+   which keeps the coupled RK4 prediction and a velocity correction a stage. Needs the [bench] and
+   [mjcf-robots] extras; a scene whose package is missing is said and left out.
 Variants of a case are timed in turn, round after round, so load on the machine hits them alike; every
 figure is a median over the rounds.
 """
@@ -154,6 +159,39 @@ def tolerance_skips(rounds: int, run_steps: int = 150) -> dict:
     return {"solve_us": cost_us, "runs": runs}
 
 
+DORMANT_SCENES = ("ant", "reacher")
+DORMANT_CONFIGS = ((4, 1.0 / 120.0, 1e-5), (2, 1.0 / 120.0, 1e-4))  # order, h (s), tolerance: on the error front
+
+
+def dormant_elements(rounds: int) -> list[dict]:
+    """Step time with the scene's motors dormant (control 0) and acting (one control at 1e-12), one step a call
+    and BLOCK steps a call, per scene and configuration."""
+    try:
+        import scene_kinds
+    except ImportError as e:  # mujoco (the [bench] extra) reads the models
+        return [{"scene": name, "skipped": str(e)} for name in DORMANT_SCENES]
+    rows = []
+    for name in DORMANT_SCENES:
+        kind = next(k for k in scene_kinds.KINDS if k.name == name)
+        try:
+            model = scene_kinds.load(kind).model
+        except FileNotFoundError as e:
+            rows.append({"scene": name, "skipped": str(e)})
+            continue
+        for order, h, tol in DORMANT_CONFIGS:
+            sims = {k: wi.Simulator(model, h, tolerance=tol, order=order) for k in ("dormant", "acting")}
+            sims["acting"].set_controls({0: 1e-12})
+            per_call = in_turn({k: steps(sim, BLOCK) for k, sim in sims.items()}, rounds, BLOCK)
+            one_call = in_turn({k: (lambda sim=sim: sim.step(BLOCK)) for k, sim in sims.items()}, rounds, BLOCK)
+            rows.append({
+                "scene": name, "order": order, "dt": h, "tolerance": tol,
+                "deferred": {k: sim.defer_velocities for k, sim in sims.items()},
+                "per_call_us": {k: 1e6 * t for k, t in per_call.items()},
+                "one_call_us": {k: 1e6 * t for k, t in one_call.items()},
+            })  # fmt: skip
+    return rows
+
+
 def table(result: dict) -> list[str]:
     lines = ["1. joint-type specialization (us; specialized / all six kinds)",
              f"{'scene':9} {'kinds':>14} {'step':>17} {'kernels':>13} {'cold compile':>13}"]  # fmt: skip
@@ -186,6 +224,17 @@ def table(result: dict) -> list[str]:
             f"{r['tolerance']:9.0e} {r['step_us']:8.1f} {r['joint_skipped']:>7}/{n:<4} "
             f"{r['velocity_skipped']:>10}/{n:<4} {r['saved_us_per_step']:9.1f} ({100 * r['saved_fraction']:.0f}%)"
         )
+    lines += ["", "4. dormant force elements (us a step; dormant / acting)",
+              f"{'scene':8} {'order':>5} {'h':>7} {'one step a call':>17} {'steps in one call':>19}"]  # fmt: skip
+    for r in result.get("dormant_elements", []):
+        if "skipped" in r:
+            lines.append(f"{r['scene']:8} left out: {r['skipped']}")
+            continue
+        p, o = r["per_call_us"], r["one_call_us"]
+        lines.append(
+            f"{r['scene']:8} {r['order']:>5} 1/{round(1 / r['dt']):<5} {p['dormant']:7.1f}/{p['acting']:<9.1f} "
+            f"{o['dormant']:7.1f}/{o['acting']:<9.1f}"
+        )
     return lines
 
 
@@ -202,6 +251,7 @@ def main(argv: list[str] | None = None) -> dict:
         "specialization": specialization(args.rounds),
         "formulations": formulations(args.rounds),
         "tolerance_skips": tolerance_skips(args.rounds),
+        "dormant_elements": dormant_elements(args.rounds),
     }
     print("\n".join(table(result)))
     args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -281,6 +281,7 @@ class Controller:
             shadow._user_force, shadow._user_torque, shadow._active_forces = sim._user_force, sim._user_torque, None
         if sim.model.drive_count:
             wp.copy(shadow.drive_target, sim.drive_target)
+            shadow._follow_elements()
         if shadow.dt != h:
             shadow._set_step_size(h)
         parts = shadow._steps(n, combine=True)

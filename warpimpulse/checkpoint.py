@@ -61,6 +61,11 @@ class Checkpoints:
         data = self._read_checkpoint(path)
         for name in STATE:
             getattr(self._state, f"body_{name}").assign(data[name])
+        if "drive_target" in data:  # motors' targets and PID integrals; whether an element acts decides the step
+            self._handout = False
+            self.drive_target.assign(data["drive_target"])
+            self.drive_integral.assign(data["drive_integral"])
+            self._follow_elements()
         due = bool(data.get("handout_due", False))  # older files hold handed-out states
         self._handout = due and self.defer_velocities
         self.time, self.step_count = float(data["time"]), int(data["step_count"])
@@ -69,9 +74,6 @@ class Checkpoints:
             self.accuracy.reset()
         self._user_force, self._user_torque = data["user_force"], data["user_torque"]
         self._fallback = str(data["fallback"]) if "fallback" in data else ""
-        if "drive_target" in data:  # motors' targets and PID integrals
-            self.drive_target.assign(data["drive_target"])
-            self.drive_integral.assign(data["drive_integral"])
         warm = getattr(self.linear, "_warm", None)  # CG warm starts; another solver's are not used
         if warm is not None:
             warm.clear()

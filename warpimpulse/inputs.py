@@ -113,6 +113,7 @@ class Inputs:
         values = self.drive_target.numpy()
         values[drive] = target
         self.drive_target.assign(values)
+        self._follow_elements()
 
     def set_controls(self, values) -> None:
         """Set actuators' inputs as MuJoCo's `ctrl` does (`SceneBuilder.add_actuator`, `load_mjcf`): `values` is
@@ -144,6 +145,7 @@ class Inputs:
         targets = self.drive_target.numpy()
         targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
         self.drive_target.assign(targets)
+        self._follow_elements()
 
     def forces_active(self) -> bool:
         """Whether something does work on the bodies in the coming step, so that `energy()` is not conserved:

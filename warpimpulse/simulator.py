@@ -28,6 +28,7 @@ from .fused import FusedSteps
 from .inputs import Inputs
 from .kernels import carry as carry_kernels
 from .kernels import constraints as constraint_kernels
+from .kernels import forces as force_kernels
 from .kernels import loop as loop_kernels
 from .kernels import step as step_kernels
 from .launch import Packed
@@ -253,8 +254,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self.features = capabilities.scene_features(
             model, self.solver_name, self.order, self._split_systems, self.newton
         )
-        self._forced = model.element_count > 0  # state-dependent forces: the coupled RK4 prediction
-        if self._forced:
+        if model.element_count > 0:  # state-dependent forces: the coupled RK4 prediction's scratch
             self._stage = model.state()
             sums = model.state()  # the weighted sums of the RK4 stage derivatives
             self.rk4_sum_x, self.rk4_sum_q, self.rk4_sum_v, self.rk4_sum_w = (
@@ -270,6 +270,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             self.coordinate_world_point = wp.zeros(model.coordinate_count, dtype=wp.vec3d, device=d)
         self.drive_target = wp.array(model.host.drive_target, dtype=wp.float64, device=d)
         self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
+        # Whether a force element acts now: then the prediction is the coupled RK4 (`_follow_elements`)
+        self._forced = self._elements_act()
+        self._modes: dict[bool, dict] = {}  # the other prediction's kernels and launches, kept for a switch back
         # The drives' damping stiff for dt: implicit (`dampers.py`), unless order 4 or 6 is asked
         self._dampers = dampers.pick(model, dt, keep_order=self.order > 2)
         self.implicit_dampers: tuple[str, ...] = self._dampers.names
@@ -305,7 +308,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         if defer_velocities and why:
             raise ValueError(f"defer_velocities needs a step whose velocities enter the next only through its "
                              f"joint correction; this simulator has {why}")  # fmt: skip
-        self.defer_velocities = bool(defer_velocities is not False and not why)
+        # Unless refused, on while no force element acts (`_follow_elements`)
+        self._defer_idle = bool(defer_velocities is None and not self._velocities_needed(idle=True))
+        asked = bool(defer_velocities is not False and not why)
+        self.defer_velocities = asked or (self._defer_idle and not self._forced)
         self._launches_by_h: dict[float, tuple] = {}
         self._loops_by_h: dict[tuple[float, int], tuple] = {}  # the parallel schedule's loops (`_device_loops`)
         self._v0 = wp.zeros_like(self._state.body_v)
@@ -429,18 +435,66 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         after `set_state`, `reset` or a step the parallel schedule took, are not counted)."""
         return int(self._factor_state.numpy()[step_kernels.FACTOR_COUNT])
 
-    def _velocities_needed(self) -> str:
-        """Why a step's velocities must be corrected before the next step (`defer_velocities`), or ""."""
+    def _velocities_needed(self, idle: bool = False) -> str:
+        """Why a step's velocities must be corrected before the next step (`defer_velocities`), or ""; `idle`:
+        while no force element acts (`_follow_elements`)."""
         m = self.model
         reasons = (
             (self.solver_name != "cholesky" or m.constraint_count == 0, f"the {self.solver_name!r} solver"),
             (self._split_systems, "the split formulation"),
-            (m.element_count > 0, "force elements (springs, joint springs, drives)"),
+            (m.element_count > 0 and not idle, "force elements (springs, joint springs, drives)"),
             (m.limit_count > 0, "joint limits, stiff motors or distance constraints"),
             (m.colliders is not None, "contacts"),
             (m.world_count > 1, "batched worlds"),
         )
         return ", ".join(why for needed, why in reasons if needed)
+
+    def _elements_act(self) -> bool:
+        """Whether a force element can push now: a spring, a drive with a gain, or an effort drive whose target
+        is not 0. A robot's effort motors at control 0 (an MJCF's actuators, `set_controls`) push nothing, and
+        while that holds the step is the one of a scene without them (`_follow_elements`). Batched worlds keep
+        the coupled prediction whenever the model has elements."""
+        m = self.model
+        if m.element_count == 0:
+            return False
+        if m.world_count > 1 or m.spring_count:
+            return True
+        drives = m.drive_element.numpy()
+        if np.any(m.drive_gains.numpy()[drives] != 0.0):
+            return True
+        effort = drives[m.host.drive_mode[drives] == force_kernels.EFFORT_MODE]
+        return bool(np.any(self.drive_target.numpy()[effort] != 0.0))
+
+    # What the step keeps for each answer of `_elements_act`: its fused kernel and force elements, and the
+    # launches either schedule recorded for them.
+    _BY_ELEMENTS = ("_fused", "_elements", "_fused_by_h", "_tick", "_substep_by_h", "_launches_by_h", "_loops_by_h")
+
+    def _follow_elements(self) -> None:
+        """Take the coupled RK4 prediction while a force element acts, else each body's own (`predict`) and the
+        velocity correction deferred where it may be (`defer_velocities`): called wherever the drives' targets
+        change (the setters, `reset`, a checkpoint). Dormant elements cost the coupled prediction a stage and
+        the velocity correction a step for nothing: 2x on gymnasium's ant at order 4 (benchmarks/skips.py).
+        A velocity correction a dormant step deferred is taken first; each answer's kernels and launches are
+        kept for the next switch."""
+        acting = self._elements_act()
+        if acting == self._forced:
+            return
+        if self._handout:  # the last step's deferred velocity correction, before a step that needs it done
+            self._hand_out()
+        self._modes[self._forced] = {name: getattr(self, name) for name in self._BY_ELEMENTS if hasattr(self, name)}
+        self._forced = acting
+        self.defer_velocities = self._defer_idle and not acting
+        kept = self._modes.get(acting)
+        if kept is not None:
+            for name, value in kept.items():
+                setattr(self, name, value)
+        else:
+            self._launches_by_h, self._loops_by_h = {}, {}
+            if self.schedule == "fused":
+                self._fused = step_kernels.fused(self._fused_kinds, acting, self.model.limit_count > 0)
+                self._elements = self._force_elements()
+                self._fused_by_h, self._tick, self._substep_by_h = {}, (None, ()), {}
+        self._use_step_size(self.dt)
 
     # ---------------------------------------------------------------- schedules
     FUSED_BATCH = 256  # steps a fused launch may take: the status rows read back at once
@@ -455,7 +509,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             return "parallel", gap[1].note
         rows = self.model.limit_count > 0  # limits, stiff motors, distance constraints (kernels/limits.py)
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
-        self._fused = step_kernels.fused(frozenset(int(k) for k in kinds), self._forced, rows)
+        self._fused_kinds = frozenset(int(k) for k in kinds)
+        self._fused = step_kernels.fused(self._fused_kinds, self._forced, rows)
         self._elements = self._force_elements()
         # A row a step, and the launch's OK steps summed up in the last (`kernels/step.py` `finish`).
         self._status = wp.zeros(
@@ -638,6 +693,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         self._handout = False
         self.drive_target.assign(self.model.host.drive_target)
         self.drive_integral.zero_()
+        self._follow_elements()
         self.time, self.step_count = 0.0, 0
         self._clock = (0.0, 0)
         if self.accuracy is not None:

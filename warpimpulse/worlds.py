@@ -268,6 +268,7 @@ class Batch:
         drives = self._drive_rows(world)
         if self._drives:
             solo.drive_target.assign(sim.drive_target.numpy()[drives])
+            solo._follow_elements()
             solo.drive_integral.assign(self._integral0[drives])
         solo.time, solo.step_count = sim.time, sim.step_count
         solo._update_frames()
