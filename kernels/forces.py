@@ -412,9 +412,14 @@ def drive_wrench(
             coordinate_rest_rotation, body_x, body_q, body_v, body_w,
         )  # fmt: skip
     out = drive_output(kind, mode, value, rate, drive_target[i], drive_gains[i], drive_max_force[i], drive_integral[i])
+    row = 2 * (row_offset + e)
+    if out == f64(0.0):  # no push (an effort motor at 0 beside springs that act): no direction to find
+        for side in range(2):
+            wrench_force[row + side] = vec3d()
+            wrench_torque[row + side] = vec3d()
+        return
     a, pb = chain_direction(r, a, pb, drive_chain[i], coordinate_world_axis, coordinate_world_point)
     ends = drive_ends[i]
-    row = 2 * (row_offset + e)
     if kind == ANGLE_COORDINATE:
         wrench_force[row] = vec3d()
         wrench_torque[row] = -out * a
