@@ -703,6 +703,20 @@ def _gimbal_bob(c: float, h: float, integrator: str | None = None) -> np.ndarray
     return np.array(out)
 
 
+def test_stiff_dampers_are_implicit_where_limits_hold_the_steps_at_order_2():
+    """Joint limits take a scene's steps at order 2 whatever the order (`ROWS_FALLBACK`), so its stiff dampers are
+    implicit as at order 2. Kept in RK4 for an order 4 the steps did not take, they halved every step (gymnasium's
+    ant as shipped at its h = 0.01: 298 solves and 8 substeps a step; now 5.8 and none, as at order 2)."""
+    xml = GIMBAL.format(c=2.0).replace('damping="2.0"/>', 'damping="2.0" limited="true" range="-1 1"/>', 1)
+    model = wi.load_mjcf(wi.mjcf.compile_mjcf(xml), qvel=(1.0, -0.5)).finalize()
+    runs = {order: wi.Simulator(model, 0.01, tolerance=1e-9, order=order) for order in (2, 4)}
+    for order, sim in runs.items():
+        assert sim.implicit_dampers == ("jx.spring", "jy.spring")
+        stats = sim.step(50)
+        assert stats.order == 2 and stats.substeps == 50 and stats.linear_iterations <= 6 * 50
+    assert np.array_equal(runs[2].positions(), runs[4].positions())
+
+
 @pytest.mark.parametrize("c", [2.0, 0.5])
 def test_stiff_dampers_on_a_chain_of_joints_are_implicit(c):
     """Two damped hinges at one point of one MJCF body (a chain through a light body), a bob of 1e-3 kg m^2 about

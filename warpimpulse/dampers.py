@@ -35,7 +35,8 @@ def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
     indices), `gain` (c, N m s/rad or N s/m), `names` (their drives' names) and `drive_gains`, the drives' gains
     for the explicit prediction (the implicit dampers' terms zeroed; the model's own array where none is).
 
-    With `keep_order` (order 4 or 6 asked) none goes implicit: an implicit damper is first order and would hold
+    With `keep_order` (order 4 or 6 asked, and the steps take it: a scene with rows takes them at order 2) none
+    goes implicit: an implicit damper is first order and would hold
     every step at order 2 (the gymnasium ant at h = 1/240 parts from MuJoCo by 0.05 m in 0.25 s that way, 1e-6
     m at order 4), so the stiff ones stay in RK4, listed in `kept`, and the steps halve where they need it."""
     d, h = model.device, model.host

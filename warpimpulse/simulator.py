@@ -273,8 +273,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         # Whether a force element acts now: then the prediction is the coupled RK4 (`_follow_elements`)
         self._forced = self._elements_act()
         self._modes: dict[bool, dict] = {}  # the other prediction's kernels and launches, kept for a switch back
-        # The drives' damping stiff for dt: implicit (`dampers.py`), unless order 4 or 6 is asked
-        self._dampers = dampers.pick(model, dt, keep_order=self.order > 2)
+        # The drives' damping stiff for dt: implicit (`dampers.py`), unless order 4 or 6 is asked and kept: a
+        # scene with rows takes its steps at order 2 whatever the order (ROWS_FALLBACK), so its dampers too
+        self._dampers = dampers.pick(model, dt, keep_order=self.order > 2 and model.limit_count == 0)
         self.implicit_dampers: tuple[str, ...] = self._dampers.names
         """The drives (by name) whose damping the prediction takes implicitly: stiff for dt (`dampers.py`)."""
         if (self.implicit_dampers or self._dampers.kept) and verbose:
