@@ -142,15 +142,20 @@ class FusedSteps:
             self._substep_by_h[h] = launch
         return launch
 
-    def _split_step(self, row: np.ndarray, hand_out: bool) -> StepStats:
-        """The step whose status `row` (SPLIT or RETRY) stopped a fused launch, the parallel schedule's way
+    def _splits_fused(self) -> bool:
+        """Whether a split or halved step is taken by fused launches (`_split_step`), not the parallel schedule."""
+        return self._views is not None and self.linear is not None and self.accuracy is None
+
+    def _split_step(self, row: np.ndarray | None, hand_out: bool) -> StepStats:
+        """The step whose status `row` (SPLIT or RETRY; None: a step split up front, `_damper_depth`) stopped a
+        fused launch, the parallel schedule's way
         (`_step_parallel`: a spin split into 2**depth substeps, the depth from the spin at the step's start; a
         failed step undone and taken as two halves, `_advance`) but by the fused kernel on a CPU, where the
         parallel schedule's launches cost about 13x the step (measured on a 7-hinge arm at order 4)."""
         columns = step_kernels
         self._update_forces()
         order, fallback = self._fused_order
-        if int(row[columns.STATUS_CODE]) == columns.SPLIT:
+        if row is None or int(row[columns.STATUS_CODE]) == columns.SPLIT:
             depth = self._spin_depth(max(abs(g) for g in self._fused_stages))
             parts = self._fused_substeps(depth, 2**depth)
         else:
@@ -310,7 +315,7 @@ class FusedSteps:
         code = int(row[columns.STATUS_CODE])
         self._spin = float(row[columns.STATUS_SPIN])
         # (The controller's steps take many sizes: no substep arrays a size for them.)
-        fused = self._views is not None and self.linear is not None and self.accuracy is None
+        fused = self._splits_fused()
         if fused and (code == columns.SPLIT or (code == columns.RETRY and self.max_substep_depth > 0)):
             return self._split_step(row, hand_out)
         if code in (columns.SPLIT, columns.RETRY):  # nothing of this step was kept

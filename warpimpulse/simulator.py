@@ -355,7 +355,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             self._check_loops()
         self._check_finite(self._state, 0)
         # `step()` is one packed fused launch (`_fused_step`; a GPU's graph replays go through `_steps`)
-        self._ticks = self.schedule == "fused" and plan is None and self._views is not None
+        self._ticks = self.schedule == "fused" and plan is None and self._views is not None and not self._damper_depth()
         self._loop_rows_counted = self.linear is not None and "loops" in self.features  # `redundant_rows`
         self._read = False  # the velocities were read since the last call (`_lazy_call`)
         self.accuracy = None if plan is None else accuracy_control.Controller(self, plan)
@@ -627,8 +627,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         if self.implicit_dampers:
             return (f"{len(stiff)} damper(s) stiff at dt = {self.dt:.3g} s taken implicitly (first order in the "
                     f"damping): {names}")  # fmt: skip
-        return (f"{len(stiff)} damper(s) stiff at dt = {self.dt:.3g} s kept in RK4 to keep order {self.order} (steps "
-                f"halve where they need it; order 2 takes them implicitly, faster): {names}")  # fmt: skip
+        split = 2 ** self._damper_depth()
+        return (f"{len(stiff)} damper(s) stiff at dt = {self.dt:.3g} s kept in RK4 to keep order {self.order} (each "
+                f"step split in {split}; order 2 takes them implicitly, faster): {names}")  # fmt: skip
 
     def fallback_note(self, reason: str) -> str:
         """The sentence that says why steps were taken at order 2 (a `fallbacks` entry)."""
@@ -651,6 +652,11 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             if self._fallback:  # a step that records why it was not composed: the parallel schedule's bookkeeping
                 out.append(self._step_parallel(not lazy and done + 1 == n))
                 self._handout = lazy
+                done += 1
+            elif self._damper_depth():  # split up front for dampers kept in RK4, as a spin split
+                hand_out = not lazy and done + 1 == n
+                out.append(self._split_step(None, hand_out) if self._splits_fused() else self._step_parallel(hand_out))
+                self._handout = self.defer_velocities and not hand_out
                 done += 1
             else:
                 done += self._fused_steps(n - done, combine, out, lazy)
