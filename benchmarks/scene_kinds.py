@@ -42,7 +42,7 @@ from warpimpulse import scenes
 from warpimpulse.bench.blocks import write_block
 from warpimpulse.bench.harness import Probe, log, quiet_warp
 from warpimpulse.bench.pareto import FLOOR_MARGIN, LEVELS, compare, front, ratio_text
-from warpimpulse.bench.peers.mujoco import MujocoScene, mujoco_available, to_spec
+from warpimpulse.bench.peers.mujoco import MujocoScene, comparable, mujoco_available, to_spec
 from warpimpulse.bench.report import spread_text
 from warpimpulse.builder import SceneBuilder
 from warpimpulse.mjcf import load_mjcf
@@ -286,13 +286,7 @@ def mujoco_model(kind: Kind):
 
     path = kind.path()
     m = mujoco.MjModel.from_xml_path(str(path))
-    if kind.package is not None:
-        for flag in ("CONTACT", "LIMIT", "DAMPER"):
-            m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"))
-        m.dof_armature[:] = 0.0
-        m.dof_frictionloss[:] = 0.0
-        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
-    return m
+    return m if kind.package is None else comparable(m, ("contact", "limit", "damper"))
 
 
 def body_id(mj_model, name: str) -> int:

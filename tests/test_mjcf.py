@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import warpimpulse as wi
+from warpimpulse.bench.peers.mujoco import comparable
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -30,11 +31,7 @@ def _package(name: str) -> Path:
 
 def compiled(xml, off=("contact", "limit")):
     """An MjModel for comparison: `off` disabled, RK4 at H_REF, armature and frictionloss zeroed."""
-    m = wi.mjcf.compile_mjcf(xml)
-    for flag in off:
-        m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))
-    m.dof_armature[:] = 0.0
-    m.dof_frictionloss[:] = 0.0
+    m = comparable(wi.mjcf.compile_mjcf(xml), off)
     m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
     m.opt.timestep = H_REF
     return m

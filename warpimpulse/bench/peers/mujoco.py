@@ -311,3 +311,19 @@ def mujoco_available() -> str | None:
     # directory; the harness reads the warning counters instead.
     mujoco.set_mju_user_warning(lambda msg: None)
     return None
+
+
+def comparable(m: mujoco.MjModel, off: tuple[str, ...] = ("contact", "limit")) -> mujoco.MjModel:
+    """MuJoCo's compiled model `m`, changed in place to run the equations ours runs from the same file: the
+    `off` features disabled (MuJoCo's contacts and limits are soft, ours hold exactly; "damper" where dampers
+    differ by design), armature and frictionloss zeroed (armature has no rigid-body equivalent and
+    `load_mjcf` says so; frictionloss is a soft constraint in MuJoCo, exact dry friction here), and the energy
+    bookkeeping off (it costs MuJoCo time the dynamics do not need). Returns `m`."""
+    import mujoco
+
+    for flag in off:
+        m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}"))
+    m.dof_armature[:] = 0.0
+    m.dof_frictionloss[:] = 0.0
+    m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+    return m
