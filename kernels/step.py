@@ -51,7 +51,7 @@ from .forces import (
 from .impulses import apply_body, impulse_response, step_turn
 from .inertia import sym33d, world_inverse_inertia_of
 from .iterative import sweep_positions_once, sweep_velocities_once
-from .limits import Rows, correct_all, coupling_entry, limit_error, matrix_entry, row_sides
+from .limits import Rows, coupling_entry, limit_error, matrix_entry, resolve_all, row_sides, setup_all
 from .loop import diverging
 from .rigid import LANES, body_summary, predict_group
 
@@ -635,85 +635,24 @@ def limit_errors_all(
 
 
 @wp.func
-def correct_rows_all(
-    velocity: int,
-    h: f64,
+def row_sides_all(
     rows: Rows,
-    body_inv_mass: wp.array(dtype=f64),
-    constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=sym33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    jac_skew: wp.array(dtype=vec3d),
     body_x: wp.array(dtype=vec3d),
     body_q: wp.array(dtype=quatd),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
 ):
-    """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`correct_all`)."""
-    correct_all(
-        velocity, 1, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, h, inv_inertia_world,
-        jac_lin, jac_ang, jac_skew, body_x, body_q, body_v, body_w, rows,
-    )  # fmt: skip
-
-
-@wp.func
-def row_couplings_all(
-    constraint_count: int,
-    rows: Rows,
-    body_inv_mass: wp.array(dtype=f64),
-    constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    body_x: wp.array(dtype=vec3d),
-    body_q: wp.array(dtype=quatd),
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-    inv_inertia_world: wp.array(dtype=sym33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    jac_skew: wp.array(dtype=vec3d),
-):
-    """Every row's Jacobian g at the state (`row_sides`), then c = J M^-1 g^T of every row and constraint
-    (`coupling_entry`)."""
-    nl = rows.limit_coordinate.shape[0]
+    """Every row's Jacobian g at the state (`row_sides`), and none of c, K^-1 c and S formed for its factor yet:
+    `form_active_rows` forms a row's as a pass first makes it active."""
     l = wp.int32(0)
-    while l < nl:
+    while l < rows.limit_coordinate.shape[0]:
         row_sides(
             l, rows.coordinate_kind, rows.coordinate_body0, rows.coordinate_body1, rows.coordinate_anchor0,
             rows.coordinate_anchor1, rows.coordinate_axis0, rows.coordinate_rest_rotation, rows.limit_coordinate,
             body_x, body_q, body_v, body_w, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
         )  # fmt: skip
+        rows.limit_formed[l] = 0
         l += 1
-    l = wp.int32(0)
-    while l < nl:
-        i = wp.int32(0)
-        while i < constraint_count:
-            coupling_entry(
-                l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, rows.limit_side_body,
-                rows.limit_side_lin, rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, jac_skew,
-                rows.limit_coupling,
-            )  # fmt: skip
-            i += 1
-        l += 1
-
-
-@wp.func
-def row_matrix_all(rows: Rows, body_inv_mass: wp.array(dtype=f64), inv_inertia_world: wp.array(dtype=sym33d)):
-    """The rows' system S with the joints holding, from g, c and K^-1 c (`matrix_entry`)."""
-    nl = rows.limit_coordinate.shape[0]
-    k = wp.int32(0)
-    while k < nl:
-        l = wp.int32(0)
-        while l < nl:
-            matrix_entry(
-                k, l, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
-                inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
-            )  # fmt: skip
-            l += 1
-        k += 1
 
 
 @wp.func
@@ -893,6 +832,116 @@ def cholesky_solve(
         while jj < n:
             backward_column(n - 1 - jj, perm, col_start, col_row, col_sign, values, work, impulse)
             jj += 1
+
+
+@wp.func
+def form_active_rows(
+    constraint_count: int,
+    rows: Rows,
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=sym33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+    augmented: int,
+    offset: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    col_row: wp.array(dtype=int),
+    col_sign: wp.array(dtype=f64),
+    row_start: wp.array(dtype=int),
+    row_slot: wp.array(dtype=int),
+    row_col: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    work: wp.array(dtype=vec3d),
+    aug_rhs: wp.array(dtype=vec3d),
+    aug_x: wp.array(dtype=vec3d),
+):
+    """c = J M^-1 g^T (`coupling_entry`), K^-1 c (one solve with the factor) and the entries of S with every row
+    formed before (`matrix_entry`) of each row this pass made active (limit_mask) that the factor has not
+    served yet: only active rows' entries are read (`resolve_all`), and a robot's limits are mostly slack, where
+    forming S whole took one solve a row a stage (gymnasium's humanoid, 17 limits: 62% of its step). Each entry
+    is the one the whole S would hold, bit for bit."""
+    nl = rows.limit_coordinate.shape[0]
+    l = wp.int32(0)
+    while l < nl:
+        if rows.limit_mask[l] != 0 and rows.limit_formed[l] == 0:
+            i = wp.int32(0)
+            while i < constraint_count:
+                coupling_entry(
+                    l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, rows.limit_side_body,
+                    rows.limit_side_lin, rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+                    rows.limit_coupling,
+                )  # fmt: skip
+                i += 1
+            cholesky_solve(
+                augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot, row_col,
+                values, work, aug_rhs, aug_x, rows.coupling_rows[l], rows.response_rows[l],
+            )  # fmt: skip
+            rows.limit_formed[l] = 1
+            k = wp.int32(0)
+            while k < nl:
+                if rows.limit_formed[k] != 0:
+                    matrix_entry(
+                        k, l, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
+                        inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
+                    )  # fmt: skip
+                    if k != l:
+                        matrix_entry(
+                            l, k, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
+                            inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
+                        )  # fmt: skip
+                k += 1
+        l += 1
+
+
+@wp.func
+def correct_rows_all(
+    velocity: int,
+    h: f64,
+    constraint_count: int,
+    rows: Rows,
+    body_inv_mass: wp.array(dtype=f64),
+    constraint_kind: wp.array(dtype=int),
+    constraint_body0: wp.array(dtype=int),
+    constraint_body1: wp.array(dtype=int),
+    inv_inertia_world: wp.array(dtype=sym33d),
+    jac_lin: wp.array(dtype=mat33d),
+    jac_ang: wp.array(dtype=mat33d),
+    jac_skew: wp.array(dtype=vec3d),
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+    augmented: int,
+    offset: int,
+    perm: wp.array(dtype=int),
+    col_start: wp.array(dtype=int),
+    col_row: wp.array(dtype=int),
+    col_sign: wp.array(dtype=f64),
+    row_start: wp.array(dtype=int),
+    row_slot: wp.array(dtype=int),
+    row_col: wp.array(dtype=int),
+    values: wp.array(dtype=mat33d),
+    work: wp.array(dtype=vec3d),
+    aug_rhs: wp.array(dtype=vec3d),
+    aug_x: wp.array(dtype=vec3d),
+):
+    """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`correct_all`'s two
+    halves), S formed for the rows it makes active (`form_active_rows`)."""
+    setup_all(velocity, h, body_x, body_q, body_v, body_w, rows)
+    form_active_rows(
+        constraint_count, rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
+        inv_inertia_world, jac_lin, jac_ang, jac_skew, augmented, offset, perm, col_start, col_row, col_sign,
+        row_start, row_slot, row_col, values, work, aug_rhs, aug_x,
+    )  # fmt: skip
+    resolve_all(
+        velocity, 1, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, inv_inertia_world,
+        jac_lin, jac_ang, jac_skew, body_x, body_q, body_v, body_w, rows,
+    )  # fmt: skip
 
 
 @wp.func
@@ -1383,8 +1432,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         )  # fmt: skip
                         if wp.static(rows):
                             correct_rows_all(
-                                0, hs, limit_rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
-                                inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v, state_w,
+                                0, hs, constraint_count, limit_rows, body_inv_mass, constraint_kind, constraint_body0,
+                                constraint_body1, inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q,
+                                state_v, state_w, augmented, offset, perm, col_start, col_row, col_sign, row_start,
+                                row_slot, row_col, values, work, aug_rhs, aug_x,
                             )  # fmt: skip
                         if wp.static(forced):
                             coupled_predict_all(
@@ -1497,21 +1548,8 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                         inv_inertia_world, jac_lin, jac_ang, jac_skew, values, singular,
                     )  # fmt: skip
                     factor_state[FACTOR_COUNT] = factor_state[FACTOR_COUNT] + 1
-                if wp.static(rows):  # the rows' system S with the joints holding: one solve a row
-                    row_couplings_all(
-                        constraint_count, limit_rows, body_inv_mass, constraint_kind, constraint_body0,
-                        constraint_body1, state_x, state_q, state_v, state_w, inv_inertia_world, jac_lin, jac_ang,
-                        jac_skew,
-                    )  # fmt: skip
-                    l = wp.int32(0)
-                    while l < limit_rows.limit_coordinate.shape[0]:
-                        cholesky_solve(
-                            augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start,
-                            row_slot, row_col, values, work, aug_rhs, aug_x, limit_rows.coupling_rows[l],
-                            limit_rows.response_rows[l],
-                        )  # fmt: skip
-                        l += 1
-                    row_matrix_all(limit_rows, body_inv_mass, inv_inertia_world)
+                if wp.static(rows):  # the rows' Jacobians; their system S with the joints holding as they turn active
+                    row_sides_all(limit_rows, state_x, state_q, state_v, state_w)
                 verr = f64(wp.nan)  # not measured
                 if corrected:
                     verr = velocity_errors_all(
@@ -1529,8 +1567,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     )  # fmt: skip
                     row_solves += 1
                     correct_rows_all(
-                        1, hs, limit_rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
-                        inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v, state_w,
+                        1, hs, constraint_count, limit_rows, body_inv_mass, constraint_kind, constraint_body0,
+                        constraint_body1, inv_inertia_world, jac_lin, jac_ang, jac_skew, state_x, state_q, state_v,
+                        state_w, augmented, offset, perm, col_start, col_row, col_sign, row_start, row_slot, row_col,
+                        values, work, aug_rhs, aug_x,
                     )  # fmt: skip
                     verr = velocity_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, jac_lin, jac_ang,

@@ -286,6 +286,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
          self.limit_delta, self.limit_low, self.limit_high, self.limit_goal, self.limit_before,
          self.limit_scratch) = (wp.zeros(nl, dtype=wp.float64, device=d) for _ in range(11))  # fmt: skip
         self.limit_mask = wp.zeros(nl, dtype=wp.int32, device=d)
+        self.limit_formed = wp.zeros(nl, dtype=wp.int32, device=d)  # the fused step's rows of S formed
         self.limit_matrix = wp.zeros(nl * nl, dtype=wp.float64, device=d)  # the rows' system S
         self.limit_work = wp.zeros(nl * nl, dtype=wp.float64, device=d)
         self.limit_side_body = wp.zeros(2 * nl, dtype=wp.int32, device=d)  # each row's Jacobian g, both sides
