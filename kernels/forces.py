@@ -874,6 +874,7 @@ def implicit_damper(
     h: f64,
     damper_drive: wp.array(dtype=int),
     damper_gain: wp.array(dtype=f64),
+    damper_spring: wp.array(dtype=f64),
     drive_coordinate: wp.array(dtype=int),
     drive_chain: wp.array(dtype=wp.vec3i),
     drive_ends: wp.array(dtype=wp.vec2i),
@@ -885,6 +886,7 @@ def implicit_damper(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     body_x: wp.array(dtype=vec3d),
@@ -902,7 +904,13 @@ def implicit_damper(
     joints add inertia, so it damps somewhat less than implicit Euler of the whole system; first order in the
     damper either way. A damper on a chain of joints through light bodies acts on the chain's ends along the
     direction its wrench takes (`damper_frame`), as if they were one joint of that coordinate: the chain's other
-    coordinates are held through its impulse, which the joint correction then lets go."""
+    coordinates are held through its impulse, which the joint correction then lets go.
+
+    A stiff spring of the drive (a position drive's kp = s, stiff where h^2 s k > 4: `dampers.pick`) is taken
+    with it: the held force is c (goal - r1) - s e1, e1 the coordinate's offset from the target at the step's end
+    as implicit Euler has it (the predicted offset e plus h delta), so delta = h k (c (goal - r) - s e) / (1 + c h
+    k + s h^2 k): stable at any step, the spring's oscillation damped where the step cannot follow it (h omega
+    well over 1), first order."""
     i = damper_drive[d]
     r = drive_coordinate[i]
     a, point, b0, b1 = damper_frame(
@@ -923,8 +931,18 @@ def implicit_damper(
     goal = f64(0.0)
     if drive_mode[i] == VELOCITY_MODE:
         goal = drive_target[i]
+    spring = damper_spring[d]
+    offset = f64(0.0)
+    if spring != f64(0.0):
+        value, moving, axis, at = coordinate_row(
+            r, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_x, body_q, body_v, body_w,
+        )  # fmt: skip
+        offset = value - drive_target[i]
+        if coordinate_kind[r] == ANGLE_COORDINATE:
+            offset = wrap_angle(offset)
     chk = damper_gain[d] * h * k
-    delta = chk * (goal - rate) / (f64(1.0) + chk)
+    delta = (chk * (goal - rate) - h * k * spring * offset) / (f64(1.0) + chk + h * h * k * spring)
     half = f64(0.5) * h * delta
     nudge(b1, dv1, dw1, delta, half, body_x, body_q, body_v, body_w)
     nudge(b0, dv0, dw0, delta, half, body_x, body_q, body_v, body_w)
@@ -935,6 +953,7 @@ def implicit_dampers_all(
     h: f64,
     damper_drive: wp.array(dtype=int),
     damper_gain: wp.array(dtype=f64),
+    damper_spring: wp.array(dtype=f64),
     drive_coordinate: wp.array(dtype=int),
     drive_chain: wp.array(dtype=wp.vec3i),
     drive_ends: wp.array(dtype=wp.vec2i),
@@ -946,6 +965,7 @@ def implicit_dampers_all(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     body_x: wp.array(dtype=vec3d),
@@ -959,10 +979,10 @@ def implicit_dampers_all(
     d = wp.int32(0)
     while d < damper_drive.shape[0]:
         implicit_damper(
-            d, h, damper_drive, damper_gain, drive_coordinate, drive_chain, drive_ends, drive_mode, drive_target,
-            coordinate_kind,
-            coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
-            body_inv_mass, body_inv_inertia, body_x, body_q, body_v, body_w,
+            d, h, damper_drive, damper_gain, damper_spring, drive_coordinate, drive_chain, drive_ends, drive_mode,
+            drive_target, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+            coordinate_axis0, coordinate_rest_rotation, body_inv_mass, body_inv_inertia, body_x, body_q, body_v,
+            body_w,
         )  # fmt: skip
         d += 1
 
@@ -973,6 +993,7 @@ def implicit_dampers(
     h: f64,
     damper_drive: wp.array(dtype=int),
     damper_gain: wp.array(dtype=f64),
+    damper_spring: wp.array(dtype=f64),
     drive_coordinate: wp.array(dtype=int),
     drive_chain: wp.array(dtype=wp.vec3i),
     drive_ends: wp.array(dtype=wp.vec2i),
@@ -983,6 +1004,7 @@ def implicit_dampers(
     coordinate_anchor0: wp.array(dtype=vec3d),
     coordinate_anchor1: wp.array(dtype=vec3d),
     coordinate_axis0: wp.array(dtype=vec3d),
+    coordinate_rest_rotation: wp.array(dtype=quatd),
     body_inv_mass: wp.array(dtype=f64),
     body_inv_inertia: wp.array(dtype=mat33d),
     # Data in: control
@@ -995,7 +1017,8 @@ def implicit_dampers(
 ):
     """Every implicit damper on the prediction, on one thread (`implicit_dampers_all`)."""
     implicit_dampers_all(
-        h, damper_drive, damper_gain, drive_coordinate, drive_chain, drive_ends, drive_mode, drive_target,
-        coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1, coordinate_axis0,
-        body_inv_mass, body_inv_inertia, body_x_out, body_q_out, body_v_out, body_w_out,
+        h, damper_drive, damper_gain, damper_spring, drive_coordinate, drive_chain, drive_ends, drive_mode,
+        drive_target, coordinate_kind, coordinate_body0, coordinate_body1, coordinate_anchor0, coordinate_anchor1,
+        coordinate_axis0, coordinate_rest_rotation, body_inv_mass, body_inv_inertia, body_x_out, body_q_out,
+        body_v_out, body_w_out,
     )  # fmt: skip

@@ -151,8 +151,9 @@ class ForceElements:
     rk4_sum_q: wp.array(dtype=quatd)
     rk4_sum_v: wp.array(dtype=vec3d)
     rk4_sum_w: wp.array(dtype=vec3d)
-    damper_drive: wp.array(dtype=int)  # the drives whose damping is implicit (`dampers.pick`)
+    damper_drive: wp.array(dtype=int)  # the drives whose damping (and stiff spring) is implicit (`dampers.pick`)
     damper_gain: wp.array(dtype=f64)
+    damper_spring: wp.array(dtype=f64)
 
 
 @wp.func
@@ -473,9 +474,10 @@ def coupled_predict_all(
         )  # fmt: skip
         stage += 1
     implicit_dampers_all(
-        h, el.damper_drive, el.damper_gain, el.drive_coordinate, el.drive_chain, el.drive_ends, el.drive_mode,
-        el.drive_target, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1, el.coordinate_anchor0,
-        el.coordinate_anchor1, el.coordinate_axis0, body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
+        h, el.damper_drive, el.damper_gain, el.damper_spring, el.drive_coordinate, el.drive_chain, el.drive_ends,
+        el.drive_mode, el.drive_target, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1,
+        el.coordinate_anchor0, el.coordinate_anchor1, el.coordinate_axis0, el.coordinate_rest_rotation, body_inv_mass,
+        body_inv_inertia, pred_x, pred_q, pred_v, pred_w,
     )  # fmt: skip
 
 

@@ -26,14 +26,19 @@ from .launch import record
 from .model import Model
 
 STIFF = 2.0  # h c k above which a damper is integrated implicitly
+STIFF_SPRING = 2.0  # h omega (omega^2 = s k) above which a spring goes with it
 
 POSITION, VELOCITY = 0, 1  # `types.DRIVE_MODES` indices
 
 
 def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
     """The dampers that go implicit at steps of dt, measured at the model's initial state: `drive` (their drive
-    indices), `gain` (c, N m s/rad or N s/m), `names` (their drives' names) and `drive_gains`, the drives' gains
-    for the explicit prediction (the implicit dampers' terms zeroed; the model's own array where none is).
+    indices), `gain` (c, N m s/rad or N s/m), `spring` (a position drive's kp, N m/rad or N/m, taken with its
+    damper), `names` (their drives' names) and `drive_gains`, the drives' gains for the explicit prediction (the
+    implicit terms zeroed; the model's own array where none is). A drive goes implicit where its damper is stiff
+    (h c k > STIFF) or its spring is (h omega > STIFF_SPRING, omega^2 = s k: RK4 holds an undamped oscillator to
+    h omega < 2.83 and is far off the circle well before; the dm_control dog's tail vertebrae, 1e-8 kg m^2 on
+    springs of 0.04 N m/rad, have h omega = 9 at its own step and went to NaN in RK4).
 
     With `keep_order` (order 4 or 6 asked, and the steps take it: a scene with rows takes them at order 2) none
     goes implicit: an implicit damper is first order and would hold
@@ -42,8 +47,9 @@ def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
     the simulator splits each step into substeps in which h c k <= STIFF (`Simulator._depth_of`): the composed
     step of Suzuki's coefficients damps within 1.5% of exp(-h c k) there, and is unstable from h c k ~ 5.5."""
     d, h = model.device, model.host
-    none = SimpleNamespace(drive=wp.zeros(0, dtype=wp.int32, device=d), gain=wp.zeros(0, dtype=wp.float64, device=d),
-                           names=(), drive_gains=model.drive_gains, kept=(), rate=0.0)  # fmt: skip
+    zero = wp.zeros(0, dtype=wp.float64, device=d)
+    none = SimpleNamespace(drive=wp.zeros(0, dtype=wp.int32, device=d), gain=zero, spring=zero, names=(),
+                           drive_gains=model.drive_gains, kept=(), rate=0.0)  # fmt: skip
     if model.drive_count == 0 or model.element_count == 0:
         return none
     k = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
@@ -51,19 +57,25 @@ def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
     gains = model.drive_gains.numpy()  # the model's: velocity mode's kd, effort and stiff motors' gains are 0
     term = np.where(h.drive_mode == POSITION, 2, 0)  # kd in position mode, kp in velocity mode
     c = np.where(h.drive_mode <= VELOCITY, gains[np.arange(len(gains)), term], 0.0)
-    stiff = (dt * c * k.numpy() > STIFF) & np.isinf(h.drive_max_force) & ~h.drive_stiff
+    s = np.where(h.drive_mode == POSITION, gains[:, 0], 0.0)  # a position drive's kp: a spring
+    k = k.numpy()
+    rate = np.maximum(c * k, np.sqrt(np.maximum(s * k, 0.0)))  # 1/s: the decay c k, or the spring's omega
+    stiff = ((dt * c * k > STIFF) | (dt * rate > STIFF_SPRING)) & np.isinf(h.drive_max_force) & ~h.drive_stiff
     chosen = np.flatnonzero(stiff)
     if not len(chosen):
         return none
     if keep_order:
         none.kept = tuple(model.drive_name[i] for i in chosen)
-        none.rate = float(np.max(c[chosen] * k.numpy()[chosen]))  # 1/s: the fastest decay, c k
+        none.rate = float(np.max(rate[chosen]))
         return none
     explicit = gains.copy()
     explicit[chosen, term[chosen]] = 0.0
+    springs = chosen[h.drive_mode[chosen] == POSITION]
+    explicit[springs, 0] = 0.0
     return SimpleNamespace(
         drive=wp.array(chosen.astype(np.int32), dtype=wp.int32, device=d),
         gain=wp.array(c[chosen], dtype=wp.float64, device=d),
+        spring=wp.array(s[chosen], dtype=wp.float64, device=d),
         names=tuple(model.drive_name[i] for i in chosen),
         drive_gains=wp.array(explicit, dtype=wp.vec3d, device=d),
         kept=(),

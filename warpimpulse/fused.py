@@ -40,6 +40,7 @@ class FusedSteps:
         elements.drive_target, elements.drive_integral = self.drive_target, self.drive_integral
         elements.drive_gains = self._dampers.drive_gains  # without the implicit dampers' terms
         elements.damper_drive, elements.damper_gain = self._dampers.drive, self._dampers.gain
+        elements.damper_spring = self._dampers.spring
         elements.integral0 = self._integral0
         elements.wrench_force, elements.wrench_torque = self.wrench_force, self.wrench_torque
         elements.coordinate_world_axis, elements.coordinate_world_point = (

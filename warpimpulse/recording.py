@@ -233,7 +233,8 @@ class Recording:
             )
         dampers = int(len(self._dampers.names) > 0)  # one thread takes them in turn (`implicit_dampers_all`)
         launches.append(self._record(force_kernels.implicit_dampers, dampers, data_out=p, h=h,
-                                     damper_drive=self._dampers.drive, damper_gain=self._dampers.gain))  # fmt: skip
+                                     damper_drive=self._dampers.drive, damper_gain=self._dampers.gain,
+                                     damper_spring=self._dampers.spring))  # fmt: skip
         return Launches(launches)
 
     def prepare_substeps(self) -> None:
