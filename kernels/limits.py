@@ -6,7 +6,7 @@ the rows' own system (`correct_rows`): a row's predicted coordinate is updated t
 applied since the measurement, h (rate now - rate measured), and the rows' impulses move every active row to
 its goal at once. The rows' system is S = G M^-1 G^T - C^T K^-1 C with C = J M^-1 G^T (`limit_coupling`, one
 solve with K's factor per row and factor; `limit_matrix`; the fused step forms a row's part only once a pass makes
-it active, kernels/step.py `form_active_rows`): the rows' mobility with the joints holding, as the
+it active, kernels/step.py `correct_rows_all`): the rows' mobility with the joints holding, as the
 loop joints' system of section 4.6 is to the tree's. Each row's impulse is applied with the joints' linear
 reaction -K^-1 c (`compensate`), so the joints stay as they were to first order. A swing into a limit settles
 in 2 iterations at h = 1/60 s, where the free body's mobility alone took 36 (a rod on a hinge), and a motor on
@@ -817,9 +817,9 @@ def setup_all(
     body_w: wp.array(dtype=vec3d),
     rows: Rows,
 ):
-    """`correct_all`'s first half: which rows are active in this pass (limit_mask), and each one's goal and
+    """`correct_rows`' first half: which rows are active in this pass (limit_mask), and each one's goal and
     bounds; only the active rows' entries of S are read after it (`resolve_all`), so the fused step forms S
-    row by row as rows turn active (kernels/step.py `form_active_rows`)."""
+    row by row as rows turn active (kernels/step.py `correct_rows_all`)."""
     n = rows.limit_coordinate.shape[0]
     i = wp.int32(0)
     while i < n:
@@ -871,7 +871,7 @@ def resolve_all(
     body_w: wp.array(dtype=vec3d),
     rows: Rows,
 ):
-    """`correct_all`'s second half: the active rows' impulses within their bounds (`box_pivot`), applied with
+    """`correct_rows`' second half: the active rows' impulses within their bounds (`box_pivot`), applied with
     the joints' reaction."""
     n = rows.limit_coordinate.shape[0]
     box_pivot(
@@ -924,45 +924,6 @@ def resolve_all(
         i += 1
 
 
-@wp.func
-def correct_all(
-    velocity: int,
-    coupled: int,
-    # Model:
-    body_inv_mass: wp.array(dtype=f64),
-    constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    # Data in:
-    h: f64,
-    inv_inertia_world_in: wp.array(dtype=sym33d),
-    jac_lin_in: wp.array(dtype=mat33d),
-    jac_ang_in: wp.array(dtype=mat33d),
-    jac_skew_in: wp.array(dtype=vec3d),
-    body_x_in: wp.array(dtype=vec3d),
-    body_q_in: wp.array(dtype=quatd),
-    # Data in/out: the state at t0's (or t0 + h's) velocities; the rows, their impulses and scratch
-    body_v: wp.array(dtype=vec3d),
-    body_w: wp.array(dtype=vec3d),
-    rows: Rows,
-):
-    """All rows at once (one thread), on the rows' system S (`limit_matrix`) with an active set.
-
-    Position pass (`velocity` 0, in the joint-correction loop): each row's predicted coordinate, updated to
-    first order by the impulses since the measurement, h (rate now - rate measured); an active row (a motor,
-    a limit violated or already pushing) is moved to its goal: S_AA d = (goal - predicted) / h. Velocity pass
-    (1, after the step): a motor's rate to its target (velocity mode) or to 0 once it holds its target
-    (position mode), a limit that pushed in the step to rate 0: S_AA d = goal - rate. The totals stay in their
-    bounds (push only; |motor| <= max_force h over the step) by block pivoting: rows out of bounds are fixed
-    at them one at a time, fixed rows whose demand turns inwards are freed, until neither happens. The
-    impulses go to the bodies with the joints' reaction."""
-    setup_all(velocity, h, body_x_in, body_q_in, body_v, body_w, rows)
-    resolve_all(
-        velocity, coupled, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, inv_inertia_world_in,
-        jac_lin_in, jac_ang_in, jac_skew_in, body_x_in, body_q_in, body_v, body_w, rows,
-    )  # fmt: skip
-
-
 @wp.kernel
 def correct_rows(
     velocity: int,
@@ -985,8 +946,18 @@ def correct_rows(
     body_w: wp.array(dtype=vec3d),
     rows: Rows,
 ):
-    """All rows at once on one thread (`correct_all`)."""
-    correct_all(
-        velocity, coupled, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, h, inv_inertia_world_in,
+    """All rows at once (one thread), on the rows' system S (`limit_matrix`) with an active set.
+
+    Position pass (`velocity` 0, in the joint-correction loop): each row's predicted coordinate, updated to
+    first order by the impulses since the measurement, h (rate now - rate measured); an active row (a motor,
+    a limit violated or already pushing) is moved to its goal: S_AA d = (goal - predicted) / h. Velocity pass
+    (1, after the step): a motor's rate to its target (velocity mode) or to 0 once it holds its target
+    (position mode), a limit that pushed in the step to rate 0: S_AA d = goal - rate. The totals stay in their
+    bounds (push only; |motor| <= max_force h over the step) by block pivoting: rows out of bounds are fixed
+    at them one at a time, fixed rows whose demand turns inwards are freed, until neither happens. The
+    impulses go to the bodies with the joints' reaction (`setup_all`, then `resolve_all`)."""
+    setup_all(velocity, h, body_x_in, body_q_in, body_v, body_w, rows)
+    resolve_all(
+        velocity, coupled, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, inv_inertia_world_in,
         jac_lin_in, jac_ang_in, jac_skew_in, body_x_in, body_q_in, body_v, body_w, rows,
     )  # fmt: skip

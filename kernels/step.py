@@ -645,7 +645,7 @@ def row_sides_all(
     body_w: wp.array(dtype=vec3d),
 ):
     """Every row's Jacobian g at the state (`row_sides`), and none of c, K^-1 c and S formed for its factor yet:
-    `form_active_rows` forms a row's as a pass first makes it active."""
+    `correct_rows_all` forms a row's as a pass first makes it active."""
     l = wp.int32(0)
     while l < rows.limit_coordinate.shape[0]:
         row_sides(
@@ -837,70 +837,6 @@ def cholesky_solve(
 
 
 @wp.func
-def form_active_rows(
-    constraint_count: int,
-    rows: Rows,
-    body_inv_mass: wp.array(dtype=f64),
-    constraint_kind: wp.array(dtype=int),
-    constraint_body0: wp.array(dtype=int),
-    constraint_body1: wp.array(dtype=int),
-    inv_inertia_world: wp.array(dtype=sym33d),
-    jac_lin: wp.array(dtype=mat33d),
-    jac_ang: wp.array(dtype=mat33d),
-    jac_skew: wp.array(dtype=vec3d),
-    augmented: int,
-    offset: int,
-    perm: wp.array(dtype=int),
-    col_start: wp.array(dtype=int),
-    col_row: wp.array(dtype=int),
-    col_sign: wp.array(dtype=f64),
-    row_start: wp.array(dtype=int),
-    row_slot: wp.array(dtype=int),
-    row_col: wp.array(dtype=int),
-    values: wp.array(dtype=mat33d),
-    work: wp.array(dtype=vec3d),
-    aug_rhs: wp.array(dtype=vec3d),
-    aug_x: wp.array(dtype=vec3d),
-):
-    """c = J M^-1 g^T (`coupling_entry`), K^-1 c (one solve with the factor) and the entries of S with every row
-    formed before (`matrix_entry`) of each row this pass made active (limit_mask) that the factor has not
-    served yet: only active rows' entries are read (`resolve_all`), and a robot's limits are mostly slack, where
-    forming S whole took one solve a row a stage (gymnasium's humanoid, 17 limits: 62% of its step). Each entry
-    is the one the whole S would hold, bit for bit."""
-    nl = rows.limit_coordinate.shape[0]
-    l = wp.int32(0)
-    while l < nl:
-        if rows.limit_mask[l] != 0 and rows.limit_formed[l] == 0:
-            i = wp.int32(0)
-            while i < constraint_count:
-                coupling_entry(
-                    l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, rows.limit_side_body,
-                    rows.limit_side_lin, rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, jac_skew,
-                    rows.limit_coupling,
-                )  # fmt: skip
-                i += 1
-            cholesky_solve(
-                augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot, row_col,
-                values, work, aug_rhs, aug_x, rows.coupling_rows[l], rows.response_rows[l],
-            )  # fmt: skip
-            rows.limit_formed[l] = 1
-            k = wp.int32(0)
-            while k < nl:
-                if rows.limit_formed[k] != 0:
-                    matrix_entry(
-                        k, l, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
-                        inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
-                    )  # fmt: skip
-                    if k != l:
-                        matrix_entry(
-                            l, k, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
-                            inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
-                        )  # fmt: skip
-                k += 1
-        l += 1
-
-
-@wp.func
 def correct_rows_all(
     velocity: int,
     h: f64,
@@ -932,14 +868,44 @@ def correct_rows_all(
     aug_rhs: wp.array(dtype=vec3d),
     aug_x: wp.array(dtype=vec3d),
 ):
-    """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`correct_all`'s two
-    halves), S formed for the rows it makes active (`form_active_rows`)."""
+    """The rows' position (`velocity` 0) or velocity (1) pass with the joints' reaction (`limits.correct_rows`'
+    two halves), and between them, for each row the pass made active (limit_mask) that the factor has not served
+    yet, its c = J M^-1 g^T (`coupling_entry`), K^-1 c (one solve with the factor) and its entries of S with every
+    row formed before (`matrix_entry`): only active rows' entries are read (`resolve_all`), and a robot's limits
+    are mostly slack, where forming S whole took one solve a row a stage (gymnasium's humanoid, 17 limits: 93 ->
+    70 us a step). Each entry is the one the whole S would hold, bit for bit."""
     setup_all(velocity, h, body_x, body_q, body_v, body_w, rows)
-    form_active_rows(
-        constraint_count, rows, body_inv_mass, constraint_kind, constraint_body0, constraint_body1,
-        inv_inertia_world, jac_lin, jac_ang, jac_skew, augmented, offset, perm, col_start, col_row, col_sign,
-        row_start, row_slot, row_col, values, work, aug_rhs, aug_x,
-    )  # fmt: skip
+    nl = rows.limit_coordinate.shape[0]
+    l = wp.int32(0)
+    while l < nl:
+        if rows.limit_mask[l] != 0 and rows.limit_formed[l] == 0:
+            i = wp.int32(0)
+            while i < constraint_count:
+                coupling_entry(
+                    l, i, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, rows.limit_side_body,
+                    rows.limit_side_lin, rows.limit_side_ang, inv_inertia_world, jac_lin, jac_ang, jac_skew,
+                    rows.limit_coupling,
+                )  # fmt: skip
+                i += 1
+            cholesky_solve(
+                augmented, offset, constraint_count, perm, col_start, col_row, col_sign, row_start, row_slot, row_col,
+                values, work, aug_rhs, aug_x, rows.coupling_rows[l], rows.response_rows[l],
+            )  # fmt: skip
+            rows.limit_formed[l] = 1
+            k = wp.int32(0)
+            while k < nl:
+                if rows.limit_formed[k] != 0:
+                    matrix_entry(
+                        k, l, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
+                        inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
+                    )  # fmt: skip
+                    if k != l:
+                        matrix_entry(
+                            l, k, 1, body_inv_mass, rows.limit_side_body, rows.limit_side_lin, rows.limit_side_ang,
+                            inv_inertia_world, rows.limit_coupling, rows.limit_response, rows.limit_matrix,
+                        )  # fmt: skip
+                k += 1
+        l += 1
     resolve_all(
         velocity, 1, body_inv_mass, constraint_kind, constraint_body0, constraint_body1, inv_inertia_world,
         jac_lin, jac_ang, jac_skew, body_x, body_q, body_v, body_w, rows,
