@@ -334,6 +334,25 @@ def test_motors_at_control_zero_push_nothing_until_set(order, schedule):
     assert np.linalg.norm(sim.positions() - sims[1].positions(), axis=1).max() < 1e-9
 
 
+def test_a_checkpoint_of_acting_motors_wakes_a_dormant_simulator(tmp_path):
+    """A checkpoint holds the motors' targets: loaded into a simulator whose motors sleep (control 0), they act
+    again and the run goes on as the saved one does, bit for bit; loaded the other way, they sleep again."""
+    model = wi.load_mjcf(compiled(MOTORS), qvel=np.random.default_rng(3).standard_normal(4)).finalize()
+    acting, dormant = (wi.Simulator(model, 1.0 / 240.0, tolerance=1e-9) for _ in range(2))
+    acting.set_controls([0.8, -0.3])
+    acting.step(12)
+    acting.save_checkpoint(tmp_path / "acting.npz")
+    dormant.load_checkpoint(tmp_path / "acting.npz")
+    assert not dormant.defer_velocities
+    acting.step(24)
+    dormant.step(24)
+    assert np.array_equal(acting.positions(), dormant.positions())
+    fresh = wi.Simulator(model, 1.0 / 240.0, tolerance=1e-9)
+    fresh.save_checkpoint(tmp_path / "dormant.npz")
+    acting.load_checkpoint(tmp_path / "dormant.npz")
+    assert acting.defer_velocities
+
+
 @pytest.mark.parametrize("friction, moves", [(3.0, False), (1.0, True)])
 def test_frictionloss_is_dry_friction(friction, moves):
     """A horizontal 1 kg rod 0.4 m long (gravity's torque 1.96 N m at its hinge) with a frictionloss: held by
