@@ -121,15 +121,17 @@ class Inputs:
         Each sets its motor's target to gain * clip(value, ctrl range) + bias, held until set again."""
         m = self.model
         names, h = m.actuator_name, m.host
-        if isinstance(values, dict):
-            items = list(values.items())
-        else:
+        if not isinstance(values, dict):  # every actuator at once, as a controller sets them each tick
             arr = checks.numbers(values, "set_controls: values").reshape(-1)
             if len(arr) != len(names):
                 raise ValueError(f"set_controls: {len(names)} actuators, got {len(arr)} values")
-            items = list(enumerate(arr.tolist()))
+            bad = np.flatnonzero(~np.isfinite(arr))
+            if len(bad):
+                raise ValueError(f"set_controls: actuator {names[bad[0]]!r}: control must be finite, got {arr[bad[0]]}")
+            self._set_targets(h.actuator_drive, arr, h.actuator_map.T)
+            return
         rows, controls = [], []
-        for key, value in items:
+        for key, value in values.items():
             if isinstance(key, str):
                 if key not in names:
                     raise ValueError(f"set_controls: no actuator named {key!r}")
@@ -141,10 +143,16 @@ class Inputs:
                 raise ValueError(f"set_controls: actuator {names[key]!r}: control must be finite, got {value}")
             rows.append(int(key))
             controls.append(value)
-        gain, bias, low, high = h.actuator_map[rows].T
-        targets = self.drive_target.numpy()
-        targets[h.actuator_drive[rows]] = gain * np.clip(controls, low, high) + bias
-        self.drive_target.assign(targets)
+        self._set_targets(h.actuator_drive[rows], np.array(controls), h.actuator_map[rows].T)
+
+    def _set_targets(self, drives: np.ndarray, controls: np.ndarray, actuators: np.ndarray) -> None:
+        """The `drives`' targets from their actuators' `controls`: gain * clip(control, ctrl range) + bias, with
+        `actuators` the rows (gain, bias, low, high) of `Model.host.actuator_map`; written in place on a CPU."""
+        gain, bias, low, high = actuators
+        targets = self._targets if self._targets is not None else self.drive_target.numpy()
+        targets[drives] = gain * np.clip(controls, low, high) + bias
+        if self._targets is None:
+            self.drive_target.assign(targets)
         self._follow_elements()
 
     def forces_active(self) -> bool:

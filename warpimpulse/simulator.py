@@ -270,7 +270,15 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             self.coordinate_world_point = wp.zeros(model.coordinate_count, dtype=wp.vec3d, device=d)
         self.drive_target = wp.array(model.host.drive_target, dtype=wp.float64, device=d)
         self.drive_integral = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
-        # Whether a force element acts now: then the prediction is the coupled RK4 (`_follow_elements`)
+        # Whether a force element acts now: then the prediction is the coupled RK4 (`_follow_elements`). Whether
+        # one can ever sleep is the model's; then the effort drives' targets decide, read through a view on a CPU.
+        drives = model.drive_element.numpy() if model.element_count else np.zeros(0, dtype=np.int32)
+        gained = model.world_count > 1 or model.spring_count > 0 or np.any(model.drive_gains.numpy()[drives] != 0.0)
+        self._always_acting = bool(model.element_count and gained)
+        self._effort_drives = None
+        if model.element_count and not gained:
+            self._effort_drives = drives[model.host.drive_mode[drives] == force_kernels.EFFORT_MODE]
+        self._targets = self.drive_target.numpy() if d.is_cpu else None
         self._forced = self._elements_act()
         self._modes: dict[bool, dict] = {}  # the other prediction's kernels and launches, kept for a switch back
         # The drives' damping stiff for dt: implicit (`dampers.py`), unless order 4 or 6 is asked and kept: a
@@ -456,16 +464,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         is not 0. A robot's effort motors at control 0 (an MJCF's actuators, `set_controls`) push nothing, and
         while that holds the step is the one of a scene without them (`_follow_elements`). Batched worlds keep
         the coupled prediction whenever the model has elements."""
-        m = self.model
-        if m.element_count == 0:
-            return False
-        if m.world_count > 1 or m.spring_count:
-            return True
-        drives = m.drive_element.numpy()
-        if np.any(m.drive_gains.numpy()[drives] != 0.0):
-            return True
-        effort = drives[m.host.drive_mode[drives] == force_kernels.EFFORT_MODE]
-        return bool(np.any(self.drive_target.numpy()[effort] != 0.0))
+        if self._effort_drives is None:
+            return self._always_acting
+        targets = self._targets if self._targets is not None else self.drive_target.numpy()
+        return bool(np.any(targets[self._effort_drives] != 0.0))
 
     # What the step keeps for each answer of `_elements_act`: its fused kernel and force elements, and the
     # launches either schedule recorded for them.
