@@ -43,13 +43,13 @@ def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
     With `keep_order` (order 4 or 6 asked, and the steps take it: a scene with rows takes them at order 2) none
     goes implicit: an implicit damper is first order and would hold
     every step at order 2 (the gymnasium ant at h = 1/240 parts from MuJoCo by 0.05 m in 0.25 s that way, 1e-6
-    m at order 4), so the stiff ones stay in RK4, listed in `kept`, their fastest decay c k in `rate` (1/s), and
-    the simulator splits each step into substeps in which h c k <= STIFF (`Simulator._depth_of`): the composed
+    m at order 4), so the stiff ones stay in RK4, listed in `kept`, the largest `stiffness` of theirs (1/s), and
+    the simulator splits each step into substeps in which none is stiff (`Simulator._depth_of`): the composed
     step of Suzuki's coefficients damps within 1.5% of exp(-h c k) there, and is unstable from h c k ~ 5.5."""
     d, h = model.device, model.host
     zero = wp.zeros(0, dtype=wp.float64, device=d)
     none = SimpleNamespace(drive=wp.zeros(0, dtype=wp.int32, device=d), gain=zero, spring=zero, names=(),
-                           drive_gains=model.drive_gains, kept=(), rate=0.0)  # fmt: skip
+                           drive_gains=model.drive_gains, kept=(), stiffness=0.0)  # fmt: skip
     if model.drive_count == 0 or model.element_count == 0:
         return none
     k = wp.zeros(model.drive_count, dtype=wp.float64, device=d)
@@ -59,14 +59,16 @@ def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
     c = np.where(h.drive_mode <= VELOCITY, gains[np.arange(len(gains)), term], 0.0)
     s = np.where(h.drive_mode == POSITION, gains[:, 0], 0.0)  # a position drive's kp: a spring
     k = k.numpy()
-    rate = np.maximum(c * k, np.sqrt(np.maximum(s * k, 0.0)))  # 1/s: the decay c k, or the spring's omega
-    stiff = ((dt * c * k > STIFF) | (dt * rate > STIFF_SPRING)) & np.isinf(h.drive_max_force) & ~h.drive_stiff
+    # 1/s: a step of h is stiff for the drive where h times this is over 1 (its damper's h c k over STIFF, or its
+    # spring's h omega over STIFF_SPRING)
+    stiffness = np.maximum(c * k / STIFF, np.sqrt(np.maximum(s * k, 0.0)) / STIFF_SPRING)
+    stiff = (dt * stiffness > 1.0) & np.isinf(h.drive_max_force) & ~h.drive_stiff
     chosen = np.flatnonzero(stiff)
     if not len(chosen):
         return none
     if keep_order:
         none.kept = tuple(model.drive_name[i] for i in chosen)
-        none.rate = float(np.max(rate[chosen]))
+        none.stiffness = float(np.max(stiffness[chosen]))
         return none
     explicit = gains.copy()
     explicit[chosen, term[chosen]] = 0.0
@@ -79,5 +81,5 @@ def pick(model: Model, dt: float, keep_order: bool = False) -> SimpleNamespace:
         names=tuple(model.drive_name[i] for i in chosen),
         drive_gains=wp.array(explicit, dtype=wp.vec3d, device=d),
         kept=(),
-        rate=0.0,
+        stiffness=0.0,
     )

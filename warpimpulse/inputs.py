@@ -110,10 +110,7 @@ class Inputs:
         target = float(target)
         if not math.isfinite(target):
             raise ValueError(f"motor {motor} ({m.drive_name[drive]!r}): target must be finite, got {target}")
-        values = self.drive_target.numpy()
-        values[drive] = target
-        self.drive_target.assign(values)
-        self._follow_elements()
+        self._write_targets(drive, target)
 
     def set_controls(self, values) -> None:
         """Set actuators' inputs as MuJoCo's `ctrl` does (`SceneBuilder.add_actuator`, `load_mjcf`): `values` is
@@ -149,8 +146,17 @@ class Inputs:
         """The `drives`' targets from their actuators' `controls`: gain * clip(control, ctrl range) + bias, with
         `actuators` the rows (gain, bias, low, high) of `Model.host.actuator_map`; written in place on a CPU."""
         gain, bias, low, high = actuators
-        targets = self._targets if self._targets is not None else self.drive_target.numpy()
-        targets[drives] = gain * np.clip(controls, low, high) + bias
+        self._write_targets(drives, gain * np.clip(controls, low, high) + bias)
+
+    def _target_values(self) -> np.ndarray:
+        """The drives' targets: a view of their array on a CPU (written in place), a copy from a GPU."""
+        return self._targets if self._targets is not None else self.drive_target.numpy()
+
+    def _write_targets(self, drives, values) -> None:
+        """Drive targets set (in place through their CPU array's view; assigned on a GPU), then whether the force
+        elements act (`Simulator._follow_elements`)."""
+        targets = self._target_values()
+        targets[drives] = values
         if self._targets is None:
             self.drive_target.assign(targets)
         self._follow_elements()

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import warp as wp
 
-from . import composition, dampers
+from . import composition
 from .kernels import loop as loop_kernels
 from .kernels import step as step_kernels
 from .launch import run
@@ -265,15 +265,17 @@ class ParallelSteps:
         """The substep depth of a step whose fastest body spins at `spin` (rad/s), its longest base step
         `reach` substeps long; at least the depth its stiff dampers kept in RK4 need (`_damper_depth`)."""
         turns = 0.0 if self.max_rotation is None else spin * abs(reach * self.dt) / self.max_rotation
-        spun = 0 if turns <= 1.0 else min(math.ceil(math.log2(turns)), self.max_substep_depth)
-        return max(spun, self._damper_depth())
+        return max(self._halvings(turns), self._damper_depth())
 
     def _damper_depth(self) -> int:
-        """k such that the dampers kept in RK4 at order 4 or 6 (`dampers.pick`'s `kept`) are not stiff in substeps
-        of dt / 2**k (h c k <= `dampers.STIFF`; k <= max_substep_depth). Split up front, not halved on failure,
-        whose failed attempts cost a damped gimbal 7x the solves (tests/test_mjcf.py) and dm_control's fish 2.6x."""
-        stiff = self._dampers.rate * abs(self.dt) / dampers.STIFF
-        return 0 if stiff <= 1.0 else min(math.ceil(math.log2(stiff)), self.max_substep_depth)
+        """k such that the dampers and springs kept in RK4 at order 4 or 6 (`dampers.pick`'s `kept`) are not stiff
+        in substeps of dt / 2**k (k <= max_substep_depth). Split up front, not halved on failure, whose failed
+        attempts cost a damped gimbal 7x the solves (tests/test_mjcf.py) and dm_control's fish 2.6x."""
+        return self._halvings(self._dampers.stiffness * abs(self.dt))
+
+    def _halvings(self, over: float) -> int:
+        """The k that brings a step `over` times too long to within bounds in 2**k substeps (k <= max_substep_depth)."""
+        return 0 if over <= 1.0 else min(math.ceil(math.log2(over)), self.max_substep_depth)
 
     def _turns(self, h: float) -> float:
         """How many times max_rotation the fastest body of the last prediction turns in a step of h (either

@@ -466,8 +466,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         the coupled prediction whenever the model has elements."""
         if self._effort_drives is None:
             return self._always_acting
-        targets = self._targets if self._targets is not None else self.drive_target.numpy()
-        return bool(np.any(targets[self._effort_drives] != 0.0))
+        return bool(np.any(self._target_values()[self._effort_drives] != 0.0))
 
     # What the step keeps for each answer of `_elements_act`: its fused kernel and force elements, and the
     # launches either schedule recorded for them.
