@@ -67,6 +67,14 @@ SHRINK = 2.0
 """... and shrinks at most by this one."""
 GROWTH_POWER = 3.0
 """The steepest growth of the error with time, t^m, that the step is sized for."""
+COSTLY = 2.0
+"""The shadow's linear solves over the trajectory's in a block above which its steps of 2h are taken to be past
+where the joint iteration converges in a few iterations, and its error past where it goes as (2h)^p. Where they
+converge alike, half as many steps at a looser tolerance take 0.5-1.1 of the trajectory's solves (a step of 2h
+needs more iterations than one of h: the tree of 127 bodies at order 4, h = 1/40, about 1.0). Past it the
+steps of 2h cost more than the trajectory (a chain of 20 at order 4: 130 solves a step of 0.1 s where two steps
+of 0.05 s took 24, 5.4x), so the trajectory's steps stay at most half as large for the rest of the run
+(`Controller._least`): its shadow then steps where the trajectory stepped."""
 START = 2.0
 """The first step is this much smaller than the pilot says: the motion from rest speeds up, and the error of a
 chaotic motion is mostly made early."""
@@ -210,6 +218,8 @@ class Controller:
         self._split = 1.0  # the most substeps a step of the present block was split into (a fast spin)
         self._spins = (0.0, 0.0)  # rad/s: the fastest turn of a body in the last block, and in the present one
         self._start = self._last = (0.0, 0.0)  # (s, m): the start, and the last block's end with the largest estimate
+        self._least = 1  # the fewest steps an interval: raised where the shadow's steps were found costly (`COSTLY`)
+        self._work = 0  # the trajectory's linear solves in the present block
 
     @property
     def step_size(self) -> float:
@@ -250,6 +260,7 @@ class Controller:
             sim._set_step_size(h)
         parts = sim._steps(k, combine=True)
         stats = parts[0] if len(parts) == 1 else combined(parts)
+        self._work += stats.linear_iterations
         if stats.substeps > k:  # split for a fast spin: the next block's steps are no larger than these
             self._split = max(self._split, stats.substeps / k)
         self._spins = (self._spins[0], max(self._spins[1], float(sim._spin)))
@@ -262,13 +273,13 @@ class Controller:
             except SimulationError:  # steps of 2h fail where those of h hold: no estimate, smaller steps, again
                 self._aim(k * SHRINK)
                 self._sync()
-                self._done = 0
+                self._done, self._work = 0, 0
             else:
                 for s in shadow:  # its work counted in the stats
                     stats.joint_iterations += s.joint_iterations
                     stats.velocity_iterations += s.velocity_iterations
                     stats.linear_iterations += s.linear_iterations
-                self._adopt(end)
+                self._adopt(end, shadow)
                 self._done = 0
         stats.step_size = h
         stats.error_estimate = self.estimate
@@ -299,7 +310,7 @@ class Controller:
         a, b = self._centres
         return (a, b) if isinstance(a, np.ndarray) else (a.numpy(), b.numpy())
 
-    def _adopt(self, now: float) -> None:
+    def _adopt(self, now: float, shadow: list[StepStats]) -> None:
         """The trajectory error now, (gap to the shadow) / (2^p - 1), and the step of the next block.
 
         The trajectory error of a run of steps of h is G h^p (Richardson). The error so far, its largest g at t
@@ -314,6 +325,10 @@ class Controller:
         p = self.order
         self.estimate = self._gap() / (2.0**p - 1.0)
         h = self.step_size
+        ours, self._work = self._work, 0
+        halved = sum(s.substeps for s in shadow) > self.steps * self._done // 2
+        if halved or sum(s.linear_iterations for s in shadow) > COSTLY * ours:
+            self._least = max(self._least, 2 * self.steps)
         (t0, _), (t1, g1) = self._start, self._last
         t = now - t0
         self._mean += h**p * self._done * self.interval
@@ -338,7 +353,7 @@ class Controller:
         carries what the blocks so far took above the aim, never more than nothing, and at most one block's
         credit below it). Rounding up alone leaves the error up to 2^p below the aim at one or two steps an
         interval (order 4 at dt against dt / 2: 16x, the tree of 127 bodies at 0.02 E)."""
-        wanted = min(float(MAX_STEPS), max(1.0, steps))
+        wanted = min(float(MAX_STEPS), max(float(self._least), steps))
         p, span = self.order, self._block() * self.interval
         aim = (self.interval / wanted) ** p
         k = max(1, math.floor(wanted))
