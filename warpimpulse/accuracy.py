@@ -84,6 +84,8 @@ DEFAULT_INTERVAL = 1.0 / 30.0
 """s: `Simulator.dt` where `accuracy` is given without it."""
 PROBE = 0.2
 """s: the motion over which `cheaper_order` compares the orders (at least two intervals)."""
+PILOT_TIGHTENING = 0.01
+"""`cheaper_order` measures the orders' gaps at this share of the run's joint tolerance (at least 1e-12)."""
 PROBE_POWER = 2.0
 """The steepest growth of the error with time, t^m, that `cheaper_order` projects its pilot with: from rest the
 error grows faster at first than it goes on to (t^3 over the first 0.2 s on the arm and the chain, where order 2
@@ -137,34 +139,51 @@ def cheaper_order(model: Model, accuracy: float, dt: float, tolerance: float, pr
     goes as h^p at order 4 on the humanoid); G is taken to grow as t^m to the horizon's end (m from the gaps at
     half the window and at its end, as the controller's), which gives the whole steps of the interval the order
     needs (`START` times more, as the controller's first step). Each step costs its stages' predictions and
-    linear solves, counted alike (the finer run's counts).
+    linear solves, counted alike.
+
+    The gaps come from runs at `PILOT_TIGHTENING` times the tolerance: at the run's own, what each step leaves
+    in the joints is most of order 4's gap (the humanoid at 1e-3 m: 3.6e-5 m at a tolerance of 2e-5, 4.9e-6 m at
+    2e-7), and order 4 looked costlier than it is. The solves come from runs at the run's tolerance, in steps of
+    dt / 2 and dt / 4, and are taken to grow with the step as they grew between the two (to at most dt): a step
+    of dt takes more iterations than those (the humanoid at order 4: 21 solves a step of 1/20 s, 5 of 1/40 s).
 
     The work of the two orders is what decides, not the accuracy alone: order 4 at the largest step, dt, may be
     far below the accuracy asked (a tree of 127 bodies at 1e-3 m: 0.02 of it, where order 2 at dt / 4 costs a
     third as much), and which order is cheaper at a given accuracy differs between scenes. Both pilots see the
     same motion, so what the motion later does to the errors moves both alike. The pilot runs once, as the
-    simulator is built (two Simulators of the model and their steps: 50-150 ms on a CPU, against ~12 ms to build
-    one), from the model's start state."""
+    simulator is built (four Simulators of the model and their steps), from the model's start state."""
     half = max(1, round(PROBE / (2.0 * dt)))  # intervals in half the window
     window, h = 2 * half * dt, 0.5 * dt
+    tight = max(composition.TOLERANCE_FLOOR, PILOT_TIGHTENING * tolerance)
     work = {}
     for p in ORDERS:
         sim = probe(model, h, tolerance=tolerance, order=p)
-        coarse = []
-        for _ in range(2):  # the positions at half the window and at its end
-            sim.step(2 * half)
-            coarse.append(sim.positions())
-        sim.reset()
-        sim._set_step_size(0.5 * h)
-        gaps, solves = [], 0
-        for c in coarse:
-            solves += combined(sim._steps(4 * half)).linear_iterations
-            gaps.append(float(np.linalg.norm(c - sim.positions(), axis=1).max(initial=0.0)))
+        _, (coarse, fine) = _pilot_runs(sim, half, h)
+        gaps, _ = _pilot_runs(probe(model, h, tolerance=tight, order=p), half, h)
         power = min(PROBE_POWER, _growth(gaps[0], gaps[1], 2.0))
         constant = gaps[1] / ((1.0 - 2.0**-p) * h**p) * (DEFAULT_HORIZON / window) ** power  # m/s^p at the end
         steps = max(1.0, START * dt * (constant / (SAFETY * accuracy)) ** (1.0 / p))  # blocks mix (`_aim`)
-        work[p] = steps * (len(sim.scheme.stages) + solves / (8 * half))
+        growth = math.log(max(coarse, 1.0) / max(fine, 1.0), 2.0)  # solves a step as (step size)^growth
+        solves = max(fine, 1.0) * min(4.0, max(1.0, 4.0 / steps)) ** max(0.0, growth)  # a step of dt / steps
+        work[p] = steps * (len(sim.scheme.stages) + solves)
     return min(ORDERS, key=lambda p: (work[p], -p))
+
+
+def _pilot_runs(sim, half: int, h: float) -> tuple[list[float], tuple[float, float]]:
+    """`cheaper_order`'s runs of `sim` (built at steps of h) over 2 * half intervals, in steps of h and of h / 2:
+    the largest distance (m) of a body centre between the two at half the window and at its end, and the linear
+    solves a step of h and of h / 2."""
+    coarse, solves = [], 0
+    for _ in range(2):  # the positions at half the window and at its end
+        solves += sim.step(2 * half).linear_iterations
+        coarse.append(sim.positions())
+    sim.reset()
+    sim._set_step_size(0.5 * h)
+    gaps, fine = [], 0
+    for c in coarse:
+        fine += combined(sim._steps(4 * half)).linear_iterations
+        gaps.append(float(np.linalg.norm(c - sim.positions(), axis=1).max(initial=0.0)))
+    return gaps, (solves / (4 * half), fine / (8 * half))
 
 
 def _pilot_steps(gap: float, p: int, h: float, tolerance: float, accuracy: float, horizon: float) -> float:
