@@ -141,11 +141,12 @@ def cheaper_order(model: Model, accuracy: float, dt: float, tolerance: float, pr
     needs (`START` times more, as the controller's first step). Each step costs its stages' predictions and
     linear solves, counted alike.
 
-    The gaps come from runs at `PILOT_TIGHTENING` times the tolerance: at the run's own, what each step leaves
-    in the joints is most of order 4's gap (the humanoid at 1e-3 m: 3.6e-5 m at a tolerance of 2e-5, 4.9e-6 m at
-    2e-7), and order 4 looked costlier than it is. The solves come from runs at the run's tolerance, in steps of
-    dt / 2 and dt / 4, and are taken to grow with the step as they grew between the two (to at most dt): a step
-    of dt takes more iterations than those (the humanoid at order 4: 21 solves a step of 1/20 s, 5 of 1/40 s).
+    The gaps come from runs at `PILOT_TIGHTENING` times the tolerance (the run's own where those fail): at the
+    run's own, what each step leaves in the joints is most of order 4's gap (the humanoid at 1e-3 m: 3.6e-5 m at
+    a tolerance of 2e-5, 4.9e-6 m at 2e-7), and order 4 looked costlier than it is. The solves come from runs at
+    the run's tolerance, in steps of dt / 2 and dt / 4, and are taken to grow with the step as they grew between
+    the two (to at most dt): a step of dt takes more iterations than those (the humanoid at order 4: 21 solves a
+    step of 1/20 s, 5 of 1/40 s).
 
     The work of the two orders is what decides, not the accuracy alone: order 4 at the largest step, dt, may be
     far below the accuracy asked (a tree of 127 bodies at 1e-3 m: 0.02 of it, where order 2 at dt / 4 costs a
@@ -158,8 +159,11 @@ def cheaper_order(model: Model, accuracy: float, dt: float, tolerance: float, pr
     work = {}
     for p in ORDERS:
         sim = probe(model, h, tolerance=tolerance, order=p)
-        _, (coarse, fine) = _pilot_runs(sim, half, h)
-        gaps, _ = _pilot_runs(probe(model, h, tolerance=tight, order=p), half, h)
+        gaps, (coarse, fine) = _pilot_runs(sim, half, h)
+        try:
+            gaps, _ = _pilot_runs(probe(model, h, tolerance=tight, order=p), half, h)
+        except SimulationError:  # a tolerance under what the scene's round-off reaches: the run's own gaps
+            pass
         power = min(PROBE_POWER, _growth(gaps[0], gaps[1], 2.0))
         constant = gaps[1] / ((1.0 - 2.0**-p) * h**p) * (DEFAULT_HORIZON / window) ** power  # m/s^p at the end
         steps = max(1.0, START * dt * (constant / (SAFETY * accuracy)) ** (1.0 / p))  # blocks mix (`_aim`)
