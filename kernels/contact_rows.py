@@ -195,22 +195,66 @@ def row_coupling(
     row_ang0: wp.array(dtype=vec3d),
     row_lin1: wp.array(dtype=vec3d),
     row_ang1: wp.array(dtype=vec3d),
+    span: int,
     # Data out: c of row r for constraint i at r * constraint_count + i
     row_coupling_out: wp.array(dtype=vec3d),
 ):
-    """c_i = sum over the bodies that row r and constraint i share of J_ib M_b^-1 g_b^T (`coupling_through`)."""
-    r, i = wp.tid()
+    """c_i = sum over the bodies that row r and constraint i share of J_ib M_b^-1 g_b^T (`coupling_through`), for
+    the `span` constraints from j span of thread (r, j): one each on a GPU, all of them on a CPU, where a thread is
+    a call in a loop and the rows' slots, most of them empty, cost more as threads than their work (`ContactStage`
+    launches (rows, 1) there)."""
+    r, j = wp.tid()
     nc = constraint_body0.shape[0]
-    c = vec3d()
-    if r < row_count[0]:
-        for side in range(2):
-            b, g_lin, g_ang = row_side(r, side, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
-            if b >= 0:
-                c += coupling_through(
-                    i, b, g_lin, g_ang, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
-                    inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in,
-                )  # fmt: skip
-    row_coupling_out[r * nc + i] = c
+    active = r < row_count[0]
+    i = j * span
+    while i < wp.min(nc, (j + 1) * span):
+        c = vec3d()
+        if active:
+            for side in range(2):
+                b, g_lin, g_ang = row_side(r, side, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
+                if b >= 0:
+                    c += coupling_through(
+                        i, b, g_lin, g_ang, constraint_kind, constraint_body0, constraint_body1, body_inv_mass,
+                        inv_inertia_world_in, jac_lin_in, jac_ang_in, jac_skew_in,
+                    )  # fmt: skip
+        row_coupling_out[r * nc + i] = c
+        i += 1
+
+
+@wp.func
+def row_matrix_entry(
+    k: int,
+    l: int,
+    body_inv_mass: wp.array(dtype=f64),
+    nc: int,
+    inv_inertia_world: wp.array(dtype=sym33d),
+    row_body: wp.array(dtype=wp.vec2i),
+    row_lin0: wp.array(dtype=vec3d),
+    row_ang0: wp.array(dtype=vec3d),
+    row_lin1: wp.array(dtype=vec3d),
+    row_ang1: wp.array(dtype=vec3d),
+    row_coupling: wp.array(dtype=vec3d),
+    row_response: wp.array(dtype=vec3d),
+) -> f64:
+    """S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l (`limits.limit_matrix` for any rows); a diagonal is kept at least
+    1e-9 of its free value."""
+    free = f64(0.0)
+    for sk in range(2):
+        bk, glk, gak = row_side(k, sk, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
+        if bk >= 0:
+            for sl in range(2):
+                bl, gll, gal = row_side(l, sl, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
+                if bl == bk:
+                    angular = wp.dot(gak, symmetric_times(inv_inertia_world[bk], gal))
+                    free += body_inv_mass[bk] * wp.dot(glk, gll) + angular
+    held = free
+    i = wp.int32(0)
+    while i < nc:
+        held -= wp.dot(row_coupling[k * nc + i], row_response[l * nc + i])
+        i += 1
+    if k == l:
+        held = wp.max(held, f64(1.0e-9) * free) + REGULARIZATION * free
+    return held
 
 
 @wp.kernel
@@ -228,33 +272,24 @@ def row_matrix(
     row_ang1: wp.array(dtype=vec3d),
     row_coupling: wp.array(dtype=vec3d),
     row_response: wp.array(dtype=vec3d),
+    span: int,
     # Data out: S, row-major with the row count as its stride
     row_matrix_out: wp.array(dtype=f64),
 ):
-    """S_kl = g_k M^-1 g_l^T - c_k . K^-1 c_l (`limits.limit_matrix` for any rows); a diagonal is kept at least
-    1e-9 of its free value."""
-    k, l = wp.tid()
+    """S's entries (k, l) of the active rows (`row_matrix_entry`) for the `span` columns l from j span of thread
+    (k, j): one each on a GPU, all of them on a CPU (as `row_coupling`)."""
+    k, j = wp.tid()
     n = row_count[0]
-    if k >= n or l >= n:
+    if k >= n:
         return
-    free = f64(0.0)
-    for sk in range(2):
-        bk, glk, gak = row_side(k, sk, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
-        if bk >= 0:
-            for sl in range(2):
-                bl, gll, gal = row_side(l, sl, row_body, row_lin0, row_ang0, row_lin1, row_ang1)
-                if bl == bk:
-                    angular = wp.dot(gak, symmetric_times(inv_inertia_world_in[bk], gal))
-                    free += body_inv_mass[bk] * wp.dot(glk, gll) + angular
-    held = free
     nc = constraint_body0.shape[0]
-    i = wp.int32(0)
-    while i < nc:
-        held -= wp.dot(row_coupling[k * nc + i], row_response[l * nc + i])
-        i += 1
-    if k == l:
-        held = wp.max(held, f64(1.0e-9) * free) + REGULARIZATION * free
-    row_matrix_out[k * n + l] = held
+    l = j * span
+    while l < wp.min(n, (j + 1) * span):
+        row_matrix_out[k * n + l] = row_matrix_entry(
+            k, l, body_inv_mass, nc, inv_inertia_world_in, row_body, row_lin0, row_ang0, row_lin1, row_ang1,
+            row_coupling, row_response,
+        )  # fmt: skip
+        l += 1
 
 
 @wp.func
