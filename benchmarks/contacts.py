@@ -29,6 +29,7 @@ of the contact stage to scenes without colliders.
    [mjcf-robots] extra): joint-loop iterations (predictions) a step, substeps, steps not converged, ms a step
    of a second run from `reset()` (the first records the launches of each step size: `first_run_ms_per_step`),
    and where the run stopped; with --baseline, the same in the other checkout, in a process of its own.
+With --baseline, each checkout's process imports that checkout's warpimpulse and kernels (`CHECKOUT_IMPORTS`).
 """
 
 from __future__ import annotations
@@ -52,6 +53,29 @@ import warpimpulse as wi
 from warpimpulse import scenes
 from warpimpulse.bench.harness import quiet_warp
 from warpimpulse.transforms import quat_to_matrix
+
+CHECKOUT_IMPORTS = """
+import importlib.abc, importlib.util, pathlib, sys
+root = pathlib.Path({root!r}).resolve()
+sys.path.insert(0, str(root))
+class _CheckoutKernels(importlib.abc.MetaPathFinder):
+    # warpimpulse.kernels is the checkout's top-level kernels/ (pyproject's package-dir): without this, the
+    # editable install's finder would give another checkout this one's kernels
+    def find_spec(self, name, path=None, target=None):
+        if name != "warpimpulse.kernels" and not name.startswith("warpimpulse.kernels."):
+            return None
+        where = root.joinpath("kernels", *name.split(".")[2:])
+        if where.is_dir():
+            return importlib.util.spec_from_file_location(name, where / "__init__.py",
+                                                          submodule_search_locations=[str(where)])
+        return importlib.util.spec_from_file_location(name, where.with_suffix(".py"))
+sys.meta_path.insert(0, _CheckoutKernels())
+import warpimpulse, warpimpulse.kernels
+for module in (warpimpulse, warpimpulse.kernels):
+    assert pathlib.Path(module.__file__).resolve().is_relative_to(root), (module.__file__, str(root))
+"""
+"""Runs first in a checkout's process (`checkout_code`): that checkout's warpimpulse and kernels, or an error."""
+
 
 GROUNDED_SNIPPET = """
 import importlib.util, json, math, pathlib, time, warnings, numpy as np, warp as wp
@@ -263,15 +287,21 @@ def contact_solvers(dt: float, tolerance: float) -> dict:
     return solvers
 
 
+def checkout_code(cwd: str | None, code: str) -> str:
+    """`code` to run in the checkout `cwd` (None: this one), its imports that checkout's (`CHECKOUT_IMPORTS`)."""
+    root = Path(cwd) if cwd else Path(__file__).resolve().parent.parent
+    return CHECKOUT_IMPORTS.format(root=str(root.resolve())) + code
+
+
 def grounded(cwd: str | None) -> dict:
     """Section 5 in the checkout `cwd` (None: this one), in a fresh process."""
-    out = subprocess.run([sys.executable, "-c", GROUNDED_SNIPPET.format()], cwd=cwd, capture_output=True, text=True,
-                         check=True)  # fmt: skip
+    code = checkout_code(cwd, GROUNDED_SNIPPET.format())
+    out = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def tree_ms(cwd: str | None, steps: int) -> float:
-    code = TREE_SNIPPET.format(steps=steps)
+    code = checkout_code(cwd, TREE_SNIPPET.format(steps=steps))
     out = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, check=True)
     return float(out.stdout.strip().splitlines()[-1])
 
