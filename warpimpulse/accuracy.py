@@ -344,7 +344,9 @@ class Controller:
         for an error that smaller steps now cannot take back. Where the fastest body turned faster in this block
         than in the last by a factor r, the next is taken to speed up as much again, and its step is r^((p+1)/p)
         smaller (a step's error grows as (spin h)^(p+1)): the error of a chain's whip is made within a block. It
-        grows by at most GROWTH a block and shrinks by at most SHRINK."""
+        grows by at most GROWTH a block and shrinks by at most SHRINK. A block whose shadow steps were halved, or
+        took more than `COSTLY` times the trajectory's solves, raises the fewest steps an interval (`_least`) to
+        twice the block's for the rest of the run."""
         p = self.order
         self.estimate = self._gap() / (2.0**p - 1.0)
         h = self.step_size
@@ -370,12 +372,12 @@ class Controller:
         self._aim(self.steps * (max(split, 1.0 / factor) if split > 1.0 else 1.0 / factor))
 
     def _aim(self, steps: float) -> None:
-        """The next block's steps an interval for `steps` wanted (a real number, at least 1): whole, so that frames
-        land on their times, but blocks alternate between the whole numbers below and above it so that the mean
-        h^p of the steps, which the trajectory error grows with, is the wanted step's (error diffusion: `_debt`
-        carries what the blocks so far took above the aim, never more than nothing, and at most one block's
-        credit below it). Rounding up alone leaves the error up to 2^p below the aim at one or two steps an
-        interval (order 4 at dt against dt / 2: 16x, the tree of 127 bodies at 0.02 E)."""
+        """The next block's steps an interval for `steps` wanted (a real number, at least `_least`): whole, so that
+        frames land on their times, but blocks alternate between the whole numbers below and above it so that the
+        mean h^p of the steps, which the trajectory error grows with, is the wanted step's (error diffusion:
+        `_debt` carries what the blocks so far took above the aim, never more than nothing, and at most one
+        block's credit below it). Rounding up alone leaves the error up to 2^p below the aim at one or two steps
+        an interval (order 4 at dt against dt / 2: 16x, the tree of 127 bodies at 0.02 E)."""
         wanted = min(float(MAX_STEPS), max(float(self._least), steps))
         p, span = self.order, self._block() * self.interval
         aim = (self.interval / wanted) ** p
