@@ -28,7 +28,8 @@ of the contact stage to scenes without colliders.
    on its six feet at 1 rad/s (1e-6, 4 s), gymnasium's ant on its floor (1e-6, 1 s at h = 0.01, with the
    [mjcf-robots] extra): joint-loop iterations (predictions) a step, substeps, steps not converged, ms a step
    of a second run from `reset()` (the first records the launches of each step size: `first_run_ms_per_step`),
-   and where the run stopped; with --baseline, the same in the other checkout, in a process of its own.
+   and where the run stopped; MuJoCo's ant on its floor as its file sets it beside; with --baseline, the same
+   in the other checkout, in a process of its own.
 With --baseline, each checkout's process imports that checkout's warpimpulse and kernels (`CHECKOUT_IMPORTS`).
 """
 
@@ -287,6 +288,33 @@ def contact_solvers(dt: float, tolerance: float) -> dict:
     return solvers
 
 
+def mujoco_ant(steps: int = 100, runs: int = 5) -> dict:
+    """MuJoCo on gymnasium's ant on its floor as the file sets it (its integrator and step, soft contacts), beside
+    section 5's `ant_on_its_floor`: ms a step, the least of `runs` runs of `steps` from the start after a first
+    run. Not the same contacts (MuJoCo's are soft, ours hold to the tolerance): the figure places the scale."""
+    import importlib.util
+
+    try:
+        import mujoco
+    except ImportError as e:
+        return {"error": repr(e)}
+    spec = importlib.util.find_spec("gymnasium")
+    if spec is None or spec.origin is None:
+        return {"error": "gymnasium is not installed (the [mjcf-robots] extra)"}
+    m = mujoco.MjModel.from_xml_path(str(Path(spec.origin).parent / "envs/mujoco/assets/ant.xml"))
+    d = mujoco.MjData(m)
+    walls = []
+    for _ in range(1 + runs):
+        mujoco.mj_resetData(m, d)
+        start = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_step(m, d)
+        walls.append(time.perf_counter() - start)
+    integrator = mujoco.mjtIntegrator(m.opt.integrator).name
+    return {"ms_per_step": 1e3 * min(walls[1:]) / steps, "integrator": integrator, "dt": m.opt.timestep,
+            "contacts_at_the_end": int(d.ncon)}  # fmt: skip
+
+
 def checkout_code(cwd: str | None, code: str) -> str:
     """`code` to run in the checkout `cwd` (None: this one), its imports that checkout's (`CHECKOUT_IMPORTS`)."""
     root = Path(cwd) if cwd else Path(__file__).resolve().parent.parent
@@ -332,8 +360,9 @@ def main() -> None:
             args.json.write_text(json.dumps(result, indent=2) + "\n")
         return
     if args.grounded:
-        result["grounded"] = {"this_branch": grounded(None)}
+        result["grounded"] = {"this_branch": grounded(None), "mujoco_ant_on_its_floor": mujoco_ant()}
         print("  grounded, this branch", json.dumps(result["grounded"]["this_branch"]), flush=True)
+        print("  grounded, MuJoCo's ant", json.dumps(result["grounded"]["mujoco_ant_on_its_floor"]), flush=True)
         if args.baseline:
             result["grounded"]["baseline"] = grounded(args.baseline)
             print("  grounded, baseline", json.dumps(result["grounded"]["baseline"]), flush=True)
