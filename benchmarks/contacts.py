@@ -79,14 +79,15 @@ for module in (warpimpulse, warpimpulse.kernels):
 
 
 GROUNDED_SNIPPET = """
-import importlib.util, json, math, pathlib, time, warnings, numpy as np, warp as wp
+import json, math, time, warnings, numpy as np, warp as wp
 import warpimpulse as wi
 from warpimpulse import scenes
 wp.config.quiet = True
 warnings.simplefilter("ignore")
 def ant():
-    spec = importlib.util.find_spec("gymnasium")  # the [mjcf-robots] extra
-    return wi.load_mjcf(str(pathlib.Path(spec.origin).parent / "envs/mujoco/assets/ant.xml"))
+    if {ant!r} is None:
+        raise FileNotFoundError("gymnasium is not installed (the [mjcf-robots] extra)")
+    return wi.load_mjcf({ant!r})
 cases = {{"car_straight": (lambda: scenes.car(steering=0.0, ground=True), 1e-6, 1.0, 1 / 60),
          "car_steering": (lambda: scenes.car(ground=True), 1e-4, 2.0, 1 / 60),
          "box_stack10": (lambda: scenes.box_stack(10), 1e-4, 1.0, 1 / 60),
@@ -288,20 +289,25 @@ def contact_solvers(dt: float, tolerance: float) -> dict:
     return solvers
 
 
+def ant_file() -> str | None:
+    """gymnasium's ant.xml where pip put it (the [mjcf-robots] extra), or None: section 5's robot on its floor."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("gymnasium")
+    return None if spec is None or spec.origin is None else str(Path(spec.origin).parent / "envs/mujoco/assets/ant.xml")
+
+
 def mujoco_ant(steps: int = 100, runs: int = 5) -> dict:
     """MuJoCo on gymnasium's ant on its floor as the file sets it (its integrator and step, soft contacts), beside
     section 5's `ant_on_its_floor`: ms a step, the least of `runs` runs of `steps` from the start after a first
     run. Not the same contacts (MuJoCo's are soft, ours hold to the tolerance): the figure places the scale."""
-    import importlib.util
-
     try:
         import mujoco
     except ImportError as e:
         return {"error": repr(e)}
-    spec = importlib.util.find_spec("gymnasium")
-    if spec is None or spec.origin is None:
+    if ant_file() is None:
         return {"error": "gymnasium is not installed (the [mjcf-robots] extra)"}
-    m = mujoco.MjModel.from_xml_path(str(Path(spec.origin).parent / "envs/mujoco/assets/ant.xml"))
+    m = mujoco.MjModel.from_xml_path(ant_file())
     d = mujoco.MjData(m)
     walls = []
     for _ in range(1 + runs):
@@ -323,7 +329,7 @@ def checkout_code(cwd: str | None, code: str) -> str:
 
 def grounded(cwd: str | None) -> dict:
     """Section 5 in the checkout `cwd` (None: this one), in a fresh process."""
-    code = checkout_code(cwd, GROUNDED_SNIPPET.format())
+    code = checkout_code(cwd, GROUNDED_SNIPPET.format(ant=ant_file()))
     out = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 

@@ -291,18 +291,19 @@ class Controller:
         sim._clock = (end, sim.step_count)  # the clock counts on from the frame time
         self._done += 1
         if self._done >= self._block():
+            count = k * self._done // 2  # the shadow's steps of 2h over the block
             try:
-                shadow = self._shadow_steps(2.0 * h, k * self._done // 2, end)
+                shadow = self._shadow_steps(2.0 * h, count, end)
             except SimulationError:  # steps of 2h fail where those of h hold: no estimate, smaller steps, again
                 self._aim(k * SHRINK)
                 self._sync()
                 self._done, self._work = 0, 0
             else:
-                for s in shadow:  # its work counted in the stats
-                    stats.joint_iterations += s.joint_iterations
-                    stats.velocity_iterations += s.velocity_iterations
-                    stats.linear_iterations += s.linear_iterations
-                self._adopt(end, shadow)
+                whole = combined(shadow)  # its work counted in the stats
+                stats.joint_iterations += whole.joint_iterations
+                stats.velocity_iterations += whole.velocity_iterations
+                stats.linear_iterations += whole.linear_iterations
+                self._adopt(end, whole.substeps > count, whole.linear_iterations)
                 self._done = 0
         stats.step_size = h
         stats.error_estimate = self.estimate
@@ -333,7 +334,7 @@ class Controller:
         a, b = self._centres
         return (a, b) if isinstance(a, np.ndarray) else (a.numpy(), b.numpy())
 
-    def _adopt(self, now: float, shadow: list[StepStats]) -> None:
+    def _adopt(self, now: float, halved: bool, solves: int) -> None:
         """The trajectory error now, (gap to the shadow) / (2^p - 1), and the step of the next block.
 
         The trajectory error of a run of steps of h is G h^p (Richardson). The error so far, its largest g at t
@@ -351,8 +352,7 @@ class Controller:
         self.estimate = self._gap() / (2.0**p - 1.0)
         h = self.step_size
         ours, self._work = self._work, 0
-        halved = sum(s.substeps for s in shadow) > self.steps * self._done // 2
-        if halved or sum(s.linear_iterations for s in shadow) > COSTLY * ours:
+        if halved or solves > COSTLY * ours:  # the shadow's steps of the block: halved, their linear solves
             self._least = max(self._least, 2 * self.steps)
         (t0, _), (t1, g1) = self._start, self._last
         t = now - t0
