@@ -15,6 +15,7 @@ single-body prediction of `rigid.predict`.
 import warp as wp
 
 from .constraints import pose_q, pose_x
+from .inertia import sym33d, symmetric_times
 
 wp.set_module_options({"enable_backward": False})
 
@@ -637,6 +638,59 @@ def rk4_stage_body(
         body_q_out[b] = wp.normalize(start_q[b] + dq * step)  # a rotation, for the elements and the next stage
         body_v_out[b] = start_v[b] + dv * step
         body_w_out[b] = start_w[b] + dw * step
+
+
+@wp.func
+def kick_body(
+    b: int,
+    dt: f64,
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=sym33d),
+    body_wrench_start: wp.array(dtype=int),
+    body_wrench_rows: wp.array(dtype=int),
+    wrench_force: wp.array(dtype=vec3d),
+    wrench_torque: wp.array(dtype=vec3d),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Body b's velocities after its element wrench rows act for dt (s) at its pose: dv = F dt / m,
+    dw = I_world^-1 tau dt (world frame). The exact flow of forces that depend on the poses alone, which do not
+    move while they act: half of the split step's kicks (`Simulator`'s `split_forces`, kernels/step.py)."""
+    inv_mass = body_inv_mass[b]
+    if inv_mass == f64(0.0):
+        return
+    force = vec3d()
+    torque = vec3d()
+    k = body_wrench_start[b]
+    while k < body_wrench_start[b + 1]:
+        r = body_wrench_rows[k]
+        force += wrench_force[r]
+        torque += wrench_torque[r]
+        k += 1
+    body_v[b] = body_v[b] + force * (inv_mass * dt)
+    body_w[b] = body_w[b] + symmetric_times(inv_inertia_world[b], torque) * dt
+
+
+@wp.kernel
+def kick(
+    # Model:
+    body_inv_mass: wp.array(dtype=f64),
+    body_wrench_start: wp.array(dtype=int),
+    body_wrench_rows: wp.array(dtype=int),
+    dt: f64,
+    # Data in: the frames' world inverse inertias and the element wrenches at the state
+    inv_inertia_world_in: wp.array(dtype=sym33d),
+    wrench_force_in: wp.array(dtype=vec3d),
+    wrench_torque_in: wp.array(dtype=vec3d),
+    # Data out (updated in place):
+    body_v_out: wp.array(dtype=vec3d),
+    body_w_out: wp.array(dtype=vec3d),
+):
+    """Every body's half kick (`kick_body`)."""
+    kick_body(
+        wp.tid(), dt, body_inv_mass, inv_inertia_world_in, body_wrench_start, body_wrench_rows, wrench_force_in,
+        wrench_torque_in, body_v_out, body_w_out,
+    )  # fmt: skip
 
 
 @wp.kernel

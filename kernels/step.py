@@ -45,6 +45,7 @@ from .forces import (
     drive_wrench,
     implicit_dampers_all,
     integrate_drive,
+    kick_body,
     rk4_stage_body,
     spring_wrench,
 )
@@ -500,6 +501,30 @@ def integrate_drives_all(
             el.drive_integral,
         )  # fmt: skip
         e += 1
+
+
+@wp.func
+def kick_all(
+    body_count: int,
+    dt: f64,
+    body_inv_mass: wp.array(dtype=f64),
+    inv_inertia_world: wp.array(dtype=sym33d),
+    el: ForceElements,
+    body_x: wp.array(dtype=vec3d),
+    body_q: wp.array(dtype=quatd),
+    body_v: wp.array(dtype=vec3d),
+    body_w: wp.array(dtype=vec3d),
+):
+    """Every force element's wrench at the state's poses, acting on the bodies for dt (s): the half kick at each
+    end of a split base step (`kick_body`; the frames' world inverse inertias are the state's)."""
+    element_wrenches(el, body_x, body_q, body_v, body_w)
+    b = wp.int32(0)
+    while b < body_count:
+        kick_body(
+            b, dt, body_inv_mass, inv_inertia_world, el.body_wrench_start, el.body_wrench_rows, el.wrench_force,
+            el.wrench_torque, body_v, body_w,
+        )  # fmt: skip
+        b += 1
 
 
 @wp.func
@@ -971,7 +996,7 @@ def velocity_solve(
 
 
 @functools.cache
-def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> SimpleNamespace:
+def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicked: bool = False) -> SimpleNamespace:
     """The fused step kernels for a set of constraint kinds (`constraints.specialized(kinds)`'s stage funcs):
     `cholesky_steps` (the direct solver, either formulation) and `iterative_steps` (the paper's sweeps), and the
     kind-dependent serial stages they call (`benchmarks/step_breakdown.py` times each). `forced`: the scene has
@@ -980,11 +1005,14 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
     `rows`: the scene has joint limits, stiff motors or distance constraints (`Rows`, kernels/limits.py), rows of
     the correction loop solved after the joints in each iteration, then after the velocity correction, on their
     own system S, formed with the factor at each new state; the host passes one stage (the parallel schedule
-    takes such steps at order 2: impacts and saturation are not reversible). The iterative baseline has none."""
+    takes such steps at order 2: impacts and saturation are not reversible). `kicked` (not with `forced`): the
+    force elements depend on the poses alone, and act as two half kicks about each base step, whose prediction
+    is each body's own (`kick_all`, `Simulator`'s `split_forces`). The iterative baseline has none."""
     ck = specialized(kinds)
-    Elements = ForceElements if forced else Absent  # noqa: N806 (the types of two kernel arguments)
+    Elements = ForceElements if forced or kicked else Absent  # noqa: N806 (the types of two kernel arguments)
     LimitRows = Rows if rows else Absent  # noqa: N806
-    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{'_forced' if forced else ''}{'_rows' if rows else ''}"
+    flags = "".join(f"_{name}" for name, on in (("forced", forced), ("rows", rows), ("kicked", kicked)) if on)
+    module = f"{__name__}.kinds_{'_'.join(map(str, ck.kinds))}{flags}"
     wp.set_module_options({"enable_backward": False}, module)
     frame = ck.frame
     position_error = ck.position_error
@@ -1317,6 +1345,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                 hs = stages[stage] * h
                 inv_h = f64(1.0) / hs
                 row = stage_carry[stage]
+                if wp.static(kicked):  # the first half kick, at the stage's start (its frames are the state's)
+                    kick_all(
+                        body_count, f64(0.5) * hs, body_inv_mass, inv_inertia_world, elements, state_x, state_q,
+                        state_v, state_w,
+                    )  # fmt: skip
                 if wp.static(forced):
                     coupled_predict_all(
                         body_count, body_inv_mass, body_inertia, body_inv_inertia, gravity, hs, elements,
@@ -1499,6 +1532,11 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
                     constraint_body0, constraint_body1, constraint_anchor0, constraint_anchor1, constraint_axis0,
                     constraint_axis1, state_x, state_q, inv_inertia_world, proj, jac_lin, jac_ang, jac_skew,
                 )  # fmt: skip
+                if wp.static(kicked):  # the second half kick, at the accepted poses, before any velocity correction
+                    kick_all(
+                        body_count, f64(0.5) * hs, body_inv_mass, inv_inertia_world, elements, state_x, state_q,
+                        state_v, state_w,
+                    )  # fmt: skip
                 # The velocity correction where the state is handed out (`defer` == 0: every stage's): a deferred
                 # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`;
                 # never with rows, whose velocity pass reads them).
@@ -1573,7 +1611,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False) -> Si
         settle(body_count, state_x, state_q, state_v, state_w, body_x_out, body_q_out, body_v_out, body_w_out)
 
     iterative_steps = None  # the paper's baseline predicts each body alone and has no rows
-    if not (forced or rows):
+    if not (forced or rows or kicked):
 
         @wp.kernel(module=module)
         def iterative_steps(

@@ -49,21 +49,33 @@ def rod_angle(sim: wi.Simulator) -> float:
 
 
 # ---------------------------------------------------------------- springs
+@pytest.mark.parametrize("split", [False, True])
 @pytest.mark.parametrize("slider", [False, True])
-def test_spring_mass_period(slider):
-    """A 2 kg body on a 50 N/m spring, free or on a prismatic joint: period 2 pi sqrt(m/k) to 1e-4 relative
-    at h = 0.01 s. Forces frozen at t0 of each step would miss this by far more (first order in h)."""
-    m, k = 2.0, 50.0
+def test_spring_mass_period(slider, split):
+    """A 2 kg body on a 50 N/m spring, free or on a prismatic joint, at h = 0.01 s. In the coupled RK4
+    prediction the period is 2 pi sqrt(m/k) to 1e-4 relative; forces frozen at t0 of each step would miss it by
+    far more (first order in h). Split into half kicks about each step (`split_forces`), the step along the
+    spring is velocity Verlet, whose period is known in closed form: 2 pi h / arccos(1 - (h omega)^2 / 2), a
+    second-order 1.04e-4 below the exact one here."""
+    m, k, h = 2.0, 50.0, 0.01
     b = wi.SceneBuilder(gravity=(0.0, 0.0, -9.81) if slider else (0.0, 0.0, 0.0))
     body = b.add_body(m, (0.1, 0.1, 0.1), (1.0, 0.0, 0.0), linear_velocity=(0.3, 0.0, 0.0))
     if slider:
         b.add_joint_prismatic(None, body, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))
     b.add_spring(None, body, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), k)
-    sim = wi.Simulator(b.finalize(), dt=0.01)
+    sim = wi.Simulator(b.finalize(), dt=h, options=wi.StepOptions(split_forces=split))
+    assert sim._kicked == split
     t, x = run(sim, 1000, lambda s: s.positions()[0, 0] - 1.0)
     periods = np.diff(crossings(t, x))
     assert len(periods) >= 5
-    np.testing.assert_allclose(periods, 2.0 * math.pi * math.sqrt(m / k), rtol=1e-4)
+    exact = 2.0 * math.pi * math.sqrt(m / k)
+    if split:
+        verlet = 2.0 * math.pi * h / math.acos(1.0 - 0.5 * h * h * k / m)
+        np.testing.assert_allclose(periods, verlet, rtol=1e-6)  # crossings interpolated between samples
+        np.testing.assert_allclose(periods.mean(), verlet, rtol=1e-7)
+        np.testing.assert_allclose(periods, exact, rtol=2e-4)
+    else:
+        np.testing.assert_allclose(periods, exact, rtol=1e-4)
     if slider:
         assert np.abs(sim.positions()[0, 1:]).max() < 1e-6  # the slider holds against gravity
 
@@ -142,10 +154,19 @@ def test_prismatic_joint_spring_with_rest_offset():
 
 
 def test_scenes_without_force_elements_keep_the_single_body_prediction():
+    """No element: each body's own prediction. A spring: kicks about it (`split_forces`), or the coupled RK4."""
     b, _, joint = rod_on_hinge()
-    assert not wi.Simulator(b.finalize(), dt=0.01)._forced
+    bare = wi.Simulator(b.finalize(), dt=0.01)
+    assert not (bare._forced or bare._kicked or bare.split_forces)
     b.add_joint_spring(joint, 1.0)
-    assert wi.Simulator(b.finalize(), dt=0.01)._forced
+    split = wi.Simulator(b.finalize(), dt=0.01)
+    assert split._kicked and not split._forced and split.defer_velocities
+    coupled = wi.Simulator(b.finalize(), dt=0.01, options=wi.StepOptions(split_forces=False))
+    assert coupled._forced and not coupled._kicked and not coupled.defer_velocities
+    b.add_joint_spring(joint, 1.0, damping=0.1)
+    with pytest.raises(ValueError, match="a drive with a velocity, damping or integral term"):
+        wi.Simulator(b.finalize(), dt=0.01, options=wi.StepOptions(split_forces=True))
+    assert wi.Simulator(b.finalize(), dt=0.01)._forced  # a damper reads the velocities: coupled
 
 
 # ---------------------------------------------------------------- stiff dampers (implicit)

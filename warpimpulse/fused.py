@@ -30,7 +30,7 @@ class FusedSteps:
 
     def _force_elements(self) -> step_kernels.ForceElements | step_kernels.Absent:
         """The force elements and the coupled prediction's scratch, for the fused kernel (`Absent` without)."""
-        if not self._forced:
+        if not (self._forced or self._kicked):
             return step_kernels.Absent()
         elements = step_kernels.ForceElements()
         m = self.model

@@ -64,6 +64,13 @@ class StepOptions:
             ValueError where it is not taken: the parallel schedule, threads' split step (threads > 1), another solver,
             the split formulation, rows (limits, stiff motors, distance constraints: their system S is formed with K^-1)
             and loops (the factorization decides their redundant rows).
+        split_forces: force elements that depend on the poses alone (springs without dampers, joint springs,
+            position drives without kd or ki, effort motors) act as two half kicks about each base step,
+            dv = M^-1 F(q) h / 2 before its prediction and again at its accepted poses (Strang's splitting: the
+            step stays symmetric, so orders 4 and 6 compose from it), and the prediction is each body's own
+            instead of the coupled RK4 that evaluates every element at each of its stages for every joint
+            iteration. None: wherever every element allows it (one world; no element stiff for dt, whose
+            kick would be unstable from h omega = 2); True elsewhere is a ValueError naming what stands in the way.
         specialize: compile the constraint kernels for the scene's constraint kinds only (one module per set of
             kinds, cached on disk); False shares one module for all kinds.
         max_rotation: a step in which some body would turn further than this (rad) is taken as 2, 4, ... equal
@@ -80,6 +87,7 @@ class StepOptions:
     carry: bool | None = None
     defer_velocities: bool | None = None
     reuse_factor: bool | None = None
+    split_forces: bool | None = None
     specialize: bool = True
     max_rotation: float | None = 0.5
     max_substep_depth: int = 7

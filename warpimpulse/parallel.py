@@ -43,7 +43,7 @@ class ParallelSteps:
                                          first_iteration=first_iteration)  # fmt: skip
             finish = fix = None
             if not self.model.limit_count and not self._split_systems:
-                first = (*self._accept_work, self._integrate_drives, self._velocity_errors)
+                first = (*self._accept_work, self._integrate_drives, self._half_kick, self._velocity_errors)
                 finish = self._capture_loop(first, self._velocity_fix_work, errors[:1], self.velocity_tolerance,
                                             step_kernels.VELOCITY_SOLVES)  # fmt: skip
                 fix = self._capture_loop((self._velocity_errors,), self._velocity_fix_work, errors[:1],
@@ -168,6 +168,7 @@ class ParallelSteps:
         carried right-hand side it takes): its stats, and False when it failed and a smaller step may still
         succeed (not `final`; the state then holds this attempt's impulses)."""
         self._use_step_size(h, stage)
+        self._half_kick.launch()  # split force elements: their first half kick (`StepOptions.split_forces`)
         if self.contact_stage is None:
             joint_it, joint_err, linear_iterations, ok = self._correct_joints(final)
         else:
@@ -189,6 +190,7 @@ class ParallelSteps:
         if self.linear is not None:
             self.linear.check()
         self._integrate_drives.launch()
+        self._half_kick.launch()  # the second, at the accepted poses
         if self.defer_velocities:  # accepted and factored; the velocities are the next step's (`defer_velocities`)
             return self._finish_step(StepStats(joint_it, 0, joint_err, math.nan, True, linear_iterations, 1), h)
 

@@ -134,10 +134,10 @@ class Recording:
                     iterate_first = self._capture(*first_iteration)
             self._launches_by_h[key] = (predict, errors, sweep, self._capture(predict, *measure), iterate,
                                       iterate_first, ((predict, *measure), first_iteration, iteration), integrate,
-                                      correct_limits, correct_limit_velocities)  # fmt: skip
+                                      correct_limits, correct_limit_velocities, self._kick(h))  # fmt: skip
         (self._predict, self._position_errors, self._sweep_positions, self._evaluate, self._iterate,
          self._iterate_first, self._loop_work, self._integrate_drives, self._correct_limits,
-         self._correct_limit_velocities) = self._launches_by_h[key]  # fmt: skip
+         self._correct_limit_velocities, self._half_kick) = self._launches_by_h[key]  # fmt: skip
         self._h, self._key = h, key
 
     def _carry_arrays(self, key: tuple[float, int]) -> tuple[wp.array, ...]:
@@ -217,17 +217,7 @@ class Recording:
         launches = []
         for k in range(4):
             at = s if k == 0 else stage
-            launches.append(self._record(force_kernels.spring_wrenches, m.spring_count, at))
-            launches.append(self._record(force_kernels.coordinate_geometries, m.drive_rows.shape[0], at))
-            launches.append(
-                self._record(
-                    force_kernels.drive_wrenches,
-                    m.force_drive_count,
-                    at,
-                    row_offset=m.spring_count,
-                    drive_gains=self._dampers.drive_gains,
-                )  # fmt: skip
-            )
+            launches += self._wrench_launches(at)
             launches.append(
                 self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
             )
@@ -236,6 +226,31 @@ class Recording:
                                      damper_drive=self._dampers.drive, damper_gain=self._dampers.gain,
                                      damper_spring=self._dampers.spring))  # fmt: skip
         return Launches(launches)
+
+    def _wrench_launches(self, at: State) -> list:
+        """Every force element's wrench rows at the state `at`: the springs, the drives' coordinate rows, the
+        drives (`kernels/forces.py`)."""
+        m = self.model
+        return [
+            self._record(force_kernels.spring_wrenches, m.spring_count, at),
+            self._record(force_kernels.coordinate_geometries, m.drive_rows.shape[0], at),
+            self._record(
+                force_kernels.drive_wrenches,
+                m.force_drive_count,
+                at,
+                row_offset=m.spring_count,
+                drive_gains=self._dampers.drive_gains,
+            ),  # fmt: skip
+        ]
+
+    def _kick(self, h: float) -> Launches:
+        """The half kick about a split base step of h (`StepOptions.split_forces`): the elements' wrenches at the
+        state's poses acting for h / 2 (`forces.kick`); nothing where the elements are not split."""
+        if not self._kicked:
+            return Launches([])
+        s = self._state
+        return Launches([*self._wrench_launches(s), self._record(force_kernels.kick, self.model.body_count, data_out=s,
+                                                                    dt=0.5 * h)])  # fmt: skip
 
     def prepare_substeps(self) -> None:
         """Record the launches of every substep size a step may take (dt / 2**k, k <= max_substep_depth) now,

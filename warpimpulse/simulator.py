@@ -288,6 +288,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         """The drives (by name) whose damping the prediction takes implicitly: stiff for dt (`dampers.py`)."""
         if (self.implicit_dampers or self._dampers.kept) and verbose:
             print(f"warpimpulse: {self.damper_note()}", file=sys.stderr)
+        self.split_forces = self._pick_split_forces(options.split_forces)
+        self._kicked = self.split_forces and self._forced  # the elements act as kicks about each base step
+        self._forced = self._forced and not self._kicked  # the coupled RK4 prediction
         nl = model.limit_count
         self.limit_impulse = wp.zeros(nl, dtype=wp.float64, device=d)  # accumulated over the step, push only
         (self.limit_value, self.limit_rate, self.limit_error, self.limit_velocity_impulse, self.limit_rhs,
@@ -320,8 +323,8 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
                              f"joint correction; this simulator has {why}")  # fmt: skip
         # Unless refused, on while no force element acts (`_follow_elements`)
         self._defer_idle = bool(defer_velocities is None and not self._velocities_needed(idle=True))
-        asked = bool(defer_velocities is not False and not why)
-        self.defer_velocities = asked or (self._defer_idle and not self._forced)
+        self._defer_asked = bool(defer_velocities is not False and not why)
+        self.defer_velocities = self._defer_asked or (self._defer_idle and not self._forced)
         self._launches_by_h: dict[float, tuple] = {}
         self._loops_by_h: dict[tuple[float, int], tuple] = {}  # the parallel schedule's loops (`_device_loops`)
         self._v0 = wp.zeros_like(self._state.body_v)
@@ -439,6 +442,38 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         # than a step of order 2 does (benchmarks/reuse_factor.py: at order 2 and h = 1/120, 1.00-1.05 of the time).
         return bool((wanted or (wanted is None and self.order > 2)) and not why)
 
+    def _pick_split_forces(self, wanted: bool | None) -> bool:
+        """Whether the force elements act as two half kicks about each base step (`StepOptions.split_forces`;
+        None: wherever they may)."""
+        if wanted not in (None, True, False):
+            raise ValueError(f"split_forces must be True, False or None (where the forces allow it), got {wanted!r}")
+        m = self.model
+        reasons = (
+            (m.element_count == 0, "no force elements"),
+            (m.world_count > 1, "batched worlds"),
+            (bool(self._dampers.names or self._dampers.kept), "springs or dampers stiff for dt"),
+        )  # fmt: skip
+        why = ", ".join(why for needed, why in reasons if needed) or self._velocity_forces()
+        if wanted and why:
+            raise ValueError(f"split_forces needs force elements that depend on the poses alone; this simulator has "
+                             f"{why}")  # fmt: skip
+        return bool(wanted is not False and not why)
+
+    def _velocity_forces(self) -> str:
+        """The first force element whose force depends on the velocities or a history (a damper, a velocity
+        drive, a PID's integral), which a kick cannot take, named; "" where there is none."""
+        m = self.model
+        damped = np.flatnonzero(m.spring_params.numpy()[:, 1] != 0.0) if m.spring_count else ()
+        if len(damped):
+            return f"a damped spring ({m.spring_name[damped[0]]!r})"
+        drives = m.drive_element.numpy()
+        modes = m.host.drive_mode[drives]
+        terms = np.any(self._dampers.drive_gains.numpy()[drives, 1:] != 0.0, axis=1)  # ki, kd
+        moving = np.flatnonzero((modes == force_kernels.VELOCITY_MODE) | ((modes != force_kernels.EFFORT_MODE) & terms))
+        if len(moving):
+            return f"a drive with a velocity, damping or integral term ({m.drive_name[drives[moving[0]]]!r})"
+        return ""
+
     @property
     def factorizations(self) -> int:
         """K's factorizations by the fused kernel since construction (`reuse_factor` skips some; the host's own,
@@ -452,7 +487,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         reasons = (
             (self.solver_name != "cholesky" or m.constraint_count == 0, f"the {self.solver_name!r} solver"),
             (self._split_systems, "the split formulation"),
-            (m.element_count > 0 and not idle, "force elements (springs, joint springs, drives)"),
+            (m.element_count > 0 and not (idle or self.split_forces), "force elements that read the velocities"),
             (m.limit_count > 0, "joint limits, stiff motors or distance constraints"),
             (m.colliders is not None, "contacts"),
             (m.world_count > 1, "batched worlds"),
@@ -473,20 +508,22 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
     _BY_ELEMENTS = ("_fused", "_elements", "_fused_by_h", "_tick", "_substep_by_h", "_launches_by_h", "_loops_by_h")
 
     def _follow_elements(self) -> None:
-        """Take the coupled RK4 prediction while a force element acts, else each body's own (`predict`) and the
-        velocity correction deferred where it may be (`defer_velocities`): called wherever the drives' targets
-        change (the setters, `reset`, a checkpoint). Dormant elements cost the coupled prediction a stage and
-        the velocity correction a step for nothing: 2x on gymnasium's ant at order 4 (benchmarks/skips.py).
-        A velocity correction a dormant step deferred is taken first; each answer's kernels and launches are
-        kept for the next switch."""
+        """While a force element acts, its kicks about each base step (`split_forces`) or the coupled RK4
+        prediction; else each body's own (`predict`), with no kick; the velocity correction deferred where it may be
+        (`defer_velocities`: not with the coupled prediction, whose elements read the velocities). Called wherever
+        the drives' targets change (the setters, `reset`, a checkpoint). Dormant elements cost the coupled
+        prediction a stage and the velocity correction a step for nothing: 2x on gymnasium's ant at order 4
+        (benchmarks/skips.py). A velocity correction a dormant step deferred is taken first where the coupled
+        prediction follows; each answer's kernels and launches are kept for the next switch."""
         acting = self._elements_act()
-        if acting == self._forced:
+        if acting == (self._forced or self._kicked):
             return
-        if self._handout:  # the last step's deferred velocity correction, before a step that needs it done
-            self._hand_out()
-        self._modes[self._forced] = {name: getattr(self, name) for name in self._BY_ELEMENTS if hasattr(self, name)}
-        self._forced = acting
-        self.defer_velocities = self._defer_idle and not acting
+        if self._handout and not self.split_forces:  # a deferred velocity correction, before a step that needs
+            self._hand_out()  # it done (kicks read no velocity)
+        self._modes[not acting] = {name: getattr(self, name) for name in self._BY_ELEMENTS if hasattr(self, name)}
+        self._forced = acting and not self.split_forces
+        self._kicked = acting and self.split_forces
+        self.defer_velocities = self._defer_asked or (self._defer_idle and not self._forced)
         kept = self._modes.get(acting)
         if kept is not None:
             for name, value in kept.items():
@@ -494,7 +531,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         else:
             self._launches_by_h, self._loops_by_h = {}, {}
             if self.schedule == "fused":
-                self._fused = step_kernels.fused(self._fused_kinds, acting, self.model.limit_count > 0)
+                self._fused = step_kernels.fused(
+                    self._fused_kinds, self._forced, self.model.limit_count > 0, self._kicked
+                )  # fmt: skip
                 self._elements = self._force_elements()
                 self._fused_by_h, self._tick, self._substep_by_h = {}, (None, ()), {}
         self._use_step_size(self.dt)
@@ -513,7 +552,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         rows = self.model.limit_count > 0  # limits, stiff motors, distance constraints (kernels/limits.py)
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
         self._fused_kinds = frozenset(int(k) for k in kinds)
-        self._fused = step_kernels.fused(self._fused_kinds, self._forced, rows)
+        self._fused = step_kernels.fused(self._fused_kinds, self._forced, rows, self._kicked)
         self._elements = self._force_elements()
         # A row a step, and the launch's OK steps summed up in the last (`kernels/step.py` `finish`).
         self._status = wp.zeros(
