@@ -66,6 +66,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/scaling.py --json $(RESULTS)/scaling.json > /dev/null
 	$(PY) benchmarks/orders.py > /dev/null  # orders in time: orders.json, docs/time-order.md, README's orders block
 	$(PY) benchmarks/scene_kinds.py > /dev/null  # kinds of scene from MJCF: scene_kinds.json, plots, README block
+	$(PY) benchmarks/split_forces.py > /dev/null  # kicks against the coupled prediction: docs/mechanisms.md
 	$(PY) -m warpimpulse.bench.report --from-json $(RESULTS)/paper_tables.json $(RESULTS)/run_vs_error.json $(RESULTS)/scaling.json \
 		--plots $(RESULTS) --report $(RESULTS)/RESULTS.md --readme docs/results.md
 

@@ -357,9 +357,7 @@ def test_split_forces_keep_the_step_symmetric_and_order_4():
     start with a gap shrinking like h^5 or faster, so Suzuki's composition keeps order 4: measured against the
     coupled RK4 prediction at h = 1/960 (the other way to integrate the same forces) over 0.5 s."""
     model = _sprung_chain().finalize()
-    sim = warpimpulse.Simulator(
-        model, 1 / 30, tolerance=1e-13, options=warpimpulse.StepOptions(defer_velocities=False)
-    )
+    sim = warpimpulse.Simulator(model, 1 / 30, tolerance=1e-13, options=warpimpulse.StepOptions(defer_velocities=False))
     assert sim._kicked
     sim.step(10)
     start = _state(sim)
