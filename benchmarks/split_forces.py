@@ -16,6 +16,11 @@ Each configuration (order, h) runs 2 s from the initial state `--rounds` times, 
 time is the process's CPU time of `step(n)` (median and least), the error the largest distance of a centre
 of mass from MuJoCo's RK4 at h = 1/32000 with the same controls, read from the timed run.
 
+Then robots as shipped (`SHIPPED`: benchmarks/mjcf_robots.py's files, contacts off, their limits and joint
+dampers on), at their own time step with every control at 0.05: their dampers are stiff there and taken
+implicitly, beside the kicks. MuJoCo's soft limits are other physics, so the error here is against our own
+coupled prediction at a 32nd of the step, over 0.5 s (both variants are first order with implicit dampers).
+
     python benchmarks/split_forces.py [--rounds 7] [--json benchmarks/results/split_forces.json]
     python benchmarks/split_forces.py --from-json     # only the docs/mechanisms.md table
 """
@@ -47,6 +52,8 @@ CASES = {  # scene: (control as a fraction of each actuator's range, (order, rat
     "reacher": (0.01, ((2, 40), (2, 120), (4, 20), (4, 40))),
 }
 WINDOW = 2.0  # s
+SHIPPED = ("g/ant", "g/half_cheetah", "d/cheetah", "d/reacher")  # `mjcf_robots.model_paths` keys
+SHIPPED_WINDOW, SHIPPED_CONTROL, SHIPPED_REFINE = 0.5, 0.05, 32
 
 
 def controls(scene: sk.Loaded, fraction: float) -> np.ndarray:
@@ -90,6 +97,40 @@ def measure(scene: sk.Loaded, ctrl: np.ndarray, ref: np.ndarray, order: int, rat
     return out
 
 
+def shipped(name: str, rounds: int) -> dict:
+    """A robot as shipped at its own step, both variants timed in turn over `SHIPPED_WINDOW`, each one's error
+    against the coupled prediction at a `SHIPPED_REFINE`th of the step."""
+    import mjcf_robots
+
+    m = mjcf_robots.compiled(mjcf_robots.model_paths()[name], bare=False)
+    model = wi.load_mjcf(m, qvel=np.random.default_rng(0).standard_normal(m.nv)).finalize()
+    dt, ctrl = float(m.opt.timestep), np.full(m.nu, SHIPPED_CONTROL)
+
+    def simulator(h: float, split: bool | None) -> wi.Simulator:
+        sim = wi.Simulator(model, h, options=wi.StepOptions(split_forces=split))
+        sim.set_controls(ctrl)
+        return sim
+
+    reference = simulator(dt / SHIPPED_REFINE, False)
+    reference.step(int(round(SHIPPED_WINDOW * SHIPPED_REFINE / dt)))
+    n = int(round(SHIPPED_WINDOW / dt))
+    sims = {"coupled": simulator(dt, False), "split": simulator(dt, None)}
+    times = {name: [] for name in sims}
+    out = {"dt": dt, "implicit_dampers": len(sims["split"].implicit_dampers)}
+    for _ in range(rounds):
+        for key, sim in sims.items():
+            sim.reset()
+            sim.set_controls(ctrl)
+            start = time.process_time()
+            stats = sim.step(n)
+            times[key].append((time.process_time() - start) / n)
+            error = float(np.abs(sim.positions() - reference.positions()).max())
+            out[key] = {"kicked": bool(sim._kicked), "error": error, "solves": stats.linear_iterations / n}
+    for key in sims:
+        out[key] |= {"us": statistics.median(times[key]) * 1e6, "us_min": min(times[key]) * 1e6}
+    return out
+
+
 def table(results: dict) -> str:
     """The docs table: per scene and configuration, both variants' time a step and error, and their ratios."""
     lines = [
@@ -107,6 +148,23 @@ def table(results: dict) -> str:
             c, s = row["coupled"], row["split"]
             lines.append(
                 f"| {name} ({scene['what']}) | {row['order']}, 1/{row['rate']} | {c['us']:.1f}, {c['error']:.2g} | "
+                f"{s['us']:.1f}, {s['error']:.2g} | {s['us'] / c['us']:.2f} | {s['error'] / c['error']:.2f} |"
+            )
+    if results.get("shipped"):
+        lines += [
+            "",
+            f"As shipped (contacts off, limits and dampers on), every control at {SHIPPED_CONTROL}, "
+            f"{SHIPPED_WINDOW} s at the robot's own step, error against the coupled prediction at 1/"
+            f"{SHIPPED_REFINE} of it:",
+            "",
+            "| robot | h (s), implicit dampers | coupled RK4: us a step, error (m) | split: us a step, error (m) | "
+            "time split / coupled | error split / coupled |",
+            "|---|---|---|---|---:|---:|",
+        ]
+        for name, row in results["shipped"].items():
+            c, s = row["coupled"], row["split"]
+            lines.append(
+                f"| {name} | {row['dt']:g}, {row['implicit_dampers']} | {c['us']:.1f}, {c['error']:.2g} | "
                 f"{s['us']:.1f}, {s['error']:.2g} | {s['us'] / c['us']:.2f} | {s['error'] / c['error']:.2f} |"
             )
     return "\n".join(lines)
@@ -135,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
             runs = [measure(scene, ctrl, ref, order, rate, args.rounds) for order, rate in configs]
             results["scenes"][name] = {"what": what, "controls": ctrl.tolist(), "runs": runs}
             print(f"{name}: done", file=sys.stderr)
+        results["shipped"] = {name: shipped(name, args.rounds) for name in SHIPPED}
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=1))
     text = table(results)

@@ -474,6 +474,22 @@ def coupled_predict_all(
             wp.where(last, pred_q, el.stage_q), wp.where(last, pred_v, el.stage_v), wp.where(last, pred_w, el.stage_w),
         )  # fmt: skip
         stage += 1
+    dampers_on_prediction(h, el, body_inv_mass, body_inv_inertia, pred_x, pred_q, pred_v, pred_w)
+
+
+@wp.func
+def dampers_on_prediction(
+    h: f64,
+    el: ForceElements,
+    body_inv_mass: wp.array(dtype=f64),
+    body_inv_inertia: wp.array(dtype=mat33d),
+    pred_x: wp.array(dtype=vec3d),
+    pred_q: wp.array(dtype=quatd),
+    pred_v: wp.array(dtype=vec3d),
+    pred_w: wp.array(dtype=vec3d),
+):
+    """The implicit dampers (`dampers.pick`: stiff for the step) on a prediction of h, after its RK4 (coupled, or
+    each body's own beside kicks)."""
     implicit_dampers_all(
         h, el.damper_drive, el.damper_gain, el.damper_spring, el.drive_coordinate, el.drive_chain, el.drive_ends,
         el.drive_mode, el.drive_target, el.coordinate_kind, el.coordinate_body0, el.coordinate_body1,
@@ -1362,6 +1378,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
                         body_axes, gravity, hs, state_x, state_q, state_v, state_w, body_force_in, body_torque_in,
                         next_x, next_q, next_v, next_w,
                     )  # fmt: skip
+                    if wp.static(kicked):
+                        dampers_on_prediction(
+                            hs, elements, body_inv_mass, body_inv_inertia, next_x, next_q, next_v, next_w
+                        )  # fmt: skip
                 err = position_errors_all(
                     constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                     constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,
@@ -1450,6 +1470,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
                                 body_euler, body_axes, gravity, hs, state_x, state_q, state_v, state_w, body_force_in,
                                 body_torque_in, next_x, next_q, next_v, next_w,
                             )  # fmt: skip
+                            if wp.static(kicked):
+                                dampers_on_prediction(
+                                    hs, elements, body_inv_mass, body_inv_inertia, next_x, next_q, next_v, next_w
+                                )  # fmt: skip
                     else:
                         apply_and_predict_all(
                             body_count, constraint_kind, body_inv_mass, body_inertia, body_inv_inertia, body_principal,
@@ -1457,6 +1481,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
                             inv_inertia_world, jac_lin, jac_ang, jac_skew, impulse, state_x, state_q, state_v, state_w,
                             body_force_in, body_torque_in, next_x, next_q, next_v, next_w,
                         )  # fmt: skip
+                        if wp.static(kicked):
+                            dampers_on_prediction(
+                                hs, elements, body_inv_mass, body_inv_inertia, next_x, next_q, next_v, next_w
+                            )  # fmt: skip
                     err = position_errors_all(
                         constraint_count, constraint_kind, constraint_body0, constraint_body1, constraint_anchor0,
                         constraint_anchor1, constraint_axis0, constraint_axis1, constraint_rest_rotation,

@@ -95,6 +95,8 @@ class Recording:
             else:
                 group = rigid_kernels.LANES if self.model.device.is_cpu else 1  # bodies a thread
                 predict = self._record(rigid_kernels.predict, -(-nb // group), s, p, h=h, group_size=group)
+                if self._kicked and self._dampers.names:  # beside kicks: the dampers stiff for h, implicit
+                    predict = Launches([predict, self._implicit_dampers(h)])
             integrate = self._record(force_kernels.integrate_drives, self.model.drive_count, s, h=h)
             errors = self._record(self.kernels.position_errors, nc, p, inv_h=1.0 / h)
             sweep = self._record(iterative_kernels.sweep_positions, 1, s, s, h=h, constraint_count=nc)
@@ -221,11 +223,14 @@ class Recording:
             launches.append(
                 self._record(force_kernels.rk4_stage, m.body_count, at, p if k == 3 else stage, stage=k, h=h, **start)
             )
+        return Launches([*launches, self._implicit_dampers(h)])
+
+    def _implicit_dampers(self, h: float) -> wp.Launch:
+        """The dampers stiff for h (`dampers.pick`) on the prediction, implicit (`forces.implicit_dampers`)."""
         dampers = int(len(self._dampers.names) > 0)  # one thread takes them in turn (`implicit_dampers_all`)
-        launches.append(self._record(force_kernels.implicit_dampers, dampers, data_out=p, h=h,
-                                     damper_drive=self._dampers.drive, damper_gain=self._dampers.gain,
-                                     damper_spring=self._dampers.spring))  # fmt: skip
-        return Launches(launches)
+        return self._record(force_kernels.implicit_dampers, dampers, data_out=self.pred, h=h,
+                            damper_drive=self._dampers.drive, damper_gain=self._dampers.gain,
+                            damper_spring=self._dampers.spring)  # fmt: skip
 
     def _wrench_launches(self, at: State) -> list:
         """Every force element's wrench rows at the state `at`: the springs, the drives' coordinate rows, the

@@ -451,7 +451,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         reasons = (
             (m.element_count == 0, "no force elements"),
             (m.world_count > 1, "batched worlds"),
-            (bool(self._dampers.names or self._dampers.kept), "springs or dampers stiff for dt"),
+            (bool(self._dampers.kept), "springs or dampers stiff for dt kept in RK4 at this order"),
         )  # fmt: skip
         why = ", ".join(why for needed, why in reasons if needed) or self._velocity_forces()
         if wanted and why:
@@ -468,8 +468,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             return f"a damped spring ({m.spring_name[damped[0]]!r})"
         drives = m.drive_element.numpy()
         modes = m.host.drive_mode[drives]
-        terms = np.any(self._dampers.drive_gains.numpy()[drives, 1:] != 0.0, axis=1)  # ki, kd
-        moving = np.flatnonzero((modes == force_kernels.VELOCITY_MODE) | ((modes != force_kernels.EFFORT_MODE) & terms))
+        gains = self._dampers.drive_gains.numpy()[drives]  # the implicit dampers' terms zeroed: they act apart
+        terms = np.where(modes[:, None] == force_kernels.VELOCITY_MODE, gains, gains * [0.0, 1.0, 1.0])  # kp of a
+        moving = np.flatnonzero((modes != force_kernels.EFFORT_MODE) & np.any(terms != 0.0, axis=1))  # rate; ki, kd
         if len(moving):
             return f"a drive with a velocity, damping or integral term ({m.drive_name[drives[moving[0]]]!r})"
         return ""
