@@ -294,6 +294,20 @@ def test_reuse_factor_flag_is_taken_and_recorded(flag, order, taken, tmp_path, c
         assert code == 2 and any("reuse_factor needs" in line and "'cg'" in line for line in lines), lines
 
 
+def test_split_forces_flag_is_taken_and_recorded(tmp_path, capsys):
+    """`--split-forces` sets `StepOptions(split_forces=...)` and the file records what ran (customLayerData
+    warpimpulse:split_forces); asked for on a scene without force elements, one line and exit 2."""
+    from pxr import Sdf
+
+    out = tmp_path / "x.usda"
+    args = ["simulate", "--scene", "chain", "--duration", "0.1", "--out", str(out)]
+    for flag in ("auto", "off"):
+        code, _ = run([*args, "--split-forces", flag], capsys)
+        assert code == 0 and Sdf.Layer.FindOrOpen(str(out)).customLayerData["warpimpulse:split_forces"] is False
+    code, lines = run([*args, "--split-forces", "on"], capsys)
+    assert code == 2 and any("split_forces needs" in line and "no force elements" in line for line in lines), lines
+
+
 @pytest.mark.parametrize(("flag", "taken"), [("auto", False), ("on", True), ("off", False)])
 def test_newton_flag_is_taken_and_recorded(flag, taken, tmp_path, capsys):
     """`--newton` sets `Simulator(newton=...)` (auto: off for a chain of a few bodies) and the file records what

@@ -98,6 +98,14 @@ def _add_simulate(sub) -> None:
         help="keep K's factor across steps while it serves, factoring again where it costs solves (auto: at order 4 "
         "and 6, with the fused cholesky step without limits, motors' rows, distance rows or loops)",
     )
+    p.add_argument(
+        "--split-forces",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="springs and motors whose force depends on the poses alone act as half kicks about each step, the "
+        "bodies predicted alone (auto: wherever every element allows it: no explicit damper, velocity drive or "
+        "PID integral, one world)",
+    )
     p.add_argument("--on-max-iterations", choices=("raise", "warn"), default="raise",
                    help="stop the run (keeping the frames so far) or warn and go on")  # fmt: skip
     p.add_argument("--max-rotation", type=_positive(float), default=0.5,
@@ -377,6 +385,7 @@ def _simulate(args) -> int:
             carry=AUTO_ON_OFF[args.carry],
             defer_velocities=AUTO_ON_OFF[args.defer_velocities],
             reuse_factor=AUTO_ON_OFF[args.reuse_factor],
+            split_forces=AUTO_ON_OFF[args.split_forces],
         ),
     )
     if sim.accuracy is not None:

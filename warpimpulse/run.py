@@ -72,6 +72,7 @@ def settings(sim: Any) -> dict[str, Any]:
         "carry": sim.carry,  # the first joint iteration's carried right-hand side
         "defer_velocities": sim.defer_velocities,  # velocities corrected only where a frame is handed out
         "reuse_factor": sim.reuse_factor,  # K's factor kept across steps where it serves
+        "split_forces": sim.split_forces,  # elements of the poses alone as half kicks about each step
         **({"accuracy": sim.accuracy.plan.accuracy} if sim.accuracy is not None else {}),  # m: dt is the largest step
     }
 

@@ -104,10 +104,10 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             (`accuracy.py`, docs/accuracy.md); `StepStats.error_estimate` reports it. Contacts and batched worlds
             are refused; scenes with limits, stiff motors or distance rows are controlled at order 2.
         options: the performance switches (`StepOptions`): schedule, formulation, composition scheme, Newton step,
-            carried right-hand side, deferred velocity correction, kernel specialization, spin splits, halving
-            depth and the contacts' broad phase and sweeps. Each chooses itself from the scene and the machine
-            by default. `legacy`: the same switches as keywords, the old spelling, deprecated (a
-            DeprecationWarning names the new one).
+            carried right-hand side, deferred velocity correction, kept factor, split forces, kernel
+            specialization, spin splits, halving depth and the contacts' broad phase and sweeps. Each chooses
+            itself from the scene and the machine by default. `legacy`: the same switches as keywords, the old
+            spelling, deprecated (a DeprecationWarning names the new one).
         """
         if not isinstance(model, Model):
             raise TypeError(f"model must be a Model (from SceneBuilder.finalize()), got {type(model).__name__}")
