@@ -81,8 +81,20 @@ def measure(scene: sk.Loaded, ctrl: np.ndarray, ref: np.ndarray, order: int, rat
     for split in (False, None):
         sim = wi.Simulator(scene.model, 1.0 / rate, order=order, options=wi.StepOptions(split_forces=split))
         sims["split" if split is None else "coupled"] = sim
+
+    def error(sim: wi.Simulator) -> float:
+        points = scene.probe.points(sim.positions(), sim.orientations())
+        return float(np.linalg.norm(points - ref, axis=1).max())
+
+    return {"order": order, "rate": rate} | timed(sims, ctrl, n, rounds, error)
+
+
+def timed(sims: dict, ctrl: np.ndarray, n: int, rounds: int, error) -> dict:
+    """Each simulator of `sims` run n steps from its reset with the controls, `rounds` times in turn: per name,
+    the median and least CPU time a step (us), `error(sim)` of the last run, its linear solves a step and
+    whether it kicked."""
     times = {name: [] for name in sims}
-    out = {"order": order, "rate": rate}
+    out = {}
     for _ in range(rounds):
         for name, sim in sims.items():
             sim.reset()
@@ -90,8 +102,7 @@ def measure(scene: sk.Loaded, ctrl: np.ndarray, ref: np.ndarray, order: int, rat
             start = time.process_time()
             stats = sim.step(n)
             times[name].append((time.process_time() - start) / n)
-            error = float(np.linalg.norm(scene.probe.points(sim.positions(), sim.orientations()) - ref, axis=1).max())
-            out[name] = {"kicked": bool(sim._kicked), "error": error, "solves": stats.linear_iterations / n}
+            out[name] = {"kicked": bool(sim._kicked), "error": error(sim), "solves": stats.linear_iterations / n}
     for name in sims:
         out[name] |= {"us": statistics.median(times[name]) * 1e6, "us_min": min(times[name]) * 1e6}
     return out
@@ -115,20 +126,11 @@ def shipped(name: str, rounds: int) -> dict:
     reference.step(int(round(SHIPPED_WINDOW * SHIPPED_REFINE / dt)))
     n = int(round(SHIPPED_WINDOW / dt))
     sims = {"coupled": simulator(dt, False), "split": simulator(dt, None)}
-    times = {name: [] for name in sims}
-    out = {"dt": dt, "implicit_dampers": len(sims["split"].implicit_dampers)}
-    for _ in range(rounds):
-        for key, sim in sims.items():
-            sim.reset()
-            sim.set_controls(ctrl)
-            start = time.process_time()
-            stats = sim.step(n)
-            times[key].append((time.process_time() - start) / n)
-            error = float(np.abs(sim.positions() - reference.positions()).max())
-            out[key] = {"kicked": bool(sim._kicked), "error": error, "solves": stats.linear_iterations / n}
-    for key in sims:
-        out[key] |= {"us": statistics.median(times[key]) * 1e6, "us_min": min(times[key]) * 1e6}
-    return out
+
+    def error(sim: wi.Simulator) -> float:
+        return float(np.abs(sim.positions() - reference.positions()).max())
+
+    return {"dt": dt, "implicit_dampers": len(sims["split"].implicit_dampers)} | timed(sims, ctrl, n, rounds, error)
 
 
 def table(results: dict) -> str:

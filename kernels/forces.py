@@ -559,6 +559,27 @@ def body_derivative(
 
 
 @wp.func
+def gathered_wrench(
+    b: int,
+    force: vec3d,
+    torque: vec3d,
+    body_wrench_start: wp.array(dtype=int),
+    body_wrench_rows: wp.array(dtype=int),
+    wrench_force: wp.array(dtype=vec3d),
+    wrench_torque: wp.array(dtype=vec3d),
+):
+    """(force, torque) plus body b's element wrench rows, in the rows' order (so the sum is the same on every
+    device, without atomics)."""
+    k = body_wrench_start[b]
+    while k < body_wrench_start[b + 1]:
+        r = body_wrench_rows[k]
+        force += wrench_force[r]
+        torque += wrench_torque[r]
+        k += 1
+    return force, torque
+
+
+@wp.func
 def rk4_stage_body(
     b: int,
     stage: int,
@@ -600,14 +621,9 @@ def rk4_stage_body(
         body_v_out[b] = start_v[b]
         body_w_out[b] = start_w[b]
         return
-    force = body_force[b]
-    torque = body_torque[b]
-    k = body_wrench_start[b]
-    while k < body_wrench_start[b + 1]:
-        r = body_wrench_rows[k]
-        force += wrench_force[r]
-        torque += wrench_torque[r]
-        k += 1
+    force, torque = gathered_wrench(
+        b, body_force[b], body_torque[b], body_wrench_start, body_wrench_rows, wrench_force, wrench_torque
+    )  # fmt: skip
     dx, dv, dq, dw = body_derivative(
         body_q_in[b], body_v_in[b], body_w_in[b], inv_mass, body_inertia[b], body_inv_inertia[b], force, torque, gravity
     )
@@ -659,14 +675,9 @@ def kick_body(
     inv_mass = body_inv_mass[b]
     if inv_mass == f64(0.0):
         return
-    force = vec3d()
-    torque = vec3d()
-    k = body_wrench_start[b]
-    while k < body_wrench_start[b + 1]:
-        r = body_wrench_rows[k]
-        force += wrench_force[r]
-        torque += wrench_torque[r]
-        k += 1
+    force, torque = gathered_wrench(
+        b, vec3d(), vec3d(), body_wrench_start, body_wrench_rows, wrench_force, wrench_torque
+    )  # fmt: skip
     body_v[b] = body_v[b] + force * (inv_mass * dt)
     body_w[b] = body_w[b] + symmetric_times(inv_inertia_world[b], torque) * dt
 

@@ -124,6 +124,18 @@ def _state(sim) -> np.ndarray:
     return np.concatenate([x, q, v, w], axis=1)
 
 
+def _symmetry_gaps(sim) -> list[float]:
+    """The largest state difference from the current state after step(h) then step(-h), h = 1/30 and 1/60."""
+    start = _state(sim)
+    gaps = []
+    for h in (1 / 30, 1 / 60):
+        sim.set_state(start[:, :3], start[:, 3:7], start[:, 7:10], start[:, 10:])
+        for hh in (h, -h):
+            sim._advance(hh, sim.max_substep_depth, (1.0,))
+        gaps.append(np.abs(_state(sim) - start).max())
+    return gaps
+
+
 @pytest.mark.parametrize("joint", JOINTS)
 def test_step_is_symmetric(joint):
     """step(h) then step(-h) returns to the start, with an error shrinking like h^5 or faster (the RK4 free
@@ -137,13 +149,7 @@ def test_step_is_symmetric(joint):
     )
     for _ in range(10):
         sim.step()  # moving, on the constraints
-    start = _state(sim)
-    gaps = []
-    for h in (1 / 30, 1 / 60):
-        sim.set_state(start[:, :3], start[:, 3:7], start[:, 7:10], start[:, 10:])
-        for hh in (h, -h):
-            sim._advance(hh, sim.max_substep_depth, (1.0,))
-        gaps.append(np.abs(_state(sim) - start).max())
+    gaps = _symmetry_gaps(sim)
     print(f"\n{joint}: step(h) step(-h) from the start: {gaps[0]:.3g} at h = 1/30, {gaps[1]:.3g} at 1/60")
     assert gaps[1] < 1e-6
     assert gaps[1] < 1e-12 or gaps[0] / gaps[1] > 2**4.5
@@ -360,13 +366,7 @@ def test_split_forces_keep_the_step_symmetric_and_order_4():
     sim = warpimpulse.Simulator(model, 1 / 30, tolerance=1e-13, options=warpimpulse.StepOptions(defer_velocities=False))
     assert sim._kicked
     sim.step(10)
-    start = _state(sim)
-    gaps = []
-    for h in (1 / 30, 1 / 60):
-        sim.set_state(start[:, :3], start[:, 3:7], start[:, 7:10], start[:, 10:])
-        for hh in (h, -h):
-            sim._advance(hh, sim.max_substep_depth, (1.0,))
-        gaps.append(np.abs(_state(sim) - start).max())
+    gaps = _symmetry_gaps(sim)
     assert gaps[1] < 1e-9 and gaps[0] / gaps[1] > 2**4.5, gaps
 
     coupled = warpimpulse.StepOptions(split_forces=False)
