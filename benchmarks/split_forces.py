@@ -186,7 +186,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"split_forces: {missing}", file=sys.stderr)
             return 2
         sk.quiet_warp()
-        results = {"meta": sk.meta(sys.argv[1:] if argv is None else argv) | {"rounds": args.rounds}, "scenes": {}}
+        argv = sys.argv[1:] if argv is None else argv
+        command = "python benchmarks/split_forces.py " + " ".join(argv)
+        results = {"meta": sk.meta(argv) | {"command": command.strip(), "rounds": args.rounds}, "scenes": {}}
         for name, (fraction, configs) in CASES.items():
             scene = sk.load(next(k for k in sk.KINDS if k.name == name))
             ctrl = controls(scene, fraction)
