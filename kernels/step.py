@@ -1021,9 +1021,10 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
     `rows`: the scene has joint limits, stiff motors or distance constraints (`Rows`, kernels/limits.py), rows of
     the correction loop solved after the joints in each iteration, then after the velocity correction, on their
     own system S, formed with the factor at each new state; the host passes one stage (the parallel schedule
-    takes such steps at order 2: impacts and saturation are not reversible). `kicked` (not with `forced`): the
-    force elements depend on the poses alone, and act as two half kicks about each base step, whose prediction
-    is each body's own (`kick_all`, `Simulator`'s `split_forces`). The iterative baseline has none."""
+    takes such steps at order 2: impacts and saturation are not reversible). `kicked`: the force elements depend on
+    the poses alone, and act as two half kicks about each base step, whose prediction is each body's own with the
+    implicit dampers on it (`kick_all`, `Simulator`'s `split_forces`; the simulator never sets it with `forced`).
+    The iterative baseline has none."""
     ck = specialized(kinds)
     Elements = ForceElements if forced or kicked else Absent  # noqa: N806 (the types of two kernel arguments)
     LimitRows = Rows if rows else Absent  # noqa: N806
