@@ -530,10 +530,14 @@ def kick_all(
     body_q: wp.array(dtype=quatd),
     body_v: wp.array(dtype=vec3d),
     body_w: wp.array(dtype=vec3d),
+    formed: bool,
 ):
     """Every force element's wrench at the state's poses, acting on the bodies for dt (s): the half kick at each
-    end of a split base step (`kick_body`; the frames' world inverse inertias are the state's)."""
-    element_wrenches(el, body_x, body_q, body_v, body_w)
+    end of a split base step (`kick_body`; the frames' world inverse inertias are the state's). `formed`: the
+    wrench rows already hold the elements' wrenches at these poses (the last stage's second kick; a kick's
+    elements read no velocity), and are not formed again."""
+    if not formed:
+        element_wrenches(el, body_x, body_q, body_v, body_w)
     b = wp.int32(0)
     while b < body_count:
         kick_body(
@@ -1333,6 +1337,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
                 failed = verr
             finish(status_out, 0, left, 0, solves, solves, f64(0.0), verr, failed, spin)
             return
+        kicked_here = wp.bool(False)  # the wrench rows hold the kicks' at the state's poses (`kick_all`)
         k = wp.int32(0)
         while k < batch_in[0]:
             status_out[k, STATUS_SPIN] = spin
@@ -1365,7 +1370,7 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
                 if wp.static(kicked):  # the first half kick, at the stage's start (its frames are the state's)
                     kick_all(
                         body_count, f64(0.5) * hs, body_inv_mass, inv_inertia_world, elements, state_x, state_q,
-                        state_v, state_w,
+                        state_v, state_w, kicked_here,
                     )  # fmt: skip
                 if wp.static(forced):
                     coupled_predict_all(
@@ -1564,8 +1569,9 @@ def fused(kinds: frozenset[int], forced: bool = False, rows: bool = False, kicke
                 if wp.static(kicked):  # the second half kick, at the accepted poses, before any velocity correction
                     kick_all(
                         body_count, f64(0.5) * hs, body_inv_mass, inv_inertia_world, elements, state_x, state_q,
-                        state_v, state_w,
+                        state_v, state_w, False,
                     )  # fmt: skip
+                    kicked_here = True  # the next stage starts at these poses: its first kick takes these rows
                 # The velocity correction where the state is handed out (`defer` == 0: every stage's): a deferred
                 # one is the next joint correction's, which reaches the same velocities (`Simulator.defer_velocities`;
                 # never with rows, whose velocity pass reads them).
