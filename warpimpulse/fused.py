@@ -28,6 +28,13 @@ _CODE, _SPIN = step_kernels.STATUS_CODE, step_kernels.STATUS_SPIN
 class FusedSteps:
     """The fused schedule of a `Simulator` (a part of it: one kernel over its arrays, the host reading a row a step)."""
 
+    def _take_fused_kernels(self) -> None:
+        """The fused kernels for the scene's kinds and rows and for how its force elements act now (coupled,
+        kicked or not at all: `Simulator._follow_elements`), and the elements they take."""
+        rows = self.model.limit_count > 0  # limits, stiff motors, distance constraints (kernels/limits.py)
+        self._fused = step_kernels.fused(self._fused_kinds, self._forced, rows, self._kicked)
+        self._elements = self._force_elements()
+
     def _force_elements(self) -> step_kernels.ForceElements | step_kernels.Absent:
         """The force elements and the coupled prediction's scratch, for the fused kernel (`Absent` without)."""
         if not (self._forced or self._kicked):

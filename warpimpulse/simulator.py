@@ -532,10 +532,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         else:
             self._launches_by_h, self._loops_by_h = {}, {}
             if self.schedule == "fused":
-                self._fused = step_kernels.fused(
-                    self._fused_kinds, self._forced, self.model.limit_count > 0, self._kicked
-                )  # fmt: skip
-                self._elements = self._force_elements()
+                self._take_fused_kernels()
                 self._fused_by_h, self._tick, self._substep_by_h = {}, (None, ()), {}
         self._use_step_size(self.dt)
 
@@ -550,11 +547,9 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
         gap = capabilities.first_gap("fused", self.features, "falls back")
         if gap is not None:
             return "parallel", gap[1].note
-        rows = self.model.limit_count > 0  # limits, stiff motors, distance constraints (kernels/limits.py)
         kinds = frozenset(self.model.kinds) if specialize else constraint_kernels.ALL_KINDS
         self._fused_kinds = frozenset(int(k) for k in kinds)
-        self._fused = step_kernels.fused(self._fused_kinds, self._forced, rows, self._kicked)
-        self._elements = self._force_elements()
+        self._take_fused_kernels()
         # A row a step, and the launch's OK steps summed up in the last (`kernels/step.py` `finish`).
         self._status = wp.zeros(
             (self.FUSED_BATCH + 1, step_kernels.STATUS_WIDTH), dtype=wp.float64, device=self.model.device
@@ -570,7 +565,7 @@ class Simulator(Readout, Recording, ParallelSteps, FusedSteps, Checkpoints, Inpu
             status, memoryview(status[-1]), memoryview(self._batch.numpy()), memoryview(self._spin_in.numpy())
         )  # fmt: skip
         # A step with rows is taken at order 2, as the parallel schedule takes it (ROWS_FALLBACK).
-        self._fused_stages = (1.0,) if rows else self.scheme.stages
+        self._fused_stages = (1.0,) if self.model.limit_count else self.scheme.stages
         fell_back = len(self._fused_stages) < len(self.scheme.stages)
         self._fused_order = (2, ROWS_FALLBACK) if fell_back else (self.order, "")  # the StepStats' order, fallback
         self._stages = wp.array(self._fused_stages, dtype=wp.float64, device=self.model.device)
